@@ -1,0 +1,37 @@
+"""jaxabc: Approximate Bayesian Computation on JAX for calibrating simulators.
+
+The public API::
+
+    prior = jaxabc.Uniform(low, high, names=("sigma", "epsilon"))
+    result = jaxabc.run("apmcabc", simulate, prior, observed, num_particles=1000, num_steps=6)
+    result.bayes_estimate(); result.correlation(); result.save("run.npz")
+"""
+
+__version__ = "0.1.0"
+
+from jaxabc import distances, kernels
+from jaxabc.algorithms import BUILDERS as ALGORITHMS
+from jaxabc.errors import SimulationFailure, TooManyFailures
+from jaxabc.executors import ProcessPoolExecutor, SerialExecutor, SimulationBatch, VmapExecutor
+from jaxabc.priors import Uniform
+from jaxabc.results import ABCResult, load
+from jaxabc.run import run
+from jaxabc.seeding import seed_from_key
+
+__all__ = [
+    "ALGORITHMS",
+    "ABCResult",
+    "ProcessPoolExecutor",
+    "SerialExecutor",
+    "SimulationBatch",
+    "SimulationFailure",
+    "TooManyFailures",
+    "Uniform",
+    "VmapExecutor",
+    "__version__",
+    "distances",
+    "kernels",
+    "load",
+    "run",
+    "seed_from_key",
+]

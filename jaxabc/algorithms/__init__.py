@@ -1,0 +1,13 @@
+"""ABC algorithms as pure ``init`` / ``propose`` / ``update`` functions (see :mod:`.base`)."""
+
+from jaxabc.algorithms import apmc, pmc, subsim
+from jaxabc.algorithms.base import ABCAlgorithm, Info, Proposal, make_jax_step
+
+BUILDERS = {
+    "apmcabc": apmc.build,
+    "abcsubsim": subsim.build,
+    "pmcabc": pmc.build,
+    "rejection": pmc.build_rejection,
+}
+
+__all__ = ["BUILDERS", "ABCAlgorithm", "Info", "Proposal", "apmc", "make_jax_step", "pmc", "subsim"]

@@ -1,0 +1,50 @@
+"""Exceptions and status codes shared by the inference core and its simulators.
+
+A simulator signals a failed run (a crashed program, an exploded or vaporised system, a timeout)
+by raising :class:`SimulationFailure` on the host side, or, inside JAX, by returning non-finite
+summaries.  Executors turn either into data: a status code and a reason per particle.  The
+particle then gets distance ``+inf`` and the run goes on.
+"""
+
+from __future__ import annotations
+
+__all__ = [
+    "STATUS_FAILED",
+    "STATUS_NAMES",
+    "STATUS_NONFINITE",
+    "STATUS_OK",
+    "STATUS_TIMEOUT",
+    "STATUS_WORKER_DIED",
+    "SimulationFailure",
+    "TooManyFailures",
+]
+
+STATUS_OK = 0
+#: The simulator raised (any exception, :class:`SimulationFailure` included).
+STATUS_FAILED = 1
+#: The simulator returned NaN or infinite summaries.
+STATUS_NONFINITE = 2
+#: The simulator ran past the executor's time limit and was stopped.
+STATUS_TIMEOUT = 3
+#: The worker process running the simulation died (killed, segfault, out of memory).
+STATUS_WORKER_DIED = 4
+
+STATUS_NAMES = {
+    STATUS_OK: "ok",
+    STATUS_FAILED: "failed",
+    STATUS_NONFINITE: "non-finite summaries",
+    STATUS_TIMEOUT: "timeout",
+    STATUS_WORKER_DIED: "worker died",
+}
+
+
+class SimulationFailure(RuntimeError):
+    """Raised by a host-side simulator when a run produced no usable summaries.
+
+    The message is recorded verbatim as the failure's reason, so say what happened and,
+    where it helps, the measured value (``"density 10.2 kg/m3 < 500 kg/m3: the box vaporised"``).
+    """
+
+
+class TooManyFailures(RuntimeError):
+    """Raised by the driver when the fraction of failed simulations exceeds its limit."""

@@ -1,0 +1,425 @@
+"""Where a batch of simulations runs: one interface for every backend.
+
+An executor maps a simulator over parameter vectors::
+
+    batch = executor.map(simulate, keys, thetas)
+
+``keys`` has one PRNG key per task (raw ``uint32`` key data, shape (m, 2)), ``thetas`` has shape
+(m, d).  The result, :class:`SimulationBatch`, holds the summaries (NaN where a task failed),
+a status code and a reason per task, its wall time and the worker that ran it.  Task ``i`` always
+gets key ``i``, so the summaries do not depend on which worker ran which task, or in which order:
+the same seed gives the same result on every executor.
+
+Implementations
+---------------
+:class:`VmapExecutor`
+    In-process, ``jax.jit(jax.vmap(simulate))`` in memory-bounded chunks, for JAX simulators.
+:class:`SerialExecutor`
+    In-process, one task after another, for host (non-JAX) simulators and debugging.
+:class:`ProcessPoolExecutor`
+    Local worker processes with dynamic allocation: a free worker pulls the next single task.
+    A task that raises, runs past the timeout (the worker is killed and replaced) or kills its
+    worker becomes a failure record; the run goes on.
+MPI executors (dynamic pull queue and static chunks) live in :mod:`jaxabc.mpi` and follow the
+same interface.
+"""
+
+from __future__ import annotations
+
+import multiprocessing as mp
+import os
+import signal
+import time
+import traceback
+from collections.abc import Callable
+from typing import Any, NamedTuple, Protocol
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxabc.errors import (
+    STATUS_FAILED,
+    STATUS_NONFINITE,
+    STATUS_OK,
+    STATUS_TIMEOUT,
+    STATUS_WORKER_DIED,
+    SimulationFailure,
+)
+
+__all__ = [
+    "Executor",
+    "ProcessPoolExecutor",
+    "SerialExecutor",
+    "SimulationBatch",
+    "VmapExecutor",
+    "get_executor",
+    "mark_nonfinite",
+]
+
+
+class SimulationBatch(NamedTuple):
+    """Outcome of :meth:`Executor.map` for ``m`` tasks.
+
+    Attributes
+    ----------
+    summaries : numpy.ndarray, shape (m, *summary_shape)
+        NaN where the task failed.
+    status : numpy.ndarray of int, shape (m,)
+        :mod:`jaxabc.errors` status codes.
+    reasons : list of str, length m
+        Empty for successes; what went wrong otherwise.
+    wall_time : numpy.ndarray, shape (m,)
+        Seconds per task (a chunk's time shared equally among its tasks under vmap).
+    worker : numpy.ndarray of int, shape (m,)
+        Which worker ran the task (0 for in-process executors).
+    """
+
+    summaries: np.ndarray
+    status: np.ndarray
+    reasons: list[str]
+    wall_time: np.ndarray
+    worker: np.ndarray
+
+
+class Executor(Protocol):
+    """What the driver needs from an executor."""
+
+    name: str
+
+    def map(self, simulate: Callable, keys: np.ndarray, thetas: np.ndarray) -> SimulationBatch: ...
+
+    def close(self) -> None: ...
+
+
+def mark_nonfinite(batch: SimulationBatch) -> SimulationBatch:
+    """Turn successful tasks with NaN/inf summaries into ``STATUS_NONFINITE`` failures."""
+    m = batch.summaries.shape[0]
+    flat = batch.summaries.reshape(m, -1)
+    bad = (batch.status == STATUS_OK) & ~np.all(np.isfinite(flat), axis=1)
+    if not np.any(bad):
+        return batch
+    status = batch.status.copy()
+    status[bad] = STATUS_NONFINITE
+    reasons = list(batch.reasons)
+    for i in np.flatnonzero(bad):
+        n_bad = int(np.sum(~np.isfinite(flat[i])))
+        reasons[i] = f"simulator returned {n_bad} non-finite summaries of {flat.shape[1]}"
+    summaries = batch.summaries.copy()
+    summaries[bad] = np.nan
+    return batch._replace(summaries=summaries, status=status, reasons=reasons)
+
+
+def _wrap_keys(keys: np.ndarray) -> jax.Array:
+    return jax.random.wrap_key_data(jnp.asarray(keys, dtype=jnp.uint32))
+
+
+class VmapExecutor:
+    """Run a JAX simulator in-process, vectorised with ``jax.vmap`` in chunks.
+
+    Parameters
+    ----------
+    chunk_size : int, optional
+        Largest number of tasks per compiled call (default 1024); bounds memory.  Calls are
+        padded (with copies of their first task, discarded afterwards) to a power of two no
+        larger than this, so varying batch sizes compile a handful of shapes, not one each.
+
+    Notes
+    -----
+    A simulator object with a ``simulate_batch(keys, thetas) -> summaries`` method (for engines
+    that manage state outside ``jit``, such as jax-md neighbour-list re-allocation) is called
+    through that method instead of ``jax.vmap``.
+    """
+
+    name = "vmap"
+
+    def __init__(self, chunk_size: int | None = None):
+        if chunk_size is not None and chunk_size < 1:
+            raise ValueError(f"chunk_size must be at least 1, got {chunk_size}")
+        self.chunk_size = chunk_size
+        self._compiled: dict[int, Callable] = {}
+
+    def _batched(self, simulate: Callable) -> Callable:
+        ident = id(simulate)
+        if ident not in self._compiled:
+            batch_fn = getattr(simulate, "simulate_batch", None)
+            if batch_fn is not None:
+                self._compiled[ident] = batch_fn
+            else:
+                self._compiled[ident] = jax.jit(jax.vmap(simulate))
+        return self._compiled[ident]
+
+    def map(self, simulate: Callable, keys: np.ndarray, thetas: np.ndarray) -> SimulationBatch:
+        m = thetas.shape[0]
+        if m == 0:
+            raise ValueError("nothing to simulate: the batch is empty")
+        fn = self._batched(simulate)
+        # Pad every call to a power-of-two size (at most chunk_size) so that batches of varying
+        # size (PMC refills, subset-simulation chains) reuse a handful of compiled shapes.
+        cap = self.chunk_size or 1024
+        size = min(cap, max(64, 1 << max(0, (m - 1).bit_length())))
+        pieces, times = [], np.zeros(m)
+        for start in range(0, m, size):
+            stop = min(start + size, m)
+            idx = np.arange(start, stop)
+            pad = np.concatenate([idx, np.full(size - idx.size, start)])
+            t0 = time.perf_counter()
+            out = np.asarray(fn(_wrap_keys(keys[pad]), jnp.asarray(thetas[pad])))
+            times[start:stop] = (time.perf_counter() - t0) / idx.size
+            pieces.append(out[: idx.size])
+        summaries = np.concatenate(pieces, axis=0)
+        batch = SimulationBatch(summaries, np.zeros(m, np.int32), [""] * m, times,
+                                np.zeros(m, np.int32))
+        return mark_nonfinite(batch)
+
+    def close(self) -> None:
+        self._compiled.clear()
+
+
+def _run_one(simulate: Callable, key: np.ndarray, theta: np.ndarray) -> tuple[Any, int, str]:
+    try:
+        out = np.asarray(simulate(key, theta), dtype=np.float64)
+        return out, STATUS_OK, ""
+    except SimulationFailure as exc:
+        return None, STATUS_FAILED, str(exc)
+    except TimeoutError as exc:
+        return None, STATUS_TIMEOUT, f"timeout: {exc}"
+    except Exception as exc:
+        last = traceback.format_exception_only(type(exc), exc)[-1].strip()
+        return None, STATUS_FAILED, f"simulator raised {last}"
+
+
+def _assemble(outputs: list, status: np.ndarray, reasons: list[str], times: np.ndarray,
+              workers: np.ndarray) -> SimulationBatch:
+    shapes = {o.shape for o in outputs if o is not None}
+    if len(shapes) > 1:
+        raise ValueError(
+            f"the simulator returned summaries of different shapes {sorted(shapes)}: it must "
+            "return the same shape for every parameter vector"
+        )
+    if not shapes:
+        # Every task failed; the shape is unknown, so use one NaN per task and let the driver
+        # report the failures.
+        summaries = np.full((len(outputs), 1), np.nan)
+    else:
+        shape = shapes.pop()
+        summaries = np.full((len(outputs), *shape), np.nan)
+        for i, o in enumerate(outputs):
+            if o is not None:
+                summaries[i] = o
+    return mark_nonfinite(SimulationBatch(summaries, status, reasons, times, workers))
+
+
+class SerialExecutor:
+    """Run tasks one after another in this process (host simulators, debugging).
+
+    The simulator receives raw key data (``uint32[2]``) and a NumPy parameter vector, exactly
+    as in a worker process, so a simulator that works here works in every executor.
+    """
+
+    name = "serial"
+
+    def map(self, simulate: Callable, keys: np.ndarray, thetas: np.ndarray) -> SimulationBatch:
+        m = thetas.shape[0]
+        outputs, status, reasons = [], np.zeros(m, np.int32), [""] * m
+        times = np.zeros(m)
+        for i in range(m):
+            t0 = time.perf_counter()
+            out, status[i], reasons[i] = _run_one(simulate, np.asarray(keys[i]), np.asarray(thetas[i]))
+            times[i] = time.perf_counter() - t0
+            outputs.append(out)
+        return _assemble(outputs, status, reasons, times, np.zeros(m, np.int32))
+
+    def close(self) -> None:
+        pass
+
+
+def _worker_main(conn: Any, simulate: Callable) -> None:
+    # Workers run host simulators; keep JAX (if the simulator imports it) off accelerators.
+    os.environ.setdefault("JAX_PLATFORMS", "cpu")
+    # Own process group: a timeout kills the worker and any program it started (mdrun, lmp).
+    os.setpgrp()
+    while True:
+        try:
+            item = conn.recv()
+        except EOFError:
+            return
+        if item is None:
+            return
+        index, key, theta = item
+        t0 = time.perf_counter()
+        out, status, reason = _run_one(simulate, key, theta)
+        conn.send((index, out, status, reason, time.perf_counter() - t0))
+
+
+class _Worker:
+    def __init__(self, ctx: Any, wid: int, simulate: Callable):
+        self.wid = wid
+        self.conn, child = ctx.Pipe(duplex=True)
+        self.proc = ctx.Process(target=_worker_main, args=(child, simulate), daemon=True)
+        self.proc.start()
+        child.close()
+        self.task: int | None = None
+        self.started = 0.0
+
+    def kill(self) -> None:
+        try:
+            os.killpg(self.proc.pid, signal.SIGKILL)
+        except (ProcessLookupError, PermissionError):
+            self.proc.kill()
+        self.proc.join(timeout=5)
+        self.conn.close()
+
+
+class ProcessPoolExecutor:
+    """Local worker processes with dynamic allocation (a free worker gets the next task).
+
+    Parameters
+    ----------
+    max_workers : int, optional
+        Number of worker processes (default: the number of cores).
+    timeout : float, optional
+        Seconds one task may run.  A task past it has its worker's process group killed (so an
+        external program started by the simulator stops too) and gets ``STATUS_TIMEOUT``; a
+        fresh worker takes the worker's place.
+    start_method : str
+        ``"spawn"`` (default) or ``"forkserver"``; never ``"fork"``, which is unsafe once JAX
+        threads exist in the parent.
+
+    Notes
+    -----
+    Each worker talks to the parent over its own pipe, and the parent watches the workers'
+    process sentinels: a worker that dies (segfault, ``os._exit``, out-of-memory kill) is seen
+    at once, its task is recorded as ``STATUS_WORKER_DIED``, and a new worker is started.  The
+    simulator must be picklable (a module-level function or an instance of a module-level
+    class).  Workers are started on the first :meth:`map` and reused until :meth:`close`.
+    """
+
+    name = "process_pool"
+
+    def __init__(self, max_workers: int | None = None, timeout: float | None = None,
+                 start_method: str = "spawn"):
+        if max_workers is not None and max_workers < 1:
+            raise ValueError(f"max_workers must be at least 1, got {max_workers}")
+        if timeout is not None and timeout <= 0:
+            raise ValueError(f"timeout must be positive, got {timeout}")
+        if start_method not in ("spawn", "forkserver"):
+            raise ValueError("start_method must be 'spawn' or 'forkserver' (fork is unsafe with JAX)")
+        self.max_workers = max_workers or os.cpu_count() or 1
+        self.timeout = timeout
+        self._ctx = mp.get_context(start_method)
+        self._workers: list[_Worker] = []
+        self._simulate: Callable | None = None
+        self._next_id = 0
+
+    def _spawn(self) -> _Worker:
+        worker = _Worker(self._ctx, self._next_id, self._simulate)
+        self._next_id += 1
+        self._workers.append(worker)
+        return worker
+
+    def _start(self, simulate: Callable) -> None:
+        if self._simulate is simulate and self._workers:
+            return
+        self.close()
+        self._simulate = simulate
+        for _ in range(self.max_workers):
+            self._spawn()
+
+    def map(self, simulate: Callable, keys: np.ndarray, thetas: np.ndarray) -> SimulationBatch:
+        from multiprocessing.connection import wait
+
+        self._start(simulate)
+        m = thetas.shape[0]
+        outputs: list = [None] * m
+        status = np.full(m, -1, np.int32)
+        reasons, times, workers = [""] * m, np.zeros(m), np.full(m, -1, np.int32)
+        pending = list(range(m))[::-1]
+        done = 0
+
+        def give(worker: _Worker) -> None:
+            if pending:
+                i = pending.pop()
+                worker.task, worker.started = i, time.time()
+                worker.conn.send((i, np.asarray(keys[i]), np.asarray(thetas[i])))
+
+        for worker in self._workers:
+            give(worker)
+        while done < m:
+            busy = [w for w in self._workers if w.task is not None]
+            ready = wait([w.conn for w in busy] + [w.proc.sentinel for w in busy], timeout=0.5)
+            now = time.time()
+            for worker in list(busy):
+                failure = None
+                if worker.conn in ready:
+                    try:
+                        i, out, st, reason, dt = worker.conn.recv()
+                    except (EOFError, OSError):
+                        failure = STATUS_WORKER_DIED
+                    else:
+                        outputs[i], status[i], reasons[i] = out, st, reason
+                        times[i], workers[i] = dt, worker.wid
+                        worker.task = None
+                        done += 1
+                        give(worker)
+                        continue
+                elif worker.proc.sentinel in ready or not worker.proc.is_alive():
+                    failure = STATUS_WORKER_DIED
+                elif self.timeout is not None and now - worker.started > self.timeout:
+                    failure = STATUS_TIMEOUT
+                if failure is None:
+                    continue
+                i = worker.task
+                worker.kill()
+                self._workers.remove(worker)
+                status[i], times[i], workers[i] = failure, now - worker.started, worker.wid
+                reasons[i] = (
+                    f"timeout: ran longer than {self.timeout} s and was stopped"
+                    if failure == STATUS_TIMEOUT
+                    else f"worker process died (exit code {worker.proc.exitcode}) while running it"
+                )
+                done += 1
+                give(self._spawn())
+        return _assemble(outputs, status, reasons, times, workers)
+
+    def close(self) -> None:
+        for worker in self._workers:
+            try:
+                worker.conn.send(None)
+            except (OSError, ValueError, BrokenPipeError):
+                pass
+        for worker in self._workers:
+            worker.proc.join(timeout=2)
+            if worker.proc.is_alive():
+                worker.kill()
+            else:
+                worker.conn.close()
+        self._workers.clear()
+        self._simulate = None
+
+    def __del__(self) -> None:
+        try:
+            self.close()
+        except Exception:
+            pass
+
+
+def get_executor(executor: str | Executor | None, **options: Any) -> Executor:
+    """Resolve ``"vmap"``, ``"serial"``, ``"process_pool"``, ``"mpi"``, ``"mpi_static"`` or an
+    executor object (returned as is)."""
+    if executor is None or executor == "vmap":
+        return VmapExecutor(**options)
+    if isinstance(executor, str):
+        if executor == "serial":
+            return SerialExecutor()
+        if executor == "process_pool":
+            return ProcessPoolExecutor(**options)
+        if executor in ("mpi", "mpi_static"):
+            from jaxabc import mpi
+
+            return mpi.MPIExecutor(allocation="dynamic" if executor == "mpi" else "static", **options)
+        raise ValueError(
+            f"unknown executor {executor!r}: use 'vmap' (JAX simulators), 'serial', "
+            "'process_pool' (external programs), 'mpi' or 'mpi_static', or pass an executor object"
+        )
+    return executor

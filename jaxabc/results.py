@@ -1,0 +1,272 @@
+"""The posterior record: summaries of the weighted sample, a self-describing file, plots.
+
+A result file is a single ``.npz`` holding the arrays (particles, weights, the record of every
+simulation) and a JSON string ``metadata`` (algorithm, settings, seed, prior, versions,
+threshold history, stopping reason), so it can be read back with NumPy alone.
+"""
+
+from __future__ import annotations
+
+import json
+import platform
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from jaxabc.priors import Uniform
+
+__all__ = ["ABCResult", "load", "versions"]
+
+
+def versions() -> dict[str, str]:
+    """Versions of the packages that shape a result, for result files and benchmarks."""
+    import jax
+
+    out = {"python": platform.python_version(), "numpy": np.__version__, "jax": jax.__version__}
+    try:
+        import jax_md
+
+        from importlib.metadata import version
+
+        out["jax_md"] = version("jax-md") if jax_md else "unknown"
+    except ImportError:
+        pass
+    from jaxabc import __version__
+
+    out["jaxabc"] = __version__
+    return out
+
+
+@dataclass
+class ABCResult:
+    """A weighted posterior sample and the history of the run that produced it.
+
+    Attributes
+    ----------
+    particles : numpy.ndarray, shape (n, d)
+    weights : numpy.ndarray, shape (n,)
+        Normalised, summing to one.
+    distances : numpy.ndarray, shape (n,)
+    thresholds : numpy.ndarray, shape (g,)
+        Tolerance of each completed generation (``inf`` for a prior sample).
+    simulations_per_step : numpy.ndarray, shape (g,)
+        Simulations run to produce each generation.
+    acceptance_rates, ess : numpy.ndarray, shape (g,)
+    num_simulations : int
+    algorithm : str
+    settings : dict
+    prior : Uniform
+    seed : int
+    stop_reason : str
+    wall_time : float
+        Seconds.
+    log_evidence : float or None
+        ABCsubsim's ``log P(d < eps_final)`` estimate.
+    records : dict of numpy.ndarray
+        Every simulation: ``theta (S, d)``, ``summaries (S, ...)``, ``distance``, ``status``,
+        ``wall_time``, ``worker``, ``iteration``, and ``reasons`` (list of str).
+    metadata : dict
+        Versions, executor, distance, anything else worth keeping.
+    """
+
+    particles: np.ndarray
+    weights: np.ndarray
+    distances: np.ndarray
+    thresholds: np.ndarray
+    simulations_per_step: np.ndarray
+    acceptance_rates: np.ndarray
+    ess: np.ndarray
+    num_simulations: int
+    algorithm: str
+    settings: dict
+    prior: Uniform
+    seed: int
+    stop_reason: str = ""
+    wall_time: float = 0.0
+    log_evidence: float | None = None
+    records: dict[str, Any] = field(default_factory=dict)
+    metadata: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        return tuple(self.prior.names)
+
+    @property
+    def num_failures(self) -> int:
+        status = self.records.get("status")
+        return 0 if status is None else int(np.sum(np.asarray(status) != 0))
+
+    def bayes_estimate(self) -> np.ndarray:
+        """Posterior mean, shape (d,) (the Bayes estimate under squared-error loss)."""
+        return np.sum(self.weights[:, None] * self.particles, axis=0)
+
+    def covariance(self) -> np.ndarray:
+        """Weighted posterior covariance, shape (d, d) (reliability-weight corrected)."""
+        return np.atleast_2d(np.cov(self.particles, aweights=self.weights, rowvar=False))
+
+    def correlation(self) -> np.ndarray:
+        """Posterior correlation matrix, shape (d, d)."""
+        cov = self.covariance()
+        sd = np.sqrt(np.diag(cov))
+        return cov / np.outer(sd, sd)
+
+    def effective_sample_size(self) -> float:
+        """Kish's ``1 / sum w^2``."""
+        return float(1.0 / np.sum(self.weights**2))
+
+    def credible_interval(self, level: float = 0.95) -> np.ndarray:
+        """Equal-tailed weighted credible interval per parameter, shape (d, 2)."""
+        if not 0.0 < level < 1.0:
+            raise ValueError(f"level must lie in (0, 1), got {level}")
+        lo_q, hi_q = (1.0 - level) / 2.0, (1.0 + level) / 2.0
+        out = np.empty((self.particles.shape[1], 2))
+        for j in range(self.particles.shape[1]):
+            order = np.argsort(self.particles[:, j])
+            cdf = np.cumsum(self.weights[order])
+            x = self.particles[order, j]
+            out[j] = [x[np.searchsorted(cdf, lo_q * cdf[-1])],
+                      x[min(np.searchsorted(cdf, hi_q * cdf[-1]), x.size - 1)]]
+        return out
+
+    def resample(self, num: int, seed: int = 0) -> np.ndarray:
+        """``num`` equally weighted draws from the weighted sample, shape (num, d)."""
+        rng = np.random.default_rng(seed)
+        return self.particles[rng.choice(self.particles.shape[0], size=num, p=self.weights)]
+
+    def summary(self) -> str:
+        """A few lines for a terminal."""
+        est, ci = self.bayes_estimate(), self.credible_interval(0.95)
+        lines = [
+            f"{self.algorithm}: {self.num_simulations} simulations "
+            f"({self.num_failures} failed), {len(self.thresholds)} steps, "
+            f"final threshold {self.thresholds[-1]:.4g}, ESS {self.effective_sample_size():.0f}, "
+            f"stopped: {self.stop_reason}, {self.wall_time:.1f} s",
+        ]
+        for j, name in enumerate(self.names):
+            unit = self.prior.units[j] if self.prior.units[j] else ""
+            lines.append(f"  {name:>12s} = {est[j]:.5g} {unit}  95% CI [{ci[j, 0]:.5g}, {ci[j, 1]:.5g}]")
+        if len(self.names) > 1:
+            lines.append("  correlation:\n" + np.array2string(self.correlation(), precision=3))
+        return "\n".join(lines)
+
+    # -- files -------------------------------------------------------------------------------
+
+    def to_metadata(self) -> dict:
+        return {
+            "format": "jaxabc-result-1",
+            "algorithm": self.algorithm,
+            "settings": self.settings,
+            "prior": self.prior.to_dict(),
+            "seed": self.seed,
+            "num_simulations": self.num_simulations,
+            "stop_reason": self.stop_reason,
+            "wall_time": self.wall_time,
+            "log_evidence": self.log_evidence,
+            "bayes_estimate": self.bayes_estimate().tolist(),
+            "correlation": self.correlation().tolist(),
+            "reasons": list(self.records.get("reasons", [])),
+            "metadata": self.metadata,
+        }
+
+    def save(self, path: str | Path) -> Path:
+        """Write the result to ``path`` (``.npz`` appended if missing); returns the path."""
+        path = Path(path)
+        if path.suffix != ".npz":
+            path = path.with_suffix(".npz")
+        path.parent.mkdir(parents=True, exist_ok=True)
+        arrays = {
+            "particles": self.particles,
+            "weights": self.weights,
+            "distances": self.distances,
+            "thresholds": self.thresholds,
+            "simulations_per_step": self.simulations_per_step,
+            "acceptance_rates": self.acceptance_rates,
+            "ess": self.ess,
+        }
+        for k, v in self.records.items():
+            if k != "reasons":
+                arrays[f"record_{k}"] = np.asarray(v)
+        tmp = path.with_name(path.name + ".tmp.npz")
+        np.savez_compressed(tmp, metadata=json.dumps(self.to_metadata(), default=_json_default),
+                            **arrays)
+        tmp.replace(path)
+        return path
+
+    # -- plots -------------------------------------------------------------------------------
+
+    def plot_posterior(self, path: str | Path | None = None, truth: np.ndarray | None = None,
+                       params: tuple[int, int] = (0, 1), ax=None):
+        """Weighted Gaussian-KDE contours of two parameters, the Bayes estimate and the truth.
+
+        Returns the matplotlib figure; saves it when ``path`` is given.
+        """
+        import matplotlib
+
+        matplotlib.use("Agg", force=False)
+        import matplotlib.pyplot as plt
+        from scipy.stats import gaussian_kde
+
+        i, j = params
+        if ax is None:
+            fig, ax = plt.subplots(figsize=(5, 4))
+        else:
+            fig = ax.figure
+        x, y = self.particles[:, i], self.particles[:, j]
+        est = self.bayes_estimate()
+        try:
+            kde = gaussian_kde(np.vstack([x, y]), weights=self.weights)
+            pad_x, pad_y = 0.25 * np.ptp(x) + 1e-12, 0.25 * np.ptp(y) + 1e-12
+            gx, gy = np.meshgrid(np.linspace(x.min() - pad_x, x.max() + pad_x, 120),
+                                 np.linspace(y.min() - pad_y, y.max() + pad_y, 120))
+            z = kde(np.vstack([gx.ravel(), gy.ravel()])).reshape(gx.shape)
+            cs = ax.contourf(gx, gy, z, levels=12, cmap="Blues")
+            fig.colorbar(cs, ax=ax, label="posterior density")
+        except (np.linalg.LinAlgError, ValueError):
+            pass  # a degenerate sample has no KDE; the scatter below still shows it
+        ax.scatter(x, y, s=4 + 200 * self.weights / self.weights.max(), c="k", alpha=0.3, lw=0)
+        ax.plot(est[i], est[j], "r*", ms=14, label="Bayes estimate")
+        if truth is not None:
+            ax.plot(truth[i], truth[j], "gX", ms=11, label="true value")
+        units = self.prior.units
+        ax.set_xlabel(f"{self.names[i]}" + (f" [{units[i]}]" if units[i] else ""))
+        ax.set_ylabel(f"{self.names[j]}" + (f" [{units[j]}]" if units[j] else ""))
+        ax.set_title(f"{self.algorithm}: corr {self.correlation()[i, j]:+.3f}")
+        ax.legend(loc="best", fontsize=8)
+        fig.tight_layout()
+        if path is not None:
+            Path(path).parent.mkdir(parents=True, exist_ok=True)
+            fig.savefig(path, dpi=120)
+        return fig
+
+
+def _json_default(obj: Any) -> Any:
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    return str(obj)
+
+
+def load(path: str | Path) -> ABCResult:
+    """Read a result written by :meth:`ABCResult.save`."""
+    path = Path(path)
+    if not path.exists():
+        raise FileNotFoundError(f"no result file at {path}")
+    with np.load(path, allow_pickle=False) as data:
+        meta = json.loads(str(data["metadata"]))
+        if meta.get("format") != "jaxabc-result-1":
+            raise ValueError(f"{path} is not a jaxabc result file (format {meta.get('format')!r})")
+        records = {k[len("record_"):]: data[k] for k in data.files if k.startswith("record_")}
+        records["reasons"] = meta.get("reasons", [])
+        return ABCResult(
+            particles=data["particles"], weights=data["weights"], distances=data["distances"],
+            thresholds=data["thresholds"], simulations_per_step=data["simulations_per_step"],
+            acceptance_rates=data["acceptance_rates"], ess=data["ess"],
+            num_simulations=int(meta["num_simulations"]), algorithm=meta["algorithm"],
+            settings=meta["settings"], prior=Uniform.from_dict(meta["prior"]), seed=meta["seed"],
+            stop_reason=meta.get("stop_reason", ""), wall_time=meta.get("wall_time", 0.0),
+            log_evidence=meta.get("log_evidence"), records=records,
+            metadata=meta.get("metadata", {}),
+        )

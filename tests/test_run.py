@@ -1,0 +1,230 @@
+"""The driver: resume after a real kill, executors, failures, bad inputs, result files, CLI."""
+
+import os
+import pickle
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import jaxabc
+from jaxabc import examples
+from jaxabc.errors import (
+    STATUS_FAILED,
+    STATUS_NONFINITE,
+    STATUS_OK,
+    STATUS_TIMEOUT,
+    STATUS_WORKER_DIED,
+)
+
+HERE = Path(__file__).parent
+
+
+def _job(folder, mode):
+    return subprocess.Popen([sys.executable, str(HERE / "_resume_job.py"), str(folder), mode],
+                            env={**os.environ, "PYTHONPATH": str(HERE.parent)})
+
+
+def test_resume_after_kill_equals_uninterrupted_run(tmp_path):
+    plain = _job(tmp_path, "plain")
+    killed = _job(tmp_path, "ckpt")
+    ckpt = tmp_path / "checkpoint.pkl"
+    deadline = time.time() + 300
+    iteration = 0
+    while time.time() < deadline:
+        if ckpt.exists():
+            try:
+                with open(ckpt, "rb") as fh:
+                    iteration = pickle.load(fh)["iteration"]
+            except (EOFError, pickle.UnpicklingError):
+                iteration = 0
+            if iteration >= 3:
+                break
+        assert killed.poll() is None, "the run finished before it could be killed"
+        time.sleep(0.05)
+    killed.send_signal(signal.SIGKILL)
+    killed.wait()
+    assert killed.returncode == -signal.SIGKILL and 3 <= iteration < 7
+    assert not (tmp_path / "result-ckpt.npz").exists()
+    assert _job(tmp_path, "resume").wait(timeout=600) == 0
+    assert plain.wait(timeout=600) == 0
+    a = jaxabc.load(tmp_path / "result-plain.npz")
+    b = jaxabc.load(tmp_path / "result-resume.npz")
+    np.testing.assert_array_equal(a.particles, b.particles)
+    np.testing.assert_array_equal(a.weights, b.weights)
+    np.testing.assert_array_equal(a.thresholds, b.thresholds)
+    assert a.num_simulations == b.num_simulations == 300 + 6 * 270
+    np.testing.assert_array_equal(a.records["theta"], b.records["theta"])
+
+
+def test_stop_after_iterations_then_resume_in_process(tmp_path, gaussian_problem):
+    prior, simulate, observed = gaussian_problem
+    kw = dict(num_particles=400, num_steps=5, seed=1, distance="euclidean")
+    full = jaxabc.run("abcsubsim", simulate, prior, observed, **kw)
+    part = jaxabc.run("abcsubsim", simulate, prior, observed, checkpoint_dir=tmp_path,
+                      stop_after_iterations=6, **kw)
+    assert "resumable" in part.stop_reason
+    rest = jaxabc.run("abcsubsim", simulate, prior, observed, checkpoint_dir=tmp_path,
+                      resume=True, **kw)
+    np.testing.assert_array_equal(full.particles, rest.particles)
+    assert full.log_evidence == rest.log_evidence
+    with pytest.raises(ValueError, match="different run"):
+        jaxabc.run("abcsubsim", simulate, prior, observed, checkpoint_dir=tmp_path, resume=True,
+                   **{**kw, "seed": 2})
+
+
+def test_host_executors_identical_whatever_the_workers(gaussian_problem):
+    prior, _, observed = gaussian_problem
+    kw = dict(num_particles=200, num_steps=3, seed=4, distance="euclidean")
+    results = [
+        jaxabc.run("apmcabc", examples.host_gaussian_simulate, prior, observed, executor=ex, **kw)
+        for ex in (jaxabc.SerialExecutor(), jaxabc.ProcessPoolExecutor(max_workers=1),
+                   jaxabc.ProcessPoolExecutor(max_workers=3))
+    ]
+    for r in results[1:]:
+        np.testing.assert_array_equal(results[0].particles, r.particles)
+        np.testing.assert_array_equal(results[0].weights, r.weights)
+    assert set(np.unique(results[2].records["worker"])) > {0}
+
+
+def test_vmap_and_host_executors_simulate_the_same_draws():
+    keys = np.asarray(jax.random.key_data(jax.random.split(jax.random.key(0), 50)))
+    thetas = np.linspace(-1, 1, 50, dtype=np.float32)[:, None]
+    a = jaxabc.VmapExecutor(chunk_size=16).map(examples.gaussian_simulate, keys, thetas)
+    b = jaxabc.SerialExecutor().map(examples.gaussian_simulate, keys, thetas)
+    # Same keys give the same draws; XLA's vectorised and scalar code may round the last bit.
+    np.testing.assert_allclose(a.summaries, b.summaries, rtol=1e-6, atol=1e-6)
+
+
+def test_failures_are_recorded_and_the_run_goes_on():
+    jaxabc.Uniform([0.0], [1.0], names=("t",))
+    ex = jaxabc.ProcessPoolExecutor(max_workers=2, timeout=3.0)
+    keys = np.asarray(jax.random.key_data(jax.random.split(jax.random.key(0), 6)))
+    thetas = np.array([[0.05], [0.15], [0.22], [0.27], [0.5], [0.9]])
+    batch = ex.map(examples.flaky_simulate, keys, thetas)
+    assert list(batch.status) == [STATUS_FAILED, STATUS_NONFINITE, STATUS_TIMEOUT,
+                                  STATUS_WORKER_DIED, STATUS_OK, STATUS_OK]
+    assert "vaporised" in batch.reasons[0]
+    assert "non-finite" in batch.reasons[1]
+    assert "timeout" in batch.reasons[2]
+    assert "died" in batch.reasons[3]
+    assert np.all(np.isnan(batch.summaries[:4])) and np.all(np.isfinite(batch.summaries[4:]))
+    # The pool replaced its dead workers and still works.
+    again = ex.map(examples.flaky_simulate, keys[4:], thetas[4:])
+    np.testing.assert_array_equal(again.summaries, batch.summaries[4:])
+    # A whole run over the flaky prior: 30% fail, the run completes and records them.
+    result = jaxabc.run("rejection", examples.flaky_simulate, jaxabc.Uniform([0.0], [1.0]),
+                        np.array([0.6]), num_particles=20, quantile=0.5,
+                        executor=jaxabc.ProcessPoolExecutor(max_workers=2, timeout=2.0), seed=0)
+    status = result.records["status"]
+    assert np.sum(status != STATUS_OK) > 0 and result.particles.min() >= 0.3
+    assert len(result.records["reasons"]) == status.size
+    ex.close()
+
+
+def test_too_many_failures_stop_with_the_reasons():
+    def always_nan(key, theta):
+        return jnp.full((1,), jnp.nan)
+
+    prior = jaxabc.Uniform([0.0], [1.0])
+    with pytest.raises(jaxabc.TooManyFailures, match="100 of 100 simulations failed"):
+        jaxabc.run("apmcabc", always_nan, prior, np.array([0.0]), num_particles=100, seed=0)
+
+
+@pytest.mark.parametrize(
+    "kwargs, error, match",
+    [
+        (dict(observed=np.array([np.nan])), ValueError, "NaN or infinite"),
+        (dict(observed=np.zeros(2)), ValueError, r"shape \(1,\) but the observed data has shape \(2,\)"),
+        (dict(num_particles=0), ValueError, "positive integer"),
+        (dict(alpha=1.5), ValueError, r"alpha must lie in \(0, 1\)"),
+        (dict(alpha=0.0), ValueError, r"alpha must lie in \(0, 1\)"),
+        (dict(algorithm="smc"), ValueError, "unknown algorithm 'smc'"),
+        (dict(distance="l7"), ValueError, "unknown distance"),
+        (dict(executor="gpu-cluster"), ValueError, "unknown executor"),
+        (dict(observed=np.array([])), ValueError, "empty"),
+    ],
+)
+def test_bad_inputs_are_clear_errors(kwargs, error, match, gaussian_problem):
+    prior, simulate, observed = gaussian_problem
+    args = dict(algorithm="apmcabc", observed=observed, num_particles=100)
+    args.update(kwargs)
+    algorithm = args.pop("algorithm")
+    with pytest.raises(error, match=match):
+        jaxabc.run(algorithm, simulate, prior, num_steps=2, **args)
+
+
+def test_simulator_with_wrong_shape_is_caught(gaussian_problem):
+    prior, _, observed = gaussian_problem
+    with pytest.raises(ValueError, match=r"returns summaries of shape \(3,\)"):
+        jaxabc.run("apmcabc", lambda k, t: jnp.zeros(3), prior, observed, num_particles=100,
+                   num_steps=2)
+    with pytest.raises(ValueError, match=r"returned summaries of shape \(3,\)"):
+        jaxabc.run("rejection", lambda k, t: np.zeros(3), prior, observed, num_particles=10,
+                   quantile=0.5, executor="serial")
+
+
+def test_stopping_rule_required_and_budget(gaussian_problem):
+    prior, simulate, observed = gaussian_problem
+    with pytest.raises(ValueError, match="needs a stopping rule"):
+        jaxabc.run("pmcabc", simulate, prior, observed, num_particles=100)
+    r = jaxabc.run("apmcabc", simulate, prior, observed, num_particles=500, alpha=0.1,
+                   acceptance_cutoff=0.0, max_simulations=2000, seed=0)
+    assert r.num_simulations <= 2000 and "budget" in r.stop_reason
+
+
+def test_result_file_roundtrip_and_plot(tmp_path, correlated_problem):
+    prior, simulate, observed = correlated_problem
+    r = jaxabc.run("apmcabc", simulate, prior, observed, num_particles=500, num_steps=3, seed=0,
+                   metadata={"note": "test"})
+    path = r.save(tmp_path / "run")
+    back = jaxabc.load(path)
+    np.testing.assert_array_equal(back.particles, r.particles)
+    np.testing.assert_allclose(back.bayes_estimate(), r.bayes_estimate())
+    assert back.settings["alpha"] == 0.1 and back.metadata["note"] == "test"
+    assert back.prior.names == ("a", "b") and back.records["theta"].shape == (500 + 2 * 450, 2)
+    ci = back.credible_interval(0.9)
+    assert np.all(ci[:, 0] < back.bayes_estimate()) and np.all(back.bayes_estimate() < ci[:, 1])
+    r.plot_posterior(tmp_path / "post.png", truth=np.zeros(2))
+    assert (tmp_path / "post.png").stat().st_size > 10_000
+
+
+def test_cli_runs_a_toml_config_and_resumes(tmp_path):
+    cfg = tmp_path / "gauss.toml"
+    cfg.write_text("""
+[model]
+simulator = "jaxabc.examples:correlated_simulate"
+[prior]
+names = ["a", "b"]
+low = [-10.0, -10.0]
+high = [10.0, 10.0]
+[observed]
+values = [0.0, 0.0]
+[algorithm]
+name = "apmcabc"
+num_particles = 400
+num_steps = 3
+distance = "euclidean"
+seed = 3
+options = { alpha = 0.1 }
+[output]
+folder = "out"
+""")
+    cmd = [sys.executable, "-m", "jaxabc.cli", "run", str(cfg), "--no-progress"]
+    env = {**os.environ, "PYTHONPATH": str(HERE.parent)}
+    out = subprocess.run(cmd, capture_output=True, text=True, env=env, timeout=300)
+    assert out.returncode == 0, out.stderr
+    assert "apmcabc: 1120 simulations" in out.stdout
+    for name in ("result.npz", "posterior.png", "summary.txt", "checkpoint.pkl"):
+        assert (tmp_path / "out" / name).exists()
+    again = subprocess.run([*cmd, "--resume"], capture_output=True, text=True, env=env, timeout=300)
+    assert again.returncode == 0 and "1120 simulations" in again.stdout
+    bad = subprocess.run([sys.executable, "-m", "jaxabc.cli", "run", str(tmp_path / "nope.toml")],
+                         capture_output=True, text=True, env=env, timeout=120)
+    assert bad.returncode == 2 and "no configuration file" in bad.stderr
