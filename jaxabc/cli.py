@@ -153,10 +153,10 @@ def _example(name: str, folder: Path, quick: bool) -> None:
         return
     if name == "helium":
         try:
-            from md import helium
+            from md import helium_calibration
         except ImportError as exc:
             raise SystemExit(f"the helium example needs the md package: {exc}") from None
-        helium.main(["--output", str(folder)] + (["--quick"] if quick else []))
+        helium_calibration.main(["--output", str(folder), *(["--quick"] if quick else [])])
         return
     raise SystemExit(f"unknown example {name!r}: choose from {sorted(EXAMPLES)}")
 

@@ -126,9 +126,10 @@ class VmapExecutor:
 
     Notes
     -----
-    A simulator object with a ``simulate_batch(keys, thetas) -> summaries`` method (for engines
-    that manage state outside ``jit``, such as jax-md neighbour-list re-allocation) is called
-    through that method instead of ``jax.vmap``.
+    A simulator object with a ``simulate_batch(keys, thetas)`` attribute (for engines that
+    manage state outside ``jit``, such as jax-md neighbour-list re-allocation) is called through
+    it instead of ``jax.vmap``; it returns the summaries, or ``(summaries, ok)`` with ``ok`` a
+    boolean mask of members that ran cleanly.
     """
 
     name = "vmap"
@@ -154,6 +155,18 @@ class VmapExecutor:
         if m == 0:
             raise ValueError("nothing to simulate: the batch is empty")
         fn = self._batched(simulate)
+        if hasattr(simulate, "simulate_batch"):
+            # A batch runner pads to its own compiled shape; hand it the tasks as they are.
+            t0 = time.perf_counter()
+            out = fn(_wrap_keys(keys), jnp.asarray(thetas))
+            out, ok = out if isinstance(out, tuple) else (out, None)
+            summaries = np.array(out)
+            ok = np.ones(m, bool) if ok is None else np.asarray(ok, bool)
+            summaries[~ok] = np.nan
+            status = np.where(ok, STATUS_OK, STATUS_NONFINITE).astype(np.int32)
+            reasons = ["" if o else "the engine flagged the run (overflow, box, or blown up)" for o in ok]
+            times = np.full(m, (time.perf_counter() - t0) / m)
+            return mark_nonfinite(SimulationBatch(summaries, status, reasons, times, np.zeros(m, np.int32)))
         # Pad every call to a power-of-two size (at most chunk_size) so that batches of varying
         # size (PMC refills, subset-simulation chains) reuse a handful of compiled shapes.
         cap = self.chunk_size or 1024
@@ -168,8 +181,7 @@ class VmapExecutor:
             times[start:stop] = (time.perf_counter() - t0) / idx.size
             pieces.append(out[: idx.size])
         summaries = np.concatenate(pieces, axis=0)
-        batch = SimulationBatch(summaries, np.zeros(m, np.int32), [""] * m, times,
-                                np.zeros(m, np.int32))
+        batch = SimulationBatch(summaries, np.zeros(m, np.int32), [""] * m, times, np.zeros(m, np.int32))
         return mark_nonfinite(batch)
 
     def close(self) -> None:

@@ -61,8 +61,14 @@ def _cast_prior(prior: Uniform, dtype: Any) -> Uniform:
     return out
 
 
+def _shapes_compatible(simulated: tuple, observed: tuple, distance: Any) -> bool:
+    if getattr(get_distance(distance), "compares_samples", False):
+        return len(simulated) == len(observed) == 1
+    return tuple(simulated) == tuple(observed)
+
+
 def _check_shape(executor: Executor, simulate: Callable, prior: Uniform,
-                 observed: np.ndarray) -> None:
+                 observed: np.ndarray, distance: Any) -> None:
     """Fail early, with a clear message, when a JAX simulator's output shape is wrong."""
     if executor.name != "vmap" or hasattr(simulate, "simulate_batch"):
         return
@@ -74,7 +80,7 @@ def _check_shape(executor: Executor, simulate: Callable, prior: Uniform,
             "A vmap executor needs a JAX-traceable simulator; use executor='serial' or "
             "'process_pool' for other code"
         ) from exc
-    if tuple(out.shape) != observed.shape:
+    if not _shapes_compatible(tuple(out.shape), observed.shape, distance):
         raise ValueError(
             f"the simulator returns summaries of shape {tuple(out.shape)} but the observed data "
             f"has shape {observed.shape}: they must match"
@@ -120,6 +126,9 @@ class _Recorder:
         self.keep_summaries = keep_summaries
         self.chunks: list[dict[str, Any]] = []
 
+    def restore(self, chunks: list[dict[str, Any]]) -> None:
+        self.chunks = chunks
+
     def add(self, iteration: int, thetas, batch, distances) -> None:
         self.chunks.append({
             "theta": np.asarray(thetas, np.float64),
@@ -147,11 +156,16 @@ class _Recorder:
 
     def failures(self) -> tuple[int, int, list[str]]:
         total = sum(len(c["distance"]) for c in self.chunks)
-        failed = [(c["theta"][i], r, c["status"][i]) for c in self.chunks
-                  for i, r in enumerate(c["reasons"]) if c["status"][i] != STATUS_OK]
-        examples = [f"theta={np.array2string(t, precision=4)}: {STATUS_NAMES.get(int(s), s)}: {r}"
-                    for t, r, s in failed[:5]]
-        return total, len(failed), examples
+        failed = sum(int(np.sum(c["status"] != STATUS_OK)) for c in self.chunks)
+        examples: list[str] = []
+        for c in self.chunks:
+            for i in np.flatnonzero(c["status"] != STATUS_OK)[: 5 - len(examples)]:
+                status = STATUS_NAMES.get(int(c["status"][i]), int(c["status"][i]))
+                examples.append(f"theta={np.array2string(c['theta'][i], precision=4)}: {status}: "
+                                f"{c['reasons'][i]}")
+            if len(examples) >= 5:
+                break
+        return total, failed, examples
 
 
 def run(
@@ -267,7 +281,7 @@ def run(
         )
     own_executor = not hasattr(executor, "map")
     ex = get_executor(executor)
-    _check_shape(ex, simulate, prior, obs)
+    _check_shape(ex, simulate, prior, obs, distance)
     distances_of = _make_distance_fn(distance, obs, jdtype)
 
     jit_initial = jax.jit(algo.initial_proposal)
@@ -279,7 +293,7 @@ def run(
     root = jax.random.key(seed)
     ckpt_path = Path(checkpoint_dir) / CHECKPOINT_NAME if checkpoint_dir is not None else None
     recorder = _Recorder(keep_summaries)
-    history: dict[str, list] = {"threshold": [], "sims": [], "acceptance": [], "ess": []}
+    history: dict[str, list] = {"threshold": [], "sims": [], "acceptance": [], "ess": [], "wall": []}
     state = None
     iteration = 0
     num_sims = 0
@@ -307,7 +321,8 @@ def run(
         state = jax.tree.map(jnp.asarray, ck["state"])
         iteration, num_sims = ck["iteration"], ck["num_sims"]
         sims_this_generation = ck["sims_this_generation"]
-        history, recorder.chunks = ck["history"], ck["records"]
+        history = ck["history"]
+        recorder.restore(ck["records"])
         last_posterior, last_level = ck["last_posterior"], ck.get("last_level", 0)
         stop_reason = ck.get("stop_reason", "")
 
@@ -339,7 +354,8 @@ def run(
             distances = np.full(thetas.shape[0], np.inf)
             if n_active:
                 batch = ex.map(simulate, sim_keys[active], thetas[active])
-                if batch.summaries.shape[1:] != obs.shape and np.any(batch.status == STATUS_OK):
+                if np.any(batch.status == STATUS_OK) and not _shapes_compatible(
+                        batch.summaries.shape[1:], obs.shape, distance):
                     raise ValueError(
                         f"the simulator returned summaries of shape {batch.summaries.shape[1:]} "
                         f"but the observed data has shape {obs.shape}: they must match"
@@ -370,6 +386,7 @@ def run(
                 history["sims"].append(sims_this_generation)
                 history["acceptance"].append(float(info.acceptance_rate))
                 history["ess"].append(float(info.ess))
+                history["wall"].append(time.perf_counter() - t_start)
                 sims_this_generation = 0
                 if bar is not None:
                     bar.update(1)
@@ -406,7 +423,10 @@ def run(
     w = np.exp(log_w[keep] - np.max(log_w[keep]))
     meta = {"versions": versions(), "executor": ex.name,
             "distance": distance if isinstance(distance, str) else getattr(distance, "__name__", "custom"),
-            "dtype": dtype, "observed": obs.tolist() if obs.size <= 10_000 else None}
+            "dtype": dtype, "observed": obs.tolist() if obs.size <= 10_000 else None,
+            # Seconds since this process started the run, at the end of each generation (after
+            # a resume, counted from the resume).
+            "generation_wall_times": history["wall"]}
     meta.update(metadata or {})
     log_ev = None
     if algorithm == "abcsubsim":

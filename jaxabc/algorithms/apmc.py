@@ -172,14 +172,18 @@ def build(
 
     def update(key, state, proposal, distances):
         theta = proposal.thetas
-        centre_lw = jnp.where(state.kept, state.log_weights, -jnp.inf)
+        # Kept particles occupy the first n_alpha slots (compacted by _select), so the kernel
+        # mixture only needs those centres: (m, n_alpha) work instead of (m, N).
+        head = slice(0, n_alpha)
+        centres = state.particles[head]
+        centre_lw = jnp.where(state.kept[head], state.log_weights[head], -jnp.inf)
         if abcpy:
             log_norm = None
         else:
-            log_norm = kernels.log_truncation_normalizer(key, state.particles, state.chol, low, high)
-            log_norm = jnp.where(state.kept, log_norm, 0.0)
+            log_norm = kernels.log_truncation_normalizer(key, centres, state.chol, low, high)
+            log_norm = jnp.where(state.kept[head], log_norm, 0.0)
         new_lw = kernels.mixture_log_weights(
-            theta, prior.log_prob(theta), state.particles, centre_lw, state.chol, log_norm
+            theta, prior.log_prob(theta), centres, centre_lw, state.chol, log_norm
         )
         if abcpy:
             acceptance = jnp.mean(distances < state.threshold)
@@ -188,9 +192,8 @@ def build(
             acceptance = jnp.mean(distances <= state.threshold)
             kept_lw = centre_lw
         # Slots [0, n_alpha) hold the kept particles (compacted); [n_alpha, N) the new ones.
-        head = slice(0, n_alpha)
-        particles = jnp.concatenate([state.particles[head], theta])
-        log_weights = jnp.concatenate([kept_lw[head], new_lw])
+        particles = jnp.concatenate([centres, theta])
+        log_weights = jnp.concatenate([kept_lw, new_lw])
         dists = jnp.concatenate([state.distances[head], distances])
         valid = jnp.concatenate([state.kept[head], jnp.ones((m,), bool)])
         log_weights = jnp.where(valid, log_weights, -jnp.inf)

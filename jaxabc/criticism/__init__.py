@@ -1,0 +1,23 @@
+"""Model criticism: what a calibrated simulator gets wrong, why, the extension, and its gain.
+
+::
+
+    from jaxabc.criticism import critique, Catalogue, Effect
+    report = critique(result, simulate_with_effects, observed, catalogue, held_out=[...], seed=0)
+    report.misfits      # flagged, ranked (name, standardised residual, p-value)
+    report.causes       # ranked (effect name, score), with .ambiguous / .note
+    report.extension    # ABCResult over base parameters + the top effect
+    report.gain         # held-out measures with standard errors
+    report.write("report_dir/")
+
+``simulate_with_effects(key, theta_full) -> summaries (s,)`` takes the base parameters followed
+by one parameter per catalogue effect (catalogue order); at the effects' null values it is the
+base simulator.  It is a single-theta function, so ``jax.vmap`` batches it.
+"""
+
+from jaxabc.criticism.causes import Catalogue, Cause, Effect
+from jaxabc.criticism.core import critique
+from jaxabc.criticism.misfit import Misfit, adjust_pvalues
+from jaxabc.criticism.report import CritiqueReport
+
+__all__ = ["Catalogue", "Cause", "CritiqueReport", "Effect", "Misfit", "adjust_pvalues", "critique"]

@@ -1,0 +1,264 @@
+"""The criticism report: Markdown, JSON and PNG figures."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+__all__ = ["CritiqueReport"]
+
+
+def _jsonable(obj: Any) -> Any:
+    if isinstance(obj, dict):
+        return {str(k): _jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, list | tuple):
+        return [_jsonable(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if isinstance(obj, float) and not np.isfinite(obj):
+        return str(obj)
+    return obj
+
+
+@dataclass
+class CritiqueReport:
+    """What :func:`jaxabc.criticism.critique` found.
+
+    Attributes
+    ----------
+    misfits : list of Misfit
+        The *flagged* misfits (after the multiple-testing correction), ranked; each unpacks as
+        ``(name, standardised_residual, p_value)`` and has a ``line``.  Empty when nothing is wrong.
+    all_misfits : list of Misfit
+        Every test, ranked.
+    causes : list of Cause
+        Every catalogue effect, ranked; each unpacks as ``(effect_name, score)``, with
+        ``ambiguous``, ``invisible`` and ``note``.
+    extension : ABCResult or None
+        The refit over base parameters plus the top cause (None when nothing was flagged).
+    base_refit : ABCResult or None
+        The base model refitted with the same distance and settings (the gain's reference).
+    gain : dict
+        Held-out measures with standard errors (see :mod:`jaxabc.criticism.gain`).
+    ambiguities : list of str
+    """
+
+    misfits: list
+    all_misfits: list
+    causes: list
+    extension: Any
+    base_refit: Any
+    gain: dict
+    ambiguities: list[str]
+    predictive: Any = None
+    misfit_analysis: Any = None
+    cause_analysis: Any = None
+    catalogue: Any = None
+    observed: np.ndarray | None = None
+    held_out: np.ndarray | None = None
+    base_result: Any = None
+    settings: dict = field(default_factory=dict)
+    extension_draws: np.ndarray | None = None
+    base_draws: np.ndarray | None = None
+
+    @property
+    def flagged(self) -> bool:
+        """Whether any misfit survived the multiple-testing correction."""
+        return bool(self.misfits)
+
+    @property
+    def verdict(self) -> str:
+        """One sentence."""
+        if not self.misfits:
+            return "No misfit: the calibrated model reproduces every summary and region within its noise."
+        top = self.misfits[0]
+        visible = [c for c in self.causes if not c.invisible]
+        if not visible:
+            return f"Misfit in {top.name}, but no catalogue effect is visible in these summaries."
+        c = visible[0]
+        if c.ambiguous:
+            why = f"the most likely cause is {c.name} but it is ambiguous: {c.note}"
+        elif c.significant:
+            why = f"the most likely cause is {c.name} (score {c.score:.1f}, explains {100 * c.fraction_explained:.0f}% " \
+                  "of the remaining residual)"
+        else:
+            why = f"no catalogue effect explains it significantly (best: {c.name}, score {c.score:.1f})"
+        g = self.gain
+        tail = ""
+        if "delta_lpd" in g:
+            counts = "counts" if g.get("significant") else "does not exceed its uncertainty"
+            tail = (f"; held-out gain of the extension: delta log predictive density {g['delta_lpd']:.1f} "
+                    f"+- {g['delta_lpd_se']:.1f} ({counts})")
+        return f"Misfit in {top.name}; {why}{tail}."
+
+    # -- text ---------------------------------------------------------------------------------
+
+    def to_dict(self) -> dict:
+        d = {
+            "verdict": self.verdict,
+            "misfits": [dict(name=m.name, residual=m.residual, p_value=m.p_value,
+                             adjusted_p_value=m.adjusted_p_value, held_out=m.held_out, kind=m.kind,
+                             observed=m.observed, band=m.band, line=m.line) for m in self.all_misfits],
+            "flagged": [m.name for m in self.misfits],
+            "causes": [dict(name=c.name, score=c.score, statistic=c.statistic, p_value=c.p_value,
+                            adjusted_p_value=c.adjusted_p_value, significant=c.significant,
+                            fraction_explained=c.fraction_explained, estimate=c.estimate, max_snr=c.max_snr,
+                            ambiguous=c.ambiguous, invisible=c.invisible, note=c.note, acts_on=c.acts_on)
+                       for c in self.causes],
+            "ambiguities": self.ambiguities,
+            "gain": self.gain,
+            "settings": self.settings,
+        }
+        if self.misfit_analysis is not None:
+            d["global_chi2"] = dict(statistic=self.misfit_analysis.chi2, dof=self.misfit_analysis.chi2_dof,
+                                    p_value=self.misfit_analysis.chi2_p_value)
+        for label, res in (("extension", self.extension), ("base_refit", self.base_refit)):
+            if res is not None:
+                d[label] = dict(names=list(res.names), bayes_estimate=res.bayes_estimate().tolist(),
+                                ci95=res.credible_interval(0.95).tolist(), num_simulations=res.num_simulations)
+        return _jsonable(d)
+
+    def to_markdown(self, figures: dict[str, str] | None = None) -> str:
+        figures = figures or {}
+        lines = ["# Model criticism report", "", f"**Verdict.** {self.verdict}", ""]
+        if self.base_result is not None:
+            lines += ["## Base calibration", "", "```", self.base_result.summary(), "```", ""]
+        lines += ["## What it gets wrong", ""]
+        corr = self.settings.get("correction", "holm")
+        lines.append(f"Calibrated p-values (refit-adjusted null from replicate simulations at the estimate), "
+                     f"{'Holm' if corr == 'holm' else 'Benjamini-Hochberg'} correction within the fitted and "
+                     f"held-out families at overall level {self.settings.get('alpha')}.")
+        lines.append("")
+        if self.misfits:
+            lines += [f"{i + 1}. {m.line}" for i, m in enumerate(self.misfits)]
+        else:
+            lines.append("Nothing flagged. Closest calls:")
+            lines += [f"- {m.line}" for m in self.all_misfits[:5]]
+        if "misfits" in figures:
+            lines += ["", f"![misfits]({figures['misfits']})"]
+        lines += ["", "## Why: ranked causes", "",
+                  "| rank | effect | score | adjusted p | explains | linearised estimate | note |",
+                  "|---|---|---|---|---|---|---|"]
+        for i, c in enumerate(self.causes):
+            lines.append(f"| {i + 1} | {c.name} | {c.score:.2f} | {c.adjusted_p_value:.2g} | "
+                         f"{100 * c.fraction_explained:.0f}% | {c.estimate:.4g} | {c.note} |")
+        if self.ambiguities:
+            lines += ["", "Ambiguities:"] + [f"- {a}" for a in self.ambiguities]
+        if "causes" in figures:
+            lines += ["", f"![causes]({figures['causes']})"]
+        if self.extension is not None:
+            lines += ["", "## Extension", "", "```", self.extension.summary(), "```"]
+            if "extension" in figures:
+                lines += ["", f"![extension]({figures['extension']})"]
+        if self.gain:
+            lines += ["", "## Gain on held-out summaries", "", "| measure | value |", "|---|---|"]
+            for k, v in self.gain.items():
+                lines.append(f"| {k} | {v if not isinstance(v, float) else f'{v:.4g}'} |")
+            if "gain" in figures:
+                lines += ["", f"![gain]({figures['gain']})"]
+        if self.catalogue is not None and self.catalogue.notes:
+            lines += ["", "## Catalogue notes", "", self.catalogue.notes]
+        return "\n".join(lines) + "\n"
+
+    # -- figures ------------------------------------------------------------------------------
+
+    def _figures(self, out: Path) -> dict[str, str]:
+        import matplotlib
+
+        matplotlib.use("Agg", force=False)
+        import matplotlib.pyplot as plt
+
+        figs: dict[str, str] = {}
+        p = self.predictive
+        if p is not None and self.observed is not None:
+            fig, (ax1, ax2) = plt.subplots(2, 1, figsize=(9, 6), sharex=True)
+            x = np.arange(self.observed.size)
+            band = p.band(self.settings.get("level", 0.9))
+            sd = np.where(p.noise_sd > 0, p.noise_sd, 1.0)
+            ref = p.mean()
+            ax1.fill_between(x, (band[:, 0] - ref) / sd, (band[:, 1] - ref) / sd, color="C0", alpha=0.3,
+                             label="predictive band")
+            ax1.plot(x, (self.observed - ref) / sd, "ko", ms=3, label="observed")
+            ax1.set_ylabel("(y - predictive mean) / noise sd")
+            ax1.legend(fontsize=8)
+            z = np.zeros(x.size)
+            flag = np.zeros(x.size, bool)
+            for m in self.all_misfits:
+                if m.kind == "summary":
+                    z[m.indices[0]] = m.residual
+                    flag[m.indices[0]] = m.flagged
+            ax2.bar(x, z, color=np.where(flag, "C3", "C7"))
+            if self.held_out is not None and self.held_out.any():
+                ax2.plot(x[self.held_out], np.zeros(self.held_out.sum()), "b|", ms=12, label="held out")
+                ax2.legend(fontsize=8)
+            ax2.set_ylabel("calibrated z (red: flagged)")
+            ax2.set_xticks(x)
+            ax2.set_xticklabels(p.names, rotation=90, fontsize=6)
+            fig.tight_layout()
+            fig.savefig(out / "misfits.png", dpi=110)
+            plt.close(fig)
+            figs["misfits"] = "misfits.png"
+        if self.causes:
+            fig, ax = plt.subplots(figsize=(6, 0.4 * len(self.causes) + 1.5))
+            names = [c.name + (" (ambiguous)" if c.ambiguous else "") + (" (invisible)" if c.invisible else "")
+                     for c in self.causes][::-1]
+            ax.barh(names, [c.score for c in self.causes][::-1],
+                    color=["C3" if c.significant else "C7" for c in self.causes][::-1])
+            ax.axvline(2.0, color="k", ls=":", lw=1)
+            ax.set_xlabel("matched-filter score (noise sd)")
+            fig.tight_layout()
+            fig.savefig(out / "causes.png", dpi=110)
+            plt.close(fig)
+            figs["causes"] = "causes.png"
+        if self.extension is not None:
+            fig, ax = plt.subplots(figsize=(5, 3.5))
+            x, w = self.extension.particles[:, -1], self.extension.weights
+            ax.hist(x, bins=30, weights=w, color="C0", alpha=0.7)
+            eff = self.catalogue[self.extension.names[-1]]
+            ax.axvline(eff.null, color="k", ls="--", label="null (no effect)")
+            ci = self.extension.credible_interval(0.95)[-1]
+            ax.axvspan(ci[0], ci[1], color="C1", alpha=0.2, label="95% CI")
+            ax.set_xlabel(f"{eff.name}" + (f" [{eff.unit}]" if eff.unit else ""))
+            ax.legend(fontsize=8)
+            fig.tight_layout()
+            fig.savefig(out / "extension.png", dpi=110)
+            plt.close(fig)
+            figs["extension"] = "extension.png"
+        if self.extension_draws is not None and self.held_out is not None and self.held_out.any():
+            h = np.flatnonzero(self.held_out & p.active)
+            fig, ax = plt.subplots(figsize=(7, 3.5))
+            sd = np.where(p.noise_sd > 0, p.noise_sd, 1.0)[h]
+            for label, draws, c in (("base", self.base_draws, "C7"), ("extended", self.extension_draws, "C2")):
+                q = np.quantile((draws[:, h] - self.observed[h]) / sd, [0.05, 0.5, 0.95], axis=0)
+                ax.errorbar(np.arange(h.size) + (0.15 if c == "C2" else -0.15), q[1], yerr=[q[1] - q[0], q[2] - q[1]],
+                            fmt="o", color=c, label=label, ms=3)
+            ax.axhline(0, color="k", lw=1)
+            ax.set_xticks(np.arange(h.size))
+            ax.set_xticklabels([p.names[i] for i in h], rotation=90, fontsize=6)
+            ax.set_ylabel("(predictive - observed) / noise sd")
+            g = self.gain
+            ax.set_title(f"held out: delta lpd {g.get('delta_lpd', float('nan')):.1f} +- "
+                         f"{g.get('delta_lpd_se', float('nan')):.1f}", fontsize=9)
+            ax.legend(fontsize=8)
+            fig.tight_layout()
+            fig.savefig(out / "gain.png", dpi=110)
+            plt.close(fig)
+            figs["gain"] = "gain.png"
+        return figs
+
+    def write(self, directory: str | Path, figures: bool = True) -> Path:
+        """Write ``report.md``, ``report.json`` and PNG figures into ``directory``; returns its path."""
+        out = Path(directory)
+        out.mkdir(parents=True, exist_ok=True)
+        figs = self._figures(out) if figures else {}
+        (out / "report.md").write_text(self.to_markdown(figs))
+        (out / "report.json").write_text(json.dumps(self.to_dict(), indent=1, default=str))
+        if self.extension is not None:
+            self.extension.save(out / "extension.npz")
+        return out
