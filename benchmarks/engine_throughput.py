@@ -1,0 +1,176 @@
+"""Throughput of the jax-md helium engine (batched) against LAMMPS, in the same run.
+
+For each helium set-up (the 1000-atom ``paper`` system and the small ``cpu`` preset) this times
+
+- jax-md: one compiled, vmapped segment of MD steps for batch sizes 1, 8, 32, 128 (the second
+  call, after compilation), NPT with the preset's neighbour strategy;
+- LAMMPS (Debian ``lmp``, one MPI rank, one thread): the same system, same steps.
+
+and writes atom-steps per second, system-steps per second, and both per core to
+``benchmarks/results/engine_throughput.json``.  jax-md uses every core XLA gives it (2 here);
+LAMMPS one.  The machine is shared, so numbers carry the noise of whatever else runs.
+
+Run: ``nice -n 5 python benchmarks/engine_throughput.py [--quick]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import time
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from md import helium, lammps_reference
+
+RESULTS = Path(__file__).resolve().parent / "results" / "engine_throughput.json"
+
+
+def time_jax_md(preset: helium.HeliumPreset, batch: int, num_blocks: int) -> dict:
+    """Seconds for ``num_blocks * rebuild_every`` NPT steps of ``batch`` systems (compiled)."""
+    engine = helium.make_engine(preset)
+    thetas = jnp.tile(jnp.asarray(helium.TRUE_THETA, jnp.float32), (batch, 1))
+    keys = jax.random.split(jax.random.PRNGKey(0), batch)
+    init = jax.jit(jax.vmap(lambda k, t: engine.init(k, helium._params(t))))
+
+    @jax.jit
+    def segment(carry, thetas):
+        return jax.vmap(lambda c, t: engine.run(c, helium._params(t), num_blocks, 1)[0])(
+            carry, thetas
+        )
+
+    carry = init(keys, thetas)
+    t0 = time.perf_counter()
+    carry = segment(carry, thetas)
+    jax.block_until_ready(carry)
+    compile_s = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    carry = segment(carry, thetas)
+    jax.block_until_ready(carry)
+    seconds = time.perf_counter() - t0
+    d = carry.diagnostics
+    steps = num_blocks * preset.rebuild_every
+    cores = os.cpu_count() or 1
+    return {
+        "engine": "jax-md",
+        "batch": batch,
+        "steps": steps,
+        "seconds": seconds,
+        "compile_and_first_run_seconds": compile_s,
+        "system_steps_per_second": batch * steps / seconds,
+        "atom_steps_per_second": batch * steps * preset.num_atoms / seconds,
+        "atom_steps_per_second_per_core": batch * steps * preset.num_atoms / seconds / cores,
+        "cores": cores,
+        "any_overflow_or_failure": bool(np.any(np.asarray(d.overflow | d.failed()))),
+    }
+
+
+def time_lammps(preset: helium.HeliumPreset, steps: int) -> dict:
+    """Wall time of one LAMMPS run of ``steps`` NPT steps (startup included, thermo sparse)."""
+    every = steps // 10
+    p = helium.get_preset(
+        preset, equilibration_ps=0.0, sample_every_ps=every * preset.dt_ps, production_ps=steps
+        * preset.dt_ps,
+    )
+    run = lammps_reference.run_helium(jax.random.PRNGKey(0), helium.TRUE_THETA, p)
+    return {
+        "engine": "lammps",
+        "batch": 1,
+        "steps": run.steps,
+        "seconds": run.wall_seconds,
+        "system_steps_per_second": run.steps / run.wall_seconds,
+        "atom_steps_per_second": run.steps * preset.num_atoms / run.wall_seconds,
+        "atom_steps_per_second_per_core": run.steps * preset.num_atoms / run.wall_seconds,
+        "cores": 1,
+    }
+
+
+def per_simulation(preset: helium.HeliumPreset, batch: int = 64, repeats: int = 3) -> dict:
+    """Wall seconds per complete ABC simulation (equilibration + production + f_B).
+
+    jax-md: ``simulate_batch`` of ``batch`` members (compiled), divided by ``batch``, times the
+    cores it used.  LAMMPS: complete runs including process start-up and file I/O, which is
+    what an external simulator costs per particle.
+    """
+    simulate_batch = helium.make_batch_simulator(preset, batch_size=batch)
+    keys = jax.random.split(jax.random.PRNGKey(1), batch)
+    thetas = np.tile(np.asarray(helium.TRUE_THETA, np.float32), (batch, 1))
+    simulate_batch(keys, thetas)  # compile
+    t0 = time.perf_counter()
+    simulate_batch(jax.random.split(jax.random.PRNGKey(2), batch), thetas)
+    jax_seconds = (time.perf_counter() - t0) / batch
+    lmp = []
+    if lammps_reference.lammps_available():
+        for k in jax.random.split(jax.random.PRNGKey(3), repeats):
+            t0 = time.perf_counter()
+            lammps_reference.run_helium(k, helium.TRUE_THETA, preset)
+            lmp.append(time.perf_counter() - t0)
+    cores = os.cpu_count() or 1
+    return {
+        "setup": preset.name,
+        "jax_md_batch": batch,
+        "jax_md_wall_seconds_per_simulation": jax_seconds,
+        "jax_md_core_seconds_per_simulation": jax_seconds * cores,
+        "lammps_wall_seconds_per_simulation": float(np.mean(lmp)) if lmp else None,
+        "lammps_core_seconds_per_simulation": float(np.mean(lmp)) if lmp else None,
+    }
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true", help="batch sizes 1 and 8 only")
+    parser.add_argument("--output", type=Path, default=RESULTS)
+    parser.add_argument("--per-simulation-only", action="store_true",
+                        help="only (re)measure the per-simulation comparison, keep the rest")
+    args = parser.parse_args()
+    if args.per_simulation_only:
+        data = json.loads(args.output.read_text())
+        data["per_simulation"] = per_simulation(helium.get_preset("cpu"))
+        print(data["per_simulation"], flush=True)
+        args.output.write_text(json.dumps(data, indent=1))
+        return
+    batches = (1, 8) if args.quick else (1, 8, 32, 128)
+    setups = {
+        # The published system, with a cell-list neighbour list.
+        "paper_1000_atoms_1atm": (helium.get_preset("paper"), 20, 20_000),
+        # The CPU preset (all pairs, cached-virial NPT).
+        "cpu_preset": (helium.get_preset("cpu"), 100, 50_000),
+    }
+    records = []
+    for name, (preset, blocks, lammps_steps) in setups.items():
+        lmp = time_lammps(preset, lammps_steps) if lammps_reference.lammps_available() else None
+        if lmp:
+            lmp["setup"] = name
+            records.append(lmp)
+            print(f"{name:24s} lammps      {lmp['atom_steps_per_second_per_core']:12.3e} "
+                  "atom-steps/s/core", flush=True)
+        for b in batches:
+            if preset.num_atoms * b > 64_000 and b > 32:
+                blocks_b = max(2, blocks // 4)
+            else:
+                blocks_b = blocks
+            r = time_jax_md(preset, b, blocks_b)
+            r["setup"] = name
+            r["num_atoms"] = preset.num_atoms
+            records.append(r)
+            ratio = (r["atom_steps_per_second_per_core"] / lmp["atom_steps_per_second_per_core"]
+                     if lmp else float("nan"))
+            print(f"{name:24s} jax-md b={b:<4d}{r['atom_steps_per_second_per_core']:12.3e} "
+                  f"atom-steps/s/core  ({ratio:.2f} x LAMMPS per core)", flush=True)
+    args.output.parent.mkdir(parents=True, exist_ok=True)
+    args.output.write_text(json.dumps({
+        "description": __doc__,
+        "machine": {"cpus": os.cpu_count(), "platform": platform.platform(),
+                    "jax": jax.__version__, "load_average_at_end": os.getloadavg()},
+        "records": records,
+        "per_simulation": per_simulation(helium.get_preset("cpu")),
+    }, indent=1))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,254 @@
+"""Physics checks of the generic LJ engine (md.lj) and the LJ fluid summaries (md.lj_fluid).
+
+Tolerances come from the statistical error of the run (block averages) or from the integrator's
+known error scaling, not from stored numbers.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from md import lj, lj_fluid
+from md.units import BOLTZMANN_KJ_MOL_K, HBAR_KJ_MOL_PS
+
+# Reduced LJ in engine units: sigma = 1 nm, epsilon = 1 kJ/mol, m = 1 amu.
+KB = BOLTZMANN_KJ_MOL_K
+PARAMS = lj.LJParams(jnp.float32(1.0), jnp.float32(1.0), jnp.float32(0.0))
+
+
+def block_mean_error(x: np.ndarray, num_blocks: int = 10) -> tuple[float, float]:
+    """Mean and its standard error from block averages (handles autocorrelation)."""
+    x = np.asarray(x, np.float64)
+    blocks = x[: len(x) // num_blocks * num_blocks].reshape(num_blocks, -1).mean(axis=1)
+    return float(x.mean()), float(blocks.std(ddof=1) / np.sqrt(num_blocks))
+
+
+def run_thermo(engine: lj.LJEngine, key, num_samples: int, every_blocks: int, equil_blocks: int):
+    @jax.jit
+    def go(key):
+        carry = engine.init(key, PARAMS)
+        carry, _ = engine.run(carry, PARAMS, equil_blocks, 1)
+        return engine.run(carry, PARAMS, num_samples, every_blocks, engine.thermo)
+
+    carry, thermo = go(key)
+    assert not bool(carry.diagnostics.overflow | carry.diagnostics.failed())
+    return jax.tree.map(np.asarray, thermo)
+
+
+def liquid_config(**kw) -> lj.EngineConfig:
+    rho, n = kw.pop("density", 0.8), kw.pop("num_atoms", 108)
+    base = dict(
+        num_atoms=n, box_nm=(n / rho) ** (1 / 3), mass_amu=1.0, cutoff_nm=2.5, dt_ps=0.005,
+        temperature_k=1.5 / KB, ensemble="nvt_nose_hoover", tau_t_ps=0.5, truncation="shifted",
+        use_neighbor_list=False, rebuild_every=10, allocation_box_fraction=1.0,
+    )
+    base.update(kw)
+    return lj.EngineConfig(**base)
+
+
+# ------------------------------------------------------------------------------------------
+# Energy terms against a direct numpy double loop
+# ------------------------------------------------------------------------------------------
+
+
+def _numpy_reference(pos_frac, box, sigma, eps, rc, c9, mass, kt, shifted):
+    real = pos_frac * box
+    n = len(real)
+    e2 = e3 = e_fh = virial = 0.0
+
+    def mi(v):
+        return v - box * np.round(v / box)
+
+    for i in range(n):
+        for j in range(i + 1, n):
+            r = np.linalg.norm(mi(real[j] - real[i]))
+            if r < rc:
+                sr6 = (sigma / r) ** 6
+                e2 += 4 * eps * (sr6 * sr6 - sr6)
+                if shifted:
+                    e2 -= 4 * eps * ((sigma / rc) ** 12 - (sigma / rc) ** 6)
+                # r . F = -r u'(r)
+                virial += 4 * eps * (12 * sr6 * sr6 - 6 * sr6)
+                e_fh += HBAR_KJ_MOL_PS**2 / (24 * mass / 2 * kt) * 4 * eps * (
+                    132 * sr6 * sr6 - 30 * sr6) / r**2
+            for k in range(j + 1, n):
+                a, b = mi(real[j] - real[i]), mi(real[k] - real[i])
+                c = b - a
+                ra, rb, rcc = map(np.linalg.norm, (a, b, c))
+                if max(ra, rb, rcc) < rc:
+                    cos = (a @ b) / (ra * rb) * (-(a @ c)) / (ra * rcc) * (b @ c) / (rb * rcc)
+                    e3 += c9 * (1 + 3 * cos) / (ra * rb * rcc) ** 3
+    return e2, e3, e_fh, virial
+
+
+@pytest.mark.parametrize("shifted", [False, True])
+def test_energy_terms_match_direct_sum(shifted):
+    rng = np.random.default_rng(0)
+    n, box, rc = 24, 2.2, 1.0
+    pos = rng.uniform(size=(n, 3)).astype(np.float32)
+    sigma, eps, c9, mass, kt = 0.3, 0.5, 2e-3, 4.0, 0.3
+    e2, e3, e_fh, virial = _numpy_reference(pos, box, sigma, eps, rc, c9, mass, kt, shifted)
+    params = lj.LJParams(jnp.float32(sigma), jnp.float32(eps), jnp.float32(c9))
+    boxm = jnp.eye(3) * box
+    trunc = "shifted" if shifted else "plain"
+    plain = lj.make_energy_fn(rc, trunc)
+    both = lj.make_energy_fn(rc, trunc, three_body=True, feynman_hibbs=True, mass_amu=mass,
+                             kt_kj_mol=kt)
+    u2 = float(plain(jnp.asarray(pos), boxm, params=params))
+    u_all = float(both(jnp.asarray(pos), boxm, params=params))
+    assert u2 == pytest.approx(e2, rel=1e-4, abs=1e-4)
+    assert u_all == pytest.approx(e2 + e3 + e_fh, rel=1e-4, abs=1e-4)
+    # The virial from the isotropic-strain derivative equals sum over pairs of r . F.
+    dudeps = jax.grad(lambda x: plain(jnp.asarray(pos), boxm, perturbation=1 + x,
+                                      params=params))(0.0)
+    assert float(-dudeps) == pytest.approx(virial, rel=1e-4, abs=1e-3)
+    # Forces: gradient with respect to fractional positions comes out in real space.
+    forces = -jax.grad(plain)(jnp.asarray(pos), boxm, params=params)
+    h = 1e-3
+    dpos = np.zeros_like(pos)
+    dpos[3, 1] = h / box
+    num = -(float(plain(jnp.asarray(pos + dpos), boxm, params=params))
+            - float(plain(jnp.asarray(pos - dpos), boxm, params=params))) / (2 * h)
+    assert float(forces[3, 1]) == pytest.approx(num, rel=2e-2, abs=2e-2)
+
+
+def test_neighbor_list_matches_all_pairs():
+    cfg = liquid_config(use_neighbor_list=True, skin_nm=0.3, num_atoms=256)
+    engine = lj.LJEngine(cfg)
+    carry = engine.init(jax.random.PRNGKey(0), PARAMS)
+    idx = carry.neighbors.idx
+    assert idx.shape[1] < cfg.num_atoms - 1  # a real list, not all pairs
+    e_list = engine.energy_fn(carry.md.position, engine.box0, idx=idx, params=PARAMS)
+    e_all = engine.energy_fn(carry.md.position, engine.box0, idx=None, params=PARAMS)
+    assert float(e_list) == pytest.approx(float(e_all), rel=1e-5)
+
+
+# ------------------------------------------------------------------------------------------
+# Dynamics
+# ------------------------------------------------------------------------------------------
+
+
+def test_nve_energy_conservation_scales_as_dt_squared():
+    stds = []
+    for dt in (0.004, 0.002):
+        cfg = liquid_config(ensemble="nve", dt_ps=dt)
+        engine = lj.LJEngine(cfg)
+        steps = round(0.8 / dt)  # the same 0.8 tau of dynamics
+        t = run_thermo(engine, jax.random.PRNGKey(1), steps // 10, 1, 0)
+        total = t.kinetic + t.potential
+        stds.append(np.std(total))
+        # Energy fluctuations must be far below the kinetic-energy fluctuations they exchange.
+        assert np.std(total) < 0.02 * np.std(t.kinetic)
+        # No drift: first and last fifths agree within a few fluctuation widths.
+        fifth = len(total) // 5
+        assert abs(total[:fifth].mean() - total[-fifth:].mean()) < 5 * np.std(total) + 1e-3
+    # Velocity Verlet: error ~ dt^2, so halving dt divides fluctuations by ~4.
+    assert 2.5 < stds[0] / stds[1] < 6.0
+
+
+@pytest.mark.parametrize("ensemble", ["nvt_nose_hoover", "nvt_langevin"])
+def test_thermostat_holds_temperature(ensemble):
+    cfg = liquid_config(ensemble=ensemble, tau_t_ps=0.2, gamma_per_ps=5.0)
+    engine = lj.LJEngine(cfg)
+    t = run_thermo(engine, jax.random.PRNGKey(2), 200, 1, 50)
+    mean, err = block_mean_error(t.temperature)
+    target = cfg.temperature_k
+    assert abs(mean - target) < 4 * err + 1e-3 * target, (mean, err, target)
+    # Canonical kinetic-temperature fluctuations: std(T)/T = sqrt(2/dof).
+    rel = np.std(t.temperature) / target
+    assert rel == pytest.approx(np.sqrt(2 / cfg.degrees_of_freedom), rel=0.3)
+
+
+def test_barostat_holds_pressure_and_temperature():
+    p_target = 1.0  # reduced pressure at T* = 2 (a dense supercritical fluid)
+    cfg = liquid_config(ensemble="npt", density=0.6, temperature_k=2.0 / KB,
+                        pressure_kj_mol_nm3=p_target, tau_t_ps=0.2, tau_p_ps=1.0, dt_ps=0.004)
+    engine = lj.LJEngine(cfg)
+    t = run_thermo(engine, jax.random.PRNGKey(3), 300, 2, 200)
+    p_mean, p_err = block_mean_error(t.pressure)
+    t_mean, t_err = block_mean_error(t.temperature)
+    assert abs(p_mean - p_target) < 4 * p_err + 0.02 * p_target, (p_mean, p_err)
+    assert abs(t_mean - cfg.temperature_k) < 4 * t_err + 2e-3 * cfg.temperature_k
+    # The volume must actually fluctuate (the barostat is coupled).
+    assert np.std(t.volume) > 1e-3 * np.mean(t.volume)
+
+
+# ------------------------------------------------------------------------------------------
+# Summaries
+# ------------------------------------------------------------------------------------------
+
+
+def test_rdf_of_ideal_gas_is_one():
+    n, box = 400, 4.0
+    g = lj_fluid.rdf(1.8, 12)
+    pos = jax.random.uniform(jax.random.PRNGKey(4), (20, n, 3))
+    values = np.asarray(jax.vmap(lambda p: g(p, jnp.eye(3) * box))(pos)).mean(axis=0)
+    # Poisson error of each bin: counts per bin ~ frames * n * (n-1)/V * shell.
+    edges = np.linspace(0, 1.8, 13)
+    shell = 4 / 3 * np.pi * (edges[1:] ** 3 - edges[:-1] ** 3)
+    expected_counts = 20 * n * (n - 1) / box**3 * shell
+    err = 1 / np.sqrt(expected_counts / 2)  # pairs are counted twice
+    assert np.all(np.abs(values - 1) < 5 * err), (values, err)
+
+
+def test_msd_and_diffusion_of_ballistic_and_diffusive_motion():
+    t = jnp.arange(1, 101) * 0.1
+    box = jnp.eye(3) * 2.0
+    rng = np.random.default_rng(5)
+    # Random walk with D = 0.05 nm^2/ps: steps of variance 2 D dt per axis.
+    steps = rng.normal(scale=np.sqrt(2 * 0.05 * 0.1), size=(100, 2000, 3)) / 2.0
+    unwrapped = jnp.asarray(np.cumsum(steps, axis=0))
+    msd = lj_fluid.mean_squared_displacement(unwrapped, box)
+    d = float(lj_fluid.self_diffusion(msd, t))
+    assert d == pytest.approx(0.05, rel=0.1)
+
+
+@pytest.mark.parametrize(
+    "temperature, density",
+    [(2.0, 0.5), (1.5, 0.7)],
+)
+def test_lj_fluid_matches_jzg_equation_of_state(temperature, density):
+    # Plain truncation: the forces are those of the shifted potential, but the energy inside r_c
+    # is the unshifted LJ, which is what the tail correction completes.
+    preset = lj_fluid.get_preset(
+        "reduced_dense_fluid", temperature_reduced=temperature, density_reduced=density,
+        equilibration_steps=1000, production_steps=6000, sample_every=20, dt_reduced=0.004,
+        truncation="plain",
+    )
+    obs = jax.jit(lambda k: lj_fluid.run_details(preset, k, preset.default_theta))(
+        jax.random.PRNGKey(6))
+    assert not bool(obs["failed"])
+    u_tail, p_tail = lj_fluid.tail_corrections(density, preset.cutoff_reduced)
+    p_jzg, u_jzg = lj_fluid.jzg_equation_of_state(density, temperature)
+    p_mean, p_err = block_mean_error(obs["pressure"])
+    u_mean, u_err = block_mean_error(obs["potential"] / preset.num_atoms)
+    p_sim, u_sim = p_mean + p_tail, u_mean + u_tail
+    # JZG's fit reproduces simulations to a few percent in P and ~0.05 in U*/N; add 4
+    # statistical errors of this run.
+    assert abs(p_sim - p_jzg) < 4 * p_err + 0.05 * abs(p_jzg) + 0.05, (p_sim, p_jzg, p_err)
+    assert abs(u_sim - u_jzg) < 4 * u_err + 0.05, (u_sim, u_jzg, u_err)
+    t_mean, _ = block_mean_error(obs["temperature"])
+    assert t_mean == pytest.approx(temperature / KB, rel=0.02)
+
+
+def test_lj_fluid_simulator_summaries():
+    simulate = lj_fluid.make_simulator(
+        "reduced_liquid", equilibration_steps=200, production_steps=400, sample_every=20
+    )
+    preset = simulate.preset
+    thetas = jnp.asarray([preset.default_theta, (1.05, 1.0)], jnp.float32)
+    out = np.asarray(jax.jit(jax.vmap(simulate))(jax.random.split(jax.random.PRNGKey(8), 2),
+                                                   thetas))
+    names = lj_fluid.summary_names(preset)
+    assert out.shape == (2, len(names)) and np.all(np.isfinite(out))
+    g = out[0, : preset.num_bins]
+    centres = (np.arange(preset.num_bins) + 0.5) * preset.r_max_nm / preset.num_bins
+    # A dense LJ liquid: no pairs inside 0.8 sigma, first peak near 2^(1/6) sigma = 1.12.
+    assert np.all(g[centres < 0.8] == 0.0)
+    assert 1.0 < centres[np.argmax(g)] < 1.25 and g.max() > 2.0
+    assert out[0, -3] > 0.0  # diffusion
+    # Bigger atoms at the same density: higher pressure.
+    assert out[1, -2] > out[0, -2]
