@@ -13,6 +13,7 @@ from jaxabc import distances, kernels
 from jaxabc.algorithms import BUILDERS as ALGORITHMS
 from jaxabc.errors import SimulationFailure, TooManyFailures
 from jaxabc.executors import ProcessPoolExecutor, SerialExecutor, SimulationBatch, VmapExecutor
+from jaxabc.mpi import MPIExecutor
 from jaxabc.priors import Uniform
 from jaxabc.results import ABCResult, load
 from jaxabc.run import run
@@ -21,6 +22,7 @@ from jaxabc.seeding import seed_from_key
 __all__ = [
     "ALGORITHMS",
     "ABCResult",
+    "MPIExecutor",
     "ProcessPoolExecutor",
     "SerialExecutor",
     "SimulationBatch",

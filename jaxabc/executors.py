@@ -259,6 +259,9 @@ def _worker_main(conn: Any, simulate: Callable) -> None:
         if item is None:
             return
         index, key, theta = item
+        # Acknowledge: the parent's timeout clock starts now, not while this worker was being
+        # spawned and importing JAX (which on a loaded machine can take longer than a task).
+        conn.send(("started", index))
         t0 = time.perf_counter()
         out, status, reason = _run_one(simulate, key, theta)
         conn.send((index, out, status, reason, time.perf_counter() - t0))
@@ -272,7 +275,7 @@ class _Worker:
         self.proc.start()
         child.close()
         self.task: int | None = None
-        self.started = 0.0
+        self.started: float | None = None  # set when the worker acknowledges its task
 
     def kill(self) -> None:
         try:
@@ -352,7 +355,7 @@ class ProcessPoolExecutor:
         def give(worker: _Worker) -> None:
             if pending:
                 i = pending.pop()
-                worker.task, worker.started = i, time.time()
+                worker.task, worker.started = i, None
                 worker.conn.send((i, np.asarray(keys[i]), np.asarray(thetas[i])))
 
         for worker in self._workers:
@@ -365,10 +368,14 @@ class ProcessPoolExecutor:
                 failure = None
                 if worker.conn in ready:
                     try:
-                        i, out, st, reason, dt = worker.conn.recv()
+                        message = worker.conn.recv()
                     except (EOFError, OSError):
                         failure = STATUS_WORKER_DIED
                     else:
+                        if message[0] == "started":
+                            worker.started = time.time()
+                            continue
+                        i, out, st, reason, dt = message
                         outputs[i], status[i], reasons[i] = out, st, reason
                         times[i], workers[i] = dt, worker.wid
                         worker.task = None
@@ -377,14 +384,16 @@ class ProcessPoolExecutor:
                         continue
                 elif worker.proc.sentinel in ready or not worker.proc.is_alive():
                     failure = STATUS_WORKER_DIED
-                elif self.timeout is not None and now - worker.started > self.timeout:
+                elif (self.timeout is not None and worker.started is not None
+                      and now - worker.started > self.timeout):
                     failure = STATUS_TIMEOUT
                 if failure is None:
                     continue
                 i = worker.task
                 worker.kill()
                 self._workers.remove(worker)
-                status[i], times[i], workers[i] = failure, now - worker.started, worker.wid
+                status[i], workers[i] = failure, worker.wid
+                times[i] = now - worker.started if worker.started is not None else 0.0
                 reasons[i] = (
                     f"timeout: ran longer than {self.timeout} s and was stopped"
                     if failure == STATUS_TIMEOUT

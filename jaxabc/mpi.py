@@ -139,18 +139,16 @@ def chunk_indices(num_tasks: int, num_workers: int) -> list[np.ndarray]:
 # Worker side.  These functions run on the MPI worker ranks; they are module-level so that
 # mpi4py pickles them by reference.
 
-def _child_main(conn: Any, payload: bytes) -> None:
-    """Body of an isolation child: load the simulator, say so, then run tasks until told to stop."""
+def _child_main(conn: Any) -> None:
+    """Body of an isolation child: load simulators and run tasks until told to stop."""
     # The child runs host simulators; keep JAX (if the simulator imports it) off accelerators.
     os.environ.setdefault("JAX_PLATFORMS", "cpu")
     # Own process group: a timeout kills the child and any program it started (mdrun, lmp).
     os.setpgrp()
-    try:
-        simulate = pickle.loads(payload)
-    except Exception as exc:
-        conn.send(("error", traceback.format_exception_only(type(exc), exc)[-1].strip()))
-        return
+    import jaxabc  # noqa: F401  -- pay the JAX import before reporting ready, not inside a task
+
     conn.send(("ready", os.getpid()))
+    simulate = None
     while True:
         try:
             item = conn.recv()
@@ -158,48 +156,65 @@ def _child_main(conn: Any, payload: bytes) -> None:
             return
         if item is None:
             return
+        if isinstance(item, bytes):
+            try:
+                simulate = pickle.loads(item)
+                conn.send(("loaded", None))
+            except Exception as exc:
+                conn.send(("error", traceback.format_exception_only(type(exc), exc)[-1].strip()))
+            continue
         t0 = time.perf_counter()
         out, status, reason = _run_one(simulate, *item)
         conn.send((out, status, reason, time.perf_counter() - t0))
 
 
 class _IsolatedChild:
-    """One child process of a worker rank that runs the simulator, so a crash costs one task.
+    """The child process of a worker rank that runs the simulator, so a crash costs one task.
 
-    Unlike :class:`jaxabc.ProcessPoolExecutor` it waits for the child to report ready before the
-    timeout clock starts: a replacement child (interpreter start plus the JAX import, seconds on a
-    busy machine) must not time out the task it is about to run.
+    Started once per rank and kept (a new simulator is sent to it, not a new process), replaced
+    only after a crash or a timeout.  Unlike :class:`jaxabc.ProcessPoolExecutor` it waits for the
+    child to report ready before a task's timeout clock starts: a replacement child (interpreter
+    start plus the JAX import, seconds on a busy machine) must not time out the task it is about
+    to run.
     """
 
-    def __init__(self, payload: bytes, timeout: float | None):
+    def __init__(self) -> None:
         ctx = mp.get_context("spawn")
-        self.timeout = timeout
         self.conn, child = ctx.Pipe(duplex=True)
-        self.proc = ctx.Process(target=_child_main, args=(child, payload), daemon=True)
+        self.proc = ctx.Process(target=_child_main, args=(child,), daemon=True)
         self.proc.start()
         child.close()
         self.ready = False
+        self.payload: bytes | None = None
 
-    def _wait_ready(self) -> None:
+    def _reply(self, what: str) -> tuple[str, Any]:
         t0 = time.perf_counter()
         while not self.conn.poll(0.2):
             if time.perf_counter() - t0 > _STARTUP_LIMIT:
                 self.kill()
-                raise RuntimeError(f"the simulator's process did not start within {_STARTUP_LIMIT} s")
+                raise RuntimeError(f"the simulator's process did not {what} within {_STARTUP_LIMIT} s")
             if not self.proc.is_alive():
-                raise RuntimeError(f"the simulator's process died while starting (exit code {self.proc.exitcode})")
-        kind, info = self.conn.recv()
-        if kind == "error":
-            raise RuntimeError(f"could not load the simulator: {info}")
-        self.ready = True
+                raise RuntimeError(f"the simulator's process died (exit code {self.proc.exitcode}) while it "
+                                   f"was to {what}")
+        return self.conn.recv()
 
-    def run(self, key: np.ndarray, theta: np.ndarray) -> tuple[Any, int, str, float, bool]:
-        """Run one task; returns ``(summaries or None, status, reason, seconds, child_alive)``."""
+    def load(self, payload: bytes) -> None:
         if not self.ready:
-            self._wait_ready()
+            self._reply("start")
+            self.ready = True
+        if payload != self.payload:
+            self.payload = None
+            self.conn.send(payload)
+            kind, info = self._reply("load the simulator")
+            if kind == "error":
+                raise RuntimeError(f"could not load the simulator: {info}")
+            self.payload = payload
+
+    def run(self, key: np.ndarray, theta: np.ndarray, timeout: float | None) -> tuple[Any, int, str, float, bool]:
+        """Run one task; returns ``(summaries or None, status, reason, seconds, child_alive)``."""
         t0 = time.perf_counter()
         self.conn.send((key, theta))
-        ready = wait([self.conn, self.proc.sentinel], timeout=self.timeout)
+        ready = wait([self.conn, self.proc.sentinel], timeout=timeout)
         if self.conn in ready:
             try:
                 out, status, reason, seconds = self.conn.recv()
@@ -207,10 +222,9 @@ class _IsolatedChild:
             except (EOFError, OSError):
                 pass
         seconds = time.perf_counter() - t0
-        if not ready:
-            self.kill()
-            return None, STATUS_TIMEOUT, f"timeout: ran longer than {self.timeout} s and was stopped", seconds, False
         self.kill()
+        if not ready:
+            return None, STATUS_TIMEOUT, f"timeout: ran longer than {timeout} s and was stopped", seconds, False
         return (None, STATUS_WORKER_DIED,
                 f"the simulator's process died (exit code {self.proc.exitcode}) while running it", seconds, False)
 
@@ -222,20 +236,10 @@ class _IsolatedChild:
         self.proc.join(timeout=5)
         self.conn.close()
 
-    def close(self) -> None:
-        try:
-            self.conn.send(None)
-            self.proc.join(timeout=2)
-        except (OSError, ValueError):
-            pass
-        if self.proc.is_alive():
-            self.kill()
 
-
-# The unpickled simulator (or the isolation child) of the last payload this rank saw: an object
-# simulator (a GROMACS plugin instance) would otherwise be a new object for every task, and the
-# isolation child would be restarted for each.
-_WORKER_STATE: dict[str, Any] = {"payload": None, "simulate": None, "child": None, "key": None}
+# Per worker rank: the unpickled simulator of the last payload (an object simulator, such as a
+# GROMACS plugin instance, would otherwise be a new object for every task) and the isolation child.
+_WORKER_STATE: dict[str, Any] = {"payload": None, "simulate": None, "child": None}
 
 
 def _worker_rank() -> int:
@@ -247,23 +251,26 @@ def _worker_rank() -> int:
 def _worker_run_one(payload: bytes, isolate: bool, timeout: float | None, key: np.ndarray,
                     theta: np.ndarray) -> tuple[Any, int, str, float]:
     state = _WORKER_STATE
-    setting = (payload, isolate, timeout)
-    if state["key"] != setting:
-        if state["child"] is not None:
-            state["child"].close()
-        state.update(key=None, simulate=None, child=None)
-        if isolate:
-            state["child"] = _IsolatedChild(payload, timeout)
-        else:
-            state["simulate"] = pickle.loads(payload)
-        state["key"] = setting
     if not isolate:
+        if state["payload"] != payload:
+            state.update(payload=None, simulate=pickle.loads(payload))
+            state["payload"] = payload
         t0 = time.perf_counter()
         out, status, reason = _run_one(state["simulate"], key, theta)
         return out, status, reason, time.perf_counter() - t0
-    out, status, reason, seconds, alive = state["child"].run(key, theta)
+    if state["child"] is None:
+        state["child"] = _IsolatedChild()
+    child = state["child"]
+    try:
+        child.load(payload)
+    except RuntimeError:
+        if not child.proc.is_alive():  # it died or overran the start-up limit; a simulator that
+            state["child"] = None       # does not unpickle leaves a healthy child behind
+        raise
+    out, status, reason, seconds, alive = child.run(key, theta, timeout)
     if not alive:
-        state["child"] = _IsolatedChild(payload, timeout)
+        # Start the replacement now, so that its start-up overlaps the driver's bookkeeping.
+        state["child"] = _IsolatedChild()
     return out, status, reason, seconds
 
 
@@ -280,7 +287,6 @@ def _run_tasks(payload: bytes, isolate: bool, timeout: float | None, indices: np
         try:
             summaries, status, reason, seconds = _worker_run_one(payload, isolate, timeout, keys[j], thetas[j])
         except Exception as exc:
-            _WORKER_STATE.update(key=None, simulate=None, child=None)
             last = traceback.format_exception_only(type(exc), exc)[-1].strip()
             summaries, status, seconds = None, STATUS_FAILED, 0.0
             reason = f"MPI rank {rank} could not run the simulator: {last}"
