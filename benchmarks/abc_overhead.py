@@ -29,10 +29,10 @@ import jax.numpy as jnp
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _common import write_result  # noqa: E402
+from _common import write_result
 
-import jaxabc  # noqa: E402
-from jaxabc.algorithms import apmc  # noqa: E402
+import jaxabc
+from jaxabc.algorithms import apmc
 
 
 def jax_step_time(n: int, d: int, repeats: int) -> dict:

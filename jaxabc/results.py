@@ -26,9 +26,9 @@ def versions() -> dict[str, str]:
 
     out = {"python": platform.python_version(), "numpy": np.__version__, "jax": jax.__version__}
     try:
-        import jax_md
-
         from importlib.metadata import version
+
+        import jax_md
 
         out["jax_md"] = version("jax-md") if jax_md else "unknown"
     except ImportError:

@@ -39,7 +39,7 @@ import numpy as np
 from scipy import stats
 
 from jaxabc.criticism.misfit import adjust_pvalues
-from jaxabc.criticism.predictive import PosteriorPredictive, simulate_many
+from jaxabc.criticism.predictive import simulate_many
 from jaxabc.executors import Executor
 
 __all__ = ["Catalogue", "Cause", "CauseAnalysis", "Effect", "rank_causes", "sensitivities"]
@@ -194,22 +194,22 @@ def _make_cause(name, score, details):
 
 def sensitivities(
     simulate: Callable,
-    predictive: PosteriorPredictive,
+    theta: np.ndarray,
+    keys: jax.Array,
     points: Sequence[tuple[int, float, float]],
     executor: Executor,
-    num_replicates: int | None = None,
 ) -> np.ndarray:
     """Finite-difference sensitivities with common random numbers.
 
     Parameters
     ----------
     simulate : callable ``(key, theta_full) -> (s,)``
-    predictive : PosteriorPredictive
-        Supplies ``theta_hat`` and the replicate keys (the common random numbers).
+    theta : numpy.ndarray, shape (d_full,)
+        Where to differentiate.
+    keys : jax.Array, shape (g,)
+        The common random numbers: every evaluation point uses these same keys.
     points : sequence of (index, lower, upper)
         Entry of ``theta_full`` to move and the two values to evaluate at.
-    num_replicates : int, optional
-        How many of the replicate keys to use (default all).
 
     Returns
     -------
@@ -217,12 +217,11 @@ def sensitivities(
         ``(E[s(upper)] - E[s(lower)]) / (upper - lower)`` over the same keys; a pair whose
         simulation failed on either side is dropped.
     """
-    keys = predictive.replicate_keys[: num_replicates or len(predictive.replicate_keys)]
     g = keys.shape[0]
     thetas = []
     for j, lo, hi in points:
         for v in (lo, hi):
-            t = np.repeat(predictive.theta_hat[None], g, 0)
+            t = np.repeat(np.asarray(theta, float)[None], g, 0)
             t[:, j] = v
             thetas.append(t)
     all_keys = jax.numpy.concatenate([keys] * (2 * len(points)))
@@ -319,7 +318,7 @@ def rank_causes(
         load = np.abs(u[:, k]) * np.sqrt(np.diag(prec))
         acts_on = sorted(groups, key=lambda g: -float(np.sum(load[groups[g]] ** 2)))[:3]
         rows.append(dict(name=eff.name, score=score, statistic=t, p_value=p,
-                         fraction_explained=t * t / total if total > 0 else 0.0, estimate=float(estimate),
+                         fraction_explained=score * score / total if total > 0 else 0.0, estimate=float(estimate),
                          max_snr=max_snr, invisible=False, acts_on=acts_on,
                          outside_prior=not (eff.low <= estimate <= eff.high)))
     adj = adjust_pvalues(np.array([row["p_value"] for row in rows]), "holm")
@@ -349,11 +348,16 @@ def rank_causes(
                     if b != a and np.isfinite(cos[a, b]) and abs(cos[a, b]) >= ambiguity_cosine]
         if partners:
             row["ambiguous"] = True
-            needs = "; ".join(sorted({catalogue[n].separated_by for n, _ in partners + [(row["name"], 0)]
+            needs = "; ".join(sorted({catalogue[n].separated_by for n, _ in [*partners, (row["name"], 0)]
                                       if catalogue[n].separated_by}))
             txt = ", ".join(f"{n} (cos {c:+.3f})" for n, c in partners)
             row["note"] = f"ambiguous with {txt}: these summaries cannot tell them apart" + (
                 f"; needs {needs}" if needs else "")
             ambiguities.append(f"{row['name']}: {row['note']}")
+        else:
+            others = [(names[b], cos[a, b]) for b in range(k_eff) if b != a and np.isfinite(cos[a, b])]
+            if others:
+                name_b, c = max(others, key=lambda x: abs(x[1]))
+                row["note"] = f"closest competitor {name_b} (cos {c:+.2f})"
     causes = [Cause(row.pop("name"), row.pop("score"), **row) for row in rows]
     return CauseAnalysis(causes, directions, u, cos, ambiguities)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
+from dataclasses import replace
 from typing import Any
 
 import jax
@@ -18,6 +19,7 @@ from jaxabc.criticism.predictive import (
     normalise_groups,
     normalise_mask,
     posterior_predictive,
+    shrunk_covariance,
     simulate_many,
 )
 from jaxabc.criticism.report import CritiqueReport
@@ -55,9 +57,10 @@ def critique(
     num_draws: int = 200,
     num_replicates: int = 200,
     num_gradient_replicates: int | None = None,
-    alpha: float = 0.05,
+    num_refit_iterations: int = 4,
+    alpha: float = 0.01,
     correction: str = "holm",
-    cause_alpha: float = 0.05,
+    cause_alpha: float = 0.01,
     ambiguity_cosine: float = 0.95,
     invisible_snr: float = 3.0,
     extend: bool = True,
@@ -95,8 +98,15 @@ def critique(
     num_gradient_replicates : int, optional
         Replicate keys reused for each finite difference (common random numbers); default
         ``min(num_replicates, 64)``.
+    num_refit_iterations : int
+        Gauss-Newton steps that move the base parameters from the Bayes estimate to the local
+        best fit of the fitted summaries before testing (0: test at the Bayes estimate).
     alpha : float
-        Family-wise level of the misfit tests (split between fitted and held-out families).
+        Family-wise level of the misfit tests (split equally between the fitted and held-out
+        families).  1 % by default: the calibration is linearised around the local fit, and on
+        the LJ surrogate the measured false-alarm rate at 1 % is about 5 % over null seeds
+        (rare noise outliers plus curvature), which is the most a "flag nothing in 95 %" rule
+        allows.
     correction : {"holm", "bh"}
         Holm (family-wise error) or Benjamini-Hochberg (false discovery rate).
     cause_alpha : float
@@ -146,18 +156,42 @@ def critique(
     pred = posterior_predictive(simulate_with_effects, full(draws), theta_hat, k_pred, num_replicates,
                                 executor=ex, names=names, groups=group_idx)
 
-    # Finite-difference points: base parameters by half a posterior sd either side (the average
-    # slope over the posterior's width), effects around their nulls.
+    # The base parameters absorb what they can: a few Gauss-Newton steps on the fitted summaries
+    # from the Bayes estimate, with expectations over common random numbers.  An ABC posterior
+    # mean is only as precise as its tolerance, and testing at a point that is off by a fraction
+    # of the posterior width shows that curvature as spurious misfit.
     sd = np.sqrt(np.diag(result.covariance()))
     lo_b, hi_b = np.asarray(result.prior.low, float), np.asarray(result.prior.high, float)
-    points = []
-    for j in range(d):
-        h = max(0.5 * sd[j], 1e-3 * (hi_b[j] - lo_b[j]))
-        points.append((j, max(theta_hat[j] - h, lo_b[j]), min(theta_hat[j] + h, hi_b[j])))
-    for k, eff in enumerate(catalogue):
-        points.append((d + k, *eff.finite_difference_points()))
+    steps = np.maximum(0.5 * sd, 1e-3 * (hi_b - lo_b))
     num_grad = num_gradient_replicates or min(len(pred.replicate_keys), 64)
-    sens = sensitivities(simulate_with_effects, pred, points, ex, num_grad)
+    grad_keys = pred.replicate_keys[:num_grad]
+
+    def base_points(theta: np.ndarray) -> list[tuple[int, float, float]]:
+        return [(j, max(theta[j] - steps[j], lo_b[j]), min(theta[j] + steps[j], hi_b[j])) for j in range(d)]
+
+    fitted = pred.active & ~held
+    prec_f = np.linalg.pinv(pred.noise_cov[np.ix_(fitted, fitted)], rcond=1e-10, hermitian=True)
+    theta = theta_hat.copy()
+    for _ in range(num_refit_iterations):
+        mu = np.nanmean(simulate_many(simulate_with_effects, grad_keys, np.repeat(theta[None], num_grad, 0), ex), 0)
+        jac = sensitivities(simulate_with_effects, theta, grad_keys, base_points(theta), ex)
+        jf = jac[fitted]
+        step = np.linalg.pinv(jf.T @ prec_f @ jf, rcond=1e-8, hermitian=True) @ jf.T @ prec_f @ (obs - mu)[fitted]
+        new = np.clip(theta[:d] + step, lo_b, hi_b)
+        moved = np.abs(new - theta[:d])
+        theta[:d] = new
+        if np.all(moved < 0.05 * steps):
+            break
+    if num_refit_iterations:
+        reps = simulate_many(simulate_with_effects, pred.replicate_keys,
+                             np.repeat(theta[None], len(pred.replicate_keys), 0), ex)
+        ok_r = np.all(np.isfinite(reps), axis=1)
+        pred = replace(pred, theta_hat=theta, replicates=reps[ok_r], replicate_keys=pred.replicate_keys[ok_r],
+                       noise_cov=shrunk_covariance(reps[ok_r]))
+        pred.extra["bayes_estimate"] = theta_hat
+        grad_keys = pred.replicate_keys[:num_grad]
+    points = base_points(theta) + [(d + k, *eff.finite_difference_points()) for k, eff in enumerate(catalogue)]
+    sens = sensitivities(simulate_with_effects, theta, grad_keys, points, ex)
     jac, directions = sens[:, :d], sens[:, d:]
 
     mis = analyse_misfits(obs, pred, jac, held, alpha=alpha, correction=correction, level=level)
@@ -177,7 +211,6 @@ def critique(
         return report
 
     top = visible[0]
-    fitted = pred.active & ~held
     opts = dict(extend_options or {})
     ext = refit(result, simulate_with_effects, obs, catalogue, [top.name], fitted, pred.noise_cov,
                 seed=int(jax.random.randint(k_ext, (), 0, 2**30)), executor=ex, **opts)

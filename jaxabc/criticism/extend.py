@@ -18,7 +18,7 @@ from jaxabc.priors import Uniform
 from jaxabc.results import ABCResult
 from jaxabc.run import run
 
-__all__ = ["extended_prior", "extended_simulator", "refit", "whitened_distance"]
+__all__ = ["ExtendedSimulator", "extended_prior", "extended_simulator", "refit", "whitened_distance"]
 
 
 def extended_prior(base: Uniform, catalogue: Catalogue, effect_names: Sequence[str]) -> Uniform:
@@ -32,26 +32,36 @@ def extended_prior(base: Uniform, catalogue: Catalogue, effect_names: Sequence[s
     )
 
 
-def extended_simulator(
-    simulate: Callable, num_base: int, catalogue: Catalogue, effect_names: Sequence[str],
-    keep: np.ndarray | None = None,
-) -> Callable:
+class ExtendedSimulator:
     """``simulate(key, theta (num_base + len(effect_names),)) -> summaries[keep]``; vmappable.
 
     The free effects are scattered into their catalogue slots of ``theta_full``; the others stay
-    at their null values.
+    at their null values.  A top-level class (not a closure) so that a process pool can pickle it
+    when the simulator is a host program.
     """
-    nulls = jnp.asarray(catalogue.nulls(), jnp.float32)
-    slots = jnp.asarray([catalogue.index(n) for n in effect_names], jnp.int32)
-    keep_idx = None if keep is None else jnp.asarray(np.flatnonzero(keep), jnp.int32)
 
-    def simulate_extended(key, theta):
+    def __init__(self, simulate: Callable, num_base: int, catalogue: Catalogue, effect_names: Sequence[str],
+                 keep: np.ndarray | None = None):
+        self.simulate, self.num_base = simulate, int(num_base)
+        self.nulls = catalogue.nulls().astype(np.float32)
+        self.slots = np.asarray([catalogue.index(n) for n in effect_names], np.int32)
+        self.keep = None if keep is None else np.flatnonzero(keep)
+
+    def __call__(self, key, theta):
         theta = jnp.asarray(theta)
-        eff = nulls.astype(theta.dtype).at[slots].set(theta[num_base:]) if len(effect_names) else nulls
-        out = simulate(key, jnp.concatenate([theta[:num_base], eff.astype(theta.dtype)]))
-        return out if keep_idx is None else out[keep_idx]
+        eff = jnp.asarray(self.nulls, theta.dtype)
+        if self.slots.size:
+            eff = eff.at[self.slots].set(theta[self.num_base:])
+        out = self.simulate(key, jnp.concatenate([theta[: self.num_base], eff]))
+        return out if self.keep is None else out[self.keep]
 
-    return simulate_extended
+
+def extended_simulator(
+    simulate: Callable, num_base: int, catalogue: Catalogue, effect_names: Sequence[str],
+    keep: np.ndarray | None = None,
+) -> ExtendedSimulator:
+    """The simulator of the base model plus ``effect_names`` (see :class:`ExtendedSimulator`)."""
+    return ExtendedSimulator(simulate, num_base, catalogue, effect_names, keep)
 
 
 def whitened_distance(noise_cov: np.ndarray) -> Callable:

@@ -17,8 +17,12 @@ Measures (flat dict, JSON-ready):
   ``effect_z_from_null``: the new parameter's posterior against its null.
 - ``log_bayes_factor``: Savage-Dickey ``log p(eta_null) - log p(eta_null | data)`` for the nested
   pair (extended : base), with a bootstrap SE; a lower bound when no particle lies near the null.
-- ``significant``: ``delta_lpd > 2 * delta_lpd_se``; a gain counts only when it exceeds its
-  uncertainty.
+- ``effect_contraction``: ``1 - posterior sd / prior sd`` of the new parameter;
+  ``effect_excludes_null`` needs the 95 % interval to exclude the null *and* a contraction above
+  one half (a posterior that repeats a one-sided prior "excludes" a boundary null trivially).
+- ``significant``: ``delta_lpd > 2 * delta_lpd_se``; ``counts``: significant and the new
+  parameter is away from its null.  A gain counts only when it exceeds its uncertainty (a wider
+  predictive alone can raise the log density of an outlier).
 """
 
 from __future__ import annotations
@@ -150,10 +154,15 @@ def held_out_gain(
         out["effect_mean"] = mean
         out["effect_sd"] = sd
         out["effect_ci95"] = [float(ci[0]), float(ci[1])]
-        out["effect_excludes_null"] = bool(not ci[0] <= effect.null <= ci[1])
+        # A posterior that merely repeats a one-sided prior has an equal-tailed interval that
+        # "excludes" a null sitting on the boundary; require that the data taught something.
+        prior_sd = (effect.high - effect.low) / np.sqrt(12.0)
+        out["effect_contraction"] = float(1.0 - sd / prior_sd)
+        out["effect_excludes_null"] = bool(not ci[0] <= effect.null <= ci[1] and sd < 0.5 * prior_sd)
         out["effect_z_from_null"] = float(abs(mean - effect.null) / sd) if sd > 0 else float("inf")
         bf, bf_se, bound = savage_dickey(extension, effect_column, effect, seed=seed)
         out["log_bayes_factor"] = bf
         out["log_bayes_factor_se"] = bf_se
         out["log_bayes_factor_is_lower_bound"] = bound
+    out["counts"] = bool(out.get("significant") and out.get("effect_excludes_null", True))
     return out

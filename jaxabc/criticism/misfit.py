@@ -68,7 +68,7 @@ def adjust_pvalues(p: np.ndarray, method: str = "holm") -> np.ndarray:
     if method == "holm":
         adj = np.maximum.accumulate((m - np.arange(m)) * ranked)
     elif method in ("bh", "fdr_bh", "benjamini-hochberg"):
-        adj = np.minimum.accumulate((m / np.arange(m, 0, -1) * ranked[::-1]))[::-1]
+        adj = np.minimum.accumulate(m / np.arange(m, 0, -1) * ranked[::-1])[::-1]
     else:
         raise ValueError(f"unknown multiple-testing correction {method!r}: use 'holm' or 'bh'")
     out = np.empty(m)
@@ -214,7 +214,8 @@ def analyse_misfits(
             tests.append(dict(name=name, residual=z, p_value=p, kind="group", indices=sub,
                               held_out=bool(held_out[sub].all()), observed=float(observed[sub].mean()),
                               predictive_mean=float(region_draws.mean()),
-                              band=tuple(float(x) for x in np.quantile(region_draws, [(1 - level) / 2, (1 + level) / 2])),
+                              band=tuple(float(x) for x in
+                                         np.quantile(region_draws, [(1 - level) / 2, (1 + level) / 2])),
                               statistic=t))
     families = [False, True] if held_out[act].any() and (~held_out[act]).any() else [bool(held_out[act].all())]
     fam_alpha = alpha / len(families)
@@ -229,7 +230,7 @@ def analyse_misfits(
     for t in tests:
         what = "mean over the region " if t["kind"] == "group" else ""
         t["line"] = (f"{t['name']}{' (held out)' if t['held_out'] else ''}: {what}observed {_fmt(t['observed'])}, "
-                     f"predictive {int(round(level * 100))}% band [{_fmt(t['band'][0])}, {_fmt(t['band'][1])}] "
+                     f"predictive {round(level * 100)}% band [{_fmt(t['band'][0])}, {_fmt(t['band'][1])}] "
                      f"(z = {t['residual']:+.2f}, adjusted p = {t['adjusted_p_value']:.2g})")
         misfits.append(Misfit(t.pop("name"), t.pop("residual"), t.pop("p_value"), **t))
     misfits.sort(key=lambda m: (m.adjusted_p_value, m.p_value, -abs(m.residual)))

@@ -85,14 +85,15 @@ class CritiqueReport:
         if c.ambiguous:
             why = f"the most likely cause is {c.name} but it is ambiguous: {c.note}"
         elif c.significant:
-            why = f"the most likely cause is {c.name} (score {c.score:.1f}, explains {100 * c.fraction_explained:.0f}% " \
-                  "of the remaining residual)"
+            why = (f"the most likely cause is {c.name} (score {c.score:.1f}, explains "
+                   f"{100 * c.fraction_explained:.0f}% of the remaining residual)")
         else:
             why = f"no catalogue effect explains it significantly (best: {c.name}, score {c.score:.1f})"
         g = self.gain
         tail = ""
         if "delta_lpd" in g:
-            counts = "counts" if g.get("significant") else "does not exceed its uncertainty"
+            counts = ("counts" if g.get("counts") else "exceeds its uncertainty, but the new parameter is not "
+                      "learned away from its null" if g.get("significant") else "does not exceed its uncertainty")
             tail = (f"; held-out gain of the extension: delta log predictive density {g['delta_lpd']:.1f} "
                     f"+- {g['delta_lpd_se']:.1f} ({counts})")
         return f"Misfit in {top.name}; {why}{tail}."
@@ -180,12 +181,14 @@ class CritiqueReport:
             fig, (ax1, ax2) = plt.subplots(2, 1, figsize=(9, 6), sharex=True)
             x = np.arange(self.observed.size)
             band = p.band(self.settings.get("level", 0.9))
-            sd = np.where(p.noise_sd > 0, p.noise_sd, 1.0)
+            # Predictive sd (noise + parameter uncertainty), so every summary shares one scale.
+            sd = p.draws.std(axis=0)
+            sd = np.where(sd > 0, sd, 1.0)
             ref = p.mean()
             ax1.fill_between(x, (band[:, 0] - ref) / sd, (band[:, 1] - ref) / sd, color="C0", alpha=0.3,
                              label="predictive band")
             ax1.plot(x, (self.observed - ref) / sd, "ko", ms=3, label="observed")
-            ax1.set_ylabel("(y - predictive mean) / noise sd")
+            ax1.set_ylabel("(y - predictive mean) / predictive sd")
             ax1.legend(fontsize=8)
             z = np.zeros(x.size)
             flag = np.zeros(x.size, bool)

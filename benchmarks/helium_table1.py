@@ -1,0 +1,151 @@
+"""The paper's helium Table 1 on a CPU: APMCABC against ABCsubsim on the same problem.
+
+Both algorithms calibrate (sigma, epsilon) of the helium Lennard-Jones model from the same
+'observed' f_B series (simulated at sigma 0.2556 nm, epsilon 0.141 zJ with a run
+``observed_factor`` times longer than the model's, as in the paper), with the same prior,
+KL-divergence distance, particle count and N_step = 6; APMCABC uses alpha 0.1 and acceptance
+cutoff 0.03, ABCsubsim P0 = 0.2.  For each algorithm the JSON holds d_E (Euclidean distance of
+the Bayes estimate from the truth, in nm and zJ as in the paper), gamma_final (the final
+threshold), simulations, wall time, the Bayes estimate and the posterior correlation; the
+figure is the paper's Figure 5 (posterior contours, Bayes estimate, truth) for both.
+
+Paper (5000 particles, 1000 atoms, 5 ns runs vs a 20 ns observed run): APMCABC d_E 0.00744,
+gamma_final 0.0138; ABCsubsim (as reported by Kulakova et al. 2016) d_E 0.03365,
+gamma_final 0.67.
+
+Usage::
+
+    python benchmarks/helium_table1.py                      # CPU preset, 300 particles
+    python benchmarks/helium_table1.py --num-particles 1000
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import jax
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _common import RESULTS, write_result
+
+import jaxabc
+from md import helium
+from md.helium_calibration import make_model
+
+PAPER = {"apmcabc": {"d_E": 0.00744, "gamma_final": 0.0138},
+         "abcsubsim": {"d_E": 0.03365, "gamma_final": 0.67}}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--num-particles", type=int, default=300)
+    parser.add_argument("--num-steps", type=int, default=6)
+    parser.add_argument("--preset", default="cpu")
+    parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2],
+                        help="independent repetitions (observed data and inference); the figure and the "
+                             "saved result files are the first seed's")
+    args = parser.parse_args()
+    if args.num_particles % 5:
+        parser.error("--num-particles must be a multiple of 5 (ABCsubsim with P0 = 0.2)")
+    simulate, prior = make_model(args.preset)
+    truth = np.asarray(helium.TRUE_THETA)
+    t_start = time.perf_counter()
+    per_seed = []
+    for seed in args.seeds:
+        rows, results, observed_len = run_seed(simulate, prior, truth, args, seed)
+        per_seed.append({"seed": seed, "algorithms": rows})
+        if seed == args.seeds[0]:
+            first_rows, first_results = rows, results
+            for name, result in results.items():
+                result.save(RESULTS / f"helium_table1_{name}.npz")
+            draw_figure(results, truth, RESULTS / "helium_table1.png")
+    summary = {}
+    for name in ("apmcabc", "abcsubsim"):
+        for key in ("d_E", "gamma_final", "simulations", "wall_time_s"):
+            vals = np.array([p["algorithms"][name][key] for p in per_seed], dtype=float)
+            summary[f"{name}_{key}_mean"] = float(vals.mean())
+            summary[f"{name}_{key}_sd"] = float(vals.std(ddof=1)) if vals.size > 1 else None
+    ratios_gamma = [p["algorithms"]["apmcabc"]["gamma_final"] / p["algorithms"]["abcsubsim"]["gamma_final"]
+                    for p in per_seed]
+    ratios_de = [p["algorithms"]["apmcabc"]["d_E"] / p["algorithms"]["abcsubsim"]["d_E"] for p in per_seed]
+    checks = {
+        "gamma_ratio_apmc_over_subsim_per_seed": ratios_gamma,
+        "dE_ratio_apmc_over_subsim_per_seed": ratios_de,
+        "target_gamma_ratio_at_most": 0.1,
+        "target_dE_ratio_at_most": 0.5,
+        "gamma_target_met_all_seeds": bool(all(r <= 0.1 for r in ratios_gamma)),
+        "dE_target_met_all_seeds": bool(all(r <= 0.5 for r in ratios_de)),
+    }
+    path = write_result("helium_table1", {
+        "description": __doc__.split("\n\n")[0],
+        "setup": {"preset": args.preset, "preset_fields": helium.get_preset(args.preset).__dict__,
+                  "num_particles": args.num_particles, "num_steps": args.num_steps,
+                  "seeds": args.seeds, "distance": "kl", "truth": truth.tolist(),
+                  "prior_low": list(helium.PRIOR_LOW), "prior_high": list(helium.PRIOR_HIGH),
+                  "observed_length": observed_len},
+        "algorithms": first_rows,
+        "per_seed": per_seed,
+        "summary_over_seeds": summary,
+        "comparison": checks,
+        "paper": PAPER,
+        "figure": "benchmarks/results/helium_table1.png",
+        "total_wall_time_s": time.perf_counter() - t_start,
+    })
+    del first_results
+    print(f"wrote {path}")
+
+
+def run_seed(simulate, prior, truth: np.ndarray, args, seed: int):
+    """Both algorithms on one observed data set (its own key), with the same inference seed."""
+    observed = helium.observed_series(jax.random.key(10_000 + seed), args.preset)
+    rows, results = {}, {}
+    for algorithm, options in (("apmcabc", {"alpha": 0.1, "acceptance_cutoff": 0.03}),
+                               ("abcsubsim", {"p0": 0.2})):
+        result = jaxabc.run(algorithm, simulate, prior, observed, num_particles=args.num_particles,
+                            num_steps=args.num_steps, distance="kl", seed=seed,
+                            keep_summaries=False, progress=True, **options)
+        results[algorithm] = result
+        est = result.bayes_estimate()
+        rows[algorithm] = {
+            "d_E": float(np.linalg.norm(est - truth)),
+            "gamma_final": float(result.thresholds[-1]),
+            "num_steps": len(result.thresholds),
+            "simulations": int(result.num_simulations),
+            "failures": int(result.num_failures),
+            "wall_time_s": float(result.wall_time),
+            "bayes_estimate": est.tolist(),
+            "credible_interval_95": result.credible_interval(0.95).tolist(),
+            "posterior_sd": np.sqrt(np.diag(result.covariance())).tolist(),
+            "correlation": float(result.correlation()[0, 1]),
+            "thresholds": result.thresholds.tolist(),
+            "simulations_per_step": result.simulations_per_step.tolist(),
+            "stop_reason": result.stop_reason,
+            "log_evidence": result.log_evidence,
+            "paper": PAPER[algorithm],
+        }
+        print(seed, algorithm, {k: rows[algorithm][k] for k in ("d_E", "gamma_final", "simulations",
+                                                                "wall_time_s")}, flush=True)
+    return rows, results, int(observed.size)
+
+
+def draw_figure(results: dict, truth: np.ndarray, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, len(results), figsize=(5 * len(results), 4))
+    for ax, (name, result) in zip(np.atleast_1d(axes), results.items(), strict=True):
+        result.plot_posterior(ax=ax, truth=truth)
+        ax.set_title(f"{name}: gamma_final {result.thresholds[-1]:.3g}, "
+                     f"corr {result.correlation()[0, 1]:+.2f}")
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+
+
+if __name__ == "__main__":
+    main()
