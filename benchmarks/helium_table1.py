@@ -121,6 +121,11 @@ def run_seed(simulate, prior, truth: np.ndarray, args, seed: int):
             "credible_interval_95": result.credible_interval(0.95).tolist(),
             "posterior_sd": np.sqrt(np.diag(result.covariance())).tolist(),
             "correlation": float(result.correlation()[0, 1]),
+            # ABCsubsim chains that rarely move leave duplicates: the distinct count and the ESS
+            # say how many particles the posterior really rests on.
+            "distinct_particles": int(len(np.unique(result.particles, axis=0))),
+            "effective_sample_size": result.effective_sample_size(),
+            "acceptance_rates": result.acceptance_rates.tolist(),
             "thresholds": result.thresholds.tolist(),
             "simulations_per_step": result.simulations_per_step.tolist(),
             "stop_reason": result.stop_reason,
