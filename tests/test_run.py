@@ -228,3 +228,22 @@ folder = "out"
     bad = subprocess.run([sys.executable, "-m", "jaxabc.cli", "run", str(tmp_path / "nope.toml")],
                          capture_output=True, text=True, env=env, timeout=120)
     assert bad.returncode == 2 and "no configuration file" in bad.stderr
+
+
+def test_float64_switch_runs_in_double_precision():
+    # jax_enable_x64 is process-wide, so check it in a fresh interpreter.
+    code = (
+        "import jax.numpy as jnp, jaxabc, numpy as np\n"
+        "from jaxabc import examples\n"
+        "prior = jaxabc.Uniform([-10.0], [10.0])\n"
+        "r = jaxabc.run('rejection', examples.gaussian_simulate, prior, np.zeros(1), num_particles=500,\n"
+        "               quantile=0.05, distance='euclidean', dtype='float64', seed=0)\n"
+        "import jax; assert jax.config.jax_enable_x64\n"
+        "x = r.particles\n"
+        "assert r.metadata['dtype'] == 'float64' and np.any(x.astype(np.float32).astype(np.float64) != x)\n"
+        "print(abs(r.bayes_estimate()[0]) < 4 * np.sqrt(examples.gaussian_abc_variance(r.thresholds[-1]) / 500))\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300,
+                         env={**os.environ, "PYTHONPATH": str(HERE.parent)})
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip().endswith("True")
