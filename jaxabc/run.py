@@ -444,10 +444,8 @@ def run(
     )
 
 
-def _posterior_distances(state: Any) -> np.ndarray | None:
-    # Each algorithm's state keeps the distances aligned with its posterior particles.
-    if hasattr(state, "parents"):  # PMC / rejection: the completed generation
-        return np.asarray(state.distances)
+def _posterior_distances(state: Any) -> np.ndarray:
+    # Each algorithm's state keeps its distances aligned with its posterior particles.
     return np.asarray(state.distances)
 
 

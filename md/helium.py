@@ -75,6 +75,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from md._presets import resolve_preset
 from md.lj import Carry, EngineConfig, LJEngine, LJParams
 from md.units import (
     BOLTZMANN_KJ_MOL_K,
@@ -259,14 +260,7 @@ PRESETS: dict[str, HeliumPreset] = {
 
 def get_preset(preset: str | HeliumPreset = "cpu", **overrides: Any) -> HeliumPreset:
     """Resolve a preset name (``"cpu"``, ``"paper"``) or object, with field overrides."""
-    if isinstance(preset, str):
-        try:
-            preset = PRESETS[preset]
-        except KeyError:
-            raise ValueError(
-                f"unknown helium preset {preset!r}: use one of {sorted(PRESETS)}"
-            ) from None
-    return dataclasses.replace(preset, **overrides) if overrides else preset
+    return resolve_preset(preset, PRESETS, "helium", **overrides)
 
 
 @functools.lru_cache(maxsize=16)

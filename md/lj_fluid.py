@@ -35,6 +35,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from md._presets import resolve_preset
 from md.lj import Carry, EngineConfig, LJEngine, LJParams
 from md.units import ReducedLJUnits
 
@@ -338,14 +339,7 @@ PRESETS: dict[str, LJFluidPreset] = {
 
 def get_preset(preset: str | LJFluidPreset, **overrides: Any) -> LJFluidPreset:
     """Resolve a preset name or object, with field overrides."""
-    if isinstance(preset, str):
-        try:
-            preset = PRESETS[preset]
-        except KeyError:
-            raise ValueError(
-                f"unknown LJ fluid preset {preset!r}: use one of {sorted(PRESETS)}"
-            ) from None
-    return dataclasses.replace(preset, **overrides) if overrides else preset
+    return resolve_preset(preset, PRESETS, "LJ fluid", **overrides)
 
 
 @functools.lru_cache(maxsize=16)
