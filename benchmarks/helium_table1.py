@@ -123,7 +123,7 @@ def run_seed(simulate, prior, truth: np.ndarray, args, seed: int):
             "correlation": float(result.correlation()[0, 1]),
             # ABCsubsim chains that rarely move leave duplicates: the distinct count and the ESS
             # say how many particles the posterior really rests on.
-            "distinct_particles": int(len(np.unique(result.particles, axis=0))),
+            "distinct_particles": len(np.unique(result.particles, axis=0)),
             "effective_sample_size": result.effective_sample_size(),
             "acceptance_rates": result.acceptance_rates.tolist(),
             "thresholds": result.thresholds.tolist(),

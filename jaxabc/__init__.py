@@ -9,7 +9,7 @@ The public API::
 
 __version__ = "0.1.0"
 
-from jaxabc import distances, kernels
+from jaxabc import distances, kernels, scheduling
 from jaxabc.algorithms import BUILDERS as ALGORITHMS
 from jaxabc.errors import SimulationFailure, TooManyFailures
 from jaxabc.executors import ProcessPoolExecutor, SerialExecutor, SimulationBatch, VmapExecutor
@@ -35,5 +35,6 @@ __all__ = [
     "kernels",
     "load",
     "run",
+    "scheduling",
     "seed_from_key",
 ]

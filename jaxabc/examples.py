@@ -84,3 +84,14 @@ def flaky_simulate(key: np.ndarray, theta: np.ndarray) -> np.ndarray:
         os._exit(9)
     rng = np.random.default_rng(seed_from_key(key))
     return np.asarray(theta, np.float64) + 0.1 * rng.normal(size=np.shape(theta))
+
+
+def sleep_simulate(key: np.ndarray, theta: np.ndarray) -> np.ndarray:
+    """A host task that waits ``theta[0]`` seconds and returns ``(theta[0], finish time)``.
+
+    Its duration is a known function of its parameter, which makes it the test case for
+    duration-aware scheduling (:mod:`jaxabc.scheduling`): the finish times show the order in
+    which a single worker ran the tasks.
+    """
+    time.sleep(float(theta[0]))
+    return np.array([float(theta[0]), time.time()])

@@ -46,6 +46,7 @@ from jaxabc.errors import (
     STATUS_WORKER_DIED,
     SimulationFailure,
 )
+from jaxabc.scheduling import CostModel, dispatch_order, get_cost_model
 
 __all__ = [
     "Executor",
@@ -300,6 +301,11 @@ class ProcessPoolExecutor:
     start_method : str
         ``"spawn"`` (default) or ``"forkserver"``; never ``"fork"``, which is unsafe once JAX
         threads exist in the parent.
+    order : {"fifo", "longest_first"} or CostModel, optional
+        Which task a free worker gets next.  ``"fifo"`` (default): task order.
+        ``"longest_first"``: the longest *predicted* first, from the wall times of the tasks this
+        executor already ran (:mod:`jaxabc.scheduling`); it shortens a batch's makespan when
+        durations vary with the parameters and never changes a result.
 
     Notes
     -----
@@ -313,7 +319,7 @@ class ProcessPoolExecutor:
     name = "process_pool"
 
     def __init__(self, max_workers: int | None = None, timeout: float | None = None,
-                 start_method: str = "spawn"):
+                 start_method: str = "spawn", order: str | CostModel | None = None):
         if max_workers is not None and max_workers < 1:
             raise ValueError(f"max_workers must be at least 1, got {max_workers}")
         if timeout is not None and timeout <= 0:
@@ -323,6 +329,7 @@ class ProcessPoolExecutor:
         self.max_workers = max_workers or os.cpu_count() or 1
         self.timeout = timeout
         self._ctx = mp.get_context(start_method)
+        self.cost_model = get_cost_model(order)
         self._workers: list[_Worker] = []
         self._simulate: Callable | None = None
         self._next_id = 0
@@ -349,7 +356,7 @@ class ProcessPoolExecutor:
         outputs: list = [None] * m
         status = np.full(m, -1, np.int32)
         reasons, times, workers = [""] * m, np.zeros(m), np.full(m, -1, np.int32)
-        pending = list(range(m))[::-1]
+        pending = dispatch_order(self.cost_model, thetas).tolist()[::-1]
         done = 0
 
         def give(worker: _Worker) -> None:
@@ -401,6 +408,8 @@ class ProcessPoolExecutor:
                 )
                 done += 1
                 give(self._spawn())
+        if self.cost_model is not None:
+            self.cost_model.observe(thetas, times)
         return _assemble(outputs, status, reasons, times, workers)
 
     def close(self) -> None:

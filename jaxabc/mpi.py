@@ -81,6 +81,7 @@ import numpy as np
 
 from jaxabc.errors import STATUS_FAILED, STATUS_TIMEOUT, STATUS_WORKER_DIED
 from jaxabc.executors import SimulationBatch, _assemble, _run_one
+from jaxabc.scheduling import CostModel, dispatch_order, get_cost_model
 
 __all__ = ["ALLOCATIONS", "MPIExecutor", "chunk_indices", "mpi_available"]
 
@@ -316,6 +317,10 @@ class MPIExecutor:
     isolate : bool
         Run the simulator in a child process of each worker rank (default), so that a crash or
         a timeout costs one task, not the MPI job.  ``False`` runs it in the rank itself.
+    order : {"fifo", "longest_first"} or CostModel, optional
+        Dynamic allocation only: the order in which tasks are queued for the ranks.
+        ``"longest_first"`` queues the longest *predicted* first, learnt from the wall times of
+        earlier tasks (:mod:`jaxabc.scheduling`); results never depend on it.
 
     Attributes
     ----------
@@ -334,7 +339,8 @@ class MPIExecutor:
     """
 
     def __init__(self, allocation: str = "dynamic", max_workers: int | None = None,
-                 timeout: float | None = None, isolate: bool = True):
+                 timeout: float | None = None, isolate: bool = True,
+                 order: str | CostModel | None = None):
         if allocation not in ALLOCATIONS:
             raise ValueError(f"allocation must be one of {ALLOCATIONS}, got {allocation!r}")
         if max_workers is not None and max_workers < 1:
@@ -346,6 +352,9 @@ class MPIExecutor:
         self.max_workers = max_workers
         self.timeout = timeout
         self.isolate = bool(isolate)
+        if order not in (None, "fifo") and allocation != "dynamic":
+            raise ValueError("order applies to dynamic allocation only; static chunks are fixed up front")
+        self.cost_model = get_cost_model(order)
         self.last_makespan = float("nan")
         self._pool: Any = None
         self._broken: str | None = None
@@ -401,7 +410,7 @@ class MPIExecutor:
             ) from exc
         pool = self._ensure_pool()
         if self.allocation == "dynamic":
-            groups = [np.array([i]) for i in range(m)]
+            groups = [np.array([i]) for i in dispatch_order(self.cost_model, thetas)]
         else:
             groups = chunk_indices(m, pool.num_workers)
 
@@ -434,6 +443,9 @@ class MPIExecutor:
             if fut not in answered:
                 for i in idx:
                     reasons[i] = f"not run or lost: the MPI pool became unusable ({self._broken})"
+        if self.cost_model is not None:
+            ran = workers >= 0
+            self.cost_model.observe(thetas[ran], times[ran])
         return _assemble(outputs, status, reasons, times, workers)
 
     def _collect(self, futs: dict) -> tuple[list[tuple[Any, Any]], list[Any]]:

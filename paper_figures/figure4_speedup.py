@@ -32,6 +32,9 @@ ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "benchmarks" / "results"
 COLORS = {"apmcabc": "tab:blue", "abcsubsim": "tab:orange"}
 NAMES = {"apmcabc": "APMCABC", "abcsubsim": "ABCsubsim"}
+#: dynamic_longest_first: queued longest predicted first; dynamic_lpt_oracle: by true duration (a bound).
+ALLOC_COLORS = {"dynamic": "tab:blue", "dynamic_longest_first": "tab:green", "dynamic_lpt_oracle": "tab:gray",
+                "static": "tab:red"}
 
 
 def _panel_model(ax: plt.Axes, model: dict) -> None:
@@ -95,6 +98,9 @@ def _panel_efficiency(ax: plt.Axes, model: dict) -> None:
         ax.plot(n, rec["dynamic"]["efficiency_mean"], "-o", ms=3, color=COLORS[name],
                 label=f"{NAMES[name]}, dynamic (model)")
         ax.plot(n, rec["static"]["efficiency_mean"], "--", color=COLORS[name], label=f"{NAMES[name]}, static (model)")
+        if "dynamic_longest_first" in rec:
+            ax.plot(n, rec["dynamic_longest_first"]["efficiency_mean"], "-.", color=COLORS[name],
+                    label=f"{NAMES[name]}, dynamic longest-predicted-first (model)")
         ax.axvline(rec["max_parallel_tasks"], color=COLORS[name], lw=0.8, ls=":",
                    label=f"{NAMES[name]}: {rec['max_parallel_tasks']} parallel tasks per barrier")
     ax.axhline(0.8, color="k", lw=0.8, label="target 0.8")
@@ -111,14 +117,16 @@ def _panel_makespan(ax: plt.Axes, model: dict, data: dict) -> None:
     styles = ["-", "-.", ":"]
     for k, (m, rec) in enumerate(sorted(model["single_batch"].items(), key=lambda kv: int(kv[0]))):
         n = np.asarray(rec["n"])
-        ax.plot(n, rec["dynamic"]["max"], styles[k % 3], color="tab:blue", label=f"dynamic, m = {m} (model, worst)")
-        ax.plot(n, rec["static"]["max"], styles[k % 3], color="tab:red", label=f"static, m = {m} (model, worst)")
+        for alloc, color in ALLOC_COLORS.items():
+            if alloc in rec:
+                ax.plot(n, rec[alloc]["max"], styles[k % 3], color=color, label=f"{alloc}, m = {m} (model, worst)")
     ranks = data.get("ranks")
     if ranks and ranks.get("validation"):
         val = ranks["validation"]["apmcabc"]
-        for alloc, color in (("dynamic", "tab:blue"), ("static", "tab:red")):
-            ax.plot(val["n"], val[alloc]["measured_over_lower_bound"], "o", color=color, mfc="none",
-                    label=f"{alloc}, APMCABC run (measured, real ranks, sleep)")
+        for alloc, color in ALLOC_COLORS.items():
+            if alloc in val:
+                ax.plot(val["n"], val[alloc]["measured_over_lower_bound"], "o", color=color, mfc="none",
+                        label=f"{alloc}, APMCABC run (measured, real ranks, sleep)")
     ax.axhline(1.1, color="k", lw=0.8, label="target 1.1")
     ax.set_xscale("log", base=2)
     ax.set_xlabel("workers n")

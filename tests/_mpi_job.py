@@ -3,7 +3,8 @@
 Launched as ``mpiexec -n K python -m mpi4py.futures tests/_mpi_job.py OUT.json [--flaky]``; rank 0
 runs this script, ranks 1..K-1 are the pool's workers.  Writes the particles, weights and task
 records of an APMCABC run under dynamic and static MPI allocation (and, with ``--flaky``, a serial
-reference run and the failure statuses of ``flaky_simulate``) to ``OUT.json``.
+reference run and the failure statuses of ``flaky_simulate``; with ``--longest-first``, a dynamic run
+whose tasks are queued longest-predicted-first) to ``OUT.json``.
 """
 
 from __future__ import annotations
@@ -80,6 +81,13 @@ def main() -> None:
     probe.close()
     out["mpi"] = _calibrate("mpi")
     out["mpi_static"] = _calibrate("mpi_static")
+    if "--longest-first" in sys.argv:
+        ex = MPIExecutor("dynamic", order="longest_first")
+        try:
+            out["mpi_longest_first"] = _calibrate(ex)
+            out["mpi_longest_first"]["history"] = ex.cost_model.history_size
+        finally:
+            ex.close()
     if "--flaky" in sys.argv:
         out["serial"] = _calibrate("serial")
         out["flaky"] = _flaky()

@@ -56,7 +56,7 @@ def launches(tmp_path_factory: pytest.TempPathFactory) -> dict[int, dict]:
     # One after the other: the second reuses the first's compiled programs, and two concurrent
     # jobs would only compete for the same cores.
     return {2: _launch(3, tmp / "two.json", tmp / "jax-cache", "--flaky"),
-            3: _launch(4, tmp / "three.json", tmp / "jax-cache")}
+            3: _launch(4, tmp / "three.json", tmp / "jax-cache", "--longest-first")}
 
 
 def test_chunk_indices_are_equal_contiguous_chunks() -> None:
@@ -108,6 +108,15 @@ def test_same_result_as_serial_whatever_the_ranks(launches: dict[int, dict], wor
     ranks = set(got["worker"])
     assert ranks <= set(range(1, workers + 1)), f"tasks ran on ranks {ranks}, expected 1..{workers}"
     assert len(ranks) > 1, "every task ran on one rank: the pool did not spread the work"
+
+
+@pytest.mark.mpi
+def test_longest_first_order_gives_the_same_result(launches: dict[int, dict]) -> None:
+    """Queueing tasks longest-predicted-first changes when they run, never what they return."""
+    got, serial = launches[3]["mpi_longest_first"], launches[2]["serial"]
+    assert got["history"] > 0, "the cost model never saw a finished task"
+    np.testing.assert_array_equal(got["particles"], serial["particles"])
+    np.testing.assert_array_equal(got["weights"], serial["weights"])
 
 
 @pytest.mark.mpi

@@ -1,0 +1,77 @@
+"""Longest-predicted-first task order for dynamic executors (jaxabc.scheduling)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import jaxabc
+from jaxabc.examples import sleep_simulate
+from jaxabc.scheduling import NearestNeighbourCost, dispatch_order, get_cost_model
+
+
+def test_nearest_neighbour_cost_learns_a_duration_that_depends_on_theta():
+    rng = np.random.default_rng(0)
+    # Two regimes as in water: "vaporised" parameters are fast, "liquid" ones slow, plus noise.
+    x = rng.uniform(0, 1, size=(400, 2))
+    t = np.where(x[:, 0] > 0.6, 2.0, 10.0) * rng.lognormal(0.0, 0.2, 400)
+    model = NearestNeighbourCost(k=5, min_history=16)
+    assert model.predict(x[:5]) is None  # no history yet: no opinion
+    model.observe(x[:300], t[:300])
+    pred = model.predict(x[300:])
+    slow = x[300:, 0] < 0.55
+    fast = x[300:, 0] > 0.65
+    assert np.all(pred[slow] > 6.0) and np.all(pred[fast] < 3.5)
+
+
+def test_dispatch_order_is_longest_predicted_first_and_stable():
+    model = NearestNeighbourCost(k=1, min_history=2)
+    model.observe(np.array([[0.0], [1.0], [2.0]]), np.array([1.0, 5.0, 3.0]))
+    order = dispatch_order(model, np.array([[0.1], [2.1], [0.9], [1.1], [-0.2]]))
+    assert order.tolist() == [2, 3, 1, 0, 4]  # 5, 5, 3, 1, 1 s: ties keep their order
+    assert dispatch_order(None, np.zeros((3, 1))).tolist() == [0, 1, 2]
+
+
+def test_bad_order_options():
+    with pytest.raises(ValueError, match="longest_first"):
+        get_cost_model("shortest")
+    with pytest.raises(TypeError, match="predict"):
+        get_cost_model(42)
+    with pytest.raises(ValueError, match="min_history"):
+        NearestNeighbourCost(k=0)
+    with pytest.raises(ValueError, match="dynamic"):
+        jaxabc.MPIExecutor("static", order="longest_first")
+
+
+def test_process_pool_hands_out_the_longest_predicted_task_first():
+    """One worker runs tasks one by one, so finish times give the order it got them in."""
+    # k = 1: each task is predicted by its own earlier run; durations 50 ms apart, far above the
+    # timing jitter of a busy machine.
+    ex = jaxabc.ProcessPoolExecutor(max_workers=1, order=NearestNeighbourCost(k=1, min_history=16))
+    try:
+        durations = np.array([0.05, 0.3, 0.1, 0.2, 0.15, 0.0, 0.35, 0.25] * 2)[:, None]
+        keys = np.zeros((durations.shape[0], 2), np.uint32)
+        first = ex.map(sleep_simulate, keys, durations)  # no history yet: task order
+        np.testing.assert_array_equal(np.argsort(first.summaries[:, 1]), np.arange(durations.shape[0]))
+        second = ex.map(sleep_simulate, keys, durations[::-1])
+        ran = second.summaries[np.argsort(second.summaries[:, 1]), 0]
+        assert np.all(np.diff(ran) <= 0), ran  # longest first
+        # Results are in task order whatever the run order.
+        np.testing.assert_array_equal(second.summaries[:, 0], durations[::-1, 0])
+    finally:
+        ex.close()
+
+
+def test_order_never_changes_a_run():
+    prior = jaxabc.Uniform([-5.0], [5.0], names=("mu",))
+    kwargs = dict(num_particles=20, num_steps=2, seed=3)
+    runs = []
+    for order in ("fifo", "longest_first"):
+        ex = jaxabc.ProcessPoolExecutor(max_workers=2, order=order)
+        try:
+            runs.append(jaxabc.run("apmcabc", jaxabc.examples.host_gaussian_simulate, prior, np.array([0.5]),
+                                   executor=ex, **kwargs))
+        finally:
+            ex.close()
+    np.testing.assert_array_equal(runs[0].particles, runs[1].particles)
+    np.testing.assert_array_equal(runs[0].weights, runs[1].weights)
