@@ -29,28 +29,37 @@ def block_mean_error(x: np.ndarray, num_blocks: int = 10) -> tuple[float, float]
     return float(x.mean()), float(blocks.std(ddof=1) / np.sqrt(num_blocks))
 
 
-@pytest.fixture(scope="module")
-def engine_run() -> dict:
-    preset = lj_fluid.get_preset("reduced_dense_fluid", temperature_reduced=STATE["temperature"],
-                                 density_reduced=STATE["density"], equilibration_steps=1000,
-                                 production_steps=20_000, sample_every=20, dt_reduced=0.004, truncation="plain")
+def engine_run(name: str, dt: float) -> tuple[dict, dict]:
+    """The engine's preset in reduced units (P*, U*/N with tail corrections) and its state point."""
+    base = lj_fluid.get_preset(name)
+    state = {"temperature": base.temperature_reduced, "density": base.density_reduced}
+    if name == "reduced_dense_fluid":
+        state = dict(STATE)
+    preset = lj_fluid.get_preset(name, temperature_reduced=state["temperature"], density_reduced=state["density"],
+                                 equilibration_steps=1000, production_steps=20_000, sample_every=20, dt_reduced=dt,
+                                 truncation="plain")
     obs = jax.jit(lambda k: lj_fluid.run_details(preset, k, preset.default_theta))(jax.random.PRNGKey(6))
     assert not bool(obs["failed"])
-    u_tail, p_tail = lj_fluid.tail_corrections(STATE["density"], preset.cutoff_reduced)
-    return {"pressure": np.asarray(obs["pressure"]) + p_tail,
-            "potential": np.asarray(obs["potential"]) / preset.num_atoms + u_tail,
-            "num_atoms": preset.num_atoms}
+    u = preset.units  # physical units (argon) -> reduced: P* = P sigma^3 / epsilon, U* = U / epsilon
+    u_tail, p_tail = lj_fluid.tail_corrections(state["density"], preset.cutoff_reduced)
+    out = {"pressure": np.asarray(obs["pressure"]) * u.sigma_nm**3 / u.epsilon_kj_mol + p_tail,
+           "potential": np.asarray(obs["potential"]) / preset.num_atoms / u.epsilon_kj_mol + u_tail,
+           "num_atoms": preset.num_atoms}
+    return out, state
 
 
-def test_engine_matches_lammps_at_the_same_settings(engine_run: dict) -> None:
-    ref = run_lj_fluid(**STATE, fcc_cells=3, production_steps=100_000)
-    assert ref["num_atoms"] == engine_run["num_atoms"] == 108
-    for name in ("pressure", "potential"):
-        m_eng, e_eng = block_mean_error(engine_run[name])
-        m_ref, e_ref = block_mean_error(ref[name])
+@pytest.mark.parametrize("name, dt", [("reduced_dense_fluid", 0.004), ("argon_liquid", 0.005)])
+def test_engine_matches_lammps_at_the_same_settings(name: str, dt: float) -> None:
+    """The supercritical check state, and liquid argon in physical units (tests the unit conversions)."""
+    eng, state = engine_run(name, dt)
+    ref = run_lj_fluid(**state, fcc_cells=3, dt=dt, production_steps=100_000)
+    assert ref["num_atoms"] == eng["num_atoms"] == 108
+    for key in ("pressure", "potential"):
+        m_eng, e_eng = block_mean_error(eng[key])
+        m_ref, e_ref = block_mean_error(ref[key])
         # Two independent estimates of the same number: 4 combined standard errors.
-        assert abs(m_eng - m_ref) < 4.0 * np.hypot(e_eng, e_ref), (name, m_eng, e_eng, m_ref, e_ref)
-    assert np.mean(ref["temperature"]) == pytest.approx(STATE["temperature"], rel=0.01)
+        assert abs(m_eng - m_ref) < 4.0 * np.hypot(e_eng, e_ref), (key, m_eng, e_eng, m_ref, e_ref)
+    assert np.mean(ref["temperature"]) == pytest.approx(state["temperature"], rel=0.01)
 
 
 def test_lammps_500_atoms_matches_jzg() -> None:
