@@ -124,11 +124,20 @@ def prediction_quality(times: np.ndarray, predicted: np.ndarray) -> dict:
 
 
 def records_distribution(path: Path, kind: str) -> dict:
-    """Durations from a saved ABC run's records (every simulation's theta and wall time)."""
+    """Durations from a saved ABC run's records (every simulation's theta and wall time): a result
+    (``.npz``) or a run's checkpoint (``checkpoint.pkl``, for a run still going)."""
+    import pickle
+
     import jaxabc
 
-    res = jaxabc.load(path)
-    rec = res.records
+    if path.suffix == ".pkl":
+        with open(path, "rb") as fh:
+            chunks = pickle.load(fh)["records"]
+        rec = {k: np.concatenate([np.asarray(c[k]) for c in chunks]) for k in ("wall_time", "theta", "status")}
+        executor = "see the run's log (checkpoint)"
+    else:
+        res = jaxabc.load(path)
+        rec, executor = res.records, res.metadata.get("executor")
     times = np.asarray(rec["wall_time"], np.float64)
     theta = np.asarray(rec["theta"], np.float64)
     keep = np.isfinite(times) & (times > 0)
@@ -140,7 +149,7 @@ def records_distribution(path: Path, kind: str) -> dict:
             "prediction_quality": prediction_quality(times, pred),
             "lognormal": {"mu": float(ln.mean()), "sigma": float(ln.std())},
             "source": f"{path.name}: {times.size} simulations of an ABC run (failures included: {failed:.0%}), "
-                      f"executor {res.metadata.get('executor')}"}
+                      f"executor {executor}"}
 
 
 def draw_durations(dist: dict, rng: np.random.Generator, size: int) -> np.ndarray:
