@@ -2,8 +2,9 @@
 
 For each helium set-up (the 1000-atom ``paper`` system and the small ``cpu`` preset) this times
 
-- jax-md: one compiled, vmapped segment of MD steps for batch sizes 1, 8, 32, 128 (the second
-  call, after compilation), NPT with the preset's neighbour strategy;
+- jax-md: one compiled, batched segment of MD steps for batch sizes 1, 8, 32, 128 (the second
+  call, after compilation), NPT with the preset's neighbour strategy and batching
+  (``vmap_width``: the paper system maps over members one by one, the CPU preset vmaps);
 - LAMMPS (Debian ``lmp``, one MPI rank, one thread): the same system, same steps.
 
 and writes atom-steps per second, system-steps per second, and both per core to
@@ -19,7 +20,10 @@ import argparse
 import json
 import os
 import platform
+import subprocess
+import sys
 import time
+from importlib import metadata
 from pathlib import Path
 
 import jax
@@ -31,18 +35,47 @@ from md import helium, lammps_reference
 RESULTS = Path(__file__).resolve().parent / "results" / "engine_throughput.json"
 
 
+def versions() -> dict:
+    """Versions of everything timed here (LAMMPS: the first line of ``lmp -h``)."""
+    out = {"python": platform.python_version()}
+    for name in ("jax", "jaxlib", "jax-md", "numpy"):
+        try:
+            out[name] = metadata.version(name)
+        except metadata.PackageNotFoundError:
+            out[name] = None
+    try:
+        head = subprocess.run(["lmp", "-h"], capture_output=True, text=True, timeout=30).stdout
+        out["lammps"] = next((line.strip() for line in head.splitlines() if line.strip()), None)
+    except (OSError, subprocess.TimeoutExpired):
+        out["lammps"] = None
+    return out
+
+
+def neighbour_strategy(preset: helium.HeliumPreset) -> dict:
+    """How the jax-md engine of a preset finds pairs (recorded with every timing)."""
+    engine = helium.make_engine(preset)
+    out = {"use_neighbor_list": preset.use_neighbor_list, "rebuild_every": preset.rebuild_every}
+    if engine.neighbor_template is not None:
+        spec = engine.neighbor_template.spec
+        out.update(skin_nm=preset.skin_nm, format=spec.format,
+                   cells_per_side=spec.cells_per_side, pair_capacity=spec.capacity,
+                   candidate_capacity=spec.candidate_capacity, cell_capacity=spec.cell_capacity)
+    return out
+
+
 def time_jax_md(preset: helium.HeliumPreset, batch: int, num_blocks: int) -> dict:
     """Seconds for ``num_blocks * rebuild_every`` NPT steps of ``batch`` systems (compiled)."""
     engine = helium.make_engine(preset)
     thetas = jnp.tile(jnp.asarray(helium.TRUE_THETA, jnp.float32), (batch, 1))
     keys = jax.random.split(jax.random.PRNGKey(0), batch)
-    init = jax.jit(jax.vmap(lambda k, t: engine.init(k, helium._params(t))))
+    width = preset.vmap_width  # the preset's batching: one vmap, or a map over vmapped groups
+    init = jax.jit(helium.batched(lambda k, t: engine.init(k, helium._params(t)), width))
 
     @jax.jit
     def segment(carry, thetas):
-        return jax.vmap(lambda c, t: engine.run(c, helium._params(t), num_blocks, 1)[0])(
-            carry, thetas
-        )
+        return helium.batched(
+            lambda c, t: engine.run(c, helium._params(t), num_blocks, 1)[0], width
+        )(carry, thetas)
 
     carry = init(keys, thetas)
     t0 = time.perf_counter()
@@ -66,6 +99,7 @@ def time_jax_md(preset: helium.HeliumPreset, batch: int, num_blocks: int) -> dic
         "atom_steps_per_second": batch * steps * preset.num_atoms / seconds,
         "atom_steps_per_second_per_core": batch * steps * preset.num_atoms / seconds / cores,
         "cores": cores,
+        "vmap_width": width,
         "any_overflow_or_failure": bool(np.any(np.asarray(d.overflow | d.failed()))),
     }
 
@@ -157,16 +191,21 @@ def main() -> None:
             r = time_jax_md(preset, b, blocks_b)
             r["setup"] = name
             r["num_atoms"] = preset.num_atoms
-            records.append(r)
+            r["neighbours"] = neighbour_strategy(preset)
             ratio = (r["atom_steps_per_second_per_core"] / lmp["atom_steps_per_second_per_core"]
                      if lmp else float("nan"))
+            r["ratio_to_lammps_per_core_same_run"] = ratio if lmp else None
+            records.append(r)
             print(f"{name:24s} jax-md b={b:<4d}{r['atom_steps_per_second_per_core']:12.3e} "
                   f"atom-steps/s/core  ({ratio:.2f} x LAMMPS per core)", flush=True)
     args.output.parent.mkdir(parents=True, exist_ok=True)
     args.output.write_text(json.dumps({
         "description": __doc__,
+        "command": " ".join([os.path.basename(sys.executable), *sys.argv]),
+        "versions": versions(),
         "machine": {"cpus": os.cpu_count(), "platform": platform.platform(),
-                    "jax": jax.__version__, "load_average_at_end": os.getloadavg()},
+                    "processor": platform.processor(), "jax": jax.__version__,
+                    "load_average_at_end": os.getloadavg()},
         "records": records,
         "per_simulation": per_simulation(helium.get_preset("cpu")),
     }, indent=1))

@@ -20,8 +20,9 @@ Presets
 tau_T 2 ps, tau_P 20 ps, 0.2 ns equilibration, f_B every 2 ps over 2 ns; the observed series is
 4x longer, as the paper's 20 ns observed vs 5 ns simulated; the paper's text also mentions 2 ns
 equilibration and 5 ns runs: override ``equilibration_ps`` / ``production_ps`` for those).  One
-simulation is 1.1 million steps: 15-40 minutes of 2-core time here (jax-md reaches 500-1,400
-system-steps/s on this system, LAMMPS 14,000 on one core): for bigger machines.
+simulation is 1.1 million steps: about 2-4 minutes of 2-core time here (jax-md reaches
+~5,000-9,000 system-steps/s on this system, LAMMPS 12,000-14,000 on one core; see
+benchmarks/results/engine_throughput.json): still for bigger machines.
 
 ``cpu`` (default): chosen from ``benchmarks/helium_identifiability.py``
 (``benchmarks/results/helium_identifiability.json``: KL from 3 observed series to 24 seeds at the
@@ -138,6 +139,13 @@ class HeliumPreset:
         Steps per block (list rebuild at each block start).
     batch_size : int
         Members per compiled batch in :func:`make_batch_simulator`.
+    vmap_width : int or None
+        Members advanced together by ``jax.vmap`` inside a batch; the batch is a sequential
+        ``jax.lax.map`` over groups of this size.  None: the whole batch in one vmap.  On CPU
+        vmapping large systems is slower than running them one after another (XLA's batched
+        gathers and scatters, and working sets beyond the caches): 1000-atom helium runs at
+        ~63 ns/atom-step one by one against ~100-120 vmapped 2 to 32 wide; 32-atom systems
+        need the vmap to amortise per-operation overhead (see benchmarks/engine_throughput.py).
     """
 
     name: str
@@ -157,6 +165,7 @@ class HeliumPreset:
     skin_nm: float = 0.3
     rebuild_every: int = 10
     batch_size: int = 64
+    vmap_width: int | None = None
 
     @property
     def initial_box_nm(self) -> float:
@@ -233,13 +242,16 @@ PRESETS: dict[str, HeliumPreset] = {
         production_ps=2000.0,
         sample_every_ps=2.0,
         use_neighbor_list=True,
-        # A dilute gas has ~0.05 neighbours within r_c, so a 1 nm skin costs little per step
-        # but lets the list (and jax-md's cell list, the dominant cost) be rebuilt every 50
-        # steps instead of 10: 3.2x faster (benchmarks/engine_throughput.py).  Helium's fastest
-        # atoms move < 0.35 nm in 0.1 ps, so 2 x 0.35 < 1.0 nm; the skin check still guards.
-        skin_nm=1.0,
-        rebuild_every=50,
+        # A dilute gas has ~0.05 neighbours within r_c.  With the sort-free cell list
+        # (md.lj.build_neighbor_list) and a sparse half pair list, skins of 0.4-1.0 nm cost
+        # about the same per step (benchmarks/engine_throughput.py); 0.6 nm rebuilt every
+        # 20 steps (0.04 ps) leaves room for the Maxwell tail over a 1.1-million-step run:
+        # an atom at 5 nm/ps (~4.5 x the most probable speed) moves 0.2 nm, 2 x 0.2 < 0.6.
+        # (1.0 nm every 50 steps reached a skin ratio of 0.8 within 1,500 steps.)
+        skin_nm=0.6,
+        rebuild_every=20,
         batch_size=16,
+        vmap_width=1,
     ),
     "cpu": HeliumPreset(
         name="cpu",
@@ -272,6 +284,21 @@ def make_engine(preset: HeliumPreset) -> LJEngine:
 def f_b_ideal_gas(num_atoms: int) -> float:
     """f_B of an ideal gas with 3N - 3 thermal degrees of freedom: exp(-2.5 (N - 1) / N)."""
     return float(np.exp(-2.5 * (num_atoms - 1) / num_atoms))
+
+
+def batched(fn: Callable[..., Any], width: int | None) -> Callable[..., Any]:
+    """``fn`` mapped over the leading axis of its arguments: ``jax.vmap`` when ``width`` is None,
+    else a sequential ``jax.lax.map`` over groups of ``width`` members (vmapped within a group).
+    Members are independent, so both give the same results up to rounding."""
+    if width is None:
+        return jax.vmap(fn)
+
+    def mapped(*args: Any) -> Any:
+        if width == 1:  # no vmap at all
+            return jax.lax.map(lambda a: fn(*a), args)
+        return jax.lax.map(lambda a: fn(*a), args, batch_size=width)
+
+    return mapped
 
 
 def _params(theta: jax.Array) -> LJParams:
@@ -385,7 +412,7 @@ def make_batch_simulator(
 
     @jax.jit
     def init(keys: jax.Array, thetas: jax.Array) -> Carry:
-        return jax.vmap(lambda k, t: engine.init(k, _params(t)))(keys, thetas)
+        return batched(lambda k, t: engine.init(k, _params(t)), preset.vmap_width)(keys, thetas)
 
     @functools.partial(jax.jit, static_argnums=(2, 3, 4))
     def advance(
@@ -394,9 +421,9 @@ def make_batch_simulator(
         def one(c: Carry, t: jax.Array) -> tuple[Carry, Any]:
             return engine.run(c, _params(t), num, blocks, observe if sample else None)
 
-        return jax.vmap(one)(carry, thetas)
+        return batched(one, preset.vmap_width)(carry, thetas)
 
-    rebuild = jax.jit(jax.vmap(engine.rebuild_neighbors))
+    rebuild = jax.jit(batched(engine.rebuild_neighbors, preset.vmap_width))
 
     def checked(carry: Carry, thetas: jax.Array, num: int, blocks: int, sample: bool) -> tuple:
         for _ in range(max_reallocations + 1):

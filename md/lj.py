@@ -20,51 +20,70 @@ What this module provides
 Performance notes (measured on 2 shared CPU cores)
 --------------------------------------------------
 - NPT steps reuse the strain derivative of the previous step (:meth:`LJEngine._npt_step`, a
-  line-by-line copy of jax-md's MTTK step otherwise, bitwise identical trajectories): jax-md
-  evaluates energy and gradient twice per step; once is enough.
+  line-by-line transcription of jax-md's MTTK step otherwise): jax-md evaluates energy and
+  gradient twice per step; once is enough.
+- Pair forces and the virial are analytic (``energy_fn.force_and_strain``): the pair derivative
+  is taken elementwise in r^2, so there is no backward pass (whose gather transpose is a slow
+  scatter on CPU).  The three-body term still uses autodiff.
+- The NPT step divides by the box sides instead of multiplying by the inverse box (jax-md's
+  ``shift_fn``), takes sum p^2/m from the thermostat's tracked kinetic energy at the first
+  barostat half-kick and computes it once per step (jax-md: three reductions), and the skin
+  check measures displacements from the unwrapped positions.  Under ``vmap`` XLA's CPU backend
+  runs (B, N, 3) reductions at ~2 ns and 3 x 3 einsums at ~9 ns per element, against ~0.2 ns
+  for fused elementwise work, so these dominated the integrator (67-104 -> ~30 ns/atom-step
+  for the 1000-atom system).  Trajectories equal jax-md's to rounding, no longer bitwise.
 - Nose-Hoover chains default to LAMMPS's 3 / 1 / 1 (length / chain steps / Suzuki-Yoshida)
   rather than jax-md's 5 / 2 / 3: the many tiny chain operations dominate small systems.
 - Boxes are orthorhombic (cubic here, isotropic NPT): minimum-image vectors are scaled by the
-  box diagonal instead of a 3 x 3 matrix product per pair (2.3x faster forces).
-- Together: ~19,000 system-steps/s for 64-atom helium batched 64 wide (was ~3,000).
+  box diagonal instead of a 3 x 3 matrix product per pair.
 
 Neighbour lists (why they are done this way)
 --------------------------------------------
 Inside ``jax.vmap`` the ``lax.cond`` in jax-md's ``neighbor_list.update`` becomes a select, so
 every member of a batch would rebuild its list at every step (measured: 145 instead of 2,726
-system-steps/s).  Instead the list is built with ``dr_threshold=0`` and the skin folded into the
-cutoff, and it is rebuilt *unconditionally* at the start of every block of ``rebuild_every``
-steps.  Within a block the engine tracks the largest displacement since the rebuild; a block is
-safe when ``2 max|dr| + (r_c + skin) |L/L_ref - 1| < skin`` (two atoms approaching each other,
-plus the affine change of pair distances when the NPT box changes).  Overflow of the list's
-capacity, a cell size that became too small after the box shrank, and an unsafe block are
-recorded as sticky flags in :class:`Diagnostics` (errors are data inside jit).  The host then
-re-allocates a larger list outside jit and redoes the chunk from its saved start
-(see :func:`md.helium.make_batch_simulator`), so a batch never silently drops pairs.  A pure
-traced call cannot re-allocate; it returns the flags so its caller can turn them into NaN.
+system-steps/s).  Instead the list is built with the skin folded into the reach and rebuilt
+*unconditionally* at the start of every block of ``rebuild_every`` steps.  Within a block the
+engine tracks the largest displacement since the rebuild; a block is safe when
+``2 max|dr| + (r_c + skin) |L/L_ref - 1| < skin`` (two atoms approaching each other, plus the
+affine change of pair distances when the NPT box changes).  Overflow of any capacity of the
+list, a cell size that became too small after the box shrank, and an unsafe block are recorded
+as sticky flags in :class:`Diagnostics` (errors are data inside jit).  The host then
+re-allocates a larger list outside jit and redoes the chunk from its saved start (see
+:func:`md.helium.make_batch_simulator`), so a batch never silently drops pairs.  A pure traced
+call cannot re-allocate; it returns the flags so its caller can turn them into NaN.
 
-Systems smaller than about three cutoffs per side (the CPU helium preset) cannot use a cell
-list; for them ``use_neighbor_list=False`` uses all N - 1 partners of every atom, which can
-never overflow and on CPU is as fast as a list for a few hundred pairs.
+The list is this module's own (:func:`build_neighbor_list`), not jax-md's.  jax-md's dense cell
+list fills and scans a (cells x capacity) grid: for the paper's helium (27.3 nm box, ~0.05
+neighbours per atom, ~3,000-20,000 cells for 1,000 atoms) that grid, not the atoms, was the cost
+(rebuild 3 ms and dense-list forces 4.4 ms per step for 8 systems).  Here atoms are hashed to
+cells, a (cells, cell_capacity) table is filled by rounds of scatter-min, and each atom's
+stencil cells (a 14-cell half stencil for the sparse format) are expanded into candidate slots
+by running sums over atoms, so the cost follows atoms and real candidates; argsort,
+searchsorted and long cumulative sums, all slow under ``vmap`` on CPU, are avoided.  The
+default ``"sparse"`` format is a :class:`HalfPairs` list (each pair once; forces scattered per
+pair), several times cheaper than an (N, M) list for dilute systems; ``"dense"`` remains for
+the three-body term.  Three capacities are static and checked at every build (pair slots,
+candidate slots, atoms per cell); :meth:`LJEngine.reallocate` at least doubles all three.
 
-Known jax-md quirks handled here: ``NeighborList.cell_size`` holds a JAX array in a static field,
-which breaks a second list under jit, so it is replaced by a Python float; with fractional
-coordinates the MALFORMED_BOX flag is set for valid boxes (an inverted check), so only
-``did_buffer_overflow`` and ``cell_size_too_small`` are read; allocating from a lattice start
-gives zero capacity (spacing above the cutoff), so lists are allocated from a random
-configuration in a box shrunk by ``allocation_box_fraction``.
+Systems smaller than about three reaches per side (the CPU helium preset) cannot use a cell
+grid: with a list every atom is a candidate; ``use_neighbor_list=False`` uses all N - 1
+partners of every atom by broadcasting, which can never overflow and is fastest there.
+
+Allocating from a lattice start would give zero capacity (spacing above the reach), so lists
+are allocated from a random configuration in a box shrunk by ``allocation_box_fraction``.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import functools
 from collections.abc import Callable
 from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jax_md import partition, quantity, space
+from jax_md import quantity, space
 from jax_md import simulate as jmd_simulate
 
 from md.units import BOLTZMANN_KJ_MOL_K, HBAR_KJ_MOL_PS
@@ -146,19 +165,23 @@ class EngineConfig:
     feynman_hibbs : bool
         Add the quadratic Feynman-Hibbs correction at the thermostat temperature.
     use_neighbor_list : bool
-        Use a jax-md Dense neighbour list (with cell list when the box holds at least three
-        cells per side); False uses all pairs (best for small systems).
+        Use a neighbour list (:func:`build_neighbor_list`: sort-based cells when the box holds
+        at least three cells per side); False uses all pairs (best for small systems).
     skin_nm : float
         Neighbour-list skin, nm.
     rebuild_every : int
         Steps per block; the list is rebuilt at the start of every block.
     capacity_multiplier : float
-        jax-md's capacity head-room at allocation.
+        Capacity head-room at allocation (x what the allocation configuration needs).
     extra_capacity : int
-        Extra neighbour slots per atom at allocation.
+        Extra slots at allocation (per atom for dense lists, per 64 atoms for sparse ones).
     allocation_box_fraction : float
         The list is allocated in a box this fraction of ``box_nm`` (room for NPT shrinkage:
         the cell size stays valid and capacity is ample).
+    neighbor_format : str
+        ``"sparse"`` (default): a half list of pairs, forces scattered once per pair; the
+        cheapest for dilute systems.  ``"dense"``: (N, M) partners per atom (each pair twice);
+        needed by the three-body term, which is given one automatically.
     """
 
     num_atoms: int
@@ -184,6 +207,7 @@ class EngineConfig:
     capacity_multiplier: float = 1.5
     extra_capacity: int = 4
     allocation_box_fraction: float = 0.9
+    neighbor_format: str = "sparse"
 
     def __post_init__(self) -> None:
         if self.ensemble not in ENSEMBLES:
@@ -199,6 +223,10 @@ class EngineConfig:
                 f"cutoff (+ skin) = {reach:.3f} nm exceeds half the "
                 f"(shrunk) box {0.5 * self.box_nm * self.allocation_box_fraction:.3f} nm: "
                 "use more atoms, a lower density, or a smaller skin"
+            )
+        if self.neighbor_format not in NEIGHBOR_FORMATS:
+            raise ValueError(
+                f"neighbor_format must be one of {NEIGHBOR_FORMATS}, got {self.neighbor_format!r}"
             )
         if self.rebuild_every < 1 or self.dt_ps <= 0.0:
             raise ValueError("rebuild_every must be >= 1 and dt_ps > 0")
@@ -252,8 +280,8 @@ class Carry(NamedTuple):
     md : jax-md state
         Integrator state; ``md.position`` is (N, 3) fractional, ``md.momentum`` (N, 3) in
         amu nm/ps.
-    neighbors : jax_md.partition.NeighborList or None
-        Dense list, ``idx`` shape (N, M); None when all pairs are used.
+    neighbors : NeighborList or None
+        ``idx`` a :class:`HalfPairs` or shape (N, M); None when all pairs are used.
     unwrapped : Array, shape (N, 3)
         Fractional positions without periodic wrapping (for mean-squared displacements).
     diagnostics : Diagnostics
@@ -364,20 +392,47 @@ def axilrod_teller_energy(
     return jnp.sum(jnp.where(valid, e, 0.0)) / 3.0
 
 
+class HalfPairs(NamedTuple):
+    """A sparse half neighbour list: each pair (i < j) once, ``num_atoms`` marks an empty slot.
+
+    Attributes
+    ----------
+    i, j : Array, shape (P,), int32
+    """
+
+    i: Array
+    j: Array
+
+
+def _box_diagonal(box: Array) -> Array:
+    """Side lengths (3,) of an orthorhombic box given as (3, 3), (3,) or a scalar."""
+    box = jnp.asarray(box)
+    if box.ndim == 2:
+        return jnp.diagonal(box)
+    return jnp.broadcast_to(box, (3,))
+
+
 def _neighbor_vectors(
-    position: Array, idx: Array, box: Array, perturbation: Array | None
+    position: Array, idx: Any, box: Array, perturbation: Array | None, autodiff: bool = True
 ) -> tuple[Array, Array]:
     """Real-space minimum-image vectors from each atom to its listed partners.
 
-    Returns ``(vectors (N, M, 3), valid (N, M))``.  ``space.transform`` has a custom JVP so that
-    gradients with respect to fractional positions come out as real-space forces, as jax-md's
-    own ``periodic_general`` does.
+    ``idx`` is None (all pairs), a dense (N, M) array of partners (N marks an empty slot) or a
+    :class:`HalfPairs`.  Returns ``(vectors, valid)``: shapes (N, N or M, 3) and (N, N or M),
+    or (P, 3) and (P,) for half lists (vector from ``i`` to ``j``).  ``space.transform`` has a
+    custom JVP so that gradients with respect to fractional positions come out as real-space
+    forces, as jax-md's own ``periodic_general`` does; ``autodiff=False`` (analytic forces)
+    multiplies by the sides directly, which XLA's CPU backend runs several times faster than
+    the einsum inside ``space.transform`` under ``vmap``.
     """
     n = position.shape[0]
     if idx is None:
         # All pairs by broadcasting (N, N): no gather, which is slow on CPU.
         valid = ~jnp.eye(n, dtype=bool)
         d = position[None, :, :] - position[:, None, :]
+    elif isinstance(idx, HalfPairs):
+        valid = idx.i < n
+        d = position[jnp.where(valid, idx.j, 0)] - position[jnp.where(valid, idx.i, 0)]
     else:
         valid = idx < n
         partner = position[jnp.where(valid, idx, 0)]
@@ -385,7 +440,10 @@ def _neighbor_vectors(
     d = d - jnp.round(d)
     # Orthorhombic boxes only (all boxes here are cubic, NPT scales isotropically): scaling by
     # the diagonal is 3 multiplications per pair instead of a 3x3 matrix product.
-    vectors = space.transform(jnp.diagonal(box) if box.ndim == 2 else box, d)
+    if autodiff:
+        vectors = space.transform(_box_diagonal(box), d)
+    else:
+        vectors = d * _box_diagonal(box)
     if perturbation is not None:
         vectors = vectors * perturbation
     return vectors, valid
@@ -416,8 +474,11 @@ def make_energy_fn(
     -------
     Callable
         ``position`` (N, 3) fractional, ``box`` (3, 3) nm, ``perturbation`` () or None
-        (jax-md's isotropic strain used for the virial), ``idx`` (N, M) int partners (N marks
-        an empty slot), ``params`` :class:`LJParams`.  Returns U, shape ().
+        (jax-md's isotropic strain used for the virial), ``idx`` None (all pairs), (N, M) int
+        partners (N marks an empty slot) or :class:`HalfPairs`, ``params`` :class:`LJParams`.
+        Returns U, shape ().  Attributes: ``pair_energy(r2, params)`` (the pair term inside
+        r_c, shared by every path) and ``force_and_strain(position, box, idx, params)``
+        (analytic pair forces and dU/d(strain), no three-body term).
 
     Notes
     -----
@@ -430,20 +491,9 @@ def make_energy_fn(
     the run stays finite.  ``truncation="shifted"`` changes the reported energy, not the forces.
     """
 
-    def energy_fn(
-        position: Array,
-        box: Array,
-        perturbation: Array | None = None,
-        idx: Array | None = None,
-        params: LJParams | None = None,
-        **unused: Any,
-    ) -> Array:
+    def pair_energy(r2: Array, params: LJParams) -> Array:
+        """Energy of pairs at squared distances ``r2`` (all inside r_c), any shape."""
         sigma, epsilon = params.sigma_nm, params.epsilon_kj_mol
-        vectors, valid = _neighbor_vectors(position, idx, box, perturbation)
-        r2 = jnp.sum(vectors * vectors, axis=-1)
-        inside = valid & (r2 < cutoff_nm**2)
-        # Padding and out-of-range pairs get a harmless distance so no NaN reaches the gradient.
-        r2 = jnp.where(inside, r2, cutoff_nm**2)
         # (sigma^2 / r^2)^3 avoids a square root and a power per pair (the hot loop).
         sr2 = sigma * sigma / r2
         sr6 = sr2 * sr2 * sr2
@@ -453,13 +503,62 @@ def make_energy_fn(
         if feynman_hibbs:
             r = jnp.sqrt(r2)
             pair = pair + feynman_hibbs_correction(r, sigma, epsilon, mass_amu, kt_kj_mol)
-        # Dense lists hold every pair twice (i -> j and j -> i).
-        energy = 0.5 * jnp.sum(jnp.where(inside, pair, 0.0))
+        return pair
+
+    def energy_fn(
+        position: Array,
+        box: Array,
+        perturbation: Array | None = None,
+        idx: Any = None,
+        params: LJParams | None = None,
+        **unused: Any,
+    ) -> Array:
+        vectors, valid = _neighbor_vectors(position, idx, box, perturbation)
+        r2 = jnp.sum(vectors * vectors, axis=-1)
+        inside = valid & (r2 < cutoff_nm**2)
+        # Padding and out-of-range pairs get a harmless distance so no NaN reaches the gradient.
+        r2 = jnp.where(inside, r2, cutoff_nm**2)
+        pair = pair_energy(r2, params)
+        # Dense lists and all pairs hold every pair twice (i -> j and j -> i); half lists once.
+        half = 1.0 if isinstance(idx, HalfPairs) else 0.5
+        energy = half * jnp.sum(jnp.where(inside, pair, 0.0))
         if three_body:
+            if isinstance(idx, HalfPairs):
+                raise ValueError("the three-body term needs a dense (or no) neighbour list")
             c9 = params.c9_kj_mol_nm9
             energy = energy + axilrod_teller_energy(vectors, inside, c9, cutoff_nm)
         return energy
 
+    def force_and_strain(
+        position: Array, box: Array, idx: Any = None, params: LJParams | None = None
+    ) -> tuple[Array, Array]:
+        """Real-space forces (N, 3) and dU/d(strain) () of the pair terms, analytically.
+
+        The pair derivative dU/d(r^2) is taken elementwise (no scatter in a backward pass):
+        ``F_i = sum_j 2 u'(r_ij^2) r_ij`` and ``dU/d eps = sum_pairs 2 r^2 u'(r^2)`` for the
+        isotropic strain ``r -> (1 + eps) r``.
+        """
+        vectors, valid = _neighbor_vectors(position, idx, box, None, autodiff=False)
+        r2 = jnp.sum(vectors * vectors, axis=-1)
+        inside = valid & (r2 < cutoff_nm**2)
+        r2 = jnp.where(inside, r2, cutoff_nm**2)
+        du = jax.grad(lambda x: jnp.sum(pair_energy(x, params)))(r2)
+        du = jnp.where(inside, du, 0.0)
+        pair_force = (2.0 * du)[..., None] * vectors
+        if isinstance(idx, HalfPairs):
+            force = (
+                jnp.zeros_like(position)
+                .at[jnp.where(valid, idx.i, 0)].add(pair_force)
+                .at[jnp.where(valid, idx.j, 0)].add(-pair_force)
+            )
+            strain = 2.0 * jnp.sum(du * r2)
+        else:
+            force = jnp.sum(pair_force, axis=1)
+            strain = jnp.sum(du * r2)  # every pair twice: 1/2 x 2 r^2 u'
+        return force, strain
+
+    energy_fn.pair_energy = pair_energy  # type: ignore[attr-defined]
+    energy_fn.force_and_strain = force_and_strain  # type: ignore[attr-defined]
     return energy_fn
 
 
@@ -472,6 +571,256 @@ def lattice_positions(num_atoms: int) -> np.ndarray:
     grid = (np.arange(n) + 0.5) / n
     sites = np.stack(np.meshgrid(grid, grid, grid, indexing="ij"), axis=-1).reshape(-1, 3)
     return sites[:num_atoms].astype(np.float32)
+
+
+# --------------------------------------------------------------------------------------------
+# Neighbour lists: sort-based cell list, no dense cell grid
+# --------------------------------------------------------------------------------------------
+
+# The 27 cells around (and including) a cell, as (dx, dy, dz) offsets, own cell first; the
+# first 14 are a half stencil (the own cell and 13 of the 26 neighbours, no two opposite), which
+# reaches every pair of atoms in neighbouring cells exactly once when there are >= 3 cells a side.
+_HALF = [(0, 0, 0)] + [
+    (dx, dy, dz)
+    for dz in (-1, 0, 1)
+    for dy in (-1, 0, 1)
+    for dx in (-1, 0, 1)
+    if (dz, dy, dx) > (0, 0, 0)
+]
+_STENCIL = np.array(_HALF + [(-dx, -dy, -dz) for dx, dy, dz in _HALF[1:]], np.int32)
+NEIGHBOR_FORMATS = ("sparse", "dense")
+
+
+@dataclasses.dataclass(frozen=True)
+class NeighborSpec:
+    """Static shape of a neighbour list (a new one recompiles).
+
+    Attributes
+    ----------
+    format : str
+        ``"sparse"``: :class:`HalfPairs`, each pair once (P slots); ``"dense"``: (N, M) partners,
+        each pair twice.
+    num_atoms : int
+    reach_nm : float
+        Cutoff plus skin, nm.
+    cells_per_side : int
+        Cell grid of the fractional unit cube (cells at least ``reach_nm`` wide); 0: no grid,
+        every atom is a candidate partner of every other (small boxes).
+    candidate_capacity : int
+        Slots for (atom, candidate partner in a stencil cell) pairs.
+    capacity : int
+        P (sparse) or M (dense).
+    cell_capacity : int
+        Atoms per cell (more sets the overflow flag).
+    """
+
+    format: str
+    num_atoms: int
+    reach_nm: float
+    cells_per_side: int
+    candidate_capacity: int
+    capacity: int
+    cell_capacity: int = 1
+
+
+@functools.partial(
+    jax.tree_util.register_dataclass,
+    data_fields=["idx", "did_buffer_overflow", "cell_size_too_small", "required"],
+    meta_fields=["spec"],
+)
+@dataclasses.dataclass(frozen=True)
+class NeighborList:
+    """A neighbour list built by :func:`build_neighbor_list` (a pytree; ``spec`` is static).
+
+    Attributes
+    ----------
+    idx : HalfPairs or Array (N, M)
+    did_buffer_overflow : Array, bool
+        Candidate or pair slots ran out: pairs were dropped, re-allocate.
+    cell_size_too_small : Array, bool
+        The box shrank so that a cell is narrower than the reach: re-allocate.
+    required : Array, shape (3,), int32
+        Candidates, pairs (sparse) or largest row (dense), and largest cell occupancy this
+        build needed.
+    spec : NeighborSpec
+    """
+
+    idx: Any
+    did_buffer_overflow: Array
+    cell_size_too_small: Array
+    required: Array
+    spec: NeighborSpec
+
+    @property
+    def max_occupancy(self) -> int:
+        """Pair slots P (sparse) or partners per atom M (dense)."""
+        return self.spec.capacity
+
+    def update(self, position: Array, box: Array) -> NeighborList:
+        """Rebuild from scratch at ``position`` (fractional) in ``box`` with the same spec."""
+        return build_neighbor_list(self.spec, position, box)
+
+
+def _cell_id(cell3: Array, nc: int) -> Array:
+    return (cell3[..., 2] * nc + cell3[..., 1]) * nc + cell3[..., 0]
+
+
+def _candidates(spec: NeighborSpec, position: Array, side: Array) -> tuple:
+    """Candidate pairs (i, j, ok) in ``candidate_capacity`` slots, plus the number needed, the
+    largest cell occupancy and the cell-too-small flag.
+
+    No sort and no (cells x 27 x capacity) scan: atoms are hashed to cells, a (cells,
+    cell_capacity) table is filled by ``cell_capacity`` rounds of scatter-min (the lowest
+    unplaced index per cell: deterministic), and each atom's stencil cells are expanded into
+    candidate slots from per-atom offsets (running sums over a 14- or 27-long axis and one
+    over atoms, then a running max over the candidate slots), so the cost scales with atoms
+    and real candidates, not with cells.
+    """
+    n = spec.num_atoms
+    nc = spec.cells_per_side
+    cap = spec.candidate_capacity
+    if nc < 3:
+        t = jnp.arange(n * n, dtype=jnp.int32)
+        ok = (t // n) != (t % n)
+        if spec.format == "sparse":
+            ok = ok & ((t % n) > (t // n))
+        return (t // n, t % n, ok, jnp.int32(n * n), jnp.int32(0), jnp.asarray(False))
+    ccap = spec.cell_capacity
+    atoms = jnp.arange(n, dtype=jnp.int32)
+    cell3 = jnp.clip(jnp.floor(position * nc).astype(jnp.int32), 0, nc - 1)
+    cid = _cell_id(cell3, nc)
+    counts = jnp.zeros(nc**3, jnp.int32).at[cid].add(1)
+    occupancy = jnp.max(counts)
+    placed = jnp.zeros(n, bool)
+    rows = []
+    for _ in range(ccap):
+        first = jnp.full(nc**3, n, jnp.int32).at[cid].min(jnp.where(placed, n, atoms))
+        rows.append(first)
+        placed = placed | (first[cid] == atoms)
+    table = jnp.stack(rows, axis=1)  # (cells, ccap), n marks empty
+    stencil = _STENCIL[:14] if spec.format == "sparse" else _STENCIL
+    s = stencil.shape[0]
+    nb = _cell_id((cell3[:, None, :] + stencil) % nc, nc)  # (N, s)
+    count = jnp.minimum(counts[nb], ccap)
+    # Offsets of each (atom, cell) entry: running sum along the short stencil axis, plus a
+    # running sum over atoms.
+    within = [jnp.zeros(n, jnp.int32)]
+    for k in range(s - 1):
+        within.append(within[-1] + count[:, k])
+    per_atom = within[-1] + count[:, s - 1]
+    base = jnp.cumsum(per_atom) - per_atom
+    start = base[:, None] + jnp.stack(within, axis=1)  # (N, s)
+    total = base[-1] + per_atom[-1]
+    # Mark each non-empty entry at its first slot and fill forward (a running max): slot t
+    # belongs to the last entry starting at or before it.
+    start = start.reshape(-1)
+    entry = jnp.arange(n * s, dtype=jnp.int32)
+    target = jnp.where(count.reshape(-1) > 0, start, cap)  # empty entries: dropped
+    first = jnp.full(cap, -1, jnp.int32).at[target].max(entry, mode="drop")
+    e = jnp.maximum(jax.lax.cummax(first), 0)
+    t = jnp.arange(cap, dtype=jnp.int32)
+    k = t - start[e]
+    ok = t < total
+    i = e // s
+    own = (e % s) == 0
+    j = table[nb.reshape(-1)[e], k]
+    ok = ok & jnp.where(own, j > i if spec.format == "sparse" else j != i, True)
+    too_small = jnp.any(side / nc < spec.reach_nm)
+    return i, j, ok, total, occupancy, too_small
+
+
+def build_neighbor_list(spec: NeighborSpec, position: Array, box: Array) -> NeighborList:
+    """Build a neighbour list of fractional ``position`` (N, 3) in an orthorhombic ``box``.
+
+    Every pair closer than ``spec.reach_nm`` (minimum image) is listed unless a capacity is
+    exceeded, which sets ``did_buffer_overflow`` (and ``required`` says how much was needed).
+    Pure JAX with static shapes: jit- and vmap-able.
+    """
+    n = spec.num_atoms
+    side = _box_diagonal(box)
+    i, j, ok, total, occupancy, too_small = _candidates(spec, position, side)
+    d = position[j] - position[i]
+    d = (d - jnp.round(d)) * side
+    keep = ok & (jnp.sum(d * d, axis=-1) < spec.reach_nm**2)
+    kept = jnp.cumsum(keep.astype(jnp.int32))
+    overflow = (total > i.shape[0]) | (occupancy > spec.cell_capacity)
+    if spec.format == "sparse":
+        slot = jnp.where(keep, kept - 1, spec.capacity)
+        pi = jnp.full(spec.capacity, n, jnp.int32).at[slot].set(i, mode="drop")
+        pj = jnp.full(spec.capacity, n, jnp.int32).at[slot].set(j, mode="drop")
+        idx = HalfPairs(pi, pj)
+        needed = kept[-1]
+    else:
+        row = jnp.zeros(n, jnp.int32).at[i].add(keep.astype(jnp.int32))
+        before = jnp.cumsum(row) - row
+        col = jnp.where(keep, kept - 1 - before[i], spec.capacity)
+        idx = jnp.full((n, spec.capacity), n, jnp.int32).at[i, col].set(j, mode="drop")
+        needed = jnp.max(row)
+    overflow = overflow | (needed > spec.capacity)
+    return NeighborList(
+        idx=idx,
+        did_buffer_overflow=overflow,
+        cell_size_too_small=too_small,
+        required=jnp.stack([total, needed, occupancy]).astype(jnp.int32),
+        spec=spec,
+    )
+
+
+def allocate_neighbor_list(
+    format: str,
+    position: Array,
+    box: Array,
+    reach_nm: float,
+    cells_box_nm: float,
+    capacity_multiplier: float = 1.5,
+    extra_capacity: int = 4,
+    previous: NeighborSpec | None = None,
+) -> NeighborList:
+    """Size a list on one configuration (host side) and build it.
+
+    Capacities are ``capacity_multiplier`` x what ``position`` needs plus ``extra_capacity``
+    (candidates and sparse pairs: ``extra_capacity`` per 64 atoms), plus the capacities of
+    ``previous`` (re-allocation after an overflow grows the list at least twofold).  The cell
+    grid is sized for a box of side ``cells_box_nm`` (the smallest box expected).
+    """
+    if format not in NEIGHBOR_FORMATS:
+        raise ValueError(f"neighbor format must be one of {NEIGHBOR_FORMATS}, got {format!r}")
+    position = jnp.asarray(position, jnp.float32)
+    n = position.shape[0]
+    nc = int(np.floor(cells_box_nm / reach_nm))
+    nc = nc if nc >= 3 else 0
+    max_candidates = n * n
+    pairs_cap = n * (n - 1) // 2 if format == "sparse" else n - 1
+    probe = NeighborSpec(format, n, float(reach_nm), nc, max_candidates, max(pairs_cap, 1), n)
+    if nc:
+        # Cell occupancy and the number of candidates are known from the cell counts alone.
+        _, _, occupancy = (int(v) for v in build_neighbor_list(
+            dataclasses.replace(probe, candidate_capacity=1, capacity=1, cell_capacity=1),
+            position, box).required)
+        probe = dataclasses.replace(probe, cell_capacity=max(occupancy, 1))
+        total = int(build_neighbor_list(
+            dataclasses.replace(probe, candidate_capacity=1, capacity=1), position, box
+        ).required[0])
+        probe = dataclasses.replace(probe, candidate_capacity=max(total, 1))
+    total, needed, occupancy = (int(v) for v in build_neighbor_list(probe, position, box).required)
+    extra_sparse = extra_capacity * max(1, n // 64)
+    cand = int(np.ceil(capacity_multiplier * total)) + extra_sparse
+    if format == "sparse":
+        cap = int(np.ceil(capacity_multiplier * needed)) + extra_sparse
+    else:
+        cap = int(np.ceil(capacity_multiplier * needed)) + extra_capacity
+    cell_cap = int(np.ceil(capacity_multiplier * occupancy)) + 1
+    if previous is not None:
+        cand += previous.candidate_capacity
+        cap += previous.capacity
+        cell_cap += previous.cell_capacity
+    spec = dataclasses.replace(
+        probe,
+        candidate_capacity=max_candidates if nc == 0 else min(cand, max_candidates),
+        capacity=min(cap, max(pairs_cap, 1)),
+        cell_capacity=min(cell_cap, n),
+    )
+    return build_neighbor_list(spec, position, box)
 
 
 # --------------------------------------------------------------------------------------------
@@ -538,15 +887,8 @@ class LJEngine:
         else:
             self._init_fn, self._apply_fn = jmd_simulate.nve(self.energy_fn, self.shift_fn, c.dt_ps)
         if c.use_neighbor_list:
-            self.neighbor_fn = partition.neighbor_list(
-                self.displacement_fn,
-                self.box0,
-                c.cutoff_nm + c.skin_nm,
-                dr_threshold=0.0,
-                capacity_multiplier=c.capacity_multiplier,
-                fractional_coordinates=True,
-                format=partition.Dense,
-            )
+            # Kept for callers that test ``neighbor_fn is None``: builds a list from the template.
+            self.neighbor_fn = self._build
             self.neighbor_template = self._allocate(jax.random.PRNGKey(0), c.extra_capacity)
         else:
             self.neighbor_fn = None
@@ -554,33 +896,56 @@ class LJEngine:
 
     # -- neighbour lists (host side) -----------------------------------------------------
 
-    def _allocate(self, key: Array, extra_capacity: int, position: Array | None = None) -> Any:
+    @property
+    def neighbor_format(self) -> str:
+        """``"dense"`` when the three-body term needs it, else the configured format."""
+        return "dense" if self.config.three_body else self.config.neighbor_format
+
+    def _build(self, position: Array, box: Array) -> NeighborList:
+        return build_neighbor_list(self.neighbor_template.spec, position, box)
+
+    def _allocate(
+        self,
+        key: Array,
+        extra_capacity: int,
+        position: Array | None = None,
+        previous: NeighborSpec | None = None,
+    ) -> NeighborList:
         c = self.config
         box = self.box0 * c.allocation_box_fraction
         if position is None:
             position = jax.random.uniform(key, (c.num_atoms, 3), dtype=jnp.float32)
-        nbrs = self.neighbor_fn.allocate(position, box=box, extra_capacity=extra_capacity)
-        if nbrs.cell_size is not None:
-            nbrs = dataclasses.replace(nbrs, cell_size=float(np.max(np.asarray(nbrs.cell_size))))
-        return nbrs
+        return allocate_neighbor_list(
+            self.neighbor_format,
+            position,
+            box,
+            c.cutoff_nm + c.skin_nm,
+            c.box_nm * c.allocation_box_fraction,
+            c.capacity_multiplier,
+            extra_capacity,
+            previous=previous,
+        )
 
-    def reallocate(self, position: Array) -> Any:
-        """Replace the shared list template by one with about twice the capacity (host only).
+    def reallocate(self, position: Array) -> NeighborList:
+        """Replace the shared list template by a larger one (host only).
 
         Parameters
         ----------
         position : Array, shape (N, 3)
             A fractional configuration whose list overflowed; the new list is sized on it (in
-            the shrunk allocation box, which over-counts) plus the old capacity as head-room.
+            the shrunk allocation box, which over-counts) plus the old capacities as head-room
+            (so every capacity at least doubles).
 
         Returns
         -------
         NeighborList
             The new template; rebuild members' lists from it with :meth:`rebuild_neighbors`.
         """
-        current = self.neighbor_template.max_occupancy
         self.neighbor_template = self._allocate(
-            jax.random.PRNGKey(0), extra_capacity=current, position=jnp.asarray(position)
+            jax.random.PRNGKey(0),
+            self.config.extra_capacity,
+            position=jnp.asarray(position),
+            previous=self.neighbor_template.spec,
         )
         return self.neighbor_template
 
@@ -594,6 +959,12 @@ class LJEngine:
     # -- NPT step with a cached virial ---------------------------------------------------
 
     def _force_and_strain(self, position: Array, box: Array, **kwargs: Any) -> tuple:
+        if not self.config.three_body:
+            # Analytic pair forces and virial: no backward pass (and no scatter for dense lists).
+            return self.energy_fn.force_and_strain(
+                position, box, idx=kwargs.get("idx"), params=kwargs["params"]
+            )
+
         def energy(pos: Array, eps: Array) -> Array:
             return self.energy_fn(pos, box=box, perturbation=1.0 + eps, **kwargs)
 
@@ -608,7 +979,10 @@ class LJEngine:
         step, at exactly the positions and box where the previous step ended (the chain
         half-steps change momenta only): that second energy-and-gradient evaluation is about a
         third of the cost of a small system.  The arithmetic below is otherwise jax-md 0.2.29's
-        ``inner_step`` / ``apply_fn`` line by line.
+        ``inner_step`` / ``apply_fn`` line by line, with three exact rewrites for orthorhombic
+        boxes and speed (see the module notes): the position shift divides by the box sides,
+        the first ``sum p^2 / m`` is twice the thermostat's tracked kinetic energy, and the
+        second is computed once and also gives the new kinetic energy.
         """
         c = self.config
         dt = c.dt_ps
@@ -620,16 +994,21 @@ class LJEngine:
         def sinhx_x(x: Array) -> Array:
             return 1 + x**2 / 6 + x**4 / 120 + x**6 / 5040 + x**8 / 362_880 + x**10 / 39_916_800
 
-        def box_force(alpha: float, vol: Array, dudv: Array, momentum: Array, mass: Array):
-            ke2 = jnp.sum(momentum**2 / mass)
+        def box_force(alpha: float, vol: Array, dudv: Array, ke2: Array):
+            # ke2 = sum p^2 / m = 2 KE, passed in: the thermostat already tracks it.
             return alpha * ke2 - dudv - pressure * vol * dim
 
         def exp_il1(box: Array, r: Array, v: Array, v_b: Array) -> Array:
             x = v_b * dt
             x_2 = x / 2
-            return self.shift_fn(
-                r, r * (jnp.exp(x) - 1) + dt * v * jnp.exp(x_2) * sinhx_x(x_2), box=box
+            # jax-md's shift_fn: dR in real units, transformed by the inverse box and wrapped
+            # into the unit cube; for orthorhombic boxes a division by the sides (no 3 x 3
+            # product per atom) and x - floor(x) (the same value as mod(x, 1)).
+            dr = (r * (jnp.exp(x) - 1) + dt * v * jnp.exp(x_2) * sinhx_x(x_2)) / _box_diagonal(
+                box
             )
+            r = r + dr
+            return r - jnp.floor(r)
 
         def exp_il2(alpha: float, p: Array, f: Array, v_b: Array) -> Array:
             x = alpha * v_b * dt_2
@@ -646,7 +1025,8 @@ class LJEngine:
         r, m, f = s.position, s.mass, s.force
         alpha = 1 + 1 / n
         vol, box_fn = jmd_simulate._npt_box_info(s)
-        p_b = p_b + dt_2 * box_force(alpha, vol, strain, p, m)
+        # The thermostat half step scaled p and its tracked kinetic energy together.
+        p_b = p_b + dt_2 * box_force(alpha, vol, strain, 2.0 * tc.kinetic_energy)
         p = exp_il2(alpha, p, f, p_b / box_mass)
         r_b = s.box_position + p_b / box_mass * dt
         s = s.set(box_position=r_b)
@@ -655,10 +1035,10 @@ class LJEngine:
         r = exp_il1(box, r, p / m, p_b / box_mass)
         f, strain = self._force_and_strain(r, box, **kwargs)
         p = exp_il2(alpha, p, f, p_b / box_mass)
-        p_b = p_b + dt_2 * box_force(alpha, vol, strain, p, m)
+        ke2 = jnp.sum(p * p / m)  # the one reduction over momenta per step
+        p_b = p_b + dt_2 * box_force(alpha, vol, strain, ke2)
 
-        ke = quantity.kinetic_energy(momentum=p, mass=m)
-        tc = tc.set(kinetic_energy=ke)
+        tc = tc.set(kinetic_energy=0.5 * ke2)
         bc = bc.set(kinetic_energy=quantity.kinetic_energy(momentum=p_b, mass=box_mass))
         p, tc = self._thermostat.half_step(p, tc, kt)
         p_b, bc = self._barostat.half_step(p_b, bc, kt)
@@ -753,7 +1133,7 @@ class LJEngine:
             nbrs = nbrs.update(carry.md.position, box=box_ref)
             overflow = overflow | self._neighbor_error(nbrs)
         kw = self._step_kwargs(self._idx(nbrs), params)
-        ref = carry.md.position
+        ref = carry.unwrapped
 
         def step(_: Any, state: tuple) -> tuple:
             md, unwrapped, max_disp, strain = state
@@ -766,9 +1146,8 @@ class LJEngine:
             unwrapped = unwrapped + (d - jnp.round(d))
             if self.neighbor_fn is None:
                 return md, unwrapped, max_disp, strain  # all pairs: no skin to track
-            moved = md.position - ref
-            moved = moved - jnp.round(moved)
-            disp = jnp.sqrt(jnp.max(jnp.sum(space.raw_transform(self.box(md), moved) ** 2, -1)))
+            moved = (unwrapped - ref) * _box_diagonal(self.box(md))
+            disp = jnp.sqrt(jnp.max(jnp.sum(moved * moved, -1)))
             return md, unwrapped, jnp.maximum(max_disp, disp), strain
 
         # A rebuilt list holds the same pairs within r_c, so the cached strain derivative of

@@ -112,19 +112,29 @@ def test_prior_corner_stays_finite():
     assert np.all(np.isfinite(f_b)) and np.all(f_b > 0)
 
 
-def test_neighbor_list_overflow_is_reallocated_not_dropped():
-    preset = helium.get_preset("cpu", use_neighbor_list=True, batch_size=2, **TINY)
+@pytest.mark.parametrize(
+    "atoms, tighten",
+    [
+        (32, "capacity"),  # too few cells a side: every atom a candidate, pair slots overflow
+        (128, "capacity"),  # 3 cells a side: sort-free cell list, pair slots overflow
+        (128, "cell_capacity"),  # atoms per cell
+        (128, "candidate_capacity"),  # (atom, stencil-cell partner) slots
+    ],
+)
+def test_neighbor_list_overflow_is_reallocated_not_dropped(atoms, tighten):
+    preset = helium.get_preset("cpu", num_atoms=atoms, use_neighbor_list=True, batch_size=2,
+                               **TINY)
     engine = helium.make_engine(preset)
     keys = jax.random.split(jax.random.PRNGKey(4), 2)
     thetas = jnp.asarray([helium.TRUE_THETA, (0.3, 0.5)], jnp.float32)
     reference = np.asarray(jax.jit(jax.vmap(helium.make_simulator(preset)))(keys, thetas))
     assert np.all(np.isfinite(reference))
     roomy = engine.neighbor_template
-    # A list allocated on a lattice (spacing above r_c + skin would give none; here few) with
-    # no head-room: it must overflow during the run.
+    assert (roomy.spec.cells_per_side >= 3) == (atoms == 128)
+    # A list with (almost) no room of one kind: it must overflow at the first rebuild.
+    spec = dataclasses.replace(roomy.spec, **{tighten: 1})
     lattice = jnp.asarray(lj.lattice_positions(preset.num_atoms))
-    tight = engine._allocate(jax.random.PRNGKey(0), 0, position=lattice)
-    tight = dataclasses.replace(tight, max_occupancy=2) if tight.max_occupancy > 2 else tight
+    tight = lj.build_neighbor_list(spec, lattice, engine.box0)
     try:
         engine.neighbor_template = tight
         traced = np.asarray(jax.jit(helium.make_simulator(preset))(keys[0], thetas[0]))
@@ -132,7 +142,7 @@ def test_neighbor_list_overflow_is_reallocated_not_dropped():
         batch = helium.make_batch_simulator(preset)
         f_b, ok = batch(keys, thetas)
         assert ok.all()
-        assert engine.neighbor_template.max_occupancy > tight.max_occupancy
+        assert getattr(engine.neighbor_template.spec, tighten) > 1
         # Different list capacities sum pairs in a different order; chaos amplifies that
         # rounding to ~1e-4 over these 130 steps.  A dropped pair would remove its virial
         # (f_B off by 1e-2 or more), which this tolerance still catches.

@@ -115,15 +115,60 @@ def test_energy_terms_match_direct_sum(shifted):
     assert float(forces[3, 1]) == pytest.approx(num, rel=2e-2, abs=2e-2)
 
 
-def test_neighbor_list_matches_all_pairs():
-    cfg = liquid_config(use_neighbor_list=True, skin_nm=0.3, num_atoms=256)
+@pytest.mark.parametrize("fmt", ["sparse", "dense"])
+def test_neighbor_list_matches_all_pairs(fmt):
+    cfg = liquid_config(use_neighbor_list=True, skin_nm=0.3, num_atoms=256, neighbor_format=fmt)
     engine = lj.LJEngine(cfg)
     carry = engine.init(jax.random.PRNGKey(0), PARAMS)
     idx = carry.neighbors.idx
-    assert idx.shape[1] < cfg.num_atoms - 1  # a real list, not all pairs
+    if fmt == "dense":
+        assert idx.shape[1] < cfg.num_atoms - 1  # a real list, not all pairs
     e_list = engine.energy_fn(carry.md.position, engine.box0, idx=idx, params=PARAMS)
     e_all = engine.energy_fn(carry.md.position, engine.box0, idx=None, params=PARAMS)
     assert float(e_list) == pytest.approx(float(e_all), rel=1e-5)
+    # Analytic forces and virial of the list equal autodiff over all pairs.
+    f_list, s_list = engine.energy_fn.force_and_strain(
+        carry.md.position, engine.box0, idx=idx, params=PARAMS)
+    f_all = -jax.grad(engine.energy_fn)(carry.md.position, engine.box0, params=PARAMS)
+    s_all = jax.grad(lambda x: engine.energy_fn(carry.md.position, engine.box0,
+                                                perturbation=1 + x, params=PARAMS))(0.0)
+    np.testing.assert_allclose(f_list, f_all, rtol=2e-4, atol=2e-3)
+    assert float(s_list) == pytest.approx(float(s_all), rel=1e-4)
+
+
+def _pairs_within(pos, box, reach):
+    d = pos[None, :, :] - pos[:, None, :]
+    d = (d - np.round(d)) * box
+    r2 = np.sum(d * d, -1)
+    i, j = np.nonzero(np.triu(r2 < reach**2, k=1))
+    return set(zip(i.tolist(), j.tolist(), strict=True))
+
+
+@pytest.mark.parametrize("fmt", ["sparse", "dense"])
+def test_cell_list_finds_exactly_the_pairs_within_reach(fmt):
+    """A dilute box with many cells a side and a dense one with clusters: every pair, once."""
+    rng = np.random.default_rng(3)
+    for n, box, reach, clustered in ((400, 12.0, 1.3, False), (300, 6.0, 1.1, True)):
+        pos = rng.uniform(size=(n, 3))
+        if clustered:  # a third of the atoms in a small blob: high cell occupancy
+            pos[: n // 3] = 0.5 + 0.04 * rng.uniform(size=(n // 3, 3))
+        pos = pos.astype(np.float32)
+        boxm = jnp.eye(3) * box
+        nbrs = lj.allocate_neighbor_list(fmt, pos, boxm, reach, box)
+        assert nbrs.spec.cells_per_side >= 3
+        assert not bool(nbrs.did_buffer_overflow)
+        if fmt == "sparse":
+            i, j = np.asarray(nbrs.idx.i), np.asarray(nbrs.idx.j)
+            # Each pair once, in either order (i < j only within a cell).
+            got = [(min(a, b), max(a, b)) for a, b in zip(i.tolist(), j.tolist(), strict=True)
+                   if a < n]
+        else:
+            idx = np.asarray(nbrs.idx)
+            got = [(a, b) for a in range(n) for b in idx[a].tolist() if b < n and a < b]
+            both = {(a, b) for a in range(n) for b in idx[a].tolist() if b < n}
+            assert all((b, a) in both for a, b in both)  # a full list holds both directions
+        assert len(got) == len(set(got))
+        assert set(got) == _pairs_within(pos, box, reach)
 
 
 # ------------------------------------------------------------------------------------------
