@@ -275,7 +275,8 @@ def make_lj_surrogate(
 
 
 def make_lj_simulator_with_effects(
-    preset: str = "reduced_liquid", three_body: bool = False, **overrides: Any
+    preset: str = "reduced_liquid", three_body: bool = False, catalogue: Catalogue | None = None,
+    **overrides: Any,
 ) -> LJSetup:
     """The jax-md engine of :mod:`md.lj_fluid` with the LJ catalogue's effects.
 
@@ -295,19 +296,28 @@ def make_lj_simulator_with_effects(
     three_body : bool
         Build the engine with the Axilrod-Teller term (cost N M^2 per step); without it
         ``axilrod_teller`` has no effect and criticism reports it invisible.
+    catalogue : Catalogue, optional
+        A subset of :func:`lj_catalogue` (any order): ``theta_full`` then holds the base
+        parameters followed by these effects only, and the others stay at their nulls.  Use it to
+        leave out effects this engine cannot show (``feynman_hibbs``; ``axilrod_teller`` without
+        ``three_body``), whose finite differences would only cost simulations.
     **overrides
         Fields of :class:`md.lj_fluid.LJFluidPreset` (e.g. ``production_steps`` for a smoke run).
 
     Returns
     -------
     LJSetup
-        ``simulate(key, theta_full (10,)) -> (num_bins + 3,)``: pure JAX, vmappable, NaN on failure.
+        ``simulate(key, theta_full (2 + K,)) -> (num_bins + 3,)`` (K = 8 for the full
+        catalogue): pure JAX, vmappable, NaN on failure.
     """
     from md.lj import Carry, LJEngine, LJParams
     from md.lj_fluid import get_preset, mean_squared_displacement, rdf, self_diffusion, summary_names
 
     p = get_preset(preset, **overrides)
-    cat = lj_catalogue()
+    cat = catalogue or lj_catalogue()
+    unknown = set(cat.names) - set(lj_catalogue().names)
+    if unknown:
+        raise ValueError(f"effects {sorted(unknown)} are not in the LJ catalogue: {lj_catalogue().names}")
     u = p.units
     cfg = p.engine_config()
     engine = LJEngine(dataclasses.replace(cfg, three_body=three_body))
@@ -325,11 +335,12 @@ def make_lj_simulator_with_effects(
     def simulate(key: jax.Array, theta: jax.Array) -> jax.Array:
         theta = jnp.asarray(theta, jnp.float32)
         e = _effect_dict(theta, cat)
-        t_scale = 1.0 + e["temperature_offset"]
-        l_scale = (1.0 + e["density_error"]) ** (1.0 / 3.0)
+        zero = jnp.zeros((), jnp.float32)
+        t_scale = 1.0 + e.get("temperature_offset", zero)
+        l_scale = (1.0 + e.get("density_error", zero)) ** (1.0 / 3.0)
         sigma = theta[0] * l_scale
         eps = theta[1] / t_scale
-        params = LJParams(sigma, eps, e["axilrod_teller"] * eps * sigma**9)
+        params = LJParams(sigma, eps, e.get("axilrod_teller", zero) * eps * sigma**9)
         carry = engine.init(key, params)
         carry, _ = engine.run(carry, params, p.equilibration_steps // k, 1)
         num = p.production_steps // p.sample_every

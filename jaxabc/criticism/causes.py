@@ -218,14 +218,20 @@ def sensitivities(
         simulation failed on either side is dropped.
     """
     g = keys.shape[0]
-    thetas = []
+    theta = np.asarray(theta, float)
+    # Distinct evaluation points only: a one-sided difference from a null that ``theta`` already
+    # holds evaluates ``theta`` itself, and every such effect shares that one batch.
+    unique: dict[tuple[float, ...], int] = {}
+    slots = []
     for j, lo, hi in points:
         for v in (lo, hi):
-            t = np.repeat(np.asarray(theta, float)[None], g, 0)
-            t[:, j] = v
-            thetas.append(t)
-    all_keys = jax.numpy.concatenate([keys] * (2 * len(points)))
-    sims = simulate_many(simulate, all_keys, np.concatenate(thetas), executor).reshape(len(points), 2, g, -1)
+            t = theta.copy()
+            t[j] = v
+            slots.append(unique.setdefault(tuple(t), len(unique)))
+    thetas = np.repeat(np.array(list(unique), float), g, 0)
+    all_keys = jax.numpy.concatenate([keys] * len(unique))
+    sims = simulate_many(simulate, all_keys, thetas, executor).reshape(len(unique), g, -1)
+    sims = sims[np.asarray(slots)].reshape(len(points), 2, g, -1)
     out = np.zeros((sims.shape[-1], len(points)))
     for c, (_j, lo, hi) in enumerate(points):
         diff = sims[c, 1] - sims[c, 0]

@@ -172,9 +172,13 @@ def critique(
     fitted = pred.active & ~held
     prec_f = np.linalg.pinv(pred.noise_cov[np.ix_(fitted, fitted)], rcond=1e-10, hermitian=True)
     theta = theta_hat.copy()
-    for _ in range(num_refit_iterations):
+    jac = None
+    for it in range(num_refit_iterations):
         mu = np.nanmean(simulate_many(simulate_with_effects, grad_keys, np.repeat(theta[None], num_grad, 0), ex), 0)
-        jac = sensitivities(simulate_with_effects, theta, grad_keys, base_points(theta), ex)
+        if jac is None or it % 2 == 0:
+            # The Jacobian of smooth expectations barely changes over these short moves: it is
+            # re-estimated on every other step only (each estimate costs 2 d times the mean's).
+            jac = sensitivities(simulate_with_effects, theta, grad_keys, base_points(theta), ex)
         jf = jac[fitted]
         step = np.linalg.pinv(jf.T @ prec_f @ jf, rcond=1e-8, hermitian=True) @ jf.T @ prec_f @ (obs - mu)[fitted]
         new = np.clip(theta[:d] + step, lo_b, hi_b)
