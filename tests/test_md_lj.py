@@ -271,9 +271,11 @@ def test_lj_fluid_matches_jzg_equation_of_state(temperature, density):
     p_mean, p_err = block_mean_error(obs["pressure"])
     u_mean, u_err = block_mean_error(obs["potential"] / preset.num_atoms)
     p_sim, u_sim = p_mean + p_tail, u_mean + u_tail
-    # JZG's fit reproduces simulations to a few percent in P and ~0.05 in U*/N; add 4
+    # JZG's fit reproduces simulations to a few percent (3 %) in P and ~0.05 in U*/N; a 108-atom
+    # box sits lower in P* than the thermodynamic limit (measured with LAMMPS at T* 1.5, rho* 0.7:
+    # 1.549 at 108 atoms vs 1.580 at 500, tests/test_md_lj_lammps.py), allowed as 4 %; add 4
     # statistical errors of this run.
-    assert abs(p_sim - p_jzg) < 4 * p_err + 0.05 * abs(p_jzg) + 0.05, (p_sim, p_jzg, p_err)
+    assert abs(p_sim - p_jzg) < 4 * p_err + 0.07 * abs(p_jzg), (p_sim, p_jzg, p_err)
     assert abs(u_sim - u_jzg) < 4 * u_err + 0.05, (u_sim, u_jzg, u_err)
     t_mean, _ = block_mean_error(obs["temperature"])
     assert t_mean == pytest.approx(temperature / KB, rel=0.02)
