@@ -45,7 +45,9 @@ class LammpsRun:
         exp(-H / (N k_B T)) per sample.
     temperature_k, pressure_atm, volume_nm3, enthalpy_zj, potential_zj : np.ndarray, (S,)
     wall_seconds : float
-        LAMMPS wall time of the whole run (equilibration + production).
+        LAMMPS wall time of the whole run (equilibration + production), start-up included.
+    loop_seconds : float
+        LAMMPS's own "Loop time" summed over its ``run`` commands: the MD steps alone.
     steps : int
         Total MD steps.
     """
@@ -58,6 +60,7 @@ class LammpsRun:
     potential_zj: np.ndarray
     wall_seconds: float
     steps: int
+    loop_seconds: float = float("nan")
 
 
 def lammps_available(executable: str = "lmp") -> bool:
@@ -194,6 +197,7 @@ run {prod}
         potential_zj=pe,
         wall_seconds=wall,
         steps=equil + prod,
+        loop_seconds=sum(float(m) for m in re.findall(r"^Loop time of ([0-9.eE+-]+)", log, re.M)),
     )
 
 
