@@ -110,11 +110,34 @@ def hidden_case(effect: str, seed: int) -> tuple[np.ndarray, float, float, list[
     return theta, eta, snr, top_groups
 
 
-def flagged_groups(report) -> set[str]:
+def flagged_groups(report, groups: dict | None = None) -> set[str]:
+    """Summary groups (default: the surrogate's) that hold a flagged misfit."""
     idx = set()
     for m in report.misfits:
         idx |= set(np.asarray(m.indices).tolist())
-    return {g for g, ii in SETUP.groups.items() if idx & set(ii.tolist())}
+    return {g for g, ii in (SETUP.groups if groups is None else groups).items() if idx & set(ii.tolist())}
+
+
+def assert_found_named_recovered_and_gains(report, effect: str, eta: float, groups: dict, where: list[str],
+                                           out_dir) -> None:
+    """The issue's four checks on one hidden-effect report, then its Markdown report."""
+    # 1. the base-only model misses, in a group where the effect shows
+    assert report.misfits, "the base-only fit must be flagged"
+    assert flagged_groups(report, groups) & set(where), (report.misfits, where)
+    # 2. the injected cause ranks first, unambiguously
+    top = report.causes[0]
+    assert top.name == effect, report.causes
+    assert top.significant and not top.ambiguous
+    # 3. its parameter is recovered within the 95 % credible interval
+    assert report.extension is not None and report.extension.names[-1] == effect
+    lo, hi = report.extension.credible_interval(0.95)[-1]
+    assert lo <= eta <= hi, (eta, lo, hi)
+    # 4. held-out gain larger than two standard errors; the base refit misses the held-out data
+    g = report.gain
+    assert g["delta_lpd"] > 2.0 * g["delta_lpd_se"], g
+    assert g["lpd_base"] < g["lpd_extended"]
+    report.write(out_dir)
+    assert (out_dir / "report.md").read_text().count(effect) >= 2
 
 
 # -- units --------------------------------------------------------------------------------------
@@ -186,23 +209,7 @@ def test_hidden_effect_is_found_named_recovered_and_gains(effect, tmp_path):
     obs = observe(theta, seed)
     res = fit_base(obs, seed)
     report = critique(res, SETUP.simulate, obs, CATALOGUE, held_out=HELD_OUT, seed=seed, **CRITIQUE_OPTIONS)
-    # 1. the base-only model misses, in a group where the effect shows
-    assert report.misfits, "the base-only fit must be flagged"
-    assert flagged_groups(report) & set(where), (flagged_groups(report), where)
-    # 2. the injected cause ranks first, unambiguously
-    top = report.causes[0]
-    assert top.name == effect, report.causes
-    assert top.significant and not top.ambiguous
-    # 3. its parameter is recovered within the 95 % credible interval
-    assert report.extension is not None and report.extension.names[-1] == effect
-    lo, hi = report.extension.credible_interval(0.95)[-1]
-    assert lo <= eta <= hi, (eta, lo, hi)
-    # 4. held-out gain larger than two standard errors; the base refit misses the held-out data
-    g = report.gain
-    assert g["delta_lpd"] > 2.0 * g["delta_lpd_se"], g
-    assert g["lpd_base"] < g["lpd_extended"]
-    report.write(tmp_path / "report")
-    assert (tmp_path / "report" / "report.md").read_text().count(effect) >= 2
+    assert_found_named_recovered_and_gains(report, effect, eta, SETUP.groups, where, tmp_path / "report")
     assert (tmp_path / "report" / "causes.png").exists()
 
 
@@ -413,13 +420,6 @@ def lj_engine():
     return _Engine()
 
 
-def engine_flagged_groups(report, groups) -> set[str]:
-    idx = set()
-    for m in report.misfits:
-        idx |= set(np.asarray(m.indices).tolist())
-    return {g for g, ii in groups.items() if idx & set(ii.tolist())}
-
-
 @pytest.mark.parametrize("effect", ENGINE_HIDDEN)
 def test_engine_hidden_effect_is_found_named_recovered_and_gains(effect, lj_engine, tmp_path):
     """The issue's protocol on the jax-md engine: data and pipeline simulator are the engine."""
@@ -429,24 +429,7 @@ def test_engine_hidden_effect_is_found_named_recovered_and_gains(effect, lj_engi
     assert snr >= 5.0, f"the generator must hide at least 5 sd (got {snr:.2f})"
     obs = eng.observe(theta, seed)
     report = eng.critique(obs, seed)
-    # 1. the base-only fit misses, in a group where the effect shows
-    assert report.misfits, "the base-only fit must be flagged"
-    assert engine_flagged_groups(report, eng.setup.groups) & set(where), (report.misfits, where)
-    # 2. the injected cause ranks first, unambiguously
-    top = report.causes[0]
-    assert top.name == effect, report.causes
-    assert top.significant and not top.ambiguous
-    # 3. its parameter is recovered within the 95 % credible interval
-    assert report.extension is not None and report.extension.names[-1] == effect
-    lo, hi = report.extension.credible_interval(0.95)[-1]
-    assert lo <= eta <= hi, (eta, lo, hi)
-    # 4. held-out gain larger than two standard errors; the base fit misses the held-out data
-    g = report.gain
-    assert g["delta_lpd"] > 2.0 * g["delta_lpd_se"], g
-    assert g["lpd_base"] < g["lpd_extended"]
-    report.write(tmp_path / "report")
-    assert (tmp_path / "report" / "report.md").read_text().count(effect) >= 2
-
+    assert_found_named_recovered_and_gains(report, effect, eta, eng.setup.groups, where, tmp_path / "report")
 
 def _engine_null_flags(eng, seeds) -> list:
     flagged = []
