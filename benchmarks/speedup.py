@@ -124,8 +124,13 @@ def prediction_quality(times: np.ndarray, predicted: np.ndarray) -> dict:
 
 
 def records_distribution(path: Path, kind: str) -> dict:
-    """Durations from a saved ABC run's records (every simulation's theta and wall time): a result
-    (``.npz``) or a run's checkpoint (``checkpoint.pkl``, for a run still going)."""
+    """Durations from a saved ABC run's records (every simulation's theta and time): a result
+    (``.npz``) or a run's checkpoint (``checkpoint.pkl``, for a run still going).
+
+    A task's duration is :func:`jaxabc.executors.task_durations`: its CPU time where the run
+    recorded one (what the task costs on a core of its own, whatever else shared the machine
+    while it was measured), its wall time otherwise (runs recorded before CPU times were).
+    """
     import pickle
 
     import jaxabc
@@ -134,11 +139,17 @@ def records_distribution(path: Path, kind: str) -> dict:
         with open(path, "rb") as fh:
             chunks = pickle.load(fh)["records"]
         rec = {k: np.concatenate([np.asarray(c[k]) for c in chunks]) for k in ("wall_time", "theta", "status")}
+        if all("cpu_time" in c for c in chunks):
+            rec["cpu_time"] = np.concatenate([np.asarray(c["cpu_time"]) for c in chunks])
         executor = "see the run's log (checkpoint)"
     else:
         res = jaxabc.load(path)
         rec, executor = res.records, res.metadata.get("executor")
-    times = np.asarray(rec["wall_time"], np.float64)
+    from jaxabc.executors import task_durations
+
+    cpu = rec.get("cpu_time")
+    measure = "wall time" if cpu is None or not np.any(np.isfinite(cpu)) else "CPU time (wall where it was idle)"
+    times = task_durations(rec["wall_time"], None if measure == "wall time" else cpu)
     theta = np.asarray(rec["theta"], np.float64)
     keep = np.isfinite(times) & (times > 0)
     times, theta = times[keep], theta[keep]
@@ -148,8 +159,9 @@ def records_distribution(path: Path, kind: str) -> dict:
     return {"system": "records", "kind": kind, "times": times.tolist(), "predicted": pred.tolist(),
             "prediction_quality": prediction_quality(times, pred),
             "lognormal": {"mu": float(ln.mean()), "sigma": float(ln.std())},
+            "measure": measure,
             "source": f"{path.name}: {times.size} simulations of an ABC run (failures included: {failed:.0%}), "
-                      f"executor {executor}"}
+                      f"executor {executor}, durations = {measure}"}
 
 
 def draw_durations(dist: dict, rng: np.random.Generator, size: int) -> np.ndarray:

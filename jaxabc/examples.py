@@ -17,6 +17,8 @@ executors; ``flaky`` fails on purpose in every way an external program can.
 from __future__ import annotations
 
 import os
+import subprocess
+import sys
 import time
 
 import jax
@@ -95,3 +97,15 @@ def sleep_simulate(key: np.ndarray, theta: np.ndarray) -> np.ndarray:
     """
     time.sleep(float(theta[0]))
     return np.array([float(theta[0]), time.time()])
+
+
+def busy_child_simulate(key: np.ndarray, theta: np.ndarray) -> np.ndarray:
+    """A host task that starts a program keeping a core busy for ``theta[0]`` CPU seconds.
+
+    Stands in for an external simulator (``gmx mdrun``, ``lmp``) in tests of CPU-time
+    accounting: the cost is in a child process, not in the worker itself.
+    """
+    seconds = float(theta[0])
+    code = f"import time\nt = time.process_time()\nwhile time.process_time() - t < {seconds!r}:\n    pass"
+    subprocess.run([sys.executable, "-c", code], check=True)
+    return np.array([seconds])

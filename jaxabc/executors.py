@@ -6,7 +6,7 @@ An executor maps a simulator over parameter vectors::
 
 ``keys`` has one PRNG key per task (raw ``uint32`` key data, shape (m, 2)), ``thetas`` has shape
 (m, d).  The result, :class:`SimulationBatch`, holds the summaries (NaN where a task failed),
-a status code and a reason per task, its wall time and the worker that ran it.  Task ``i`` always
+a status code and a reason per task, its wall and CPU time and the worker that ran it.  Task ``i`` always
 gets key ``i``, so the summaries do not depend on which worker ran which task, or in which order:
 the same seed gives the same result on every executor.
 
@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import multiprocessing as mp
 import os
+import resource
 import signal
 import time
 import traceback
@@ -56,6 +57,7 @@ __all__ = [
     "VmapExecutor",
     "get_executor",
     "mark_nonfinite",
+    "task_durations",
 ]
 
 
@@ -74,6 +76,11 @@ class SimulationBatch(NamedTuple):
         Seconds per task (a chunk's time shared equally among its tasks under vmap).
     worker : numpy.ndarray of int, shape (m,)
         Which worker ran the task (0 for in-process executors).
+    cpu_time : numpy.ndarray, shape (m,), optional
+        CPU seconds per task: the process that ran it plus the programs it started and waited
+        for (``getrusage``), NaN where unknown (a killed task, vmap chunks).  Unlike the wall
+        time it does not grow when other work shares the cores, so it is the task's cost that
+        cost models and the speedup study learn from.
     """
 
     summaries: np.ndarray
@@ -81,6 +88,23 @@ class SimulationBatch(NamedTuple):
     reasons: list[str]
     wall_time: np.ndarray
     worker: np.ndarray
+    cpu_time: np.ndarray | None = None
+
+
+def task_durations(wall_time: np.ndarray, cpu_time: np.ndarray | None) -> np.ndarray:
+    """Per-task cost in seconds, as cost models and the speedup study use it.
+
+    The CPU time where the task kept a core busy for at least a tenth of its wall time
+    (a computation: its wall time grows with the machine's load, its CPU time does not);
+    the wall time otherwise (a task that mostly waits -- sleep, I/O, an accelerator -- or
+    whose CPU time is unknown).
+    """
+    wall = np.asarray(wall_time, np.float64)
+    if cpu_time is None:
+        return wall
+    cpu = np.asarray(cpu_time, np.float64)
+    busy = np.isfinite(cpu) & (cpu >= 0.1 * wall)
+    return np.where(busy, cpu, wall)
 
 
 class Executor(Protocol):
@@ -202,8 +226,21 @@ def _run_one(simulate: Callable, key: np.ndarray, theta: np.ndarray) -> tuple[An
         return None, STATUS_FAILED, f"simulator raised {last}"
 
 
+def _cpu_seconds() -> float:
+    """CPU seconds used so far by this process and its waited-for children."""
+    own, children = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
+    return own.ru_utime + own.ru_stime + children.ru_utime + children.ru_stime
+
+
+def _timed_run(simulate: Callable, key: np.ndarray, theta: np.ndarray) -> tuple[Any, int, str, float, float]:
+    """:func:`_run_one` plus its wall and CPU seconds (CPU: this process and the programs it ran)."""
+    t0, c0 = time.perf_counter(), _cpu_seconds()
+    out, status, reason = _run_one(simulate, key, theta)
+    return out, status, reason, time.perf_counter() - t0, _cpu_seconds() - c0
+
+
 def _assemble(outputs: list, status: np.ndarray, reasons: list[str], times: np.ndarray,
-              workers: np.ndarray) -> SimulationBatch:
+              workers: np.ndarray, cpu_times: np.ndarray | None = None) -> SimulationBatch:
     shapes = {o.shape for o in outputs if o is not None}
     if len(shapes) > 1:
         raise ValueError(
@@ -220,7 +257,7 @@ def _assemble(outputs: list, status: np.ndarray, reasons: list[str], times: np.n
         for i, o in enumerate(outputs):
             if o is not None:
                 summaries[i] = o
-    return mark_nonfinite(SimulationBatch(summaries, status, reasons, times, workers))
+    return mark_nonfinite(SimulationBatch(summaries, status, reasons, times, workers, cpu_times))
 
 
 class SerialExecutor:
@@ -235,13 +272,12 @@ class SerialExecutor:
     def map(self, simulate: Callable, keys: np.ndarray, thetas: np.ndarray) -> SimulationBatch:
         m = thetas.shape[0]
         outputs, status, reasons = [], np.zeros(m, np.int32), [""] * m
-        times = np.zeros(m)
+        times, cpu = np.zeros(m), np.zeros(m)
         for i in range(m):
-            t0 = time.perf_counter()
-            out, status[i], reasons[i] = _run_one(simulate, np.asarray(keys[i]), np.asarray(thetas[i]))
-            times[i] = time.perf_counter() - t0
+            out, status[i], reasons[i], times[i], cpu[i] = _timed_run(
+                simulate, np.asarray(keys[i]), np.asarray(thetas[i]))
             outputs.append(out)
-        return _assemble(outputs, status, reasons, times, np.zeros(m, np.int32))
+        return _assemble(outputs, status, reasons, times, np.zeros(m, np.int32), cpu)
 
     def close(self) -> None:
         pass
@@ -263,9 +299,7 @@ def _worker_main(conn: Any, simulate: Callable) -> None:
         # Acknowledge: the parent's timeout clock starts now, not while this worker was being
         # spawned and importing JAX (which on a loaded machine can take longer than a task).
         conn.send(("started", index))
-        t0 = time.perf_counter()
-        out, status, reason = _run_one(simulate, key, theta)
-        conn.send((index, out, status, reason, time.perf_counter() - t0))
+        conn.send((index, *_timed_run(simulate, key, theta)))
 
 
 class _Worker:
@@ -303,7 +337,8 @@ class ProcessPoolExecutor:
         threads exist in the parent.
     order : {"fifo", "longest_first"} or CostModel, optional
         Which task a free worker gets next.  ``"fifo"`` (default): task order.
-        ``"longest_first"``: the longest *predicted* first, from the wall times of the tasks this
+        ``"longest_first"``: the longest *predicted* first, from the costs
+        (:func:`task_durations`: CPU time, or wall time for tasks that wait) of the tasks this
         executor already ran (:mod:`jaxabc.scheduling`); it shortens a batch's makespan when
         durations vary with the parameters and never changes a result.
 
@@ -356,6 +391,7 @@ class ProcessPoolExecutor:
         outputs: list = [None] * m
         status = np.full(m, -1, np.int32)
         reasons, times, workers = [""] * m, np.zeros(m), np.full(m, -1, np.int32)
+        cpu = np.full(m, np.nan)
         pending = dispatch_order(self.cost_model, thetas).tolist()[::-1]
         done = 0
 
@@ -382,7 +418,7 @@ class ProcessPoolExecutor:
                         if message[0] == "started":
                             worker.started = time.time()
                             continue
-                        i, out, st, reason, dt = message
+                        i, out, st, reason, dt, cpu[i] = message
                         outputs[i], status[i], reasons[i] = out, st, reason
                         times[i], workers[i] = dt, worker.wid
                         worker.task = None
@@ -408,9 +444,10 @@ class ProcessPoolExecutor:
                 )
                 done += 1
                 give(self._spawn())
+        batch = _assemble(outputs, status, reasons, times, workers, cpu)
         if self.cost_model is not None:
-            self.cost_model.observe(thetas, times)
-        return _assemble(outputs, status, reasons, times, workers)
+            self.cost_model.observe(thetas, task_durations(batch.wall_time, batch.cpu_time))
+        return batch
 
     def close(self) -> None:
         for worker in self._workers:

@@ -80,7 +80,7 @@ from typing import Any
 import numpy as np
 
 from jaxabc.errors import STATUS_FAILED, STATUS_TIMEOUT, STATUS_WORKER_DIED
-from jaxabc.executors import SimulationBatch, _assemble, _run_one
+from jaxabc.executors import SimulationBatch, _assemble, _timed_run, task_durations
 from jaxabc.scheduling import CostModel, dispatch_order, get_cost_model
 
 __all__ = ["ALLOCATIONS", "MPIExecutor", "chunk_indices", "mpi_available"]
@@ -164,9 +164,7 @@ def _child_main(conn: Any) -> None:
             except Exception as exc:
                 conn.send(("error", traceback.format_exception_only(type(exc), exc)[-1].strip()))
             continue
-        t0 = time.perf_counter()
-        out, status, reason = _run_one(simulate, *item)
-        conn.send((out, status, reason, time.perf_counter() - t0))
+        conn.send(_timed_run(simulate, *item))
 
 
 class _IsolatedChild:
@@ -211,23 +209,27 @@ class _IsolatedChild:
                 raise RuntimeError(f"could not load the simulator: {info}")
             self.payload = payload
 
-    def run(self, key: np.ndarray, theta: np.ndarray, timeout: float | None) -> tuple[Any, int, str, float, bool]:
-        """Run one task; returns ``(summaries or None, status, reason, seconds, child_alive)``."""
+    def run(self, key: np.ndarray, theta: np.ndarray,
+            timeout: float | None) -> tuple[Any, int, str, float, float, bool]:
+        """Run one task; returns ``(summaries or None, status, reason, seconds, cpu_seconds,
+        child_alive)`` (CPU seconds NaN when the child was killed or died)."""
         t0 = time.perf_counter()
         self.conn.send((key, theta))
         ready = wait([self.conn, self.proc.sentinel], timeout=timeout)
         if self.conn in ready:
             try:
-                out, status, reason, seconds = self.conn.recv()
-                return out, status, reason, seconds, True
+                out, status, reason, seconds, cpu = self.conn.recv()
+                return out, status, reason, seconds, cpu, True
             except (EOFError, OSError):
                 pass
         seconds = time.perf_counter() - t0
         self.kill()
         if not ready:
-            return None, STATUS_TIMEOUT, f"timeout: ran longer than {timeout} s and was stopped", seconds, False
+            return (None, STATUS_TIMEOUT, f"timeout: ran longer than {timeout} s and was stopped", seconds,
+                    np.nan, False)
         return (None, STATUS_WORKER_DIED,
-                f"the simulator's process died (exit code {self.proc.exitcode}) while running it", seconds, False)
+                f"the simulator's process died (exit code {self.proc.exitcode}) while running it", seconds,
+                np.nan, False)
 
     def kill(self) -> None:
         try:
@@ -250,15 +252,13 @@ def _worker_rank() -> int:
 
 
 def _worker_run_one(payload: bytes, isolate: bool, timeout: float | None, key: np.ndarray,
-                    theta: np.ndarray) -> tuple[Any, int, str, float]:
+                    theta: np.ndarray) -> tuple[Any, int, str, float, float]:
     state = _WORKER_STATE
     if not isolate:
         if state["payload"] != payload:
             state.update(payload=None, simulate=pickle.loads(payload))
             state["payload"] = payload
-        t0 = time.perf_counter()
-        out, status, reason = _run_one(state["simulate"], key, theta)
-        return out, status, reason, time.perf_counter() - t0
+        return _timed_run(state["simulate"], key, theta)
     if state["child"] is None:
         state["child"] = _IsolatedChild()
     child = state["child"]
@@ -268,30 +268,31 @@ def _worker_run_one(payload: bytes, isolate: bool, timeout: float | None, key: n
         if not child.proc.is_alive():  # it died or overran the start-up limit; a simulator that
             state["child"] = None       # does not unpickle leaves a healthy child behind
         raise
-    out, status, reason, seconds, alive = child.run(key, theta, timeout)
+    out, status, reason, seconds, cpu, alive = child.run(key, theta, timeout)
     if not alive:
         # Start the replacement now, so that its start-up overlaps the driver's bookkeeping.
         state["child"] = _IsolatedChild()
-    return out, status, reason, seconds
+    return out, status, reason, seconds, cpu
 
 
 def _run_tasks(payload: bytes, isolate: bool, timeout: float | None, indices: np.ndarray,
-               keys: np.ndarray, thetas: np.ndarray) -> list[tuple[int, Any, int, str, float, int]]:
+               keys: np.ndarray, thetas: np.ndarray) -> list[tuple[int, Any, int, str, float, float, int]]:
     """Run tasks ``indices`` one after another on this rank.
 
-    Returns one ``(index, summaries or None, status, reason, seconds, rank)`` per task.  Never
+    Returns one ``(index, summaries or None, status, reason, seconds, cpu_seconds, rank)`` per
+    task.  Never
     raises: a simulator that cannot be loaded fails its tasks with the reason.
     """
     rank = _worker_rank()
     out = []
     for j, i in enumerate(indices):
         try:
-            summaries, status, reason, seconds = _worker_run_one(payload, isolate, timeout, keys[j], thetas[j])
+            summaries, status, reason, seconds, cpu = _worker_run_one(payload, isolate, timeout, keys[j], thetas[j])
         except Exception as exc:
             last = traceback.format_exception_only(type(exc), exc)[-1].strip()
-            summaries, status, seconds = None, STATUS_FAILED, 0.0
+            summaries, status, seconds, cpu = None, STATUS_FAILED, 0.0, np.nan
             reason = f"MPI rank {rank} could not run the simulator: {last}"
-        out.append((int(i), summaries, int(status), reason, float(seconds), rank))
+        out.append((int(i), summaries, int(status), reason, float(seconds), float(cpu), rank))
     return out
 
 
@@ -319,8 +320,9 @@ class MPIExecutor:
         a timeout costs one task, not the MPI job.  ``False`` runs it in the rank itself.
     order : {"fifo", "longest_first"} or CostModel, optional
         Dynamic allocation only: the order in which tasks are queued for the ranks.
-        ``"longest_first"`` queues the longest *predicted* first, learnt from the wall times of
-        earlier tasks (:mod:`jaxabc.scheduling`); results never depend on it.
+        ``"longest_first"`` queues the longest *predicted* first, learnt from the costs of
+        earlier tasks (CPU time, see :func:`jaxabc.executors.task_durations`;
+        :mod:`jaxabc.scheduling`); results never depend on it.
 
     Attributes
     ----------
@@ -417,7 +419,7 @@ class MPIExecutor:
         outputs: list = [None] * m
         status = np.full(m, STATUS_WORKER_DIED, np.int32)
         reasons = [""] * m
-        times, workers = np.zeros(m), np.full(m, -1, np.int32)
+        times, workers, cpu = np.zeros(m), np.full(m, -1, np.int32), np.full(m, np.nan)
         t0 = time.perf_counter()
         futs = {pool.submit(_run_tasks, payload, self.isolate, self.timeout, idx, keys[idx], thetas[idx]): idx
                 for idx in groups}
@@ -431,8 +433,9 @@ class MPIExecutor:
                 for i in futs[fut]:
                     status[i], reasons[i] = STATUS_FAILED, f"MPI worker could not run the task: {last}"
                 continue
-            for i, out, st, reason, seconds, rank in results:
+            for i, out, st, reason, seconds, cpu_seconds, rank in results:
                 outputs[i], status[i], reasons[i], times[i], workers[i] = out, st, reason, seconds, rank
+                cpu[i] = cpu_seconds
         for fut in late:
             for i in futs[fut]:
                 status[i], times[i] = STATUS_TIMEOUT, self.timeout
@@ -443,10 +446,11 @@ class MPIExecutor:
             if fut not in answered:
                 for i in idx:
                     reasons[i] = f"not run or lost: the MPI pool became unusable ({self._broken})"
+        batch = _assemble(outputs, status, reasons, times, workers, cpu)
         if self.cost_model is not None:
             ran = workers >= 0
-            self.cost_model.observe(thetas[ran], times[ran])
-        return _assemble(outputs, status, reasons, times, workers)
+            self.cost_model.observe(thetas[ran], task_durations(batch.wall_time, batch.cpu_time)[ran])
+        return batch
 
     def _collect(self, futs: dict) -> tuple[list[tuple[Any, Any]], list[Any]]:
         """Wait for every future.

@@ -66,7 +66,8 @@ class ABCResult:
         ABCsubsim's ``log P(d < eps_final)`` estimate.
     records : dict of numpy.ndarray
         Every simulation: ``theta (S, d)``, ``summaries (S, ...)``, ``distance``, ``status``,
-        ``wall_time``, ``worker``, ``iteration``, and ``reasons`` (list of str).
+        ``wall_time``, ``cpu_time`` (see :class:`jaxabc.SimulationBatch`), ``worker``,
+        ``iteration``, and ``reasons`` (list of str).
     metadata : dict
         Versions, executor, distance, anything else worth keeping.
     """

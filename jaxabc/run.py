@@ -136,6 +136,8 @@ class _Recorder:
             "distance": distances,
             "status": np.asarray(batch.status, np.int32),
             "wall_time": np.asarray(batch.wall_time),
+            "cpu_time": (np.full(len(distances), np.nan) if batch.cpu_time is None
+                         else np.asarray(batch.cpu_time, np.float64)),
             "worker": np.asarray(batch.worker, np.int32),
             "iteration": np.full(len(distances), iteration, np.int32),
             "reasons": list(batch.reasons),
@@ -147,6 +149,9 @@ class _Recorder:
         out: dict[str, Any] = {}
         for key in ("theta", "distance", "status", "wall_time", "worker", "iteration"):
             out[key] = np.concatenate([c[key] for c in self.chunks])
+        # Checkpoints written before CPU times were recorded lack them: NaN there.
+        out["cpu_time"] = np.concatenate([c.get("cpu_time", np.full(len(c["distance"]), np.nan))
+                                          for c in self.chunks])
         if self.keep_summaries:
             shapes = {c["summaries"].shape[1:] for c in self.chunks}
             if len(shapes) == 1:

@@ -9,8 +9,9 @@ for the duration distributions of MD simulations (``benchmarks/speedup.py`` meas
 Durations are not known before a simulation runs, but they are predictable from its parameters:
 a water model whose parameters vaporise the liquid finishes in a fraction of the time of one that
 stays liquid, and a dense LJ state costs more neighbour-list work than a dilute one.  A
-:class:`NearestNeighbourCost` learns ``log(wall time)`` from the tasks an executor has already
-run (its own history, across the ABC iterations of a run) and predicts new ones by the mean of
+:class:`NearestNeighbourCost` learns the log of the task cost (CPU time, or wall time for a task
+that waits: :func:`jaxabc.executors.task_durations`) from the tasks an executor has already run
+(its own history, across the ABC iterations of a run) and predicts new ones by the mean of
 their ``k`` nearest neighbours in standardised parameter space.
 
 The order changes only *when* a task runs, never its key or its result: the same seed gives the

@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 import jaxabc
-from jaxabc.examples import sleep_simulate
+from jaxabc.examples import busy_child_simulate, sleep_simulate
+from jaxabc.executors import task_durations
 from jaxabc.scheduling import NearestNeighbourCost, dispatch_order, get_cost_model
 
 
@@ -75,3 +76,22 @@ def test_order_never_changes_a_run():
             ex.close()
     np.testing.assert_array_equal(runs[0].particles, runs[1].particles)
     np.testing.assert_array_equal(runs[0].weights, runs[1].weights)
+
+
+def test_cpu_time_counts_the_programs_a_task_starts_and_sleep_is_costed_by_wall_time():
+    """CPU time is the load-independent cost of a computing task (here spent in a child
+    process, as ``gmx mdrun`` is); a task that sleeps costs its wall time."""
+    ex = jaxabc.ProcessPoolExecutor(max_workers=1)
+    try:
+        keys = np.zeros((2, 2), np.uint32)
+        busy = ex.map(busy_child_simulate, keys, np.array([[0.4], [0.8]]))
+        # The child's busy loop plus an interpreter start-up (< 0.5 s CPU even on a slow disk).
+        assert np.all(busy.cpu_time >= [0.4, 0.8]) and np.all(busy.cpu_time < [0.9, 1.3]), busy.cpu_time
+        np.testing.assert_array_equal(task_durations(busy.wall_time, busy.cpu_time), busy.cpu_time)
+        idle = ex.map(sleep_simulate, keys, np.array([[0.3], [0.3]]))
+        assert np.all(idle.wall_time >= 0.3) and np.all(idle.cpu_time < 0.03), idle.cpu_time
+        np.testing.assert_array_equal(task_durations(idle.wall_time, idle.cpu_time), idle.wall_time)
+    finally:
+        ex.close()
+    serial = jaxabc.SerialExecutor().map(busy_child_simulate, keys[:1], np.array([[0.3]]))
+    assert 0.3 <= serial.cpu_time[0] < 0.8
