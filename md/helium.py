@@ -136,7 +136,9 @@ class HeliumPreset:
         Neighbour list (large boxes) or all pairs (small systems).
     skin_nm : float
     rebuild_every : int
-        Steps per block (list rebuild at each block start).
+        Steps per block (list rebuild, or the check for one, at each block start).
+    rebuild : str
+        ``"every_block"`` or ``"when_needed"`` (see :class:`md.lj.EngineConfig`).
     batch_size : int
         Members per compiled batch in :func:`make_batch_simulator`.
     vmap_width : int or None
@@ -164,6 +166,7 @@ class HeliumPreset:
     use_neighbor_list: bool = True
     skin_nm: float = 0.3
     rebuild_every: int = 10
+    rebuild: str = "every_block"
     batch_size: int = 64
     vmap_width: int | None = None
 
@@ -226,6 +229,7 @@ class HeliumPreset:
             use_neighbor_list=self.use_neighbor_list,
             skin_nm=self.skin_nm,
             rebuild_every=self.rebuild_every,
+            rebuild=self.rebuild,
         )
 
 
@@ -243,13 +247,15 @@ PRESETS: dict[str, HeliumPreset] = {
         sample_every_ps=2.0,
         use_neighbor_list=True,
         # A dilute gas has ~0.05 neighbours within r_c.  With the sort-free cell list
-        # (md.lj.build_neighbor_list) and a sparse half pair list, skins of 0.4-1.0 nm cost
-        # about the same per step (benchmarks/engine_throughput.py); 0.6 nm rebuilt every
-        # 20 steps (0.04 ps) leaves room for the Maxwell tail over a 1.1-million-step run:
-        # an atom at 5 nm/ps (~4.5 x the most probable speed) moves 0.2 nm, 2 x 0.2 < 0.6.
-        # (1.0 nm every 50 steps reached a skin ratio of 0.8 within 1,500 steps.)
+        # (md.lj.build_neighbor_list) and a sparse half pair list, a rebuild costs ~440 us
+        # and a step ~20 us on one core, so rebuilds dominated at a fixed 20-step interval.
+        # The 0.6 nm skin is rebuilt when needed, checked every 10 steps (members run one at
+        # a time, vmap_width=1, so the lax.cond is real): every ~40 steps at 300 K, 1.3x the
+        # throughput of a fixed 20 (benchmarks/engine_throughput.py).  Larger skins cost more
+        # in pair work than they save in rebuilds (0.8 nm: -5%).
         skin_nm=0.6,
-        rebuild_every=20,
+        rebuild_every=10,
+        rebuild="when_needed",
         batch_size=16,
         vmap_width=1,
     ),
