@@ -50,6 +50,9 @@ class LammpsRun:
         LAMMPS's own "Loop time" summed over its ``run`` commands: the MD steps alone.
     steps : int
         Total MD steps.
+    loop_cpu_seconds : float
+        The loop times times LAMMPS's reported "% CPU use": the CPU seconds of the MD steps,
+        which, unlike the loop time, do not grow when other work shares the core.
     """
 
     f_b: np.ndarray
@@ -61,6 +64,15 @@ class LammpsRun:
     wall_seconds: float
     steps: int
     loop_seconds: float = float("nan")
+    loop_cpu_seconds: float = float("nan")
+
+
+def _loop_seconds(log: str) -> tuple[float, float]:
+    """Summed "Loop time" and its CPU share ("NN% CPU use") over the runs of a LAMMPS log."""
+    loops = [float(m) for m in re.findall(r"^Loop time of ([0-9.eE+-]+)", log, re.M)]
+    shares = [float(m) / 100.0 for m in re.findall(r"([0-9.]+)% CPU use", log)]
+    cpu = sum(t * f for t, f in zip(loops, shares, strict=False)) if len(shares) == len(loops) else float("nan")
+    return sum(loops), cpu
 
 
 def lammps_available(executable: str = "lmp") -> bool:
@@ -197,7 +209,8 @@ run {prod}
         potential_zj=pe,
         wall_seconds=wall,
         steps=equil + prod,
-        loop_seconds=sum(float(m) for m in re.findall(r"^Loop time of ([0-9.eE+-]+)", log, re.M)),
+        loop_seconds=_loop_seconds(log)[0],
+        loop_cpu_seconds=_loop_seconds(log)[1],
     )
 
 
