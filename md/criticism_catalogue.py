@@ -16,7 +16,8 @@ Lennard-Jones fluids (:func:`lj_catalogue`)
     axilrod_teller     0, [0, .5]    nu* = C9 / (eps sigma^9): softer first peak  pressure and energy
                                      shell, higher P and U (density dependent)    at two densities
     feynman_hibbs      0, [0, 1]     quantum swelling of the core: like a larger  several temperatures
-                                     sigma at one T (it scales as 1/T)           (FH ~ 1/T, sigma not)
+                                     sigma at one T (it scales as 1/T); eta =    (FH ~ 1/T, sigma not)
+                                     s / 0.01, s = hbar^2/(24 mu kT sigma^2)
     qmax_ripple        0, [0, .1]    measured g(r) + truncation ripples of       g(r) below the core,
                                      period 2 pi / Q_max around the first peak    or a larger Q_max
     rdf_normalisation  0, [-.1, .1]  measured g(r) scaled by (1 + eta)           g(r) -> 1 at large r
@@ -36,8 +37,8 @@ Lennard-Jones fluids (:func:`lj_catalogue`)
     :func:`make_lj_simulator_with_effects` drives the jax-md engine of :mod:`md.lj_fluid`
     (temperature via the exact LJ scaling ``T -> T (1+eta) == eps -> eps / (1+eta)`` with P, U
     rescaled by ``1+eta`` and D by ``sqrt(1+eta)``; density via ``sigma -> sigma (1+eta)^(1/3)`` and
-    a rescaled r-grid; Axilrod-Teller through the engine's traced ``c9``; measurement effects,
-    Yeh-Hummer and the thermostat on the output).
+    a rescaled r-grid; Axilrod-Teller through the engine's traced ``c9``; Feynman-Hibbs through
+    its traced ``fh_scale``; measurement effects, Yeh-Hummer and the thermostat on the output).
 
 Water (:func:`water_catalogue`, :func:`make_water_simulator_with_effects`)
     ``charge_scale`` (q_H -> q_H (1 + eta), q_M = -2 q_H: the dipole; TIP4P -> TIP4P/2005 is
@@ -58,6 +59,11 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxabc.criticism import Catalogue, Effect
+from md.units import HBAR_KJ_MOL_PS
+
+#: Dimensionless Feynman-Hibbs strength s = hbar^2 / (24 mu k_B T sigma^2) per unit of the
+#: catalogue's ``feynman_hibbs`` parameter.
+FH_STRENGTH_PER_UNIT = 0.01
 
 __all__ = [
     "LJ_BASE_NAMES",
@@ -89,7 +95,7 @@ def lj_catalogue() -> Catalogue:
             Effect("axilrod_teller", 0.0, 0.5, 0.0, "nu* = C9/(eps sigma^9)",
                    "Three-body triple-dipole dispersion missing from the pair potential.",
                    "physical", "pressure and energy at two densities (the three-body term grows as rho^2)"),
-            Effect("feynman_hibbs", 0.0, 1.0, 0.0, "Lambda*^2 / T* scale",
+            Effect("feynman_hibbs", 0.0, 1.0, 0.0, "s / 0.01, s = hbar^2 / (24 mu k_B T sigma^2)",
                    "Quantum swelling of the repulsive core of light atoms (quadratic Feynman-Hibbs).",
                    "physical", "several temperatures (the correction scales as 1/T, sigma does not)",
                    ("sigma_nm",)),
@@ -283,9 +289,10 @@ def make_lj_simulator_with_effects(
     Physical effects: ``temperature_offset`` (exact LJ scaling through epsilon),
     ``density_error`` (exact scaling through sigma and the r-grid; the cutoff stays fixed in nm,
     a small inconsistency), ``axilrod_teller`` (the engine's three-body term with traced C9 =
-    nu* eps sigma^9; an all-pairs cost N M^2).  ``feynman_hibbs`` is *not* traced by the engine
-    (its strength is fixed by the static mass and temperature), so here it is a no-op and the
-    catalogue marks it invisible; see the report for the change it needs in ``md/lj.py``.
+    nu* eps sigma^9; an all-pairs cost N M^2), ``feynman_hibbs`` (the engine's quadratic
+    Feynman-Hibbs term with traced ``fh_scale``, set so that the dimensionless strength
+    ``s = hbar^2 / (24 mu k_B T sigma^2)`` is ``0.01 eta``; helium at 10 K has s ~ 0.015, neon at
+    its triple point ~ 0.001).
     Measurement effects, Yeh-Hummer and thermostat damping act on the output
     (:func:`apply_lj_measurement_effects`).
 
@@ -299,8 +306,8 @@ def make_lj_simulator_with_effects(
     catalogue : Catalogue, optional
         A subset of :func:`lj_catalogue` (any order): ``theta_full`` then holds the base
         parameters followed by these effects only, and the others stay at their nulls.  Use it to
-        leave out effects this engine cannot show (``feynman_hibbs``; ``axilrod_teller`` without
-        ``three_body``), whose finite differences would only cost simulations.
+        leave out effects this engine cannot show (``axilrod_teller`` without ``three_body``),
+        whose finite differences would only cost simulations.
     **overrides
         Fields of :class:`md.lj_fluid.LJFluidPreset` (e.g. ``production_steps`` for a smoke run).
 
@@ -320,7 +327,10 @@ def make_lj_simulator_with_effects(
         raise ValueError(f"effects {sorted(unknown)} are not in the LJ catalogue: {lj_catalogue().names}")
     u = p.units
     cfg = p.engine_config()
-    engine = LJEngine(dataclasses.replace(cfg, three_body=three_body))
+    quantum = "feynman_hibbs" in cat.names
+    engine = LJEngine(dataclasses.replace(cfg, three_body=three_body, feynman_hibbs=quantum))
+    # hbar^2 / (24 mu k_B T) of the engine's static term, nm^2 (reduced mass mu = m / 2).
+    fh_prefactor = HBAR_KJ_MOL_PS**2 / (24.0 * 0.5 * cfg.mass_amu * cfg.kt_kj_mol)
     nb = p.num_bins
     r_nm = (np.arange(nb) + 0.5) * p.r_max_nm / nb
     r_j = jnp.asarray(r_nm, jnp.float32)
@@ -340,7 +350,8 @@ def make_lj_simulator_with_effects(
         l_scale = (1.0 + e.get("density_error", zero)) ** (1.0 / 3.0)
         sigma = theta[0] * l_scale
         eps = theta[1] / t_scale
-        params = LJParams(sigma, eps, e.get("axilrod_teller", zero) * eps * sigma**9)
+        fh_scale = FH_STRENGTH_PER_UNIT * e.get("feynman_hibbs", zero) * sigma**2 / fh_prefactor
+        params = LJParams(sigma, eps, e.get("axilrod_teller", zero) * eps * sigma**9, fh_scale)
         carry = engine.init(key, params)
         carry, _ = engine.run(carry, params, p.equilibration_steps // k, 1)
         num = p.production_steps // p.sample_every

@@ -123,11 +123,16 @@ class LJParams(NamedTuple):
     c9_kj_mol_nm9 : Array, shape ()
         Axilrod-Teller coefficient C9, kJ/mol nm^9; ignored unless the engine was built with
         ``three_body=True``.
+    fh_scale : Array, shape ()
+        Multiplies the Feynman-Hibbs correction (engines built with ``feynman_hibbs=True``):
+        1 is its physical strength for the configured mass and temperature, 0 switches it off.
+        Traced, so a batch can vary the quantum correction without recompiling.
     """
 
     sigma_nm: Array
     epsilon_kj_mol: Array
     c9_kj_mol_nm9: Array = 0.0
+    fh_scale: Array = 1.0
 
 
 @dataclasses.dataclass(frozen=True)
@@ -526,7 +531,7 @@ def make_energy_fn(
             pair = pair - lj_pair_energy(jnp.asarray(cutoff_nm, r2.dtype), sigma, epsilon)
         if feynman_hibbs:
             r = jnp.sqrt(r2)
-            pair = pair + feynman_hibbs_correction(r, sigma, epsilon, mass_amu, kt_kj_mol)
+            pair = pair + params.fh_scale * feynman_hibbs_correction(r, sigma, epsilon, mass_amu, kt_kj_mol)
         return pair
 
     def energy_fn(

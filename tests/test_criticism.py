@@ -281,20 +281,25 @@ def test_command_line_writes_a_report(tmp_path):
 #                32 draws and 64 replicates for the gain
 # The executor runs chunks of exactly 16 (no power-of-two padding of expensive simulations).
 #
-# The catalogue is the LJ catalogue without the two effects this engine cannot show
-# (feynman_hibbs: its strength is not traced; axilrod_teller: the three-body term costs N M^2,
-# over 10 minutes for 256 simulations of 32 atoms).
+# The catalogue is the LJ catalogue without axilrod_teller (the three-body term costs N M^2, over
+# 10 minutes for 256 simulations of 32 atoms).  feynman_hibbs is a candidate (the engine's traced
+# fh_scale) but not a hideable case here: linearised it moves 8.6 sd per unit (core edge,
+# pressure), so 6-9 sd needs eta ~ 0.7-1, where the correction is far from linear (P* 1.5 -> 9.5
+# at eta = 1) and a larger sigma absorbs most of it; at one state point FH *is* a larger sigma,
+# the catalogue's point (several temperatures separate them).  Measured: at eta = 0.88 the
+# base-only fit was left with P at 3.5 sd, below the 5 sd the issue asks to hide.
 #
-# Which effects reach 5 sd here (largest single-summary shift after sigma and epsilon absorb
-# theirs, at 0.9 of the prior bound, measured with the engine's finite differences): only
-# rdf_normalisation (80 sd per unit, 7.2 sd at 0.09).  density_error: 81 per unit x 0.045 = 3.6
-# sd; temperature_offset about 2 sd (T and epsilon are exactly confusable in g(r), only U and P
-# tell them apart, and g(r) pins epsilon loosely in 64 atoms); qmax_ripple about 3 sd (per-bin
-# g(r) noise ~0.03 against a ripple of at most 0.1).  These would need runs 3-10x longer and are
-# tested on the surrogate only (measured on 32 atoms, 500 steps: 1.2, 1.5, 5.4, 3.8 sd).
+# Which effects reach 5 sd here (largest single-summary shift after sigma and epsilon absorb theirs,
+# at 0.9 of the prior bound, measured with the engine's finite differences): only rdf_normalisation
+# (80 sd per unit, 7.2 sd at 0.09) and, linearised only, feynman_hibbs (above). density_error: 81
+# per unit x 0.045 = 3.6 sd; temperature_offset about 2 sd (T and epsilon are exactly confusable in
+# g(r), only U and P tell them apart, and g(r) pins epsilon loosely in 64 atoms); qmax_ripple about
+# 3 sd (per-bin g(r) noise ~0.03 against a ripple of at most 0.1).  These would need runs 3-10x
+# longer and are tested on the surrogate only (measured on 32 atoms, 500 steps: 1.2, 1.5, 5.4, 3.8
+# sd).
 
-ENGINE_EFFECTS = ("temperature_offset", "qmax_ripple", "rdf_normalisation", "density_error", "yeh_hummer",
-                  "thermostat_damping")
+ENGINE_EFFECTS = ("temperature_offset", "feynman_hibbs", "qmax_ripple", "rdf_normalisation", "density_error",
+                  "yeh_hummer", "thermostat_damping")
 ENGINE_RUN = dict(num_atoms=64, cutoff_reduced=2.0, equilibration_steps=100, production_steps=400,
                   sample_every=10, num_bins=20)
 ENGINE_PRIOR = jaxabc.Uniform([0.95, 0.85], [1.05, 1.15], names=("sigma_nm", "epsilon_kj_mol"),

@@ -136,6 +136,27 @@ def test_neighbor_list_matches_all_pairs(fmt):
     assert float(s_list) == pytest.approx(float(s_all), rel=1e-4)
 
 
+def test_feynman_hibbs_strength_is_traced():
+    """fh_scale multiplies the quantum correction: 0 is the classical energy, the correction is
+    linear in it, and a vmapped batch varies it per member without recompiling."""
+    rng = np.random.default_rng(1)
+    pos = jnp.asarray(rng.uniform(size=(24, 3)), jnp.float32)
+    boxm = jnp.eye(3) * 2.2
+    classical = lj.make_energy_fn(1.0)
+    quantum = lj.make_energy_fn(1.0, feynman_hibbs=True, mass_amu=4.0, kt_kj_mol=0.3)
+
+    def energy(scale):
+        return quantum(pos, boxm, params=lj.LJParams(jnp.float32(0.3), jnp.float32(0.5), jnp.float32(0.0), scale))
+
+    e0, e1, e2 = (float(energy(jnp.float32(x))) for x in (0.0, 1.0, 2.0))
+    assert e0 == pytest.approx(float(classical(pos, boxm, params=lj.LJParams(jnp.float32(0.3), jnp.float32(0.5)))),
+                               rel=1e-6)
+    assert abs(e1 - e0) > 1e-3 * abs(e0)  # a real correction at this mass and temperature
+    assert e2 - e0 == pytest.approx(2.0 * (e1 - e0), rel=1e-4)
+    batch = jax.jit(jax.vmap(energy))(jnp.asarray([0.0, 1.0, 2.0], jnp.float32))
+    np.testing.assert_allclose(batch, [e0, e1, e2], rtol=1e-5)
+
+
 def test_rebuild_when_needed_keeps_every_pair_and_rebuilds_less():
     """A dilute LJ gas: the conditional rebuild skips most rebuilds, yet at every sample the
     (possibly stale) list gives exactly the all-pairs forces, and the trajectory is the
