@@ -16,13 +16,22 @@ def test_nearest_neighbour_cost_learns_a_duration_that_depends_on_theta():
     # Two regimes as in water: "vaporised" parameters are fast, "liquid" ones slow, plus noise.
     x = rng.uniform(0, 1, size=(400, 2))
     t = np.where(x[:, 0] > 0.6, 2.0, 10.0) * rng.lognormal(0.0, 0.2, 400)
-    model = NearestNeighbourCost(k=5, min_history=16)
-    assert model.predict(x[:5]) is None  # no history yet: no opinion
-    model.observe(x[:300], t[:300])
-    pred = model.predict(x[300:])
     slow = x[300:, 0] < 0.55
     fast = x[300:, 0] > 0.65
+    mean = NearestNeighbourCost(k=5, min_history=16, aggregate="mean")
+    assert mean.predict(x[:5]) is None  # no history yet: no opinion
+    mean.observe(x[:300], t[:300])
+    pred = mean.predict(x[300:])
     assert np.all(pred[slow] > 6.0) and np.all(pred[fast] < 3.5)
+    # The default is pessimistic: the longest neighbour.  Never below the mean; fast tasks near
+    # the regime boundary are ranked with the slow ones, fast tasks far from it stay fast.
+    worst = NearestNeighbourCost(k=5, min_history=16)
+    worst.observe(x[:300], t[:300])
+    high = worst.predict(x[300:])
+    assert np.all(high >= pred * (1 - 1e-12))
+    assert np.all(high[slow] > 6.0) and np.all(high[x[300:, 0] > 0.75] < 3.5)
+    near = (x[300:, 0] > 0.6) & (x[300:, 0] < 0.62)
+    assert near.any() and np.all(high[near] > 6.0)
 
 
 def test_dispatch_order_is_longest_predicted_first_and_stable():
@@ -40,6 +49,8 @@ def test_bad_order_options():
         get_cost_model(42)
     with pytest.raises(ValueError, match="min_history"):
         NearestNeighbourCost(k=0)
+    with pytest.raises(ValueError, match="aggregate"):
+        NearestNeighbourCost(aggregate="median")
     with pytest.raises(ValueError, match="dynamic"):
         jaxabc.MPIExecutor("static", order="longest_first")
 
