@@ -30,6 +30,7 @@ import multiprocessing as mp
 import os
 import resource
 import signal
+import threading
 import time
 import traceback
 from collections.abc import Callable
@@ -283,11 +284,30 @@ class SerialExecutor:
         pass
 
 
+def _die_with_parent(poll_seconds: float = 1.0) -> None:
+    """Kill this process group (this worker and the programs it started) once its parent is gone.
+
+    Workers sit in process groups of their own (so a timeout can kill a task's programs too),
+    which also shields them from the Ctrl-C or ``kill`` aimed at the driver: without this watch a
+    killed driver would leave each worker finishing its current simulation, minutes of
+    ``gmx mdrun`` with nobody to read the result.
+    """
+    parent = os.getppid()
+
+    def watch() -> None:
+        while os.getppid() == parent:
+            time.sleep(poll_seconds)
+        os.killpg(0, signal.SIGKILL)
+
+    threading.Thread(target=watch, name="jaxabc-parent-watch", daemon=True).start()
+
+
 def _worker_main(conn: Any, simulate: Callable) -> None:
     # Workers run host simulators; keep JAX (if the simulator imports it) off accelerators.
     os.environ.setdefault("JAX_PLATFORMS", "cpu")
     # Own process group: a timeout kills the worker and any program it started (mdrun, lmp).
     os.setpgrp()
+    _die_with_parent()
     while True:
         try:
             item = conn.recv()

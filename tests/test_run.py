@@ -128,6 +128,54 @@ def test_failures_are_recorded_and_the_run_goes_on():
     ex.close()
 
 
+_ORPHAN_DRIVER = """
+import threading, time, numpy as np, jaxabc
+from jaxabc.examples import busy_child_simulate
+ex = jaxabc.ProcessPoolExecutor(max_workers=2)
+threading.Thread(target=ex.map, args=(busy_child_simulate, np.zeros((2, 2), np.uint32), np.full((2, 1), 60.0)),
+                 daemon=True).start()
+while len(ex._workers) < 2 or any(w.started is None for w in ex._workers):
+    time.sleep(0.05)
+print(" ".join(str(w.proc.pid) for w in ex._workers), flush=True)
+time.sleep(120)
+"""
+
+
+def _live_in_group(pgid: int) -> list[int]:
+    """Processes (not zombies) whose process group is ``pgid``."""
+    live = []
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            fields = (entry / "stat").read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        if int(fields[2]) == pgid and fields[0] != "Z":
+            live.append(int(entry.name))
+    return live
+
+
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="reads /proc (Linux)")
+def test_killed_driver_takes_its_workers_and_their_programs_down():
+    """Workers sit in process groups of their own, out of reach of a signal to the driver; when
+    the driver dies they must stop their simulations (here a busy child process) within seconds,
+    not run them to the end."""
+    driver = subprocess.Popen([sys.executable, "-c", _ORPHAN_DRIVER], stdout=subprocess.PIPE, text=True)
+    try:
+        pids = [int(p) for p in driver.stdout.readline().split()]
+        assert len(pids) == 2
+        time.sleep(1.0)  # let the tasks start their busy children
+        assert all(len(_live_in_group(pid)) >= 2 for pid in pids)  # worker + its busy program
+    finally:
+        driver.kill()
+        driver.wait()
+    deadline = time.time() + 15.0
+    while time.time() < deadline and any(_live_in_group(pid) for pid in pids):
+        time.sleep(0.2)
+    assert not any(_live_in_group(pid) for pid in pids), [_live_in_group(pid) for pid in pids]
+
+
 def test_too_many_failures_stop_with_the_reasons():
     def always_nan(key, theta):
         return jnp.full((1,), jnp.nan)
