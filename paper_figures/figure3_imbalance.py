@@ -66,6 +66,24 @@ def draw(json_path: str | Path, png_path: str | Path) -> None:
     plt.close(fig)
 
 
+def main(out_dir: str | Path | None = None) -> Path:
+    """Draw from ``benchmarks/results/imbalance.json`` into ``out_dir`` (default ``paper_figures/out``).
+
+    Used by ``paper_figures/make_all.py`` and the tests; the command line below keeps its own
+    defaults.
+
+    Returns
+    -------
+    pathlib.Path
+        The PNG written.
+    """
+    out = Path(out_dir) if out_dir is not None else Path(__file__).resolve().parent / "out"
+    out.mkdir(parents=True, exist_ok=True)
+    path = out / "figure3_imbalance.png"
+    draw(RESULTS / "imbalance.json", path)
+    return path
+
+
 if __name__ == "__main__":
     src = Path(sys.argv[1]) if len(sys.argv) > 1 else RESULTS / "imbalance.json"
     dst = Path(sys.argv[2]) if len(sys.argv) > 2 else ROOT / "paper_figures" / "figure3_imbalance.png"

@@ -23,7 +23,8 @@ RESULTS = ROOT / "benchmarks" / "results"
 OUT = Path(__file__).resolve().parent / "out"
 
 
-def main() -> Path:
+def main(out_dir: str | Path | None = None) -> Path:
+    """Draw the figure into ``out_dir`` (default ``paper_figures/out``) and print Table 1; return the PNG."""
     table = json.loads((RESULTS / "helium_table1.json").read_text())
     truth = np.asarray(table["setup"]["truth"])
     names = ("apmcabc", "abcsubsim")
@@ -34,8 +35,9 @@ def main() -> Path:
         row = table["algorithms"][name]
         ax.set_title(f"{name}: d_E {row['d_E']:.4f}, gamma_final {row['gamma_final']:.3g}")
     fig.tight_layout()
-    OUT.mkdir(exist_ok=True)
-    path = OUT / "figure5_helium_posterior.png"
+    out = Path(out_dir) if out_dir is not None else OUT
+    out.mkdir(parents=True, exist_ok=True)
+    path = out / "figure5_helium_posterior.png"
     fig.savefig(path, dpi=120)
     print(f"{'algorithm':<10} {'d_E':>9} {'(paper)':>9} {'gamma_final':>12} {'(paper)':>9} {'sims':>7}")
     for name in names:
