@@ -250,9 +250,11 @@ PRESETS: dict[str, HeliumPreset] = {
         # (md.lj.build_neighbor_list) and a sparse half pair list, a rebuild costs ~440 us
         # and a step ~20 us on one core, so rebuilds dominated at a fixed 20-step interval.
         # The 0.6 nm skin is rebuilt when needed, checked every 10 steps (members run one at
-        # a time, vmap_width=1, so the lax.cond is real): every ~40 steps at 300 K, 1.3x the
-        # throughput of a fixed 20 (benchmarks/engine_throughput.py).  Larger skins cost more
-        # in pair work than they save in rebuilds (0.8 nm: -5%).
+        # a time, vmap_width=1, so the lax.cond is real): every ~40 steps at 300 K, which took the
+        # single-core ratio to LAMMPS from 0.78-0.80x to 0.89-0.93x
+        # (benchmarks/results/engine_throughput_single_core.json).  Larger skins cost more
+        # in pair work than they save in rebuilds (0.8 nm: -5%; this and the per-step costs
+        # above are one-off profiling probes, not saved benchmarks).
         skin_nm=0.6,
         rebuild_every=10,
         rebuild="when_needed",

@@ -45,7 +45,8 @@ system-steps/s).  Instead the list is built with the skin folded into the reach 
 the start of a block of ``rebuild_every`` steps: at every block (``rebuild="every_block"``, the
 choice under ``vmap``) or only when the block could otherwise outrun the skin
 (``rebuild="when_needed"``, a real ``lax.cond`` when members run one at a time; for the paper's
-helium it rebuilds every ~40-60 steps instead of every 20, 1.25x the throughput).  Within a
+helium it rebuilds every ~40 steps instead of every 20; `benchmarks/results/
+engine_throughput_single_core.json`: 0.89-0.93x LAMMPS per core, 0.78-0.80x before).  Within a
 block the engine tracks the largest displacement since the last rebuild; a block is safe when
 ``2 max|dr| + (r_c + skin) |L/L_ref - 1| < skin`` (two atoms approaching each other, plus the
 affine change of pair distances when the NPT box changes).  Overflow of any capacity of the
