@@ -15,10 +15,12 @@ that waits: :func:`jaxabc.executors.task_durations`) from the tasks an executor 
 nearest neighbours in standardised parameter space, by default *pessimistically*: the longest
 of the neighbours.  The ranking is asymmetric: a long task mistaken for a short one is queued
 last and lengthens the makespan by its whole duration, while a short task queued early costs
-almost nothing.  Measured on the CPU times of a water calibration (``benchmarks/speedup.py``,
-durations 0.1-12 s, bimodal: vapour ~2 s, liquid ~9-11 s), longest-first by the neighbours'
-*mean* was no better than arrival order (worst makespan 1.40-1.70x the lower bound), by their
-*maximum* within 1.05-1.09x for batches of 1000-4500 tasks, where perfect foresight reaches 1.05.
+almost nothing.  In ``benchmarks/results/speedup.json`` (event model over the 820 CPU-time
+records of the neutron water calibration, durations 0.1-12 s, bimodal: vapour ~2 s, liquid
+~9-11 s) the worst whole-run makespan over the lower bound is, APMCABC / ABCsubsim, 1.23 / 1.38
+in arrival order, 1.12 / 1.23 longest-first by the neighbours' maximum and 1.04 / 1.08 with
+perfect foresight.  (A probe on the run's first 190 records, not saved, ranked by the
+neighbours' *mean*: no better than arrival order.)
 
 The order changes only *when* a task runs, never its key or its result: the same seed gives the
 same posterior with or without it, on any number of workers.
