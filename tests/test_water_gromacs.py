@@ -143,6 +143,29 @@ def test_grompp_sees_the_defines(tmp_path):
     assert "q= 5.50000e-01" in dump and "q=-1.10000e+00" in dump
 
 
+#: Points of a 12 x 12 grid over the prior where steepest descent with GROMACS's default first
+#: step (emstep 0.01 nm) crashed with SIGSEGV on the quick preset's starting box.
+EM_CRASHED_AT_EMSTEP_0_01 = [(np.linspace(0.281, 0.53, 12)[i], np.linspace(0.2, 0.9, 12)[j])
+                             for i, j in ((0, 7), (1, 4), (2, 1))]
+
+
+@pytest.mark.gromacs
+@pytest.mark.skipif(GMX is None, reason="needs GROMACS gmx: apt-get install gromacs")
+@pytest.mark.parametrize("theta", EM_CRASHED_AT_EMSTEP_0_01, ids=lambda t: f"{t[0]:.3f}-{t[1]:.3f}")
+def test_energy_minimisation_does_not_crash(tmp_path, theta):
+    protocol = gromacs.get_protocol("quick")
+    params = gromacs.TIP4PParameters(float(theta[0]), float(theta[1]))
+    n = gromacs.build_system(protocol, tmp_path, GMX)
+    (tmp_path / "topol.top").write_text(gromacs.topology_text(n, params))
+    (tmp_path / "em.mdp").write_text(gromacs.mdp_text(protocol, params, "em"))
+    subprocess.run([GMX, "grompp", "-f", "em.mdp", "-c", "conf.gro", "-p", "topol.top", "-o", "em.tpr"],
+                   cwd=tmp_path, check=True, capture_output=True)
+    done = subprocess.run([GMX, "mdrun", "-deffnm", "em", "-ntmpi", "1", "-ntomp", "1", "-pin", "off"],
+                          cwd=tmp_path, capture_output=True, text=True, env=dict(os.environ, OMP_NUM_THREADS="1"))
+    assert done.returncode == 0, f"EM exited with {done.returncode}: {done.stderr[-1500:]}"
+    assert (tmp_path / "em.gro").is_file()
+
+
 @pytest.mark.gromacs
 @pytest.mark.skipif(GMX is None, reason="needs GROMACS gmx: apt-get install gromacs")
 @pytest.mark.parametrize("preset", ["paper", "quick"])
