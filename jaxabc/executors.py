@@ -302,12 +302,17 @@ def _die_with_parent(poll_seconds: float = 1.0) -> None:
     threading.Thread(target=watch, name="jaxabc-parent-watch", daemon=True).start()
 
 
-def _worker_main(conn: Any, simulate: Callable) -> None:
-    # Workers run host simulators; keep JAX (if the simulator imports it) off accelerators.
+def _isolate_worker_process() -> None:
+    """Set up a process that runs host simulators for a driver (pool worker, MPI child)."""
+    # Host simulators only; keep JAX (if the simulator imports it) off accelerators.
     os.environ.setdefault("JAX_PLATFORMS", "cpu")
     # Own process group: a timeout kills the worker and any program it started (mdrun, lmp).
     os.setpgrp()
-    _die_with_parent()
+    _die_with_parent()  # a lost driver must not leave its simulation running
+
+
+def _worker_main(conn: Any, simulate: Callable) -> None:
+    _isolate_worker_process()
     while True:
         try:
             item = conn.recv()

@@ -80,7 +80,7 @@ from typing import Any
 import numpy as np
 
 from jaxabc.errors import STATUS_FAILED, STATUS_TIMEOUT, STATUS_WORKER_DIED
-from jaxabc.executors import SimulationBatch, _assemble, _die_with_parent, _timed_run, task_durations
+from jaxabc.executors import SimulationBatch, _assemble, _isolate_worker_process, _timed_run, task_durations
 from jaxabc.scheduling import CostModel, dispatch_order, get_cost_model
 
 __all__ = ["ALLOCATIONS", "MPIExecutor", "chunk_indices", "mpi_available"]
@@ -142,11 +142,7 @@ def chunk_indices(num_tasks: int, num_workers: int) -> list[np.ndarray]:
 
 def _child_main(conn: Any) -> None:
     """Body of an isolation child: load simulators and run tasks until told to stop."""
-    # The child runs host simulators; keep JAX (if the simulator imports it) off accelerators.
-    os.environ.setdefault("JAX_PLATFORMS", "cpu")
-    # Own process group: a timeout kills the child and any program it started (mdrun, lmp).
-    os.setpgrp()
-    _die_with_parent()  # a lost rank must not leave its simulation running
+    _isolate_worker_process()
     import jaxabc  # noqa: F401  -- pay the JAX import before reporting ready, not inside a task
 
     conn.send(("ready", os.getpid()))
