@@ -249,14 +249,16 @@ PRESETS: dict[str, HeliumPreset] = {
         # A dilute gas has ~0.05 neighbours within r_c.  With the sort-free cell list
         # (md.lj.build_neighbor_list) and a sparse half pair list, a rebuild costs ~440 us
         # and a step ~20 us on one core, so rebuilds dominated at a fixed 20-step interval.
-        # The 0.6 nm skin is rebuilt when needed, checked every 10 steps (members run one at
-        # a time, vmap_width=1, so the lax.cond is real): every ~40 steps at 300 K, which took the
-        # single-core ratio to LAMMPS from 0.78-0.80x to 0.89-0.93x
-        # (benchmarks/results/engine_throughput_single_core.json).  Larger skins cost more
-        # in pair work than they save in rebuilds (0.8 nm: -5%; this and the per-step costs
-        # above are one-off profiling probes, not saved benchmarks).
+        # The 0.6 nm skin is rebuilt when needed (members run one at a time, vmap_width=1,
+        # so the lax.cond is real), which took the single-core ratio to LAMMPS from 0.78-0.80x
+        # to 0.89-0.93x.  Checking every 5 steps rather than 10 halves the flight margin
+        # of the check, so the list lasts ~40 steps instead of ~34 at 300 K (A/B probe on a
+        # shared core: 0.95x -> 0.99x with the per-block unwrapping of md.lj; the saved
+        # figure is benchmarks/results/engine_throughput_single_core.json).  Larger skins
+        # cost more in pair work than they save in rebuilds (0.8 nm: -5%; this and the
+        # per-step costs above are one-off profiling probes, not saved benchmarks).
         skin_nm=0.6,
-        rebuild_every=10,
+        rebuild_every=5,
         rebuild="when_needed",
         batch_size=16,
         vmap_width=1,
