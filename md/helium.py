@@ -252,9 +252,9 @@ PRESETS: dict[str, HeliumPreset] = {
         # The 0.6 nm skin is rebuilt when needed (members run one at a time, vmap_width=1,
         # so the lax.cond is real), which took the single-core ratio to LAMMPS from 0.78-0.80x
         # to 0.89-0.93x.  Checking every 5 steps rather than 10 halves the flight margin
-        # of the check, so the list lasts ~40 steps instead of ~34 at 300 K (A/B probe on a
-        # shared core: 0.95x -> 0.99x with the per-block unwrapping of md.lj; the saved
-        # figure is benchmarks/results/engine_throughput_single_core.json).  Larger skins
+        # of the check, so the list lasts ~40 steps instead of ~34 at 300 K; with md.lj's
+        # per-block unwrapping that made 0.96-1.08x LAMMPS over three runs (saved:
+        # benchmarks/results/engine_throughput_single_core.json, 1.02x at batch 8).  Larger skins
         # cost more in pair work than they save in rebuilds (0.8 nm: -5%; this and the
         # per-step costs above are one-off profiling probes, not saved benchmarks).
         skin_nm=0.6,
