@@ -19,7 +19,9 @@ almost nothing.  In ``benchmarks/results/speedup.json`` (event model over the 82
 records of the neutron water calibration, durations 0.1-12 s, bimodal: vapour ~2 s, liquid
 ~9-11 s) the worst whole-run makespan over the lower bound is, APMCABC / ABCsubsim, 1.23 / 1.38
 in arrival order, 1.12 / 1.23 longest-first by the neighbours' maximum and 1.04 / 1.08 with
-perfect foresight.  (A probe on the run's first 190 records, not saved, ranked by the
+perfect foresight; on a second run's 640 records, with the model left as chosen on the first,
+1.20 / 1.36, 1.11 / 1.19 and 1.04 / 1.09 (``speedup_model_simulated_records.json``).
+(A probe on the run's first 190 records, not saved, ranked by the
 neighbours' *mean*: no better than arrival order.)
 
 The order changes only *when* a task runs, never its key or its result: the same seed gives the
