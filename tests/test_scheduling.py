@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -106,3 +108,30 @@ def test_cpu_time_counts_the_programs_a_task_starts_and_sleep_is_costed_by_wall_
         ex.close()
     serial = jaxabc.SerialExecutor().map(busy_child_simulate, keys[:1], np.array([[0.3]]))
     assert 0.3 <= serial.cpu_time[0] < 0.8
+
+
+def test_speedup_lower_bounds_hold_and_the_tight_one_is_reached_on_small_cases():
+    """``benchmarks/speedup.py``'s bounds against the optimal makespan found by brute force.
+
+    Every assignment of up to 8 tasks to 2-3 workers is tried: no schedule beats either bound,
+    and the pigeonhole bound is exactly the optimum on some instances where the plain
+    ``max(total / n, longest)`` is not (so it is the one to judge a scheduler against).
+    """
+    import importlib.util
+    import itertools
+
+    spec = importlib.util.spec_from_file_location("speedup", Path(__file__).parents[1] / "benchmarks" / "speedup.py")
+    speedup = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(speedup)
+    rng = np.random.default_rng(3)
+    tight_is_optimal_where_plain_is_not = 0
+    for _ in range(60):
+        m, n = int(rng.integers(3, 9)), int(rng.integers(2, 4))
+        d = rng.lognormal(0.0, 0.6, m)
+        optimum = min(max(np.bincount(a, weights=d, minlength=n))
+                      for a in map(np.array, itertools.product(range(n), repeat=m)))
+        plain, tight = speedup.lower_bound(d, n), speedup.tight_lower_bound(d, n)
+        assert plain <= tight * (1 + 1e-12) and tight <= optimum * (1 + 1e-12)
+        assert speedup.dynamic_makespan(np.sort(d)[::-1], n) >= optimum * (1 - 1e-12)
+        tight_is_optimal_where_plain_is_not += bool(np.isclose(tight, optimum) and plain < optimum - 1e-9)
+    assert tight_is_optimal_where_plain_is_not >= 5
