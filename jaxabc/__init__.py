@@ -11,6 +11,7 @@ __version__ = "0.1.0"
 
 from jaxabc import distances, kernels, scheduling
 from jaxabc.algorithms import BUILDERS as ALGORITHMS
+from jaxabc.coverage import CoverageStudy, coverage_study
 from jaxabc.errors import SimulationFailure, TooManyFailures
 from jaxabc.executors import ProcessPoolExecutor, SerialExecutor, SimulationBatch, VmapExecutor
 from jaxabc.mpi import MPIExecutor
@@ -22,6 +23,7 @@ from jaxabc.seeding import seed_from_key
 __all__ = [
     "ALGORITHMS",
     "ABCResult",
+    "CoverageStudy",
     "MPIExecutor",
     "ProcessPoolExecutor",
     "SerialExecutor",
@@ -31,6 +33,7 @@ __all__ = [
     "Uniform",
     "VmapExecutor",
     "__version__",
+    "coverage_study",
     "distances",
     "kernels",
     "load",

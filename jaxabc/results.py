@@ -90,6 +90,31 @@ class ABCResult:
     records: dict[str, Any] = field(default_factory=dict)
     metadata: dict[str, Any] = field(default_factory=dict)
 
+    @classmethod
+    def from_sample(cls, particles: np.ndarray, weights: np.ndarray, prior: Uniform,
+                    algorithm: str = "") -> ABCResult:
+        """A result holding only a weighted sample (no run history), for its summaries.
+
+        Parameters
+        ----------
+        particles : array_like, shape (n, d)
+        weights : array_like, shape (n,)
+            Non-negative, not necessarily normalised.
+        prior : Uniform
+        algorithm : str
+        """
+        p = np.asarray(particles, np.float64)
+        w = np.asarray(weights, np.float64)
+        if p.ndim != 2 or w.shape != (p.shape[0],):
+            raise ValueError(f"need particles (n, d) and weights (n,), got {p.shape} and {w.shape}")
+        if not (np.all(w >= 0) and w.sum() > 0):
+            raise ValueError("weights must be non-negative with a positive sum")
+        n = p.shape[0]
+        return cls(particles=p, weights=w / w.sum(), distances=np.zeros(n), thresholds=np.array([np.nan]),
+                   simulations_per_step=np.array([n]), acceptance_rates=np.array([np.nan]),
+                   ess=np.array([1.0 / np.sum((w / w.sum()) ** 2)]), num_simulations=0,
+                   algorithm=algorithm, settings={}, prior=prior, seed=0)
+
     @property
     def names(self) -> tuple[str, ...]:
         return tuple(self.prior.names)

@@ -299,11 +299,8 @@ def test_float64_switch_runs_in_double_precision():
 
 def _posterior(particles, weights):
     """An ABCResult around a given weighted sample (only the posterior summaries are used)."""
-    n, d = particles.shape
-    return jaxabc.ABCResult(particles=particles, weights=weights / weights.sum(), distances=np.zeros(n),
-                            thresholds=np.array([np.inf]), simulations_per_step=np.array([n]),
-                            acceptance_rates=np.ones(1), ess=np.ones(1), num_simulations=n,
-                            algorithm="test", settings={}, prior=jaxabc.Uniform([-9.0] * d, [9.0] * d), seed=0)
+    return jaxabc.ABCResult.from_sample(particles, weights, jaxabc.Uniform([-9.0] * particles.shape[1],
+                                                                           [9.0] * particles.shape[1]))
 
 
 def _in_sample_kde_level(post, point):
