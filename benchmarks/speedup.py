@@ -358,6 +358,34 @@ def single_batch_study(dist: dict, sizes: list[int], n_grid: list[int], reps: in
     return out
 
 
+def prediction_noise_study(dist: dict, algorithms: dict[str, list[int]], noise: tuple[float, ...], reps: int,
+                           seed: int) -> dict:
+    """How good must duration predictions be?  Longest-predicted-first with predictions equal to
+    the true duration times ``exp(s Z)``, Z standard normal, for each log-error ``s``; worst whole
+    run makespan over the pigeonhole bound (:func:`tight_lower_bound`) and over the plain one,
+    over the range of one to four tasks per worker (:func:`n_grid_for` above 1024) and ``reps``
+    repetitions.  The learnt predictor's row uses the records' leave-one-out predictions."""
+    rng = np.random.default_rng(seed + 2)
+    out = {}
+    for name, sizes in algorithms.items():
+        grid = [n for n in n_grid_for(sizes) if max(sizes[1:] or sizes) / 4 <= n < max(sizes[1:] or sizes)]
+        rows = {}
+        for s in (*noise, "learnt"):
+            tight = plain = 0.0
+            for _ in range(reps):
+                batches = [draw_durations(dist, rng, m) for m in sizes]
+                if s != "learnt":
+                    batches = [np.column_stack([b[:, 0], b[:, 0] * np.exp(s * rng.standard_normal(len(b)))])
+                               for b in batches]
+                for n in grid:
+                    span = sum(MAKESPAN["dynamic_longest_first"](b, n) for b in batches)
+                    tight = max(tight, span / sum(tight_lower_bound(b[:, 0], n) for b in batches))
+                    plain = max(plain, span / sum(lower_bound(b[:, 0], n) for b in batches))
+            rows[str(s)] = {"worst_over_tight_bound": tight, "worst_over_plain_bound": plain}
+        out[name] = {"n": grid, "by_log_error_sd": rows}
+    return out
+
+
 # ---------------------------------------------------------------------------------------------
 # (b) real ranks with sleeping tasks
 
@@ -695,6 +723,8 @@ def main(argv: list[str] | None = None) -> None:
                                "distribution", "settings": {**settings, "reps": args.reps,
                                                             "barrier_seconds": args.barrier_seconds},
                         "algorithms": model, "single_batch": single,
+                        "prediction_noise": prediction_noise_study(dist, algorithms, (0.0, 0.05, 0.1, 0.2),
+                                                                   max(2, args.reps // 3), args.seed),
                         "seconds": time.perf_counter() - t0}
         out["targets"] = _targets(model, single, args.alpha, args.p0, args.num_particles)
         print(json.dumps(out["targets"], indent=1))
