@@ -9,8 +9,8 @@ two cores, so the study has three parts, each labelled in the JSON and the figur
 (a) ``model``: a discrete-event model of both algorithms for ``n`` up to 1024.  Every step (or
     chain round) is a batch of independent tasks followed by a barrier.  Dynamic allocation is
     greedy list scheduling in task order (a free worker takes the next task, as
-    ``jaxabc.mpi.MPIExecutor(allocation="dynamic")`` does); static allocation gives each worker
-    one contiguous chunk of equal size (``jaxabc.mpi.chunk_indices``).  Task durations are drawn
+    ``jaxabc.executors.mpi.MPIExecutor(allocation="dynamic")`` does); static allocation gives each worker
+    one contiguous chunk of equal size (``jaxabc.executors.mpi.chunk_indices``).  Task durations are drawn
     (with replacement, common random numbers across ``n``) from the measured water imbalance
     distribution in ``benchmarks/results/imbalance.json``; with ``--distribution lognormal``
     (or when that file is missing) from the lognormal fitted there (or, without a file, the
@@ -47,7 +47,6 @@ Writes ``benchmarks/results/speedup.json`` and ``benchmarks/results/speedup.png`
 from __future__ import annotations
 
 import argparse
-import heapq
 import json
 import math
 import os
@@ -63,6 +62,14 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+
+from jaxabc.scheduling import (  # noqa: E402  (after the path set-up: run as a script)
+    dynamic_makespan,
+    longest_predicted_first,
+    lower_bound,
+    static_makespan,
+    tight_lower_bound,
+)
 
 RESULTS = ROOT / "benchmarks" / "results"
 N_GRID = [1, 2, 4, 8, 16, 32, 64, 128, 256, 512, 1024]
@@ -210,61 +217,14 @@ def abcsubsim_batches(num_particles: int, p0: float, levels: int) -> list[int]:
 
 
 # ---------------------------------------------------------------------------------------------
-# Schedulers (makespan of one batch on n identical workers)
-
-def dynamic_makespan(durations: np.ndarray, n: int, overhead: float = 0.0) -> float:
-    """Greedy list scheduling in task order: the earliest-free worker takes the next task.
-
-    ``overhead`` (seconds) is the executor's round trip per future, here one per task.
-    """
-    d = np.asarray(durations, np.float64) + overhead
-    if n >= d.size:
-        return float(d.max())
-    finish = [0.0] * n
-    for t in d:
-        heapq.heapreplace(finish, finish[0] + t)
-    return float(max(finish))
-
-
-def static_makespan(durations: np.ndarray, n: int, overhead: float = 0.0) -> float:
-    """Equal contiguous chunks, one per worker, fixed up front (``jaxabc.mpi.chunk_indices``).
-
-    ``overhead`` is paid once per chunk: the executor sends each chunk as one message.
-    """
-    d = np.asarray(durations, np.float64)
-    return float(max(c.sum() for c in np.array_split(d, min(n, d.size)))) + overhead
-
-
-def lower_bound(durations: np.ndarray, n: int) -> float:
-    """No schedule of independent tasks on ``n`` workers can beat ``max(total / n, longest)``."""
-    return float(max(np.sum(durations) / n, np.max(durations)))
-
-
-def tight_lower_bound(durations: np.ndarray, n: int) -> float:
-    """``max(total / n, longest, max_k (p_(kn-k+1) + ... + p_(kn+1)))`` (durations sorted longest
-    first): with more than ``k n`` tasks, some worker runs ``k + 1`` of the ``k n + 1`` longest
-    (pigeonhole), and no ``k + 1`` of them sum to less than the ``k + 1`` shortest of them.  Where
-    this exceeds :func:`lower_bound`, no scheduler can reach the latter (``k = 1``: two of the
-    ``n + 1`` longest share a worker)."""
-    d = np.sort(np.asarray(durations, np.float64))[::-1]
-    lb = lower_bound(d, n)
-    csum = np.concatenate([[0.0], np.cumsum(d)])
-    k = np.arange(1, (d.size - 1) // n + 1)
-    if k.size:  # sum of d[kn-k .. kn] (0-based) for every k with kn + 1 <= m
-        lb = max(lb, float(np.max(csum[k * n + 1] - csum[k * n - k])))
-    return float(lb)
-
-
-def _longest_predicted_first(batch: np.ndarray) -> np.ndarray:
-    return batch[np.argsort(-batch[:, 1], kind="stable"), 0]
-
+# Schedulers (makespan of one batch on n identical workers): the maths lives in jaxabc.scheduling.
 
 #: Timed on real ranks (the oracle order is a bound, not something an executor can do).
 RANK_ALLOCATIONS = ("dynamic", "dynamic_longest_first", "static")
 #: Allocations over batches of rows (duration, predicted duration).
 MAKESPAN = {
     "dynamic": lambda b, n, c=0.0: dynamic_makespan(b[:, 0], n, c),
-    "dynamic_longest_first": lambda b, n, c=0.0: dynamic_makespan(_longest_predicted_first(b), n, c),
+    "dynamic_longest_first": lambda b, n, c=0.0: dynamic_makespan(longest_predicted_first(b[:, 0], b[:, 1]), n, c),
     "dynamic_lpt_oracle": lambda b, n, c=0.0: dynamic_makespan(np.sort(b[:, 0])[::-1], n, c),
     "static": lambda b, n, c=0.0: static_makespan(b[:, 0], n, c),
 }
@@ -409,7 +369,7 @@ class PredictedColumn:
 
 def rank_job(spec_path: Path, out_path: Path) -> None:
     """Rank 0 of ``mpiexec -n K python -m mpi4py.futures benchmarks/speedup.py --rank-job``."""
-    from jaxabc.mpi import MPIExecutor
+    from jaxabc.executors.mpi import MPIExecutor
 
     spec = json.loads(spec_path.read_text())
     result = {}
@@ -529,7 +489,7 @@ def rank_study(dist: dict, algorithms: dict[str, list[int]], ranks: list[int], s
 
 def real_job(spec_path: Path, out_path: Path) -> None:
     """Rank 0 of the real-simulation launch: GROMACS quick preset through MPIExecutor."""
-    from jaxabc.mpi import MPIExecutor
+    from jaxabc.executors.mpi import MPIExecutor
     from md.water import make_simulator
 
     spec = json.loads(spec_path.read_text())
@@ -732,7 +692,7 @@ def main(argv: list[str] | None = None) -> None:
         small = {"apmcabc": apmcabc_batches(args.rank_particles, args.alpha, args.rank_steps),
                  "abcsubsim": abcsubsim_batches(args.rank_particles, args.p0, args.rank_steps)}
         out["ranks"] = {"how": "real Open MPI ranks (oversubscribed, mpiexec -n n+1 python -m mpi4py.futures), "
-                               "jaxabc.mpi.MPIExecutor(isolate=False) running time.sleep tasks",
+                               "jaxabc.executors.MPIExecutor(isolate=False) running time.sleep tasks",
                         "settings": {"num_particles": args.rank_particles, "alpha": args.alpha, "p0": args.p0,
                                      "steps": args.rank_steps},
                         **rank_study(dist, small, args.ranks, args.sleep_mean, args.seed, args.timeout,

@@ -13,8 +13,16 @@ from jaxabc import distances, kernels, scheduling
 from jaxabc.algorithms import BUILDERS as ALGORITHMS
 from jaxabc.coverage import CoverageStudy, coverage_study
 from jaxabc.errors import SimulationFailure, TooManyFailures
-from jaxabc.executors import ProcessPoolExecutor, SerialExecutor, SimulationBatch, VmapExecutor
-from jaxabc.mpi import MPIExecutor
+from jaxabc.executors import (
+    MPIExecutor,
+    ProcessPoolExecutor,
+    SerialExecutor,
+    SimulationBatch,
+    VmapExecutor,
+    get_executor,
+    mark_nonfinite,
+    task_durations,
+)
 from jaxabc.priors import Uniform
 from jaxabc.results import ABCResult, load
 from jaxabc.run import run
@@ -35,9 +43,12 @@ __all__ = [
     "__version__",
     "coverage_study",
     "distances",
+    "get_executor",
     "kernels",
     "load",
+    "mark_nonfinite",
     "run",
     "scheduling",
     "seed_from_key",
+    "task_durations",
 ]

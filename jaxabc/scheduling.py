@@ -1,40 +1,47 @@
-"""Task order for dynamic allocation: longest predicted task first.
+"""Task order for dynamic allocation, and the makespan maths that judges a schedule.
 
 A free worker pulling the next task (greedy list scheduling) finishes a batch of ``m`` tasks on
 ``n`` workers within ``2 - 1/n`` of the optimal makespan in the worst case; when one long task is
 pulled last, every other worker idles while it runs.  Handing out the longest tasks first (LPT,
-Graham 1969) tightens the worst case to ``4/3 - 1/(3n)`` and is within a few percent of optimal
-for the duration distributions of MD simulations (``benchmarks/speedup.py`` measures it).
+Graham 1969) tightens the worst case to ``4/3 - 1/(3n)``.
 
-Durations are not known before a simulation runs, but they are predictable from its parameters:
-a water model whose parameters vaporise the liquid finishes in a fraction of the time of one that
-stays liquid, and a dense LJ state costs more neighbour-list work than a dilute one.  A
-:class:`NearestNeighbourCost` learns the log of the task cost (CPU time, or wall time for a task
-that waits: :func:`jaxabc.executors.task_durations`) from the tasks an executor has already run
-(its own history, across the ABC iterations of a run) and predicts new ones from their ``k``
-nearest neighbours in standardised parameter space, by default *pessimistically*: the longest
-of the neighbours.  The ranking is asymmetric: a long task mistaken for a short one is queued
-last and lengthens the makespan by its whole duration, while a short task queued early costs
-almost nothing.  In ``benchmarks/results/speedup.json`` (event model over the 820 CPU-time
-records of the neutron water calibration, durations 0.1-12 s, bimodal: vapour ~2 s, liquid
-~9-11 s) the worst whole-run makespan over the lower bound is, APMCABC / ABCsubsim, 1.23 / 1.38
-in arrival order, 1.12 / 1.23 longest-first by the neighbours' maximum and 1.04 / 1.08 with
-perfect foresight; on a second run's 640 records, with the model left as chosen on the first,
-1.20 / 1.36, 1.11 / 1.19 and 1.04 / 1.09 (``speedup_model_simulated_records.json``).
-(A probe on the run's first 190 records, not saved, ranked by the
-neighbours' *mean*: no better than arrival order.)
+Durations are not known before a simulation runs, but they are predictable from its parameters
+(a water model whose parameters vaporise the liquid finishes sooner than one that stays liquid).
+A :class:`NearestNeighbourCost` learns the log of the task cost (:func:`jaxabc.executors.task_durations`)
+from the tasks an executor has already run and predicts new ones from their ``k`` nearest
+neighbours in standardised parameter space, by default *pessimistically*: the longest of the
+neighbours, because a long task mistaken for a short one is queued last and lengthens the makespan
+by its whole duration, while a short task queued early costs almost nothing.
+``benchmarks/speedup.py`` measures the orders against the bounds below.
 
 The order changes only *when* a task runs, never its key or its result: the same seed gives the
 same posterior with or without it, on any number of workers.
+
+Makespans and bounds (all durations in seconds, one batch of independent tasks on ``n``
+identical workers): :func:`dynamic_makespan` (greedy list scheduling, as the dynamic executors
+do), :func:`static_makespan` (equal contiguous chunks, ``MPIExecutor("static")``),
+:func:`lower_bound` and :func:`tight_lower_bound` (no schedule beats them), and
+:func:`longest_predicted_first` (the queue order of ``order="longest_first"``).
 """
 
 from __future__ import annotations
 
+import heapq
 from typing import Protocol
 
 import numpy as np
 
-__all__ = ["CostModel", "NearestNeighbourCost", "dispatch_order", "get_cost_model"]
+__all__ = [
+    "CostModel",
+    "NearestNeighbourCost",
+    "dispatch_order",
+    "dynamic_makespan",
+    "get_cost_model",
+    "longest_predicted_first",
+    "lower_bound",
+    "static_makespan",
+    "tight_lower_bound",
+]
 
 
 class CostModel(Protocol):
@@ -135,3 +142,78 @@ def dispatch_order(cost_model: CostModel | None, thetas: np.ndarray) -> np.ndarr
     if cost is None:
         return np.arange(m)
     return np.argsort(-np.asarray(cost, np.float64), kind="stable")
+
+
+def _durations(durations: np.ndarray, n: int) -> np.ndarray:
+    d = np.asarray(durations, np.float64).reshape(-1)
+    if d.size == 0:
+        raise ValueError("need at least one task duration")
+    if n < 1:
+        raise ValueError(f"need at least one worker, got n={n}")
+    return d
+
+
+def dynamic_makespan(durations: np.ndarray, n: int, overhead: float = 0.0) -> float:
+    """Makespan of greedy list scheduling in task order: the earliest-free worker takes the next task.
+
+    Parameters
+    ----------
+    durations : array, shape (m,)
+        Seconds per task, in the order the tasks are queued.
+    n : int
+        Workers.
+    overhead : float
+        Seconds added to every task (an executor's round trip per task).
+    """
+    d = _durations(durations, n) + overhead
+    if n >= d.size:
+        return float(d.max())
+    finish = [0.0] * n
+    for t in d:
+        heapq.heapreplace(finish, finish[0] + t)
+    return float(max(finish))
+
+
+def static_makespan(durations: np.ndarray, n: int, overhead: float = 0.0) -> float:
+    """Makespan of equal contiguous chunks, one per worker (:func:`jaxabc.executors.mpi.chunk_indices`).
+
+    ``overhead`` (seconds) is paid once per chunk: the executor sends each chunk as one message.
+    """
+    d = _durations(durations, n)
+    return float(max(c.sum() for c in np.array_split(d, min(n, d.size)))) + overhead
+
+
+def lower_bound(durations: np.ndarray, n: int) -> float:
+    """``max(total / n, longest)``: no schedule of independent tasks on ``n`` workers is shorter."""
+    d = _durations(durations, n)
+    return float(max(d.sum() / n, d.max()))
+
+
+def tight_lower_bound(durations: np.ndarray, n: int) -> float:
+    """The pigeonhole bound, never below :func:`lower_bound` and never above the optimal makespan.
+
+    With durations sorted longest first, ``max(total / n, longest, max_k (p_(kn-k+1) + ... +
+    p_(kn+1)))``: with more than ``k n`` tasks some worker runs ``k + 1`` of the ``k n + 1``
+    longest, and no ``k + 1`` of them sum to less than the ``k + 1`` shortest of them.  Where it
+    exceeds :func:`lower_bound`, no scheduler can reach the latter.
+    """
+    d = np.sort(_durations(durations, n))[::-1]
+    lb = lower_bound(d, n)
+    csum = np.concatenate([[0.0], np.cumsum(d)])
+    k = np.arange(1, (d.size - 1) // n + 1)
+    if k.size:  # sum of d[kn-k .. kn] (0-based) for every k with kn + 1 <= m
+        lb = max(lb, float(np.max(csum[k * n + 1] - csum[k * n - k])))
+    return float(lb)
+
+
+def longest_predicted_first(durations: np.ndarray, predicted: np.ndarray) -> np.ndarray:
+    """``durations`` reordered by decreasing ``predicted`` (stable: ties keep their order).
+
+    The queue a dynamic executor with ``order="longest_first"`` hands out, for
+    :func:`dynamic_makespan`; with ``predicted = durations`` it is LPT with perfect foresight.
+    """
+    d = np.asarray(durations, np.float64).reshape(-1)
+    p = np.asarray(predicted, np.float64).reshape(-1)
+    if d.shape != p.shape:
+        raise ValueError(f"need one prediction per duration, got {p.size} for {d.size}")
+    return d[np.argsort(-p, kind="stable")]

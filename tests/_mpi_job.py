@@ -19,7 +19,7 @@ import numpy as np
 
 import jaxabc
 from jaxabc.examples import flaky_simulate, host_gaussian_simulate
-from jaxabc.mpi import MPIExecutor
+from jaxabc.executors.mpi import MPIExecutor
 
 # Shared with test_mpi.py, which checks the serial run against the MPI runs of other launches.
 SETTINGS = {"num_particles": 40, "num_steps": 3, "seed": 7}

@@ -20,7 +20,7 @@ import numpy as np
 import pytest
 
 from jaxabc.errors import STATUS_FAILED, STATUS_NONFINITE, STATUS_OK, STATUS_TIMEOUT, STATUS_WORKER_DIED
-from jaxabc.mpi import chunk_indices
+from jaxabc.executors.mpi import chunk_indices
 
 HERE = Path(__file__).parent
 ROOT_FLAGS = {"OMPI_ALLOW_RUN_AS_ROOT": "1", "OMPI_ALLOW_RUN_AS_ROOT_CONFIRM": "1",
@@ -73,7 +73,7 @@ def test_jaxabc_import_does_not_import_mpi4py() -> None:
 
 
 def test_missing_mpi4py_message(monkeypatch: pytest.MonkeyPatch) -> None:
-    from jaxabc.mpi import MPIExecutor
+    from jaxabc.executors.mpi import MPIExecutor
 
     monkeypatch.setitem(sys.modules, "mpi4py", None)
     with pytest.raises(ImportError, match=r"pip install mpi4py.*apt-get install openmpi-bin libopenmpi-dev"):
@@ -81,7 +81,7 @@ def test_missing_mpi4py_message(monkeypatch: pytest.MonkeyPatch) -> None:
 
 
 def test_bad_arguments() -> None:
-    from jaxabc.mpi import MPIExecutor
+    from jaxabc.executors.mpi import MPIExecutor
 
     with pytest.raises(ValueError, match="allocation"):
         MPIExecutor(allocation="greedy")

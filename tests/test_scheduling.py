@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from pathlib import Path
+import itertools
 
 import numpy as np
 import pytest
@@ -10,7 +10,16 @@ import pytest
 import jaxabc
 from jaxabc.examples import busy_child_simulate, sleep_simulate
 from jaxabc.executors import task_durations
-from jaxabc.scheduling import NearestNeighbourCost, dispatch_order, get_cost_model
+from jaxabc.scheduling import (
+    NearestNeighbourCost,
+    dispatch_order,
+    dynamic_makespan,
+    get_cost_model,
+    longest_predicted_first,
+    lower_bound,
+    static_makespan,
+    tight_lower_bound,
+)
 
 
 def test_nearest_neighbour_cost_learns_a_duration_that_depends_on_theta():
@@ -110,19 +119,13 @@ def test_cpu_time_counts_the_programs_a_task_starts_and_sleep_is_costed_by_wall_
     assert 0.3 <= serial.cpu_time[0] < 0.8
 
 
-def test_speedup_lower_bounds_hold_and_the_tight_one_is_reached_on_small_cases():
-    """``benchmarks/speedup.py``'s bounds against the optimal makespan found by brute force.
+def test_lower_bounds_hold_and_the_tight_one_is_reached_on_small_cases():
+    """The bounds against the optimal makespan found by brute force.
 
     Every assignment of up to 8 tasks to 2-3 workers is tried: no schedule beats either bound,
     and the pigeonhole bound is exactly the optimum on some instances where the plain
     ``max(total / n, longest)`` is not (so it is the one to judge a scheduler against).
     """
-    import importlib.util
-    import itertools
-
-    spec = importlib.util.spec_from_file_location("speedup", Path(__file__).parents[1] / "benchmarks" / "speedup.py")
-    speedup = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(speedup)
     rng = np.random.default_rng(3)
     tight_is_optimal_where_plain_is_not = 0
     for _ in range(60):
@@ -130,8 +133,39 @@ def test_speedup_lower_bounds_hold_and_the_tight_one_is_reached_on_small_cases()
         d = rng.lognormal(0.0, 0.6, m)
         optimum = min(max(np.bincount(a, weights=d, minlength=n))
                       for a in map(np.array, itertools.product(range(n), repeat=m)))
-        plain, tight = speedup.lower_bound(d, n), speedup.tight_lower_bound(d, n)
+        plain, tight = lower_bound(d, n), tight_lower_bound(d, n)
         assert plain <= tight * (1 + 1e-12) and tight <= optimum * (1 + 1e-12)
-        assert speedup.dynamic_makespan(np.sort(d)[::-1], n) >= optimum * (1 - 1e-12)
+        for schedule in (dynamic_makespan(d, n), static_makespan(d, n),
+                         dynamic_makespan(longest_predicted_first(d, d), n)):
+            assert schedule >= optimum * (1 - 1e-12)
         tight_is_optimal_where_plain_is_not += bool(np.isclose(tight, optimum) and plain < optimum - 1e-9)
     assert tight_is_optimal_where_plain_is_not >= 5
+
+
+def test_makespans_on_cases_worked_by_hand():
+    # Greedy in task order: 3 and 1 start; 1 ends, 2 starts at 1 -> ends 3; 2 starts at 3 -> 5.
+    d = np.array([3.0, 1.0, 2.0, 2.0])
+    assert dynamic_makespan(d, 2) == 5.0
+    assert dynamic_makespan(d, 2, overhead=0.5) == 6.0  # 3.5 | 1.5 + 2.5 = 4 | 3.5 + 2.5 = 6
+    # Longest first: 3 | 2, 2 at 2 -> 4 | 1 at 3 -> 4; LPT reaches total / n here.
+    assert longest_predicted_first(d, d).tolist() == [3.0, 2.0, 2.0, 1.0]
+    assert dynamic_makespan(longest_predicted_first(d, d), 2) == 4.0 == lower_bound(d, 2)
+    # Static: chunks [3, 1] and [2, 2]; a per-chunk overhead is paid once.
+    assert static_makespan(d, 2) == 4.0 and static_makespan(d, 2, overhead=1.0) == 5.0
+    # More workers than tasks: the longest task.
+    assert dynamic_makespan(d, 8) == static_makespan(d, 8) == 3.0
+    # m = n + 1 equal tasks: two share a worker, twice the plain bound; the tight bound sees it.
+    ones = np.ones(5)
+    assert lower_bound(ones, 4) == 1.25 and tight_lower_bound(ones, 4) == 2.0 == dynamic_makespan(ones, 4)
+    # Ties in the prediction keep the task order.
+    assert longest_predicted_first([1.0, 2.0, 3.0], [5.0, 5.0, 9.0]).tolist() == [3.0, 1.0, 2.0]
+
+
+def test_makespan_inputs_are_checked():
+    with pytest.raises(ValueError, match="at least one task"):
+        lower_bound(np.array([]), 2)
+    with pytest.raises(ValueError, match="at least one worker"):
+        dynamic_makespan(np.ones(3), 0)
+    with pytest.raises(ValueError, match="one prediction per duration"):
+        longest_predicted_first(np.ones(3), np.ones(2))
+

@@ -3,8 +3,8 @@
 Both run a host simulator ``simulate(key, theta) -> summaries`` on the worker processes of an
 :class:`mpi4py.futures.MPIPoolExecutor` and follow the interface of :mod:`jaxabc.executors`::
 
-    ex = jaxabc.mpi.MPIExecutor(allocation="dynamic")      # or jaxabc.run(..., executor="mpi")
-    batch = ex.map(simulate, keys, thetas)                 # SimulationBatch
+    ex = jaxabc.MPIExecutor(allocation="dynamic")    # or jaxabc.run(..., executor="mpi")
+    batch = ex.map(simulate, keys, thetas)           # SimulationBatch
 
 ``allocation="dynamic"`` (``executor="mpi"``)
     One future per task: a worker that finishes asks for the next single task.  This is the
@@ -48,7 +48,8 @@ Failures
 --------
 A task whose simulator raises (or returns NaN) becomes a failure record with the reason, as in
 every executor; the run goes on.  With ``isolate=True`` (the default) each worker rank runs the
-simulator in a child process of its own (started once, with ``spawn``, and reused), so
+simulator in a child process of its own (:class:`jaxabc.executors.workers.WorkerProcess`,
+started once and reused), so
 a simulator that crashes its process (segfault, ``os._exit``, out-of-memory kill) costs only its
 task (``STATUS_WORKER_DIED``, and the child is replaced) and ``timeout`` stops a task that runs too
 long (``STATUS_TIMEOUT``).  The MPI rank itself never runs simulator code then, which matters
@@ -67,20 +68,17 @@ replaced.  Without a timeout a dead spawned rank would hang the run, so give one
 from __future__ import annotations
 
 import concurrent.futures
-import multiprocessing as mp
-import os
 import pickle
-import signal
 import time
 import traceback
 from collections.abc import Callable
-from multiprocessing.connection import wait
 from typing import Any
 
 import numpy as np
 
-from jaxabc.errors import STATUS_FAILED, STATUS_TIMEOUT, STATUS_WORKER_DIED
-from jaxabc.executors import SimulationBatch, _assemble, _isolate_worker_process, _timed_run, task_durations
+from jaxabc.errors import STATUS_FAILED, STATUS_OK, STATUS_TIMEOUT, STATUS_WORKER_DIED
+from jaxabc.executors.base import SimulationBatch, assemble_batch, task_durations
+from jaxabc.executors.workers import WorkerProcess, pickle_simulator, timed_run
 from jaxabc.scheduling import CostModel, dispatch_order, get_cost_model
 
 __all__ = ["ALLOCATIONS", "MPIExecutor", "chunk_indices", "mpi_available"]
@@ -91,10 +89,6 @@ _INSTALL_HINT = (
     "jaxabc's MPI executors need mpi4py and an MPI library: `pip install mpi4py` and "
     "`apt-get install openmpi-bin libopenmpi-dev` (or `pip install mpi4py mpich`)"
 )
-
-# Seconds an isolation child may take to start (interpreter, imports, unpickling the simulator)
-# before its task is failed; the task's own timeout starts only once the child is ready.
-_STARTUP_LIMIT = 300.0
 
 # How often the driver side looks at unfinished futures when it enforces a timeout itself.
 _POLL_SECONDS = 0.05
@@ -140,103 +134,6 @@ def chunk_indices(num_tasks: int, num_workers: int) -> list[np.ndarray]:
 # Worker side.  These functions run on the MPI worker ranks; they are module-level so that
 # mpi4py pickles them by reference.
 
-def _child_main(conn: Any) -> None:
-    """Body of an isolation child: load simulators and run tasks until told to stop."""
-    _isolate_worker_process()
-    import jaxabc  # noqa: F401  -- pay the JAX import before reporting ready, not inside a task
-
-    conn.send(("ready", os.getpid()))
-    simulate = None
-    while True:
-        try:
-            item = conn.recv()
-        except EOFError:
-            return
-        if item is None:
-            return
-        if isinstance(item, bytes):
-            try:
-                simulate = pickle.loads(item)
-                conn.send(("loaded", None))
-            except Exception as exc:
-                conn.send(("error", traceback.format_exception_only(type(exc), exc)[-1].strip()))
-            continue
-        conn.send(_timed_run(simulate, *item))
-
-
-class _IsolatedChild:
-    """The child process of a worker rank that runs the simulator, so a crash costs one task.
-
-    Started once per rank and kept (a new simulator is sent to it, not a new process), replaced
-    only after a crash or a timeout.  Unlike :class:`jaxabc.ProcessPoolExecutor` it waits for the
-    child to report ready before a task's timeout clock starts: a replacement child (interpreter
-    start plus the JAX import, seconds on a busy machine) must not time out the task it is about
-    to run.
-    """
-
-    def __init__(self) -> None:
-        ctx = mp.get_context("spawn")
-        self.conn, child = ctx.Pipe(duplex=True)
-        self.proc = ctx.Process(target=_child_main, args=(child,), daemon=True)
-        self.proc.start()
-        child.close()
-        self.ready = False
-        self.payload: bytes | None = None
-
-    def _reply(self, what: str) -> tuple[str, Any]:
-        t0 = time.perf_counter()
-        while not self.conn.poll(0.2):
-            if time.perf_counter() - t0 > _STARTUP_LIMIT:
-                self.kill()
-                raise RuntimeError(f"the simulator's process did not {what} within {_STARTUP_LIMIT} s")
-            if not self.proc.is_alive():
-                raise RuntimeError(f"the simulator's process died (exit code {self.proc.exitcode}) while it "
-                                   f"was to {what}")
-        return self.conn.recv()
-
-    def load(self, payload: bytes) -> None:
-        if not self.ready:
-            self._reply("start")
-            self.ready = True
-        if payload != self.payload:
-            self.payload = None
-            self.conn.send(payload)
-            kind, info = self._reply("load the simulator")
-            if kind == "error":
-                raise RuntimeError(f"could not load the simulator: {info}")
-            self.payload = payload
-
-    def run(self, key: np.ndarray, theta: np.ndarray,
-            timeout: float | None) -> tuple[Any, int, str, float, float, bool]:
-        """Run one task; returns ``(summaries or None, status, reason, seconds, cpu_seconds,
-        child_alive)`` (CPU seconds NaN when the child was killed or died)."""
-        t0 = time.perf_counter()
-        self.conn.send((key, theta))
-        ready = wait([self.conn, self.proc.sentinel], timeout=timeout)
-        if self.conn in ready:
-            try:
-                out, status, reason, seconds, cpu = self.conn.recv()
-                return out, status, reason, seconds, cpu, True
-            except (EOFError, OSError):
-                pass
-        seconds = time.perf_counter() - t0
-        self.kill()
-        if not ready:
-            return (None, STATUS_TIMEOUT, f"timeout: ran longer than {timeout} s and was stopped", seconds,
-                    np.nan, False)
-        return (None, STATUS_WORKER_DIED,
-                f"the simulator's process died (exit code {self.proc.exitcode}) while running it", seconds,
-                np.nan, False)
-
-    def kill(self) -> None:
-        try:
-            os.killpg(self.proc.pid, signal.SIGKILL)
-        except (ProcessLookupError, PermissionError):
-            self.proc.kill()
-        self.proc.join(timeout=5)
-        self.conn.close()
-
-
 # Per worker rank: the unpickled simulator of the last payload (an object simulator, such as a
 # GROMACS plugin instance, would otherwise be a new object for every task) and the isolation child.
 _WORKER_STATE: dict[str, Any] = {"payload": None, "simulate": None, "child": None}
@@ -255,9 +152,9 @@ def _worker_run_one(payload: bytes, isolate: bool, timeout: float | None, key: n
         if state["payload"] != payload:
             state.update(payload=None, simulate=pickle.loads(payload))
             state["payload"] = payload
-        return _timed_run(state["simulate"], key, theta)
+        return timed_run(state["simulate"], key, theta)
     if state["child"] is None:
-        state["child"] = _IsolatedChild()
+        state["child"] = WorkerProcess(_worker_rank())
     child = state["child"]
     try:
         child.load(payload)
@@ -268,7 +165,7 @@ def _worker_run_one(payload: bytes, isolate: bool, timeout: float | None, key: n
     out, status, reason, seconds, cpu, alive = child.run(key, theta, timeout)
     if not alive:
         # Start the replacement now, so that its start-up overlaps the driver's bookkeeping.
-        state["child"] = _IsolatedChild()
+        state["child"] = WorkerProcess(_worker_rank())
     return out, status, reason, seconds, cpu
 
 
@@ -320,6 +217,9 @@ class MPIExecutor:
         ``"longest_first"`` queues the longest *predicted* first, learnt from the costs of
         earlier tasks (CPU time, see :func:`jaxabc.executors.task_durations`;
         :mod:`jaxabc.scheduling`); results never depend on it.
+    summary_shape : tuple of int, optional
+        Shape of one task's summaries, for a batch in which every task fails; learnt from the
+        first successful task when not given.
 
     Attributes
     ----------
@@ -339,7 +239,7 @@ class MPIExecutor:
 
     def __init__(self, allocation: str = "dynamic", max_workers: int | None = None,
                  timeout: float | None = None, isolate: bool = True,
-                 order: str | CostModel | None = None):
+                 order: str | CostModel | None = None, summary_shape: tuple[int, ...] | None = None):
         if allocation not in ALLOCATIONS:
             raise ValueError(f"allocation must be one of {ALLOCATIONS}, got {allocation!r}")
         if max_workers is not None and max_workers < 1:
@@ -354,6 +254,7 @@ class MPIExecutor:
         if order not in (None, "fifo") and allocation != "dynamic":
             raise ValueError("order applies to dynamic allocation only; static chunks are fixed up front")
         self.cost_model = get_cost_model(order)
+        self.summary_shape = None if summary_shape is None else tuple(summary_shape)
         self.last_makespan = float("nan")
         self._pool: Any = None
         self._broken: str | None = None
@@ -400,13 +301,7 @@ class MPIExecutor:
             raise ValueError("nothing to simulate: the batch is empty")
         if keys.shape[0] != m:
             raise ValueError(f"got {keys.shape[0]} keys for {m} parameter vectors: need one each")
-        try:
-            payload = pickle.dumps(simulate, protocol=pickle.HIGHEST_PROTOCOL)
-        except Exception as exc:
-            raise TypeError(
-                f"the simulator cannot be pickled for the MPI workers ({exc}); make it a "
-                "module-level function or an instance of a module-level class"
-            ) from exc
+        payload = pickle_simulator(simulate)
         pool = self._ensure_pool()
         if self.allocation == "dynamic":
             groups = [np.array([i]) for i in dispatch_order(self.cost_model, thetas)]
@@ -443,7 +338,9 @@ class MPIExecutor:
             if fut not in answered:
                 for i in idx:
                     reasons[i] = f"not run or lost: the MPI pool became unusable ({self._broken})"
-        batch = _assemble(outputs, status, reasons, times, workers, cpu)
+        batch = assemble_batch(outputs, status, reasons, times, workers, cpu, self.summary_shape)
+        if np.any(batch.status == STATUS_OK):
+            self.summary_shape = tuple(batch.summaries.shape[1:])
         if self.cost_model is not None:
             ran = workers >= 0
             self.cost_model.observe(thetas[ran], task_durations(batch.wall_time, batch.cpu_time)[ran])
