@@ -17,7 +17,7 @@ import numpy as np
 
 from jaxabc.priors import Uniform
 
-__all__ = ["ABCResult", "load", "versions"]
+__all__ = ["ABCResult", "load", "versions", "write_outputs"]
 
 
 def versions() -> dict[str, str]:
@@ -344,3 +344,16 @@ def load(path: str | Path) -> ABCResult:
             log_evidence=meta.get("log_evidence"), records=records,
             metadata=meta.get("metadata", {}),
         )
+
+
+def write_outputs(result: ABCResult, folder: str | Path, truth: np.ndarray | None = None) -> None:
+    """Write ``result.npz``, ``summary.txt`` and (two or more parameters) ``posterior.png`` in ``folder``.
+
+    ``truth``, shape (d,), is marked on the figure when given.  The folder is created if needed.
+    """
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    result.save(folder / "result.npz")
+    if result.particles.shape[1] >= 2:
+        result.plot_posterior(folder / "posterior.png", truth=None if truth is None else np.asarray(truth))
+    (folder / "summary.txt").write_text(result.summary() + "\n")

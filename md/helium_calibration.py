@@ -21,6 +21,7 @@ import jax
 import numpy as np
 
 import jaxabc
+from jaxabc.results import write_outputs
 from md import helium
 
 __all__ = ["calibrate", "main", "make_model"]
@@ -51,8 +52,6 @@ def calibrate(algorithm: str = "apmcabc", preset: str = "cpu", num_particles: in
                         metadata={"model": "helium", "preset": preset,
                                   "true_theta": list(helium.TRUE_THETA)}, **options)
     if output is not None:
-        from jaxabc.cli import write_outputs
-
         write_outputs(result, Path(output), truth=np.asarray(helium.TRUE_THETA))
     return result
 
