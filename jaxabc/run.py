@@ -287,6 +287,8 @@ def run(
     own_executor = not hasattr(executor, "map")
     ex = get_executor(executor)
     _check_shape(ex, simulate, prior, obs, distance)
+    if hasattr(ex, "summary_shape") and not getattr(get_distance(distance), "compares_samples", False):
+        ex.summary_shape = tuple(obs.shape)  # a batch where every task fails keeps this shape
     distances_of = _make_distance_fn(distance, obs, jdtype)
 
     jit_initial = jax.jit(algo.initial_proposal)
