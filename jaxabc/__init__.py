@@ -14,6 +14,7 @@ from jaxabc.algorithms import BUILDERS as ALGORITHMS
 from jaxabc.coverage import CoverageStudy, coverage_study
 from jaxabc.errors import SimulationFailure, TooManyFailures
 from jaxabc.executors import (
+    DaskExecutor,
     MPIExecutor,
     ProcessPoolExecutor,
     SerialExecutor,
@@ -32,6 +33,7 @@ __all__ = [
     "ALGORITHMS",
     "ABCResult",
     "CoverageStudy",
+    "DaskExecutor",
     "MPIExecutor",
     "ProcessPoolExecutor",
     "SerialExecutor",

@@ -38,7 +38,9 @@ def _mpi_missing() -> str | None:
 
 
 def _launch(num_ranks: int, out: Path, cache: Path, *extra: str) -> dict:
-    env = {**os.environ, **ROOT_FLAGS, "JAX_PLATFORMS": "cpu", "JAXABC_TEST_JAX_CACHE": str(cache)}
+    # The jaxabc under test, not whichever copy is installed.
+    path = os.pathsep.join(p for p in (str(HERE.parent), os.environ.get("PYTHONPATH")) if p)
+    env = {**os.environ, **ROOT_FLAGS, "JAX_PLATFORMS": "cpu", "JAXABC_TEST_JAX_CACHE": str(cache), "PYTHONPATH": path}
     cmd = ["mpiexec", "--allow-run-as-root", "--oversubscribe", "-n", str(num_ranks), sys.executable, "-m",
            "mpi4py.futures", str(HERE / "_mpi_job.py"), str(out), *extra]
     proc = subprocess.run(cmd, capture_output=True, text=True, env=env, timeout=240, cwd=HERE.parent)
@@ -69,7 +71,8 @@ def test_chunk_indices_are_equal_contiguous_chunks() -> None:
 
 def test_jaxabc_import_does_not_import_mpi4py() -> None:
     code = "import sys, jaxabc, jaxabc.executors; assert 'mpi4py' not in sys.modules"
-    subprocess.run([sys.executable, "-c", code], check=True, env={**os.environ, "JAX_PLATFORMS": "cpu"})
+    env = {**os.environ, "JAX_PLATFORMS": "cpu", "PYTHONPATH": str(HERE.parent)}
+    subprocess.run([sys.executable, "-c", code], check=True, env=env)
 
 
 def test_missing_mpi4py_message(monkeypatch: pytest.MonkeyPatch) -> None:

@@ -20,8 +20,10 @@ Implementations
     A task that raises, runs past the timeout or kills its worker becomes a failure record.
 :class:`MPIExecutor` (:mod:`~jaxabc.executors.mpi`)
     MPI worker ranks, dynamic pull queue or static chunks.
+:class:`DaskExecutor` (:mod:`~jaxabc.executors.dask`)
+    The workers of a ``dask.distributed`` cluster (local, or SLURM/PBS through dask-jobqueue).
 
-The pool and MPI isolate the simulator in child processes through one module,
+The pool, MPI and Dask isolate the simulator in child processes through one module,
 :mod:`~jaxabc.executors.workers`.
 """
 
@@ -30,12 +32,14 @@ from __future__ import annotations
 from typing import Any
 
 from jaxabc.executors.base import Executor, SimulationBatch, mark_nonfinite, task_durations
+from jaxabc.executors.dask import DaskExecutor
 from jaxabc.executors.local import ProcessPoolExecutor, SerialExecutor
 from jaxabc.executors.mpi import MPIExecutor
 from jaxabc.executors.vmap import VmapExecutor
 
 __all__ = [
     "EXECUTOR_NAMES",
+    "DaskExecutor",
     "Executor",
     "MPIExecutor",
     "ProcessPoolExecutor",
@@ -48,7 +52,7 @@ __all__ = [
 ]
 
 #: The names :func:`get_executor` (and :func:`jaxabc.run`'s ``executor=``) accept.
-EXECUTOR_NAMES = ("vmap", "serial", "process_pool", "mpi", "mpi_static")
+EXECUTOR_NAMES = ("vmap", "serial", "process_pool", "mpi", "mpi_static", "dask")
 
 
 def get_executor(executor: str | Executor | None, **options: Any) -> Executor:
@@ -70,8 +74,11 @@ def get_executor(executor: str | Executor | None, **options: Any) -> Executor:
             return ProcessPoolExecutor(**options)
         if executor in ("mpi", "mpi_static"):
             return MPIExecutor(allocation="dynamic" if executor == "mpi" else "static", **options)
+        if executor == "dask":
+            return DaskExecutor(**options)
         raise ValueError(
             f"unknown executor {executor!r}: use 'vmap' (JAX simulators), 'serial', "
-            "'process_pool' (external programs), 'mpi' or 'mpi_static', or pass an executor object"
+            "'process_pool' (external programs), 'mpi', 'mpi_static' or 'dask', or pass an executor "
+            "object"
         )
     return executor

@@ -68,7 +68,6 @@ replaced.  Without a timeout a dead spawned rank would hang the run, so give one
 from __future__ import annotations
 
 import concurrent.futures
-import pickle
 import time
 import traceback
 from collections.abc import Callable
@@ -78,7 +77,7 @@ import numpy as np
 
 from jaxabc.errors import STATUS_FAILED, STATUS_OK, STATUS_TIMEOUT, STATUS_WORKER_DIED
 from jaxabc.executors.base import SimulationBatch, assemble_batch, task_durations
-from jaxabc.executors.workers import WorkerProcess, pickle_simulator, timed_run
+from jaxabc.executors.workers import TaskRunner, pickle_simulator
 from jaxabc.scheduling import CostModel, dispatch_order, get_cost_model
 
 __all__ = ["ALLOCATIONS", "MPIExecutor", "chunk_indices", "mpi_available"]
@@ -134,39 +133,14 @@ def chunk_indices(num_tasks: int, num_workers: int) -> list[np.ndarray]:
 # Worker side.  These functions run on the MPI worker ranks; they are module-level so that
 # mpi4py pickles them by reference.
 
-# Per worker rank: the unpickled simulator of the last payload (an object simulator, such as a
-# GROMACS plugin instance, would otherwise be a new object for every task) and the isolation child.
-_WORKER_STATE: dict[str, Any] = {"payload": None, "simulate": None, "child": None}
+# Per worker rank and isolation mode: what runs its tasks (the unpickled simulator or its child).
+_RUNNERS: dict[bool, TaskRunner] = {}
 
 
 def _worker_rank() -> int:
     from mpi4py import MPI
 
     return MPI.COMM_WORLD.Get_rank()
-
-
-def _worker_run_one(payload: bytes, isolate: bool, timeout: float | None, key: np.ndarray,
-                    theta: np.ndarray) -> tuple[Any, int, str, float, float]:
-    state = _WORKER_STATE
-    if not isolate:
-        if state["payload"] != payload:
-            state.update(payload=None, simulate=pickle.loads(payload))
-            state["payload"] = payload
-        return timed_run(state["simulate"], key, theta)
-    if state["child"] is None:
-        state["child"] = WorkerProcess(_worker_rank())
-    child = state["child"]
-    try:
-        child.load(payload)
-    except RuntimeError:
-        if not child.proc.is_alive():  # it died or overran the start-up limit; a simulator that
-            state["child"] = None       # does not unpickle leaves a healthy child behind
-        raise
-    out, status, reason, seconds, cpu, alive = child.run(key, theta, timeout)
-    if not alive:
-        # Start the replacement now, so that its start-up overlaps the driver's bookkeeping.
-        state["child"] = WorkerProcess(_worker_rank())
-    return out, status, reason, seconds, cpu
 
 
 def _run_tasks(payload: bytes, isolate: bool, timeout: float | None, indices: np.ndarray,
@@ -181,7 +155,8 @@ def _run_tasks(payload: bytes, isolate: bool, timeout: float | None, indices: np
     out = []
     for j, i in enumerate(indices):
         try:
-            summaries, status, reason, seconds, cpu = _worker_run_one(payload, isolate, timeout, keys[j], thetas[j])
+            runner = _RUNNERS.setdefault(isolate, TaskRunner(isolate, rank))
+            summaries, status, reason, seconds, cpu = runner.run(payload, keys[j], thetas[j], timeout)
         except Exception as exc:
             last = traceback.format_exception_only(type(exc), exc)[-1].strip()
             summaries, status, seconds, cpu = None, STATUS_FAILED, 0.0, np.nan

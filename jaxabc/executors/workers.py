@@ -5,7 +5,7 @@ pickled simulator and runs tasks sent over a pipe.  A simulator that crashes it 
 ``os._exit``, out-of-memory kill) costs its task only, and a task past its timeout is stopped by
 killing the group (so the programs it started, ``gmx mdrun`` or ``lmp``, stop too).  The process
 pool drives many of them at once without blocking (:meth:`WorkerProcess.send_task`); an MPI worker
-rank drives one, blocking (:meth:`WorkerProcess.load`, :meth:`WorkerProcess.run`).
+rank or a Dask worker thread drives one, blocking, through a :class:`TaskRunner`.
 
 Messages, parent to child: ``("load", payload)``, ``("run", index, key, theta)``, ``None`` (exit).
 Child to parent: ``("ready", pid)`` once at start, ``("loaded", None)`` or ``("error", reason)``
@@ -30,7 +30,15 @@ import numpy as np
 
 from jaxabc.errors import STATUS_FAILED, STATUS_OK, STATUS_TIMEOUT, STATUS_WORKER_DIED, SimulationFailure
 
-__all__ = ["GUARD_HINT", "STARTUP_LIMIT", "WorkerProcess", "pickle_simulator", "run_one", "timed_run"]
+__all__ = [
+    "GUARD_HINT",
+    "STARTUP_LIMIT",
+    "TaskRunner",
+    "WorkerProcess",
+    "pickle_simulator",
+    "run_one",
+    "timed_run",
+]
 
 #: Seconds a worker may take to start (interpreter, imports) or to load a simulator before the
 #: blocking :meth:`WorkerProcess.load` gives up; a task's own timeout starts only after that.
@@ -109,6 +117,11 @@ def _isolate() -> None:
 def _worker_main(conn: Any) -> None:
     """Body of a worker process: load simulators and run tasks until told to stop."""
     _isolate()
+    # Host simulators derive their seeds with seed_from_key: compile it while the worker starts,
+    # so that the first task's timeout does not pay for it (seconds on a loaded machine).
+    from jaxabc.seeding import seed_from_key
+
+    seed_from_key(np.zeros(2, np.uint32))
     conn.send(("ready", os.getpid()))
     simulate: Callable | None = None
     load_error = "no simulator was sent"
@@ -279,3 +292,57 @@ class WorkerProcess:
             self.kill()
         else:
             self.conn.close()
+
+
+class TaskRunner:
+    """Runs the tasks of a remote worker (an MPI rank, a Dask worker thread) one at a time.
+
+    Parameters
+    ----------
+    isolate : bool
+        Run the simulator in a :class:`WorkerProcess` (started once, reused, replaced after a
+        crash or a timeout), so that a crash costs one task; ``False`` runs it in this process.
+    wid : int
+        Identifier given to the child process.
+
+    Notes
+    -----
+    The simulator arrives as the pickled payload of every task and is unpickled only when it
+    changes, so an object simulator (a GROMACS plugin instance) stays one object across tasks.
+    """
+
+    def __init__(self, isolate: bool, wid: int = 0):
+        self.isolate = isolate
+        self.wid = wid
+        self.payload: bytes | None = None
+        self.simulate: Callable | None = None
+        self.child: WorkerProcess | None = None
+
+    def run(self, payload: bytes, key: np.ndarray, theta: np.ndarray,
+            timeout: float | None) -> tuple[Any, int, str, float, float]:
+        """``(summaries or None, status, reason, seconds, cpu_seconds)`` of one task.
+
+        Raises
+        ------
+        RuntimeError
+            When the simulator cannot be loaded or its process cannot start (the caller fails
+            the task with the message).
+        """
+        if not self.isolate:
+            if payload != self.payload:
+                self.payload, self.simulate = None, pickle.loads(payload)
+                self.payload = payload
+            return timed_run(self.simulate, key, theta)
+        if self.child is None:
+            self.child = WorkerProcess(self.wid)
+        try:
+            self.child.load(payload)
+        except RuntimeError:
+            if not self.child.proc.is_alive():  # died or overran the start-up limit; a simulator
+                self.child = None               # that does not unpickle leaves a healthy child
+            raise
+        out, status, reason, seconds, cpu, alive = self.child.run(key, theta, timeout)
+        if not alive:
+            # Start the replacement now, so that its start-up overlaps the driver's bookkeeping.
+            self.child = WorkerProcess(self.wid)
+        return out, status, reason, seconds, cpu
