@@ -18,51 +18,22 @@ Presets
 -------
 ``paper``: the published settings (1000 atoms, 27.3 nm box, 300 K, 1 atm, r_c 0.639 nm, 2 fs,
 tau_T 2 ps, tau_P 20 ps, 0.2 ns equilibration, f_B every 2 ps over 2 ns; the observed series is
-4x longer, as the paper's 20 ns observed vs 5 ns simulated; the paper's text also mentions 2 ns
-equilibration and 5 ns runs: override ``equilibration_ps`` / ``production_ps`` for those).  One
-simulation is 1.1 million steps: about 2-4 minutes of 2-core time here (jax-md reaches
-~5,000-9,000 system-steps/s on this system, LAMMPS 12,000-14,000 on one core; see
-benchmarks/results/engine_throughput.json): still for bigger machines.
+4x longer, as the paper's 20 ns observed vs 5 ns simulated).  A neighbour list, members run one
+at a time.
 
-``cpu`` (default): chosen from ``benchmarks/helium_identifiability.py``
-(``benchmarks/results/helium_identifiability.json``: KL from 3 observed series to 24 seeds at the
-truth and to a 7 x 4 (sigma, epsilon) grid plus 4 near-truth points, per candidate).  What it
-changes and why:
-
-- 100 atm instead of 1 atm.  At 1 atm helium at 300 K is so dilute (about 0.05 neighbours
-  within the cutoff per atom) that a short run sees almost no collisions: with 64 atoms and
-  10 ps the seed-to-seed KL (95th percentile ~15) exceeds the KL of 88% of clearly wrong
-  parameters; at 10 atm it is still ~1.8 and only 32% are separated.  At 100 atm (still a
-  dilute gas, Z - 1 = 0.05, matching the LJ second virial coefficient) the configurational part
-  of f_B varies with (sigma, epsilon) within picoseconds: seed-noise 95th percentile ~0.1 and
-  >90% of clearly wrong grid points above it.
-- 32 atoms instead of 1000: the box (about 2.4 nm) stays above twice the cutoff, all-pairs
-  forces (no neighbour list, so nothing can overflow) are cheap, and among 16 / 32 / 64 / 125
-  atoms 32 separated clearly wrong (91%) and near-truth (70%) grid points at least as well as
-  64 (87% / 63%) and 125 atoms, at 0.06 s per simulation batched on 2 cores against 0.2-0.4 s
-  (64) and ~0.8 s (125); 16 atoms lose most of the separation (64% / 4%).
-- 4 fs instead of 2 fs (energy conserved to 0.02% of NkT over 20 ps in NVE; 5 fs runs away).
-- tau_T 0.5 ps and tau_P 0.5 ps instead of 2 / 20 ps, and 4 ps equilibration instead of
-  200 ps: with jax-md's barostat mass 3 (N + 1) kT tau_P^2, tau_P = 2 ps leaves the volume
-  still oscillating after 4 ps (64 atoms: mean V 27.09 +- 0.18 nm^3 over 48 seeds against
-  27.36 from the virial expansion with the exact B2); tau_P = 0.5 ps gives 27.43 +- 0.09 and
-  agrees with LAMMPS (|z| < 1.7 for T, P, V and mean f_B, ``benchmarks/results/helium_lammps_agreement.json``).
-- f_B every 0.1 ps over 10 ps (100 samples) instead of every 2 ps over 2 ns.  The cost is
-  in the steps, not the samples; sampling every 0.5 ps (20 samples) separated about as well
-  in one run (64 atoms: 96% / 59%) and worse in another with tau_P = 2 ps (43% / 0%), so the
-  denser sampling is kept.  20 ps instead of 10 ps did not improve the KL-of-KDE distance
-  (32 atoms: 88% / 30%): its seed noise does not fall with series length, so the cheaper
-  10 ps wins.
+``cpu`` (default): 32 atoms at 100 atm, 4 fs steps, tau_T = tau_P = 0.5 ps, 4 ps equilibration,
+f_B every 0.1 ps over 10 ps, all pairs (nothing can overflow), vmapped over parameters.  Chosen
+by ``benchmarks/helium_identifiability.py`` (results in ``benchmarks/results/``): at 1 atm a
+short run of a small system sees almost no collisions and seed noise swamps the parameters; at
+100 atm (still a dilute gas) the configurational part of f_B separates (sigma, epsilon) within
+picoseconds.  ``benchmarks/helium_lammps_agreement.py`` checks it against LAMMPS.
 
 The prior corner sigma > r_c / 2.5 = 0.2556 nm
 ----------------------------------------------
 The cutoff stays at 0.639 nm for every sigma (as in the paper's LAMMPS input), so for
-sigma > 0.2556 nm the potential is truncated before 2.5 sigma and for sigma > 0.639 nm it is a
-repulsive step at r_c.  The engine keeps the paper's model there: forces are the analytic LJ
-forces inside r_c and zero outside (LAMMPS ``lj/cut``), the thermostat absorbs the energy not
-conserved across the step (NPT runs a few percent hot at sigma = 0.8 nm), the summaries stay
-finite, and the KL distance to the truth is large.  No shift or switch is applied, because the
-inference target is the published model, not a smoother one.
+sigma > 0.639 nm the potential is a repulsive step at r_c.  The engine keeps the paper's model:
+forces are the analytic LJ forces inside r_c and zero outside (LAMMPS ``lj/cut``), the
+thermostat absorbs the energy not conserved across the step, and the summaries stay finite.
 """
 
 from __future__ import annotations
