@@ -49,6 +49,7 @@ import numpy as np
 
 from md._presets import resolve_preset
 from md.lj import Carry, EngineConfig, LJEngine, LJParams
+from md.lj.batch import batched  # noqa: F401  (re-exported: benchmarks use helium.batched)
 from md.units import (
     BOLTZMANN_KJ_MOL_K,
     HELIUM_MASS_AMU,
@@ -267,26 +268,12 @@ def f_b_ideal_gas(num_atoms: int) -> float:
     return float(np.exp(-2.5 * (num_atoms - 1) / num_atoms))
 
 
-def batched(fn: Callable[..., Any], width: int | None) -> Callable[..., Any]:
-    """``fn`` mapped over the leading axis of its arguments: ``jax.vmap`` when ``width`` is None,
-    else a sequential ``jax.lax.map`` over groups of ``width`` members (vmapped within a group).
-    Members are independent, so both give the same results up to rounding."""
-    if width is None:
-        return jax.vmap(fn)
-
-    def mapped(*args: Any) -> Any:
-        if width == 1:  # no vmap at all
-            return jax.lax.map(lambda a: fn(*a), args)
-        return jax.lax.map(lambda a: fn(*a), args, batch_size=width)
-
-    return mapped
-
-
 def _params(theta: jax.Array) -> LJParams:
     theta = jnp.asarray(theta, jnp.float32)
     return LJParams(theta[0], theta[1] * jnp.float32(ZJ_IN_KJ_MOL), jnp.float32(0.0))
 
 
+@functools.lru_cache(maxsize=16)
 def _f_b_observer(engine: LJEngine) -> Callable[[Carry, LJParams], jax.Array]:
     n = engine.config.num_atoms
 
@@ -360,10 +347,10 @@ def make_batch_simulator(
 
     It runs the same trajectories as :func:`make_simulator` (same key -> same series), vmapped
     over ``preset.batch_size`` members at a time, in chunks of samples.  After every chunk it
-    reads the diagnostics on the host: if any member's neighbour list overflowed it allocates a
-    larger shared list outside jit (sized on the overflowing member) and redoes the chunk for the
-    whole group from its saved start, so no pair is ever dropped and results do not depend on
-    which members shared a batch.
+    reads the diagnostics on the host (:meth:`md.lj.LJEngine.run_checked`): if any member's
+    neighbour list overflowed the engine re-allocates a larger shared list and redoes the chunk
+    for the whole group from its saved start, so no pair is ever dropped and results do not
+    depend on which members shared a batch.
 
     Parameters
     ----------
@@ -390,57 +377,26 @@ def make_batch_simulator(
     n = preset.num_samples if num_samples is None else int(num_samples)
     chunk = samples_per_chunk or max(1, n // 10)
     observe = _f_b_observer(engine)
-
-    @jax.jit
-    def init(keys: jax.Array, thetas: jax.Array) -> Carry:
-        return batched(lambda k, t: engine.init(k, _params(t)), preset.vmap_width)(keys, thetas)
-
-    @functools.partial(jax.jit, static_argnums=(2, 3, 4))
-    def advance(
-        carry: Carry, thetas: jax.Array, num: int, blocks: int, sample: bool
-    ) -> tuple[Carry, Any]:
-        def one(c: Carry, t: jax.Array) -> tuple[Carry, Any]:
-            return engine.run(c, _params(t), num, blocks, observe if sample else None)
-
-        return batched(one, preset.vmap_width)(carry, thetas)
-
-    rebuild = jax.jit(batched(engine.rebuild_neighbors, preset.vmap_width))
-
-    def checked(carry: Carry, thetas: jax.Array, num: int, blocks: int, sample: bool) -> tuple:
-        for _ in range(max_reallocations + 1):
-            new, out = advance(carry, thetas, num, blocks, sample)
-            overflow = np.asarray(new.diagnostics.overflow)
-            if not overflow.any() or engine.neighbor_fn is None:
-                return new, out, True
-            worst = int(np.argmax(overflow))
-            engine.reallocate(np.asarray(carry.md.position[worst]))
-            carry = rebuild(carry)
-            carry = carry._replace(
-                diagnostics=carry.diagnostics._replace(
-                    overflow=jnp.zeros_like(carry.diagnostics.overflow)
-                )
-            )
-        return new, out, False
+    width = preset.vmap_width
 
     def run_group(keys: jax.Array, thetas: jax.Array) -> tuple[np.ndarray, np.ndarray]:
-        carry = init(keys, thetas)
-        if engine.neighbor_fn is not None and np.asarray(carry.diagnostics.overflow).any():
-            worst = int(np.argmax(np.asarray(carry.diagnostics.overflow)))
-            engine.reallocate(np.asarray(carry.md.position[worst]))
-            carry = init(keys, thetas)
+        params = jax.vmap(_params)(thetas)
+        carry = engine.init_batch(keys, params, width, max_reallocations)
         ok_all = True
         remaining = preset.equilibration_blocks
         eq_chunk = max(1, preset.equilibration_blocks // 4)
         while remaining > 0:
             num = min(eq_chunk, remaining)
-            carry, _, ok = checked(carry, thetas, num, 1, False)
+            carry, _, ok = engine.run_checked(carry, params, num, 1, None, width, max_reallocations)
             ok_all &= ok
             remaining -= num
         pieces = []
         remaining = n
         while remaining > 0:
             num = min(chunk, remaining)
-            carry, f_b, ok = checked(carry, thetas, num, preset.blocks_per_sample, True)
+            carry, f_b, ok = engine.run_checked(
+                carry, params, num, preset.blocks_per_sample, observe, width, max_reallocations
+            )
             ok_all &= ok
             pieces.append(np.asarray(f_b))
             remaining -= num

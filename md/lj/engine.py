@@ -5,7 +5,7 @@ in :func:`jax_md.simulate.npt_nose_hoover`), ``"nvt_nose_hoover"``, ``"nvt_lange
 
 Implementation notes (why the code differs from jax-md's):
 
-- The NPT step (:meth:`LJEngine._npt_step`) reuses the strain derivative of the previous step:
+- The NPT step (:func:`md.lj.npt.npt_step`) reuses the strain derivative of the previous step:
   jax-md evaluates energy and gradient twice per step, once is enough.  It divides by the box
   sides instead of multiplying by the inverse box, and reduces sum p^2/m once per step; under
   ``vmap`` on CPU, reductions and 3 x 3 products cost far more than fused elementwise work.
@@ -33,6 +33,7 @@ import numpy as np
 from jax_md import quantity, space
 from jax_md import simulate as jmd_simulate
 
+from md.lj.batch import _advance_batch, _init_batch, _rebuild_batch, batched
 from md.lj.config import Array, Carry, Diagnostics, EngineConfig, LJParams, Thermo
 from md.lj.energy import lattice_positions, make_energy_fn
 from md.lj.neighbor import (
@@ -43,9 +44,10 @@ from md.lj.neighbor import (
     allocate_neighbor_list,
     build_neighbor_list,
 )
+from md.lj.npt import npt_step
 from md.units import BOLTZMANN_KJ_MOL_K
 
-__all__ = ["LJEngine"]
+__all__ = ["LJEngine", "batched"]
 
 
 class LJEngine:
@@ -58,8 +60,11 @@ class LJEngine:
     Notes
     -----
     ``init`` and ``run`` are pure JAX functions of (key, params) and (carry, params); vmap them
-    over a batch.  ``neighbor_template`` is the allocated list whose static capacity every
-    member shares; :meth:`reallocate` makes a larger one (host only).
+    over a batch.  The engine owns its neighbour lists: ``neighbor_template`` is the allocated
+    list whose static capacity every member shares, :meth:`allocate_neighbors` and
+    :meth:`reallocate` size it on the host (jax-md's ``allocate``), members rebuild from it
+    inside jit (``update``), and :meth:`init_batch` / :meth:`run_checked` run a batch with the
+    overflow check and re-allocation loop.
     """
 
     def __init__(self, config: EngineConfig):
@@ -106,15 +111,15 @@ class LJEngine:
             )
         else:
             self._init_fn, self._apply_fn = jmd_simulate.nve(self.energy_fn, self.shift_fn, c.dt_ps)
+        self.neighbor_template: NeighborList | None = None
         if c.use_neighbor_list:
             # Kept for callers that test ``neighbor_fn is None``: builds a list from the template.
             self.neighbor_fn = self._build
-            self.neighbor_template = self._allocate(jax.random.PRNGKey(0), c.extra_capacity)
+            self.allocate_neighbors()
         else:
             self.neighbor_fn = None
-            self.neighbor_template = None
 
-    # -- neighbour lists (host side) -----------------------------------------------------
+    # -- neighbour lists: allocated and grown on the host, rebuilt inside jit ----------------
 
     @property
     def neighbor_format(self) -> str:
@@ -124,59 +129,150 @@ class LJEngine:
     def _build(self, position: Array, box: Array) -> NeighborList:
         return build_neighbor_list(self.neighbor_template.spec, position, box)
 
-    def _allocate(
-        self,
-        key: Array,
-        extra_capacity: int,
-        position: Array | None = None,
-        previous: NeighborSpec | None = None,
+    def allocate_neighbors(
+        self, position: Array | None = None, previous: NeighborSpec | None = None
     ) -> NeighborList:
-        c = self.config
-        box = self.box0 * c.allocation_box_fraction
-        if position is None:
-            position = jax.random.uniform(key, (c.num_atoms, 3), dtype=jnp.float32)
-        return allocate_neighbor_list(
-            self.neighbor_format,
-            position,
-            box,
-            c.cutoff_nm + c.skin_nm,
-            c.box_nm * c.allocation_box_fraction,
-            c.capacity_multiplier,
-            extra_capacity,
-            previous=previous,
-        )
-
-    def reallocate(self, position: Array) -> NeighborList:
-        """Replace the shared list template by a larger one (host only).
+        """Size a neighbour list on the host and make it the engine's template.
 
         Parameters
         ----------
-        position : Array, shape (N, 3)
-            A fractional configuration whose list overflowed; the new list is sized on it (in
-            the shrunk allocation box, which over-counts) plus the old capacities as head-room
-            (so every capacity at least doubles).
+        position : Array, shape (N, 3), optional
+            Fractional configuration to size the list on (in the box shrunk by
+            ``allocation_box_fraction``, which over-counts); default a uniform random one.
+        previous : NeighborSpec, optional
+            Capacities to add as head-room (re-allocation grows every capacity at least twofold).
 
         Returns
         -------
         NeighborList
-            The new template; rebuild members' lists from it with :meth:`rebuild_neighbors`.
+            The new template.  Pass it to :meth:`init` / :meth:`rebuild_neighbors` as
+            ``neighbors=``: its spec is static pytree metadata, so a jitted caller retraces when
+            it changes instead of building lists at a capacity captured at trace time.
         """
-        self.neighbor_template = self._allocate(
-            jax.random.PRNGKey(0),
-            self.config.extra_capacity,
-            position=jnp.asarray(position),
-            previous=self.neighbor_template.spec,
+        if not self.config.use_neighbor_list:
+            raise ValueError("this engine uses all pairs (use_neighbor_list=False): no list")
+        c = self.config
+        if position is None:
+            position = jax.random.uniform(
+                jax.random.PRNGKey(0), (c.num_atoms, 3), dtype=jnp.float32
+            )
+        self.neighbor_template = allocate_neighbor_list(
+            self.neighbor_format,
+            jnp.asarray(position),
+            self.box0 * c.allocation_box_fraction,
+            c.cutoff_nm + c.skin_nm,
+            c.box_nm * c.allocation_box_fraction,
+            c.capacity_multiplier,
+            c.extra_capacity,
+            previous=previous,
         )
         return self.neighbor_template
 
-    def rebuild_neighbors(self, carry: Carry) -> Carry:
-        """Rebuild one member's list from the current template (traced; vmap over a batch)."""
+    def reallocate(self, position: Array) -> NeighborList:
+        """Replace the template by a larger one sized on ``position`` (N, 3), host only.
+
+        Every capacity at least doubles (the old ones are added as head-room).  Returns the new
+        template; rebuild members' lists from it with :meth:`rebuild_neighbors`.
+        """
+        return self.allocate_neighbors(position, previous=self.neighbor_template.spec)
+
+    def rebuild_neighbors(self, carry: Carry, neighbors: NeighborList | None = None) -> Carry:
+        """Rebuild one member's list with the spec of ``neighbors`` (traced; vmap over a batch).
+
+        ``neighbors`` defaults to the template at trace time; jitted callers should pass it.
+        """
         if self.neighbor_fn is None:
             return carry
+        template = self.neighbor_template if neighbors is None else neighbors
         box = self.box(carry.md)
-        nbrs = self.neighbor_template.update(carry.md.position, box=box)
+        nbrs = template.update(carry.md.position, box=box)
         diag = carry.diagnostics._replace(rebuilds=carry.diagnostics.rebuilds + 1)
-        return carry._replace(neighbors=nbrs, list_reference=carry.unwrapped, list_side=box[0, 0], diagnostics=diag)
+        return carry._replace(
+            neighbors=nbrs, list_reference=carry.unwrapped, list_side=box[0, 0], diagnostics=diag
+        )
+
+    # -- batches on the host: overflow checks and re-allocation --------------------------------
+
+    def init_batch(
+        self, keys: Array, params: LJParams, width: int | None = None,
+        max_reallocations: int = 6,
+    ) -> Carry:
+        """Start a batch (host side), re-allocating the list until no member overflows.
+
+        Parameters
+        ----------
+        keys : Array, shape (B, 2) or typed (B,)
+        params : LJParams with leaves of shape (B,)
+        width : int, optional
+            Members advanced together by ``jax.vmap`` (see :func:`batched`).
+        max_reallocations : int
+            Re-allocations before giving up (the carry is returned with its overflow flags set).
+
+        Returns
+        -------
+        Carry with a leading batch axis of length B.
+        """
+        carry = _init_batch(self, width, keys, params, self.neighbor_template)
+        for _ in range(max_reallocations):
+            overflow = np.asarray(carry.diagnostics.overflow)
+            if self.neighbor_fn is None or not overflow.any():
+                break
+            self.reallocate(np.asarray(carry.md.position[int(np.argmax(overflow))]))
+            carry = _init_batch(self, width, keys, params, self.neighbor_template)
+        return carry
+
+    def run_checked(
+        self,
+        carry: Carry,
+        params: LJParams,
+        num_samples: int,
+        blocks_per_sample: int,
+        observe: Callable[[Carry, LJParams], Any] | None = None,
+        width: int | None = None,
+        max_reallocations: int = 6,
+    ) -> tuple[Carry, Any, bool]:
+        """:meth:`run` over a batch (host side), redoing the chunk after any list overflow.
+
+        After the chunk the overflow flags are read; if any member overflowed, the list is
+        re-allocated on that member's start configuration, every member's list is rebuilt from
+        the new template and the whole chunk is redone from its saved start, so no pair is ever
+        dropped and results do not depend on which members shared a batch.
+
+        Parameters
+        ----------
+        carry : Carry with a leading batch axis (from :meth:`init_batch`)
+        params : LJParams with leaves of shape (B,)
+        num_samples, blocks_per_sample, observe
+            As in :meth:`run`.  ``observe`` is a static argument of the compiled chunk: pass the
+            same function object each time to reuse the compilation.
+        width : int, optional
+            See :func:`batched`.
+        max_reallocations : int
+            Re-allocations of this chunk before giving up.
+
+        Returns
+        -------
+        (Carry, pytree or None, bool)
+            The advanced carry, the stacked observations, and False if the list still overflowed
+            after ``max_reallocations`` (those members' results cannot be trusted).
+        """
+        for attempt in range(max_reallocations + 1):
+            new, out = _advance_batch(
+                self, width, num_samples, blocks_per_sample, observe, carry, params
+            )
+            overflow = np.asarray(new.diagnostics.overflow)
+            if self.neighbor_fn is None or not overflow.any():
+                return new, out, True
+            if attempt == max_reallocations:
+                break
+            self.reallocate(np.asarray(carry.md.position[int(np.argmax(overflow))]))
+            carry = _rebuild_batch(self, width, carry, self.neighbor_template)
+            carry = carry._replace(
+                diagnostics=carry.diagnostics._replace(
+                    overflow=jnp.zeros_like(carry.diagnostics.overflow)
+                )
+            )
+        return new, out, False
 
     # -- NPT step with a cached virial ---------------------------------------------------
 
@@ -193,82 +289,6 @@ class LJEngine:
         grads = jax.grad(energy, argnums=(0, 1))(position, jnp.zeros((), position.dtype))
         return -grads[0], grads[1]
 
-    def _npt_step(self, state: Any, strain: Array, **kwargs: Any) -> tuple[Any, Array]:
-        """One step of jax-md's ``npt_nose_hoover`` (MTTK, Tuckerman et al. 2006), re-written
-        so the strain derivative dU/d(eps) of the previous step is reused.
-
-        jax-md evaluates ``value_and_grad`` with respect to the strain at the start of every
-        step, at exactly the positions and box where the previous step ended (the chain
-        half-steps change momenta only): that second energy-and-gradient evaluation is about a
-        third of the cost of a small system.  The arithmetic below is otherwise jax-md 0.2.29's
-        ``inner_step`` / ``apply_fn`` line by line, with three exact rewrites for orthorhombic
-        boxes and speed (see the module notes): the position shift divides by the box sides,
-        the first ``sum p^2 / m`` is twice the thermostat's tracked kinetic energy, and the
-        second is computed once and also gives the new kinetic energy.
-        """
-        c = self.config
-        dt = c.dt_ps
-        dt_2 = 0.5 * dt
-        kt = self._kt_integrator
-        pressure = c.pressure_kj_mol_nm3
-        n, dim = state.position.shape
-
-        def sinhx_x(x: Array) -> Array:
-            return 1 + x**2 / 6 + x**4 / 120 + x**6 / 5040 + x**8 / 362_880 + x**10 / 39_916_800
-
-        def box_force(alpha: float, vol: Array, dudv: Array, ke2: Array):
-            # ke2 = sum p^2 / m = 2 KE, passed in: the thermostat already tracks it.
-            return alpha * ke2 - dudv - pressure * vol * dim
-
-        def exp_il1(box: Array, r: Array, v: Array, v_b: Array) -> Array:
-            x = v_b * dt
-            x_2 = x / 2
-            # jax-md's shift_fn: dR in real units, transformed by the inverse box and wrapped
-            # into the unit cube; for orthorhombic boxes a division by the sides (no 3 x 3
-            # product per atom) and x - floor(x) (the same value as mod(x, 1)).
-            dr = (r * (jnp.exp(x) - 1) + dt * v * jnp.exp(x_2) * sinhx_x(x_2)) / _box_diagonal(
-                box
-            )
-            r = r + dr
-            return r - jnp.floor(r)
-
-        def exp_il2(alpha: float, p: Array, f: Array, v_b: Array) -> Array:
-            x = alpha * v_b * dt_2
-            x_2 = x / 2
-            return p * jnp.exp(-x) + dt_2 * f * sinhx_x(x_2) * jnp.exp(-x_2)
-
-        bc = self._barostat.update_mass(state.barostat, kt)
-        tc = self._thermostat.update_mass(state.thermostat, kt)
-        box_mass = jnp.asarray(dim * (n + 1) * kt * state.barostat.tau**2, state.position.dtype)
-        s = state.set(box_mass=box_mass)
-        p_b, bc = self._barostat.half_step(s.box_momentum, bc, kt)
-        p, tc = self._thermostat.half_step(s.momentum, tc, kt)
-
-        r, m, f = s.position, s.mass, s.force
-        alpha = 1 + 1 / n
-        vol, box_fn = jmd_simulate._npt_box_info(s)
-        # The thermostat half step scaled p and its tracked kinetic energy together.
-        p_b = p_b + dt_2 * box_force(alpha, vol, strain, 2.0 * tc.kinetic_energy)
-        p = exp_il2(alpha, p, f, p_b / box_mass)
-        r_b = s.box_position + p_b / box_mass * dt
-        s = s.set(box_position=r_b)
-        vol, box_fn = jmd_simulate._npt_box_info(s)
-        box = box_fn(vol)
-        r = exp_il1(box, r, p / m, p_b / box_mass)
-        f, strain = self._force_and_strain(r, box, **kwargs)
-        p = exp_il2(alpha, p, f, p_b / box_mass)
-        ke2 = jnp.sum(p * p / m)  # the one reduction over momenta per step
-        p_b = p_b + dt_2 * box_force(alpha, vol, strain, ke2)
-
-        tc = tc.set(kinetic_energy=0.5 * ke2)
-        bc = bc.set(kinetic_energy=quantity.kinetic_energy(momentum=p_b, mass=box_mass))
-        p, tc = self._thermostat.half_step(p, tc, kt)
-        p_b, bc = self._barostat.half_step(p_b, bc, kt)
-        s = s.set(
-            position=r, momentum=p, force=f, box_position=r_b, box_momentum=p_b,
-            thermostat=tc, barostat=bc,
-        )
-        return s, strain
 
     # -- pure JAX ------------------------------------------------------------------------
 
@@ -289,7 +309,13 @@ class LJEngine:
             kwargs["box"] = self.box0
         return kwargs
 
-    def init(self, key: Array, params: LJParams, position: Array | None = None) -> Carry:
+    def init(
+        self,
+        key: Array,
+        params: LJParams,
+        position: Array | None = None,
+        neighbors: NeighborList | None = None,
+    ) -> Carry:
         """Start a trajectory: jittered lattice (or ``position``) and Maxwell-Boltzmann momenta.
 
         Parameters
@@ -298,6 +324,9 @@ class LJEngine:
         params : LJParams
         position : Array, shape (N, 3), optional
             Fractional start; default a simple-cubic lattice jittered by 5% of its spacing.
+        neighbors : NeighborList, optional
+            The template whose spec the member's list gets (from :meth:`allocate_neighbors`);
+            default the engine's template at trace time.  Pass it under ``jax.jit``.
 
         Returns
         -------
@@ -312,7 +341,8 @@ class LJEngine:
             position = jnp.mod(lattice + jitter, 1.0)
         position = position.astype(jnp.float32)
         if self.neighbor_fn is not None:
-            nbrs = self.neighbor_template.update(position, box=self.box0)
+            template = self.neighbor_template if neighbors is None else neighbors
+            nbrs = template.update(position, box=self.box0)
         else:
             nbrs = None
         kw = self._step_kwargs(self._idx(nbrs), params)
@@ -387,7 +417,7 @@ class LJEngine:
             md, unwrapped, max_disp2, strain = state
             old = md.position
             if c.ensemble == "npt":
-                md, strain = self._npt_step(md, strain, **kw)
+                md, strain = npt_step(self, md, strain, **kw)
             else:
                 md = self._apply_fn(md, **kw)
             if not with_list:
