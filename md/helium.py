@@ -18,51 +18,22 @@ Presets
 -------
 ``paper``: the published settings (1000 atoms, 27.3 nm box, 300 K, 1 atm, r_c 0.639 nm, 2 fs,
 tau_T 2 ps, tau_P 20 ps, 0.2 ns equilibration, f_B every 2 ps over 2 ns; the observed series is
-4x longer, as the paper's 20 ns observed vs 5 ns simulated; the paper's text also mentions 2 ns
-equilibration and 5 ns runs: override ``equilibration_ps`` / ``production_ps`` for those).  One
-simulation is 1.1 million steps: about 2-4 minutes of 2-core time here (jax-md reaches
-~5,000-9,000 system-steps/s on this system, LAMMPS 12,000-14,000 on one core; see
-benchmarks/results/engine_throughput.json): still for bigger machines.
+4x longer, as the paper's 20 ns observed vs 5 ns simulated).  A neighbour list, members run one
+at a time.
 
-``cpu`` (default): chosen from ``benchmarks/helium_identifiability.py``
-(``benchmarks/results/helium_identifiability.json``: KL from 3 observed series to 24 seeds at the
-truth and to a 7 x 4 (sigma, epsilon) grid plus 4 near-truth points, per candidate).  What it
-changes and why:
-
-- 100 atm instead of 1 atm.  At 1 atm helium at 300 K is so dilute (about 0.05 neighbours
-  within the cutoff per atom) that a short run sees almost no collisions: with 64 atoms and
-  10 ps the seed-to-seed KL (95th percentile ~15) exceeds the KL of 88% of clearly wrong
-  parameters; at 10 atm it is still ~1.8 and only 32% are separated.  At 100 atm (still a
-  dilute gas, Z - 1 = 0.05, matching the LJ second virial coefficient) the configurational part
-  of f_B varies with (sigma, epsilon) within picoseconds: seed-noise 95th percentile ~0.1 and
-  >90% of clearly wrong grid points above it.
-- 32 atoms instead of 1000: the box (about 2.4 nm) stays above twice the cutoff, all-pairs
-  forces (no neighbour list, so nothing can overflow) are cheap, and among 16 / 32 / 64 / 125
-  atoms 32 separated clearly wrong (91%) and near-truth (70%) grid points at least as well as
-  64 (87% / 63%) and 125 atoms, at 0.06 s per simulation batched on 2 cores against 0.2-0.4 s
-  (64) and ~0.8 s (125); 16 atoms lose most of the separation (64% / 4%).
-- 4 fs instead of 2 fs (energy conserved to 0.02% of NkT over 20 ps in NVE; 5 fs runs away).
-- tau_T 0.5 ps and tau_P 0.5 ps instead of 2 / 20 ps, and 4 ps equilibration instead of
-  200 ps: with jax-md's barostat mass 3 (N + 1) kT tau_P^2, tau_P = 2 ps leaves the volume
-  still oscillating after 4 ps (64 atoms: mean V 27.09 +- 0.18 nm^3 over 48 seeds against
-  27.36 from the virial expansion with the exact B2); tau_P = 0.5 ps gives 27.43 +- 0.09 and
-  agrees with LAMMPS (|z| < 1.7 for T, P, V and mean f_B, ``benchmarks/results/helium_lammps_agreement.json``).
-- f_B every 0.1 ps over 10 ps (100 samples) instead of every 2 ps over 2 ns.  The cost is
-  in the steps, not the samples; sampling every 0.5 ps (20 samples) separated about as well
-  in one run (64 atoms: 96% / 59%) and worse in another with tau_P = 2 ps (43% / 0%), so the
-  denser sampling is kept.  20 ps instead of 10 ps did not improve the KL-of-KDE distance
-  (32 atoms: 88% / 30%): its seed noise does not fall with series length, so the cheaper
-  10 ps wins.
+``cpu`` (default): 32 atoms at 100 atm, 4 fs steps, tau_T = tau_P = 0.5 ps, 4 ps equilibration,
+f_B every 0.1 ps over 10 ps, all pairs (nothing can overflow), vmapped over parameters.  Chosen
+by ``benchmarks/helium_identifiability.py`` (results in ``benchmarks/results/``): at 1 atm a
+short run of a small system sees almost no collisions and seed noise swamps the parameters; at
+100 atm (still a dilute gas) the configurational part of f_B separates (sigma, epsilon) within
+picoseconds.  ``benchmarks/helium_lammps_agreement.py`` checks it against LAMMPS.
 
 The prior corner sigma > r_c / 2.5 = 0.2556 nm
 ----------------------------------------------
 The cutoff stays at 0.639 nm for every sigma (as in the paper's LAMMPS input), so for
-sigma > 0.2556 nm the potential is truncated before 2.5 sigma and for sigma > 0.639 nm it is a
-repulsive step at r_c.  The engine keeps the paper's model there: forces are the analytic LJ
-forces inside r_c and zero outside (LAMMPS ``lj/cut``), the thermostat absorbs the energy not
-conserved across the step (NPT runs a few percent hot at sigma = 0.8 nm), the summaries stay
-finite, and the KL distance to the truth is large.  No shift or switch is applied, because the
-inference target is the published model, not a smoother one.
+sigma > 0.639 nm the potential is a repulsive step at r_c.  The engine keeps the paper's model:
+forces are the analytic LJ forces inside r_c and zero outside (LAMMPS ``lj/cut``), the
+thermostat absorbs the energy not conserved across the step, and the summaries stay finite.
 """
 
 from __future__ import annotations
@@ -78,6 +49,7 @@ import numpy as np
 
 from md._presets import resolve_preset
 from md.lj import Carry, EngineConfig, LJEngine, LJParams
+from md.lj.batch import batched  # noqa: F401  (re-exported: benchmarks use helium.batched)
 from md.units import (
     BOLTZMANN_KJ_MOL_K,
     HELIUM_MASS_AMU,
@@ -296,26 +268,12 @@ def f_b_ideal_gas(num_atoms: int) -> float:
     return float(np.exp(-2.5 * (num_atoms - 1) / num_atoms))
 
 
-def batched(fn: Callable[..., Any], width: int | None) -> Callable[..., Any]:
-    """``fn`` mapped over the leading axis of its arguments: ``jax.vmap`` when ``width`` is None,
-    else a sequential ``jax.lax.map`` over groups of ``width`` members (vmapped within a group).
-    Members are independent, so both give the same results up to rounding."""
-    if width is None:
-        return jax.vmap(fn)
-
-    def mapped(*args: Any) -> Any:
-        if width == 1:  # no vmap at all
-            return jax.lax.map(lambda a: fn(*a), args)
-        return jax.lax.map(lambda a: fn(*a), args, batch_size=width)
-
-    return mapped
-
-
 def _params(theta: jax.Array) -> LJParams:
     theta = jnp.asarray(theta, jnp.float32)
     return LJParams(theta[0], theta[1] * jnp.float32(ZJ_IN_KJ_MOL), jnp.float32(0.0))
 
 
+@functools.lru_cache(maxsize=16)
 def _f_b_observer(engine: LJEngine) -> Callable[[Carry, LJParams], jax.Array]:
     n = engine.config.num_atoms
 
@@ -389,10 +347,10 @@ def make_batch_simulator(
 
     It runs the same trajectories as :func:`make_simulator` (same key -> same series), vmapped
     over ``preset.batch_size`` members at a time, in chunks of samples.  After every chunk it
-    reads the diagnostics on the host: if any member's neighbour list overflowed it allocates a
-    larger shared list outside jit (sized on the overflowing member) and redoes the chunk for the
-    whole group from its saved start, so no pair is ever dropped and results do not depend on
-    which members shared a batch.
+    reads the diagnostics on the host (:meth:`md.lj.LJEngine.run_checked`): if any member's
+    neighbour list overflowed the engine re-allocates a larger shared list and redoes the chunk
+    for the whole group from its saved start, so no pair is ever dropped and results do not
+    depend on which members shared a batch.
 
     Parameters
     ----------
@@ -419,57 +377,26 @@ def make_batch_simulator(
     n = preset.num_samples if num_samples is None else int(num_samples)
     chunk = samples_per_chunk or max(1, n // 10)
     observe = _f_b_observer(engine)
-
-    @jax.jit
-    def init(keys: jax.Array, thetas: jax.Array) -> Carry:
-        return batched(lambda k, t: engine.init(k, _params(t)), preset.vmap_width)(keys, thetas)
-
-    @functools.partial(jax.jit, static_argnums=(2, 3, 4))
-    def advance(
-        carry: Carry, thetas: jax.Array, num: int, blocks: int, sample: bool
-    ) -> tuple[Carry, Any]:
-        def one(c: Carry, t: jax.Array) -> tuple[Carry, Any]:
-            return engine.run(c, _params(t), num, blocks, observe if sample else None)
-
-        return batched(one, preset.vmap_width)(carry, thetas)
-
-    rebuild = jax.jit(batched(engine.rebuild_neighbors, preset.vmap_width))
-
-    def checked(carry: Carry, thetas: jax.Array, num: int, blocks: int, sample: bool) -> tuple:
-        for _ in range(max_reallocations + 1):
-            new, out = advance(carry, thetas, num, blocks, sample)
-            overflow = np.asarray(new.diagnostics.overflow)
-            if not overflow.any() or engine.neighbor_fn is None:
-                return new, out, True
-            worst = int(np.argmax(overflow))
-            engine.reallocate(np.asarray(carry.md.position[worst]))
-            carry = rebuild(carry)
-            carry = carry._replace(
-                diagnostics=carry.diagnostics._replace(
-                    overflow=jnp.zeros_like(carry.diagnostics.overflow)
-                )
-            )
-        return new, out, False
+    width = preset.vmap_width
 
     def run_group(keys: jax.Array, thetas: jax.Array) -> tuple[np.ndarray, np.ndarray]:
-        carry = init(keys, thetas)
-        if engine.neighbor_fn is not None and np.asarray(carry.diagnostics.overflow).any():
-            worst = int(np.argmax(np.asarray(carry.diagnostics.overflow)))
-            engine.reallocate(np.asarray(carry.md.position[worst]))
-            carry = init(keys, thetas)
+        params = jax.vmap(_params)(thetas)
+        carry = engine.init_batch(keys, params, width, max_reallocations)
         ok_all = True
         remaining = preset.equilibration_blocks
         eq_chunk = max(1, preset.equilibration_blocks // 4)
         while remaining > 0:
             num = min(eq_chunk, remaining)
-            carry, _, ok = checked(carry, thetas, num, 1, False)
+            carry, _, ok = engine.run_checked(carry, params, num, 1, None, width, max_reallocations)
             ok_all &= ok
             remaining -= num
         pieces = []
         remaining = n
         while remaining > 0:
             num = min(chunk, remaining)
-            carry, f_b, ok = checked(carry, thetas, num, preset.blocks_per_sample, True)
+            carry, f_b, ok = engine.run_checked(
+                carry, params, num, preset.blocks_per_sample, observe, width, max_reallocations
+            )
             ok_all &= ok
             pieces.append(np.asarray(f_b))
             remaining -= num

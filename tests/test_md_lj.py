@@ -6,6 +6,8 @@ known error scaling, not from stored numbers.
 
 from __future__ import annotations
 
+import dataclasses
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -134,6 +136,50 @@ def test_neighbor_list_matches_all_pairs(fmt):
                                                 perturbation=1 + x, params=PARAMS))(0.0)
     np.testing.assert_allclose(f_list, f_all, rtol=2e-4, atol=2e-3)
     assert float(s_list) == pytest.approx(float(s_all), rel=1e-4)
+
+
+def _assert_list_equals_all_pairs(engine: lj.LJEngine, carry: lj.Carry) -> None:
+    """Every member's list gives the all-pairs energy and forces (no pair dropped)."""
+    box = jax.vmap(engine.box)(carry.md)
+    for b in range(carry.md.position.shape[0]):
+        pos, idx = carry.md.position[b], jax.tree.map(lambda x, b=b: x[b], carry.neighbors.idx)
+        e_list = engine.energy_fn(pos, box[b], idx=idx, params=PARAMS)
+        e_all = engine.energy_fn(pos, box[b], idx=None, params=PARAMS)
+        assert float(e_list) == pytest.approx(float(e_all), rel=1e-5)
+        f_list, _ = engine.energy_fn.force_and_strain(pos, box[b], idx=idx, params=PARAMS)
+        f_all, _ = engine.energy_fn.force_and_strain(pos, box[b], idx=None, params=PARAMS)
+        np.testing.assert_allclose(f_list, f_all, rtol=1e-4, atol=1e-3)
+
+
+def test_engine_reallocates_its_lists_after_overflow():
+    """A one-slot list overflows at once: the engine re-allocates, and the batch's lists (built
+    by compiled functions traced before the re-allocation) have the new capacity and give the
+    all-pairs energies and forces."""
+    cfg = liquid_config(use_neighbor_list=True, skin_nm=0.3, num_atoms=256, rebuild_every=2)
+    engine = lj.LJEngine(cfg)
+    roomy = engine.neighbor_template.spec
+    tiny = lj.build_neighbor_list(
+        dataclasses.replace(roomy, capacity=1), jnp.asarray(lj.lattice_positions(256)),
+        engine.box0)
+    keys = jax.random.split(jax.random.PRNGKey(1), 2)
+    params = jax.tree.map(lambda x: jnp.full(2, x, jnp.float32), PARAMS)
+    # Compile with the roomy list first, then shrink it: a compiled init that captured its list
+    # at trace time would keep building lists at the roomy capacity.
+    engine.init_batch(keys, params)
+    engine.neighbor_template = tiny
+    carry = engine.init_batch(keys, params)
+    grown = engine.neighbor_template.spec
+    assert grown.capacity > 1 and carry.neighbors.spec == grown
+    assert not np.asarray(carry.diagnostics.overflow).any()
+    _assert_list_equals_all_pairs(engine, carry)
+    # Overflow inside a chunk: the chunk is redone with a larger list, no pair is lost.
+    engine.neighbor_template = tiny
+    carry = jax.vmap(lambda c: engine.rebuild_neighbors(c, tiny))(carry)
+    carry, _, ok = engine.run_checked(carry, params, 2, 1)
+    assert ok and carry.neighbors.spec == engine.neighbor_template.spec
+    assert engine.neighbor_template.spec.capacity > 1
+    assert not np.asarray(carry.diagnostics.overflow | carry.diagnostics.failed()).any()
+    _assert_list_equals_all_pairs(engine, carry)
 
 
 def test_feynman_hibbs_strength_is_traced():
