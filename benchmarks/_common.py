@@ -74,7 +74,7 @@ def machine() -> dict[str, Any]:
         "platform": platform.platform(),
         "cpu": cpu,
         "cpu_count": os.cpu_count(),
-        "load_average_at_write": load,
+        "load_average": load,  # 1, 5, 15 min, at the time of writing
         "versions": versions(),
     }
 
@@ -243,7 +243,7 @@ def write_result(
     payload: dict[str, Any],
     *,
     quick: bool = False,
-    part: str | None = None,
+    part: str | Iterable[str] | None = None,
     inputs: Iterable[str | Path] = (),
     command: str | None = None,
 ) -> Path:
@@ -255,24 +255,26 @@ def write_result(
         Result name (``benchmarks/results/<name>.json``, or under ``quick/`` with ``quick``), or
         an explicit ``.json`` path (a script's ``--output``).
     payload
-        The result; keys ``provenance``/``provenance_parts`` are reserved.
+        The result.  Its ``provenance``/``provenance_parts`` keys, if any (a payload read back
+        from the file it updates), are replaced.
     part
-        For files that several commands fill in (one entry per preset, data set, ...): the part
-        this run wrote.  Its provenance goes to ``provenance_parts[part]``, and the parts already
-        in the file keep theirs; the caller merges the payload itself.
+        For files that several commands fill in (one entry per preset, data set, ...): the
+        part(s) this run wrote.  Their provenance goes to ``provenance_parts[part]``, the parts
+        already in the file keep theirs; the caller merges the payload itself.
     inputs
         Data files read (added to those declared with :func:`declare_input`).
+    command
+        Command to record (default: this process's command line).
 
     Returns
     -------
     pathlib.Path
         The file written.
     """
-    if "provenance" in payload or "provenance_parts" in payload:
-        raise ValueError("payload keys 'provenance' and 'provenance_parts' are written by write_result")
     path = Path(name) if str(name).endswith(".json") else result_path(str(name), quick)
     prov = provenance(inputs, command)
-    out: dict[str, Any] = {"benchmark": Path(path).stem, **payload, "provenance": prov}
+    body = {k: v for k, v in payload.items() if k not in ("provenance", "provenance_parts")}
+    out: dict[str, Any] = {"benchmark": path.stem, **body, "provenance": prov}
     if part is not None:
         parts = {}
         if path.exists():
@@ -280,7 +282,8 @@ def write_result(
                 parts = json.loads(path.read_text()).get("provenance_parts", {})
             except (json.JSONDecodeError, AttributeError):
                 parts = {}
-        out["provenance_parts"] = {**parts, part: prov}
+        names = [part] if isinstance(part, str) else list(part)
+        out["provenance_parts"] = {**parts, **{p: prov for p in names}}
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(json.dumps(out, indent=1, default=_json_default) + "\n")
     return path
