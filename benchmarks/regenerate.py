@@ -37,6 +37,8 @@ __all__ = ["command_argv", "main", "parse_budget", "plan"]
 
 #: Cost assumed for a result with no recorded or estimated cost (it is run last).
 UNKNOWN_COST_S = 3600.0
+#: Cost assumed for a quick mode never run (quick modes are meant to take a few minutes).
+QUICK_COST_S = 300.0
 
 
 def parse_budget(text: str) -> float:
@@ -70,10 +72,15 @@ def plan(
     Returns lists of ``(entry, status, cost_s)`` to run in order, and of
     ``(entry, status, cost_s, reason)`` left out.
     """
-    todo = sorted(
-        ((e, s, s.cost_s if s.cost_s is not None else UNKNOWN_COST_S) for e, s in statuses if s.state != "current"),
-        key=lambda t: t[2],
-    )
+
+    def cost_of(entry: Entry, st: Status) -> float:
+        if st.cost_s is not None:
+            return st.cost_s
+        if quick:
+            return QUICK_COST_S
+        return entry.estimated_cost_s if entry.estimated_cost_s is not None else UNKNOWN_COST_S
+
+    todo = sorted(((e, s, cost_of(e, s)) for e, s in statuses if s.state != "current"), key=lambda t: t[2])
     run, skipped, left = [], [], budget_s
     for entry, st, cost in todo:
         missing = _missing_programs(entry)

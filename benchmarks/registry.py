@@ -177,6 +177,7 @@ REGISTRY: tuple[Entry, ...] = (
         quick=f"python benchmarks/imbalance.py --systems helium --helium-num 4 --output {Q}/imbalance.json "
         f"--figure {Q}/imbalance.png",
         quick_output=f"{Q}/imbalance.json",
+        ignore_keys=("stats_all", "stats_ok", "stats_failed"),
         legacy_cost_keys=("systems/helium/wall_time_s/*", "systems/helium/compile_seconds"),
     ),
     Entry(

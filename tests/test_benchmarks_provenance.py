@@ -45,8 +45,14 @@ def test_code_hash_ignores_docstrings_comments_and_layout(tmp_path: Path) -> Non
     assert _common.code_hash(a) == _common.code_hash(b)
 
 
-@pytest.mark.parametrize("edit", [("SCALE = 2.0", "SCALE = 2.5"), ("math.sqrt(x)", "math.sqrt(x + 0)"),
-                                  ('"""Twice x."""\n', '"""Twice x."""\n    x = abs(x)\n')])
+@pytest.mark.parametrize(
+    "edit",
+    [
+        ("SCALE = 2.0", "SCALE = 2.5"),
+        ("math.sqrt(x)", "math.sqrt(x + 0)"),
+        ('"""Twice x."""\n', '"""Twice x."""\n    x = abs(x)\n'),
+    ],
+)
 def test_code_hash_sees_changes_of_meaning(tmp_path: Path, edit: tuple[str, str]) -> None:
     a, b = tmp_path / "a.py", tmp_path / "b.py"
     a.write_text(SOURCE)
@@ -81,8 +87,13 @@ def fake_repo(tmp_path: Path, monkeypatch: pytest.MonkeyPatch):
 
 
 def write_fake(root: Path, name: str = "res", **kwargs) -> Path:
-    return _common.write_result(root / "benchmarks" / "results" / f"{name}.json", {"value": 1.5},
-                                inputs=[root / "data.txt"], command="python benchmarks/fake.py", **kwargs)
+    return _common.write_result(
+        root / "benchmarks" / "results" / f"{name}.json",
+        {"value": 1.5},
+        inputs=[root / "data.txt"],
+        command="python benchmarks/fake.py",
+        **kwargs,
+    )
 
 
 def test_write_result_records_provenance(fake_repo: Path) -> None:
@@ -90,8 +101,9 @@ def test_write_result_records_provenance(fake_repo: Path) -> None:
     prov = data["provenance"]
     assert data["value"] == 1.5 and data["benchmark"] == "res"
     assert prov["command"] == "python benchmarks/fake.py"
-    assert prov["fingerprint"]["code"] == {"jaxabc/fake_dependency.py":
-                                           _common.code_hash(fake_repo / "jaxabc/fake_dependency.py")}
+    assert prov["fingerprint"]["code"] == {
+        "jaxabc/fake_dependency.py": _common.code_hash(fake_repo / "jaxabc/fake_dependency.py")
+    }
     assert list(prov["fingerprint"]["data"]) == ["data.txt"]
     assert prov["cost_s"] >= 0 and prov["date_utc"].endswith("Z")
     assert {"commit", "tree_clean", "dirty_files", "machine"} <= set(prov)
@@ -131,12 +143,12 @@ def test_status_of_entries(fake_repo: Path) -> None:
     legacy.write_text(json.dumps({"runs": [{"seconds": 2.0}, {"seconds": 3.0}]}))
     entry = registry.Entry("res:a", "benchmarks/results/res.json", "python x.py", part="a")
     assert status.status_of(entry, root=fake_repo).state == "current"
-    other_part = registry.Entry("res:b", "benchmarks/results/res.json", "python x.py", part="b",
-                                estimated_cost_s=7.0)
+    other_part = registry.Entry("res:b", "benchmarks/results/res.json", "python x.py", part="b", estimated_cost_s=7.0)
     st = status.status_of(other_part, root=fake_repo)
     assert (st.state, st.cost_s, st.cost_source) == ("unknown", 7.0, "registry estimate")
-    old = registry.Entry("legacy", "benchmarks/results/legacy.json", "python x.py",
-                         legacy_cost_keys=("runs/*/seconds",))
+    old = registry.Entry(
+        "legacy", "benchmarks/results/legacy.json", "python x.py", legacy_cost_keys=("runs/*/seconds",)
+    )
     st = status.status_of(old, root=fake_repo)
     assert (st.state, st.cost_s) == ("unknown", 5.0)
     absent = registry.Entry("absent", "benchmarks/results/absent.json", "python x.py")
@@ -147,17 +159,27 @@ def test_status_of_entries(fake_repo: Path) -> None:
 
 
 def test_deterministic_view_and_comparison() -> None:
-    saved = {"d_E": 0.0272, "wall_time_s": 10.0, "rows": [{"seconds": 1.0, "n": 3, "x": float("nan")}],
-             "provenance": {"commit": "a"}, "machine": {"cpu": "x"}}
-    rerun = {"d_E": 0.0272, "wall_time_s": 99.0, "rows": [{"seconds": 2.0, "n": 3, "x": float("nan")}],
-             "provenance": {"commit": "b"}, "machine": {"cpu": "y"}}
+    saved = {
+        "d_E": 0.0272,
+        "wall_time_s": 10.0,
+        "rows": [{"seconds": 1.0, "n": 3, "x": float("nan")}],
+        "provenance": {"commit": "a"},
+        "machine": {"cpu": "x"},
+    }
+    rerun = {
+        "d_E": 0.0272,
+        "wall_time_s": 99.0,
+        "rows": [{"seconds": 2.0, "n": 3, "x": float("nan")}],
+        "provenance": {"commit": "b"},
+        "machine": {"cpu": "y"},
+    }
     view = status.deterministic_view
     assert status.compare_numbers(view(saved), view(rerun)) == []
     rerun["d_E"] = 0.0273
     assert status.compare_numbers(view(saved), view(rerun)) == ["/d_E: 0.0272 != 0.0273"]
     assert status.compare_numbers(view(saved), view(rerun), rtol=0.01) == []
     rerun["rows"].append({})
-    assert status.compare_numbers(view(saved), view(rerun)) [-1] == "/rows: length 1 != 2"
+    assert status.compare_numbers(view(saved), view(rerun))[-1] == "/rows: length 1 != 2"
 
 
 def test_budget_and_plan_run_cheapest_first_within_budget() -> None:
@@ -171,8 +193,13 @@ def test_budget_and_plan_run_cheapest_first_within_budget() -> None:
         entry = registry.Entry(name, f"benchmarks/results/{name}.json", f"python {name}.py", long=long)
         return entry, status.Status(name, entry.output, state, cost_s=cost)
 
-    statuses = [item("big", "stale", 3000.0), item("small", "unknown", 60.0), item("ok", "current", 1.0),
-                item("mid", "stale", 600.0), item("water", "stale", 20000.0, long=True)]
+    statuses = [
+        item("big", "stale", 3000.0),
+        item("small", "unknown", 60.0),
+        item("ok", "current", 1.0),
+        item("mid", "stale", 600.0),
+        item("water", "stale", 20000.0, long=True),
+    ]
     run, skipped = regenerate.plan(statuses, budget_s=3600.0)
     assert [e.name for e, _, _ in run] == ["small", "mid"]
     assert [e.name for e, *_ in skipped] == ["big", "water"]
