@@ -216,6 +216,8 @@ def page_lammps() -> str:
                 *(f(q[k]["z"], 2) for k in ("temperature_k", "pressure_atm", "volume_nm3", "f_b")),
                 f"{np.median(r['kl_cross']):.3f} ({span(r['kl_cross'], 3)})",
                 f"{np.median(r['kl_jax_md_seed_to_seed']):.3f} ({span(r['kl_jax_md_seed_to_seed'], 3)})",
+                f(r["seconds"]["jax_md_batched_including_compile"] / r["num_seeds"], 1),
+                f(r["seconds"]["lammps_sequential"] / r["num_seeds"], 1),
             ]
         )
     sources = "\n".join(f"- {source('helium_lammps_agreement', p, d)}" for p in ("cpu", "paper"))
@@ -239,6 +241,8 @@ between the engines (cross) is to be read against jax-md's own seed-to-seed KL.
                 "z mean f_B",
                 "KL cross median (range)",
                 "KL seed-to-seed median (range)",
+                "jax-md s/run (with compile)",
+                "LAMMPS s/run",
             ],
             rows,
         )
@@ -364,6 +368,12 @@ def _speedup_tables(name: str) -> str:
             )
             + "\n",
         ]
+    eff = d.get("targets", {}).get("apmcabc_efficiency_0.8")
+    if eff:
+        out.append(
+            f"At n = {eff['n'][-1]} (every APMCABC task on its own worker) no scheduler beats efficiency = "
+            f"mean / max duration = {f(eff['efficiency_ceiling_any_scheduler'][-1], 2)}.\n"
+        )
     hard = d.get("targets", {}).get("dynamic_within_1.1x_lower_bound", {}).get("n_where_no_scheduler_is_within_1.1x")
     if hard:
         out.append(
@@ -607,7 +617,10 @@ def page_criticism() -> str:
             table(["misfit", "observed", "predictive 90 % band", "z", "adjusted p", ""], misfits) + "\n",
             table(["cause", "score", "explains", "adjusted p", "ambiguous", "note"], causes) + "\n",
             f"Refit with the top cause: {est}.  Held-out delta log predictive density "
-            f"{f(gain['delta_lpd'], 2)} +- {f(gain['delta_lpd_se'], 2)}.\n",
+            f"{f(gain['delta_lpd'], 2)} +- {f(gain['delta_lpd_se'], 2)} (exceeds its uncertainty: "
+            f"{'yes' if gain['significant'] else 'no'}); the new parameter's posterior is "
+            f"{100 * gain['effect_contraction']:.0f} % narrower than its prior; gain counted: "
+            f"{'yes' if gain['significant'] and gain['effect_excludes_null'] else 'no'}.\n",
         ]
     return "\n".join(parts)
 
