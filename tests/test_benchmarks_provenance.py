@@ -83,6 +83,8 @@ def fake_repo(tmp_path: Path, monkeypatch: pytest.MonkeyPatch):
     monkeypatch.setitem(sys.modules, "fake_dependency_for_provenance", module)
     monkeypatch.setattr(_common, "ROOT", tmp_path)
     monkeypatch.setattr(_common, "_declared_inputs", set())
+    # The machine record imports jax for its versions: not what these tests are about.
+    monkeypatch.setattr(_common, "machine", lambda: {"cpu": "test"})
     return tmp_path
 
 
@@ -228,3 +230,14 @@ def test_every_benchmark_script_saves_through_write_result() -> None:
     for script in scripts:
         assert "write_result(" in script.read_text(), f"{script.name} must save its JSON through write_result"
         assert f"benchmarks/{script.name}" in registered, f"{script.name} has no entry in registry.py"
+
+
+def test_results_pages_render_and_name_their_sources() -> None:
+    import make_docs
+
+    for name, render in make_docs.PAGES.items():
+        text = render()
+        assert text.startswith("# "), name
+        if name != "index.md":
+            assert "Source: `benchmarks/results/" in text, f"{name} does not name its JSON"
+            assert "commit `" in text, f"{name} does not name the commit of its JSON"
