@@ -159,6 +159,44 @@ Per repetition:
 """
 
 
+def page_identifiability() -> str:
+    d = load("helium_identifiability")
+    if d is None:
+        return "# Helium identifiability\n\nNot saved yet.\n"
+    rows = [
+        [
+            f"`{c['name']}`",
+            f(c["fraction_clearly_wrong_separated"], 2),
+            f(c["fraction_near_truth_separated"], 2),
+            f(c["seed_kl_median"], 3),
+            f(c["seed_kl_q95"], 3),
+            f(c["seconds_per_simulation_batched"], 3),
+            c["num_failed"],
+        ]
+        for c in d["candidates"]
+    ]
+    header = [
+        "candidate preset",
+        "clearly wrong separated",
+        "near truth separated",
+        "seed KL median",
+        "seed KL q95",
+        "s per simulation (batched)",
+        "failed",
+    ]
+    return f"""# Which helium set-up lets the KL distance tell parameters apart?
+
+For each candidate preset: the fraction of grid parameters whose KL distance to the observed f_B
+series exceeds the 95th percentile of the seed-to-seed KL at the truth ("separated"), for
+clearly wrong parameters (more than 10 % of the prior width away) and for the four near the
+truth, and the cost of one simulation on the machine that made the JSON.
+
+{source("helium_identifiability")}
+
+{table(header, rows)}
+"""
+
+
 def page_engine() -> str:
     parts = [
         "# Engine throughput: jax-md against LAMMPS\n",
@@ -645,7 +683,7 @@ results the current code still produces, `python benchmarks/regenerate.py --budg
 stale ones that fit, and `python3 -m pytest -m slow tests/test_benchmarks_repro.py` checks that
 every benchmark's quick mode reproduces its saved numbers.
 
-- [Helium Table 1](helium_table1.md)
+- [Helium Table 1](helium_table1.md) and [the choice of the CPU preset](helium_identifiability.md)
 - [Engine throughput](engine_throughput.md) and [agreement with LAMMPS](lammps_agreement.md)
 - [Coverage of credible regions](coverage.md)
 - [Speedup and scheduling](speedup.md)
@@ -662,6 +700,7 @@ Status when these pages were generated:
 PAGES: dict[str, Callable[[], str]] = {
     "index.md": page_index,
     "helium_table1.md": page_helium_table1,
+    "helium_identifiability.md": page_identifiability,
     "engine_throughput.md": page_engine,
     "lammps_agreement.md": page_lammps,
     "coverage.md": page_coverage,
