@@ -16,6 +16,7 @@ particles.  This benchmark measures what their "95 % intervals" are worth.
 Usage::
 
     python benchmarks/coverage.py            # about 3 minutes on 2 cores
+    python benchmarks/coverage.py --quick    # 40 data sets, N = 100: results/quick/coverage.json
 """
 
 from __future__ import annotations
@@ -65,8 +66,14 @@ def main(argv: list[str] | None = None) -> dict:
     parser.add_argument("--steps", type=int, default=10, help="APMCABC step cap (the water runs: 10)")
     parser.add_argument("--rejection-quantile", type=float, default=0.001)
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--output", type=Path, default=RESULTS / "coverage.json")
+    parser.add_argument("--output", type=Path, default=None, help="default: results/coverage.json")
+    parser.add_argument("--quick", action="store_true",
+                        help="reproduction check: 40 data sets, N = 100 only, written to results/quick/")
     args = parser.parse_args(argv)
+    if args.quick:
+        args.datasets, args.particles = 40, [100]
+    if args.output is None:
+        args.output = RESULTS / ("quick" if args.quick else "") / "coverage.json"
 
     prior = jaxabc.Uniform([-10.0, -10.0], [10.0, 10.0], names=("a", "b"))
     out = {"problem": "x = theta + L z, Cov = [[1, 0.8], [0.8, 1]], prior U[-10, 10]^2, euclidean distance; "

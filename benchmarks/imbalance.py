@@ -156,7 +156,12 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--output", type=Path, default=RESULTS / "imbalance.json")
     parser.add_argument("--figure", type=Path, default=RESULTS / "imbalance.png")
+    parser.add_argument("--quick", action="store_true",
+                        help="reproduction check: 4 helium draws, written to results/quick/imbalance.{json,png}")
     args = parser.parse_args(argv)
+    if args.quick:
+        args.systems, args.helium_num = "helium", 4
+        args.output, args.figure = RESULTS / "quick" / "imbalance.json", RESULTS / "quick" / "imbalance.png"
     systems = [s.strip() for s in args.systems.split(",") if s.strip()]
     unknown = set(systems) - {"water", "helium"}
     if unknown:

@@ -126,7 +126,7 @@ REGISTRY: tuple[Entry, ...] = (
         "coverage",
         f"{R}/coverage.json",
         "python benchmarks/coverage.py",
-        quick=f"python benchmarks/coverage.py --datasets 40 --particles 100 --output {Q}/coverage.json",
+        quick="python benchmarks/coverage.py --quick",
         quick_output=f"{Q}/coverage.json",
         legacy_cost_keys=("cases/*/seconds",),
     ),
@@ -174,8 +174,7 @@ REGISTRY: tuple[Entry, ...] = (
         f"{R}/imbalance.json",
         "python benchmarks/imbalance.py --systems helium --helium-num 32",
         part="helium",
-        quick=f"python benchmarks/imbalance.py --systems helium --helium-num 4 --output {Q}/imbalance.json "
-        f"--figure {Q}/imbalance.png",
+        quick="python benchmarks/imbalance.py --quick",
         quick_output=f"{Q}/imbalance.json",
         ignore_keys=("stats_all", "stats_ok", "stats_failed"),
         legacy_cost_keys=("systems/helium/wall_time_s/*", "systems/helium/compile_seconds"),
