@@ -189,7 +189,7 @@ def _git(*args: str) -> str | None:
 def git_state() -> dict[str, Any]:
     """Commit, and the files that differ from it (results folders excluded: runs write there)."""
     commit = _git("rev-parse", "HEAD")
-    status = _git("status", "--porcelain", "--untracked-files=no") or ""
+    status = _git("status", "--porcelain", "--untracked-files=normal") or ""
     dirty = sorted(line[3:].strip() for line in status.splitlines() if line.strip())
     dirty = [f for f in dirty if not f.startswith(("benchmarks/results/", "docs/results/"))]
     return {
