@@ -21,7 +21,7 @@ Usage (all cores, one single-threaded ``gmx mdrun`` per worker)::
     python benchmarks/water_calibration.py --data simulated --statistics robust
     python benchmarks/water_calibration.py --data xray --statistics paper --predictive 20
     python benchmarks/water_calibration.py --data neutron --statistics robust --validation-ps 1000
-    python benchmarks/water_calibration.py --quick --data simulated    # ~2 min: 10 particles, 2 steps,
+    python benchmarks/water_calibration.py --quick --data simulated    # a few min: 30 particles, 2 steps,
                                                                        # 5 ps runs, into results/quick/
 
 Failures: with the paper's prior U[0.281, 0.53] x U[0.2, 0.9] most draws do not stay liquid at
@@ -116,11 +116,13 @@ def parse_arguments(argv=None) -> argparse.Namespace:
     parser.add_argument("--checkpoint-dir", type=Path, default=None)
     parser.add_argument("--resume", action="store_true")
     parser.add_argument("--quick", action="store_true",
-                        help="reproduction check: 10 particles, 2 steps, 10 pilot runs, 5 ps MD runs, no "
-                             "predictive or validation runs, written to benchmarks/results/quick/")
+                        help="reproduction check: 30 particles, 2 steps, 5 ps MD runs, unscaled distance (a pilot "
+                             "of prior draws, mostly vapour, would need ~100 runs), no predictive or validation "
+                             "runs, written to benchmarks/results/quick/")
     args = parser.parse_args(argv)
     if args.quick:
-        args.particles, args.steps, args.pilot, args.md_steps = 10, 2, 10, 2500
+        # 30 particles keep 3 (APMCABC needs 2) although ~90 % of prior draws vaporise.
+        args.particles, args.steps, args.md_steps, args.scale = 30, 2, 2500, "none"
         args.predictive, args.validation_ps, args.out_dir = 0, 0.0, QUICK_RESULTS
     return args
 
