@@ -1,16 +1,56 @@
-"""Shared helpers for benchmark scripts: machine description and JSON output."""
+"""Shared helpers for benchmark scripts: machine record, provenance and JSON output.
+
+Every saved result goes through :func:`write_result`, which adds a ``provenance`` block: the
+commit, whether the tree was clean (and the dirty files), the date, the machine, the exact
+command, the seconds the run took, and a fingerprint of what the result depends on -- the project
+modules the process imported (files under ``jaxabc/``, ``md/`` and ``benchmarks/`` found in
+``sys.modules``) and the data files declared with :func:`declare_input` or ``inputs=``.
+
+Code is fingerprinted by :func:`code_hash`: a hash of the AST with docstrings removed, so a
+reformatting, a comment or a docstring edit does not mark a result stale, while any change to
+what the code does does.  Per-file hashes are kept so that ``benchmarks/status.py`` can name the
+files that changed.
+"""
 
 from __future__ import annotations
 
+import ast
+import hashlib
 import json
 import os
 import platform
+import shlex
+import subprocess
 import sys
 import time
+from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
-RESULTS = Path(__file__).resolve().parent / "results"
+ROOT = Path(__file__).resolve().parents[1]
+RESULTS = ROOT / "benchmarks" / "results"
+QUICK_RESULTS = RESULTS / "quick"
+#: Top-level folders whose imported modules count as code a result depends on.
+CODE_DIRS = ("jaxabc", "md", "benchmarks")
+PROVENANCE_VERSION = 1
+
+_declared_inputs: set[Path] = set()
+
+
+def _process_start_time() -> float:
+    """Epoch seconds at which this process started (Linux), else this module's import time."""
+    try:
+        with open("/proc/self/stat") as fh:
+            fields = fh.read().rsplit(")", 1)[1].split()
+        start_ticks = int(fields[19])  # field 22 of proc(5), counted after the ")" of the name
+        with open("/proc/stat") as fh:
+            boot = next(int(line.split()[1]) for line in fh if line.startswith("btime"))
+        return boot + start_ticks / os.sysconf("SC_CLK_TCK")
+    except (OSError, ValueError, IndexError, StopIteration):
+        return time.time()
+
+
+_PROCESS_START = _process_start_time()
 
 
 def machine() -> dict[str, Any]:
@@ -27,28 +67,240 @@ def machine() -> dict[str, Any]:
     except OSError:
         pass
     try:
-        load = os.getloadavg()
+        load = list(os.getloadavg())
     except OSError:
         load = None
     return {
         "platform": platform.platform(),
         "cpu": cpu,
         "cpu_count": os.cpu_count(),
-        "load_average_at_start": load,
+        "load_average": load,  # 1, 5, 15 min, at the time of writing
         "versions": versions(),
     }
 
 
-def write_result(name: str, payload: dict[str, Any]) -> Path:
-    """Write ``benchmarks/results/<name>.json`` with machine, command and date added."""
-    RESULTS.mkdir(parents=True, exist_ok=True)
-    out = {
-        "benchmark": name,
-        "command": " ".join([Path(sys.executable).name, *sys.argv]),
-        "date_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
-        "machine": machine(),
-        **payload,
+# ----------------------------------------------------------------------------- fingerprints
+
+
+def _strip_docstrings(tree: ast.AST) -> ast.AST:
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Module | ast.ClassDef | ast.FunctionDef | ast.AsyncFunctionDef):
+            body = node.body
+            if (
+                body
+                and isinstance(body[0], ast.Expr)
+                and isinstance(body[0].value, ast.Constant)
+                and isinstance(body[0].value.value, str)
+            ):
+                # Keep a placeholder so that a body made only of a docstring stays valid.
+                node.body = body[1:] or [ast.Pass()]
+    return tree
+
+
+def code_hash(path: str | Path) -> str:
+    """Hash of a Python file's meaning: its AST without docstrings, comments or layout.
+
+    Parameters
+    ----------
+    path
+        A ``.py`` file.
+
+    Returns
+    -------
+    str
+        16 hex digits.  A file that does not parse is hashed by its bytes (prefixed ``raw:``).
+    """
+    source = Path(path).read_bytes()
+    try:
+        tree = _strip_docstrings(ast.parse(source))
+    except SyntaxError:
+        return "raw:" + hashlib.sha256(source).hexdigest()[:16]
+    return hashlib.sha256(ast.dump(tree, include_attributes=False).encode()).hexdigest()[:16]
+
+
+def data_hash(path: str | Path) -> str:
+    """Hash of a data file's bytes (16 hex digits)."""
+    digest = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for chunk in iter(lambda: fh.read(1 << 20), b""):
+            digest.update(chunk)
+    return digest.hexdigest()[:16]
+
+
+def relative(path: str | Path) -> str:
+    """``path`` relative to the repository root (POSIX), or absolute when it lies outside."""
+    p = Path(path).resolve()
+    try:
+        return p.relative_to(ROOT).as_posix()
+    except ValueError:
+        return p.as_posix()
+
+
+def imported_project_files() -> list[str]:
+    """Repository-relative paths of the project modules loaded in this process (``.py`` only)."""
+    files = set()
+    for module in list(sys.modules.values()):
+        file = getattr(module, "__file__", None)
+        if not file or not file.endswith(".py"):
+            continue
+        rel = relative(file)
+        # This helper decides how results are recorded, not what they are: editing it must not
+        # mark every saved result stale.
+        if rel.split("/", 1)[0] in CODE_DIRS and rel != "benchmarks/_common.py" and (ROOT / rel).is_file():
+            files.add(rel)
+    return sorted(files)
+
+
+def declare_input(*paths: str | Path) -> None:
+    """Declare data files this run reads; their hashes go into the result's fingerprint."""
+    for path in paths:
+        p = Path(path)
+        if p.is_dir():
+            _declared_inputs.update(q.resolve() for q in sorted(p.rglob("*")) if q.is_file())
+        else:
+            _declared_inputs.add(p.resolve())
+
+
+def fingerprint(code_files: Iterable[str], data_files: Iterable[str | Path]) -> dict[str, Any]:
+    """Per-file hashes of code (AST) and data (bytes), and one digest over all of them."""
+    code = {f: code_hash(ROOT / f) for f in sorted(set(code_files))}
+    data = {}
+    for f in data_files:
+        p = Path(f) if Path(f).is_absolute() else ROOT / f
+        if not p.is_file():
+            raise FileNotFoundError(f"declared input {f} does not exist: declare only files the run read")
+        data[relative(p)] = data_hash(p)
+    data = dict(sorted(data.items()))
+    digest = hashlib.sha256(json.dumps([code, data], sort_keys=True).encode()).hexdigest()[:16]
+    return {"digest": digest, "code": code, "data": data}
+
+
+# ----------------------------------------------------------------------------- git and command
+
+
+def _git(*args: str) -> str | None:
+    try:
+        out = subprocess.run(["git", *args], cwd=ROOT, capture_output=True, text=True, timeout=30)
+    except (OSError, subprocess.TimeoutExpired):
+        return None
+    return out.stdout if out.returncode == 0 else None
+
+
+def git_state() -> dict[str, Any]:
+    """Commit, and the files that differ from it (results folders excluded: runs write there)."""
+    commit = _git("rev-parse", "HEAD")
+    status = _git("status", "--porcelain", "--untracked-files=normal") or ""
+    dirty = sorted(line[3:].strip() for line in status.splitlines() if line.strip())
+    dirty = [f for f in dirty if not f.startswith(("benchmarks/results/", "docs/results/"))]
+    return {
+        "commit": commit.strip() if commit else None,
+        "tree_clean": not dirty if commit else None,
+        "dirty_files": dirty,
     }
-    path = RESULTS / f"{name}.json"
-    path.write_text(json.dumps(out, indent=2, default=float) + "\n")
+
+
+def command_line(argv: list[str] | None = None) -> str:
+    """The command that ran this process, as one would type it from the repository root."""
+    argv = list(sys.argv if argv is None else argv)
+    if argv and argv[0].endswith(".py"):
+        argv[0] = relative(argv[0])
+    return shlex.join(["python", *argv])
+
+
+def provenance(
+    inputs: Iterable[str | Path] = (), command: str | None = None, cost_s: float | None = None
+) -> dict[str, Any]:
+    """The provenance block of a result written now by this process.
+
+    Parameters
+    ----------
+    inputs
+        Data files read, in addition to those given to :func:`declare_input`.
+    command
+        The command to record; default: this process's command line.
+    cost_s
+        Seconds the result took; default: wall seconds since this process started.
+    """
+    return {
+        "version": PROVENANCE_VERSION,
+        **git_state(),
+        "date_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+        "command": command or command_line(),
+        "cost_s": round(time.time() - _PROCESS_START, 1) if cost_s is None else cost_s,
+        "machine": machine(),
+        "fingerprint": fingerprint(imported_project_files(), [*_declared_inputs, *inputs]),
+    }
+
+
+# ----------------------------------------------------------------------------- writing
+
+
+def result_path(name: str, quick: bool = False) -> Path:
+    """``benchmarks/results/<name>.json``, or ``benchmarks/results/quick/<name>.json``."""
+    return (QUICK_RESULTS if quick else RESULTS) / f"{name}.json"
+
+
+def write_result(
+    name: str | Path,
+    payload: dict[str, Any],
+    *,
+    quick: bool = False,
+    part: str | Iterable[str] | None = None,
+    inputs: Iterable[str | Path] = (),
+    command: str | None = None,
+) -> Path:
+    """Write a result JSON with its provenance; the one way benchmark scripts save results.
+
+    Parameters
+    ----------
+    name
+        Result name (``benchmarks/results/<name>.json``, or under ``quick/`` with ``quick``), or
+        an explicit ``.json`` path (a script's ``--output``).
+    payload
+        The result.  Its ``provenance``/``provenance_parts`` keys, if any (a payload read back
+        from the file it updates), are replaced.
+    part
+        For files that several commands fill in (one entry per preset, data set, ...): the
+        part(s) this run wrote.  Their provenance goes to ``provenance_parts[part]``, the parts
+        already in the file keep theirs; the caller merges the payload itself.
+    inputs
+        Data files read (added to those declared with :func:`declare_input`).
+    command
+        Command to record (default: this process's command line).
+
+    Returns
+    -------
+    pathlib.Path
+        The file written.
+    """
+    path = Path(name) if str(name).endswith(".json") else result_path(str(name), quick)
+    prov = provenance(inputs, command)
+    body = {k: v for k, v in payload.items() if k not in ("provenance", "provenance_parts")}
+    out: dict[str, Any] = {"benchmark": path.stem, **body, "provenance": prov}
+    if part is not None:
+        parts = {}
+        if path.exists():
+            try:
+                parts = json.loads(path.read_text()).get("provenance_parts", {})
+            except (json.JSONDecodeError, AttributeError):
+                parts = {}
+        names = [part] if isinstance(part, str) else list(part)
+        out["provenance_parts"] = {**parts, **{p: prov for p in names}}
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(out, indent=1, default=_json_default) + "\n")
     return path
+
+
+def _json_default(value: Any) -> Any:
+    try:
+        import numpy as np
+
+        if isinstance(value, np.ndarray):
+            return value.tolist()
+        if isinstance(value, np.generic):
+            return value.item()
+    except ImportError:  # pragma: no cover
+        pass
+    if isinstance(value, Path):
+        return value.as_posix()
+    return float(value)

@@ -166,6 +166,7 @@ def main() -> None:
                         help="interpreter with abcpy==0.6.3 installed (skipped if it cannot import it)")
     parser.add_argument("--abcpy-sizes", type=int, nargs="+", default=[1000, 5000])
     parser.add_argument("--abcpy-timeout", type=float, default=900)
+    parser.add_argument("--output", type=Path, default=None, help="default: results/abc_overhead.json")
     args = parser.parse_args()
     rows = []
     for d in args.dims:
@@ -192,7 +193,7 @@ def main() -> None:
         for name, cost in sim_costs.items():
             fractions[f"N{r['num_particles']}_d{r['dim']}_{name}"] = (
                 r["jax_driver"]["per_step_s"] / (r["jax_driver"]["per_step_s"] + m * cost / 2))
-    path = write_result("abc_overhead", {
+    path = write_result(args.output or "abc_overhead", {
         "description": __doc__.split("\n\n")[0],
         "rows": rows,
         "overhead_fraction_of_step_on_2_cores": fractions,

@@ -16,14 +16,12 @@ particles.  This benchmark measures what their "95 % intervals" are worth.
 Usage::
 
     python benchmarks/coverage.py            # about 3 minutes on 2 cores
+    python benchmarks/coverage.py --quick    # 40 data sets, N = 100: results/quick/coverage.json
 """
 
 from __future__ import annotations
 
 import argparse
-import json
-import os
-import platform
 import sys
 import time
 from pathlib import Path
@@ -35,7 +33,9 @@ sys.path.insert(0, str(ROOT))
 
 import jaxabc  # noqa: E402
 from jaxabc.examples import correlated_simulate, correlated_truth_and_data  # noqa: E402
-from jaxabc.results import versions  # noqa: E402
+
+sys.path.insert(0, str(ROOT / "benchmarks"))
+from _common import command_line, write_result  # noqa: E402
 
 RESULTS = ROOT / "benchmarks" / "results"
 SIGMA = np.array([[1.0, 0.8], [0.8, 1.0]])
@@ -66,14 +66,17 @@ def main(argv: list[str] | None = None) -> dict:
     parser.add_argument("--steps", type=int, default=10, help="APMCABC step cap (the water runs: 10)")
     parser.add_argument("--rejection-quantile", type=float, default=0.001)
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--output", type=Path, default=RESULTS / "coverage.json")
+    parser.add_argument("--output", type=Path, default=None, help="default: results/coverage.json")
+    parser.add_argument("--quick", action="store_true",
+                        help="reproduction check: 40 data sets, N = 100 only, written to results/quick/")
     args = parser.parse_args(argv)
+    if args.quick:
+        args.datasets, args.particles = 40, [100]
+    if args.output is None:
+        args.output = RESULTS / ("quick" if args.quick else "") / "coverage.json"
 
     prior = jaxabc.Uniform([-10.0, -10.0], [10.0, 10.0], names=("a", "b"))
-    out = {"benchmark": "coverage", "command": " ".join([Path(sys.executable).name, *sys.argv]),
-           "machine": {"platform": platform.platform(), "cpu_count": os.cpu_count(), "versions": versions(),
-                       "date_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())},
-           "problem": "x = theta + L z, Cov = [[1, 0.8], [0.8, 1]], prior U[-10, 10]^2, euclidean distance; "
+    out = {"problem": "x = theta + L z, Cov = [[1, 0.8], [0.8, 1]], prior U[-10, 10]^2, euclidean distance; "
                       "data uniform in [-6, 6]^2, truth from the exact posterior N(x, Sigma)",
            "levels": list(LEVELS), "cases": []}
     for n in args.particles:
@@ -98,8 +101,7 @@ def main(argv: list[str] | None = None) -> dict:
                   f"{entry['abc_posterior_hpd_coverage']['0.9']:.3f}/"
                   f"{entry['abc_posterior_hpd_coverage']['0.95']:.3f}), 95 % intervals "
                   f"{np.round(entry['interval_coverage']['0.95'][0], 3).tolist()}", flush=True)
-    args.output.parent.mkdir(parents=True, exist_ok=True)
-    args.output.write_text(json.dumps(out, indent=1))
+    write_result(args.output, out, command=None if argv is None else command_line([__file__, *argv]))
     print(f"wrote {args.output}")
     return out
 

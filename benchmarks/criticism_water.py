@@ -27,7 +27,6 @@ Usage::
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
 from pathlib import Path
@@ -36,8 +35,10 @@ import numpy as np
 
 import jaxabc
 from jaxabc.criticism import critique
-from jaxabc.results import versions
 from md.criticism_catalogue import WaterSimulatorWithEffects, water_catalogue
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _common import QUICK_RESULTS, command_line, declare_input, write_result
 
 RESULTS = Path(__file__).resolve().parent / "results"
 #: Density of water at 298.15 K, 1 atm (kg/m^3).
@@ -77,7 +78,8 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--refit-steps", type=int, default=None, help="APMCABC step cap of the refits")
     p.add_argument("--refit-alpha", type=float, default=None, help="APMCABC alpha of the refits (default 0.1)")
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--tiny", action="store_true", help="smoke run: tiny budgets and 2 ps GROMACS runs")
+    p.add_argument("--tiny", action="store_true",
+                   help="smoke run: tiny budgets and 5 ps GROMACS runs, written to results/quick/ (the quick mode)")
     return p.parse_args(argv)
 
 
@@ -88,7 +90,8 @@ def main(argv=None) -> dict:
     overrides = {}
     if args.tiny:
         overrides = {"num_steps": 2500, "analysis_start_ps": 1.0}  # 5 ps with the quick preset's 2 fs step
-        args.num_particles, args.num_steps, args.num_draws = 6, 2, 6
+        # 20 particles: APMCABC keeps N alpha >= 2 (alpha 0.1), and most prior draws vaporise.
+        args.num_particles, args.num_steps, args.num_draws = 20, 2, 6
         args.num_replicates, args.num_gradient_replicates = 12, 4
     simulate = WaterSimulatorWithEffects("quick", args.statistics, args.data, with_density=True, **overrides)
     catalogue = water_catalogue()
@@ -122,8 +125,9 @@ def main(argv=None) -> dict:
                             num_steps=args.refit_steps or args.num_steps, max_failure_fraction=0.95,
                             **({"alpha": args.refit_alpha} if args.refit_alpha else {})),
     )
-    tag = "" if args.data == "xray" and not args.tiny else f"_{args.data}" + ("_tiny" if args.tiny else "")
-    out_dir = RESULTS / f"criticism_water{tag}"
+    tag = "" if args.data == "xray" else f"_{args.data}"
+    folder = QUICK_RESULTS if args.tiny else RESULTS
+    out_dir = folder / f"criticism_water{tag}"
     report.write(out_dir)
     payload = {
         "benchmark": "criticism_water",
@@ -133,16 +137,16 @@ def main(argv=None) -> dict:
         "observed": observed.tolist(),
         "held_out": [n for n, h in zip(names, held_out, strict=True) if h],
         "base_result": str(args.base_result) if args.base_result else "fitted here (APMCABC, standardised |S|)",
-        "command": "python benchmarks/criticism_water.py " + " ".join(argv if argv is not None else sys.argv[1:]),
         "budget": {k: getattr(args, k) for k in ("num_particles", "num_steps", "num_draws", "num_replicates",
                                                   "num_gradient_replicates", "num_refit_iterations",
                                                   "refit_particles", "refit_steps", "refit_alpha", "workers")},
         "wall_time_s": time.perf_counter() - t0,
-        "versions": versions(),
         **report.to_dict(),
     }
-    RESULTS.mkdir(parents=True, exist_ok=True)
-    (RESULTS / f"criticism_water{tag}.json").write_text(json.dumps(payload, indent=1, default=str))
+    declare_input(datasets.DATA_DIR)
+    write_result(folder / f"criticism_water{tag}.json", payload,
+                 inputs=[args.base_result] if args.base_result else [],
+                 command=command_line([__file__, *(argv if argv is not None else sys.argv[1:])]))
     print(report.verdict)
     return payload
 

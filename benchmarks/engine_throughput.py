@@ -46,6 +46,9 @@ import numpy as np  # noqa: E402
 
 from md import helium, lammps_reference  # noqa: E402
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _common import write_result  # noqa: E402
+
 RESULTS = Path(__file__).resolve().parent / "results" / (
     "engine_throughput_single_core.json" if SINGLE_CORE else "engine_throughput.json")
 
@@ -197,7 +200,7 @@ def main() -> None:
         data = json.loads(args.output.read_text())
         data["per_simulation"] = per_simulation(helium.get_preset("cpu"))
         print(data["per_simulation"], flush=True)
-        args.output.write_text(json.dumps(data, indent=1))
+        write_result(args.output, data)
         return
     batches = (1, 8) if args.quick else (1, 8, 32, 128)
     setups = {
@@ -233,18 +236,13 @@ def main() -> None:
             records.append(r)
             print(f"{name:24s} jax-md b={b:<4d}{r['atom_steps_per_second_per_core']:12.3e} "
                   f"atom-steps/s/core  ({ratio:.2f} x LAMMPS per core)", flush=True)
-    args.output.parent.mkdir(parents=True, exist_ok=True)
-    args.output.write_text(json.dumps({
+    write_result(args.output, {
         "description": __doc__,
-        "command": " ".join([os.path.basename(sys.executable), *sys.argv]),
         "versions": versions(),
-        "machine": {"cpus": os.cpu_count(), "platform": platform.platform(),
-                    "processor": platform.processor(), "jax": jax.__version__,
-                    "load_average_at_end": os.getloadavg()},
         "single_core": SINGLE_CORE,
         "records": records,
         "per_simulation": None if SINGLE_CORE else per_simulation(helium.get_preset("cpu")),
-    }, indent=1))
+    })
 
 
 if __name__ == "__main__":

@@ -22,14 +22,13 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
-import platform
 import time
 from pathlib import Path
 
 import jax
 import jax.numpy as jnp
 import numpy as np
+from _common import QUICK_RESULTS, write_result
 
 from md import helium
 
@@ -156,9 +155,13 @@ def main() -> None:
     parser.add_argument("--seeds", type=int, default=24, help="simulations at the truth")
     parser.add_argument("--observed", type=int, default=3, help="independent observed series")
     parser.add_argument("--only", nargs="*", help="candidate names to run (default all)")
-    parser.add_argument("--quick", action="store_true", help="first two candidates, 6 seeds")
-    parser.add_argument("--output", type=Path, default=RESULTS)
+    parser.add_argument("--quick", action="store_true",
+                        help="first two candidates, 6 seeds, written to results/quick/")
+    parser.add_argument("--output", type=Path, default=None,
+                        help="default: results/helium_identifiability.json (results/quick/ with --quick)")
     args = parser.parse_args()
+    if args.output is None:
+        args.output = QUICK_RESULTS / RESULTS.name if args.quick else RESULTS
     names = list(CANDIDATES)
     if args.only:
         names = [n for n in names if n in args.only]
@@ -181,15 +184,12 @@ def main() -> None:
         )
         existing[name] = rec
         records = list(existing.values())
-        args.output.parent.mkdir(parents=True, exist_ok=True)
-        args.output.write_text(json.dumps({
+        write_result(args.output, {
             "description": __doc__,
-            "machine": {"cpus": os.cpu_count(), "platform": platform.platform(),
-                        "jax": jax.__version__},
             "sigmas": SIGMAS, "epsilons": EPSILONS, "near_truth": NEAR_TRUTH,
             "truth": helium.TRUE_THETA,
             "candidates": records,
-        }, indent=1))
+        })
 
 
 if __name__ == "__main__":

@@ -26,7 +26,7 @@ import numpy as np
 from md import helium, lammps_reference
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _common import machine
+from _common import write_result
 
 RESULTS = Path(__file__).resolve().parent / "results" / "helium_lammps_agreement.json"
 
@@ -45,14 +45,12 @@ def main() -> None:
             jax.random.PRNGKey(20 + i), theta, args.preset, num_seeds=args.seeds
         )
         r["command"] = " ".join(["python", *sys.argv])
-        r["machine"] = machine()
         records.append(r)
         zs = {k: round(v["z"], 2) for k, v in r["quantities"].items()}
         print(f"theta={theta}: z = {zs}; KL cross median {np.median(r['kl_cross']):.3f}, "
               f"seed-to-seed median {np.median(r['kl_jax_md_seed_to_seed']):.3f} "
               f"max {np.max(r['kl_jax_md_seed_to_seed']):.3f}", flush=True)
-    args.output.parent.mkdir(parents=True, exist_ok=True)
-    args.output.write_text(json.dumps({"description": __doc__, "records": records}, indent=1))
+    write_result(args.output, {"description": __doc__, "records": records}, part=args.preset)
 
 
 if __name__ == "__main__":

@@ -17,6 +17,8 @@ Usage::
 
     python benchmarks/helium_table1.py                      # CPU preset, 300 particles
     python benchmarks/helium_table1.py --num-particles 1000
+    python benchmarks/helium_table1.py --quick              # 50 particles, 3 steps, seed 0: ~1 min,
+                                                            # writes benchmarks/results/quick/ only
 """
 
 from __future__ import annotations
@@ -48,7 +50,12 @@ def main() -> None:
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2],
                         help="independent repetitions (observed data and inference); the figure and the "
                              "saved result files are the first seed's")
+    parser.add_argument("--quick", action="store_true",
+                        help="reproduction check: 50 particles, 3 steps, seed 0, written to results/quick/ "
+                             "(no figure or .npz)")
     args = parser.parse_args()
+    if args.quick:
+        args.num_particles, args.num_steps, args.seeds = 50, 3, [0]
     if args.num_particles % 5:
         parser.error("--num-particles must be a multiple of 5 (ABCsubsim with P0 = 0.2)")
     simulate, prior = make_model(args.preset)
@@ -60,6 +67,7 @@ def main() -> None:
         per_seed.append({"seed": seed, "algorithms": rows})
         if seed == args.seeds[0]:
             first_rows, first_results = rows, results
+        if seed == args.seeds[0] and not args.quick:
             for name, result in results.items():
                 result.save(RESULTS / f"helium_table1_{name}.npz")
             draw_figure(results, truth, RESULTS / "helium_table1.png")
@@ -92,9 +100,9 @@ def main() -> None:
         "summary_over_seeds": summary,
         "comparison": checks,
         "paper": PAPER,
-        "figure": "benchmarks/results/helium_table1.png",
+        "figure": None if args.quick else "benchmarks/results/helium_table1.png",
         "total_wall_time_s": time.perf_counter() - t_start,
-    })
+    }, quick=args.quick)
     del first_results
     print(f"wrote {path}")
 

@@ -36,7 +36,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import runpy
 import sys
 import time
@@ -51,18 +50,13 @@ import jax  # noqa: E402
 
 import jaxabc  # noqa: E402
 from jaxabc.errors import STATUS_NAMES, STATUS_OK  # noqa: E402
-from jaxabc.results import versions  # noqa: E402
+
+sys.path.insert(0, str(ROOT / "benchmarks"))
+from _common import command_line, machine, write_result  # noqa: E402
 
 RESULTS = ROOT / "benchmarks" / "results"
 #: The paper's water prior (sigma_OW nm, epsilon_OW kJ/mol).
 WATER_PRIOR = ((0.281, 0.2), (0.53, 0.9))
-
-
-def machine_info() -> dict:
-    """Platform, cores and package versions, for every result file."""
-    return {"platform": platform.platform(), "processor": platform.processor() or platform.machine(),
-            "cpu_count": os.cpu_count(), "load_average": list(os.getloadavg()),
-            "versions": versions(), "date_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())}
 
 
 def describe(times: np.ndarray) -> dict:
@@ -162,7 +156,12 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--output", type=Path, default=RESULTS / "imbalance.json")
     parser.add_argument("--figure", type=Path, default=RESULTS / "imbalance.png")
+    parser.add_argument("--quick", action="store_true",
+                        help="reproduction check: 4 helium draws, written to results/quick/imbalance.{json,png}")
     args = parser.parse_args(argv)
+    if args.quick:
+        args.systems, args.helium_num = "helium", 4
+        args.output, args.figure = RESULTS / "quick" / "imbalance.json", RESULTS / "quick" / "imbalance.png"
     systems = [s.strip() for s in args.systems.split(",") if s.strip()]
     unknown = set(systems) - {"water", "helium"}
     if unknown:
@@ -172,8 +171,9 @@ def main(argv: list[str] | None = None) -> None:
     if args.output.exists():  # keep the systems not rerun this time
         out = json.loads(args.output.read_text())
     out.setdefault("systems", {})
-    out["machine"] = machine_info()
-    out["command"] = " ".join([Path(sys.executable).name, *sys.argv])
+    # paper_figures/figure3_imbalance.py prints the machine next to the figure.
+    out["machine"] = machine()
+    out["command"] = command_line(None if argv is None else [__file__, *argv])
     out["description"] = ("wall seconds of single simulations at prior draws (paper Figure 3); failures "
                           "included with their status")
     if "water" in systems:
@@ -188,8 +188,7 @@ def main(argv: list[str] | None = None) -> None:
         out["systems"]["helium"] = measure_helium(args.helium_num, args.seed, args.helium_preset, overrides)
         out["systems"]["helium"]["command"] = out["command"]
         print("helium:", json.dumps(out["systems"]["helium"]["stats_all"]))
-    args.output.parent.mkdir(parents=True, exist_ok=True)
-    args.output.write_text(json.dumps(out, indent=1))
+    write_result(args.output, out, part=systems, command=out["command"])
     draw = runpy.run_path(str(ROOT / "paper_figures" / "figure3_imbalance.py"))["draw"]
     draw(args.output, args.figure)
     print(f"wrote {args.output} and {args.figure}")

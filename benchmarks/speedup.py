@@ -50,7 +50,6 @@ import argparse
 import json
 import math
 import os
-import platform
 import runpy
 import subprocess
 import sys
@@ -655,12 +654,7 @@ def main(argv: list[str] | None = None) -> None:
     if args.real_job:
         return real_job(*args.real_job)
 
-    from jaxabc.results import versions
-
     out = json.loads(args.output.read_text()) if args.output.exists() else {}
-    out["machine"] = {"platform": platform.platform(), "processor": platform.processor() or platform.machine(),
-                      "cpu_count": os.cpu_count(), "load_average": list(os.getloadavg()), "versions": versions(),
-                      "date_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())}
     out["command"] = " ".join([Path(sys.executable).name, *sys.argv])
     # The parts can be rerun one at a time; keep the command that produced each.
     out["commands"] = {**out.get("commands", {}), **{part: out["command"] for part in args.parts}}
@@ -700,8 +694,12 @@ def main(argv: list[str] | None = None) -> None:
     if "real" in args.parts:
         out["real"] = {"how": "actual GROMACS simulations on 1 and 2 MPI worker ranks (this machine: 2 shared "
                               "cores)", **real_study(args.real_num, args.seed, args.timeout)}
-    args.output.parent.mkdir(parents=True, exist_ok=True)
-    args.output.write_text(json.dumps(out, indent=1))
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    from _common import write_result
+
+    out.pop("machine", None)  # written before provenance existed; the provenance holds the machine now
+    source = args.records or args.imbalance
+    write_result(args.output, out, part=args.parts, inputs=[source] if source.exists() else [])
     draw = runpy.run_path(str(ROOT / "paper_figures" / "figure4_speedup.py"))["draw"]
     draw(args.output, args.figure)
     print(f"wrote {args.output} and {args.figure}")

@@ -21,6 +21,8 @@ Usage (all cores, one single-threaded ``gmx mdrun`` per worker)::
     python benchmarks/water_calibration.py --data simulated --statistics robust
     python benchmarks/water_calibration.py --data xray --statistics paper --predictive 20
     python benchmarks/water_calibration.py --data neutron --statistics robust --validation-ps 1000
+    python benchmarks/water_calibration.py --quick --data simulated    # a few min: 30 particles, 2 steps,
+                                                                       # 5 ps runs, into results/quick/
 
 Failures: with the paper's prior U[0.281, 0.53] x U[0.2, 0.9] most draws do not stay liquid at
 298 K and 1 atm (measured with 2 ps quick runs: 11 of 12 prior draws vaporised, density < 500
@@ -58,6 +60,9 @@ import jaxabc  # noqa: E402
 from md.water import datasets, make_simulator  # noqa: E402
 from md.water.gromacs import TIP4P_PARAMETERS, find_gmx  # noqa: E402
 from md.water.statistics import ROBUST_GRID_NM, STATISTIC_NAMES, STATISTIC_UNITS  # noqa: E402
+
+sys.path.insert(0, str(ROOT / "benchmarks"))
+from _common import QUICK_RESULTS, command_line, declare_input, write_result  # noqa: E402
 
 TIP4P_THETA = np.array([TIP4P_PARAMETERS.sigma_ow_nm, TIP4P_PARAMETERS.epsilon_ow_kj_mol])
 PRIOR_LOW, PRIOR_HIGH = (0.281, 0.2), (0.53, 0.9)
@@ -110,7 +115,16 @@ def parse_arguments(argv=None) -> argparse.Namespace:
     parser.add_argument("--out-dir", type=Path, default=ROOT / "benchmarks" / "results")
     parser.add_argument("--checkpoint-dir", type=Path, default=None)
     parser.add_argument("--resume", action="store_true")
-    return parser.parse_args(argv)
+    parser.add_argument("--quick", action="store_true",
+                        help="reproduction check: 30 particles, 2 steps, 5 ps MD runs, unscaled distance (a pilot "
+                             "of prior draws, mostly vapour, would need ~100 runs), no predictive or validation "
+                             "runs, written to benchmarks/results/quick/")
+    args = parser.parse_args(argv)
+    if args.quick:
+        # 30 particles keep 3 (APMCABC needs 2) although ~90 % of prior draws vaporise.
+        args.particles, args.steps, args.md_steps, args.scale = 30, 2, 2500, "none"
+        args.predictive, args.validation_ps, args.out_dir = 0, 0.0, QUICK_RESULTS
+    return args
 
 
 def protocol_overrides(args) -> dict:
@@ -358,7 +372,11 @@ def validation_table(args, estimate: np.ndarray) -> dict:
 # ---------------------------------------------------------------------------- main
 
 
-def validation_only(args) -> dict:
+def _command(argv: list[str] | None) -> str:
+    return command_line(None if argv is None else [__file__, *argv])
+
+
+def validation_only(args, argv: list[str] | None = None) -> dict:
     """Add the Table-2 properties to an existing calibration's JSON entry."""
     if not args.validation_ps:
         raise SystemExit("--validation-only needs --validation-ps (the run length in ps, e.g. 1000)")
@@ -368,7 +386,8 @@ def validation_only(args) -> dict:
     if args.statistics not in everything:
         raise SystemExit(f"{path} has no {args.statistics!r} entry: run the calibration first")
     everything[args.statistics]["validation"] = validation_table(args, result.bayes_estimate())
-    path.write_text(json.dumps(everything, indent=2))
+    write_result(path, everything, part=args.statistics, inputs=[args.validation_only],
+                 command=_command(argv))
     print(json.dumps(everything[args.statistics]["validation"], indent=1))
     return everything[args.statistics]
 
@@ -377,7 +396,7 @@ def main(argv=None) -> dict:
     args = parse_arguments(argv)
     find_gmx()  # refuse early, with the install command, if GROMACS is missing
     if args.validation_only is not None:
-        return validation_only(args)
+        return validation_only(args, argv)
     scale_mode = args.scale or ("pilot" if args.statistics == "robust" else "none")
     kind = "simulated" if args.data == "simulated" else args.data
     simulate = make_simulator(args.preset, args.statistics, observed_kind=kind,
@@ -448,7 +467,8 @@ def main(argv=None) -> dict:
     path = args.out_dir / f"water_{args.data}.json"
     everything = json.loads(path.read_text()) if path.exists() else {}
     everything[args.statistics] = entry
-    path.write_text(json.dumps(everything, indent=2))
+    declare_input(datasets.DATA_DIR)
+    write_result(path, everything, part=args.statistics, command=_command(argv))
     print(result.summary())
     print(f"wrote {path}")
     return entry

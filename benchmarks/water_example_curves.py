@@ -18,6 +18,7 @@ Writes ``benchmarks/results/water_example_curves.json`` (drawn by
 Usage::
 
     nice -n 15 python benchmarks/water_example_curves.py [--seed 0]
+    python benchmarks/water_example_curves.py --quick   # same run, written to results/quick/
 """
 
 from __future__ import annotations
@@ -33,7 +34,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from _common import write_result
+from _common import command_line, write_result
 
 from md.water import make_simulator
 from md.water.analysis import WaterCurves, compute_curves, load_trajectory
@@ -70,6 +71,8 @@ def parse_arguments(argv: list[str] | None = None) -> argparse.Namespace:
     """Command-line options."""
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--seed", type=int, default=0, help="second word of the raw JAX key [0, seed]")
+    parser.add_argument("--quick", action="store_true",
+                        help="write benchmarks/results/quick/water_example_curves.json (the run is already quick)")
     return parser.parse_args(argv)
 
 
@@ -117,7 +120,7 @@ def main(argv: list[str] | None = None) -> Path:
                       "msd_fit_window_ps": [float(lag[2]), float(lag[-1])] if lag.size > 2 else None},
         },
         "curves": {"robust": curves_to_json(output.curves), "paper": curves_to_json(paper_curves)},
-    })
+    }, quick=args.quick, command=None if argv is None else command_line([__file__, *argv]))
     for variant, values in (("robust", robust_statistics), ("paper", paper_statistics)):
         print(f"{variant:>6}: " + ", ".join(f"S{i + 1} {v:.4g}" for i, v in enumerate(values)))
     print(f"GROMACS {output.run.wall_time_s:.1f} s, density {output.curves.density_kg_m3:.1f} kg/m3")

@@ -1,0 +1,737 @@
+"""Write the results pages ``docs/results/*.md`` from the saved JSON, never from typed numbers.
+
+Each table names its source JSON and the commit that made it: the ``provenance`` the benchmark
+helper recorded, or, for results saved before provenance existed, the last commit that changed
+the file (``git log``), marked as such, with the later commits that touched the code under it.
+
+Usage::
+
+    python benchmarks/make_docs.py            # rewrite docs/results/
+    python benchmarks/make_docs.py --check    # exit 1 if a page differs from what the JSON gives
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _common import RESULTS, ROOT
+from registry import REGISTRY
+from status import format_cost, status_of
+
+DOCS = ROOT / "docs" / "results"
+#: Code whose later commits the pages list under a result without provenance.
+CODE_PATHS = ("jaxabc", "md")
+
+
+def load(name: str) -> dict[str, Any] | None:
+    """``benchmarks/results/<name>.json``, or None when it is not saved."""
+    path = RESULTS / f"{name}.json"
+    return json.loads(path.read_text()) if path.is_file() else None
+
+
+def _git(*args: str) -> str:
+    out = subprocess.run(["git", *args], cwd=ROOT, capture_output=True, text=True)
+    return out.stdout.strip() if out.returncode == 0 else ""
+
+
+def source(name: str, part: str | None = None, data: dict[str, Any] | None = None) -> str:
+    """One Markdown line: the JSON, the commit that made it, its date and its status now."""
+    rel = f"benchmarks/results/{name}.json"
+    data = data if data is not None else load(name) or {}
+    prov = data.get("provenance_parts", {}).get(part) if part else data.get("provenance")
+    label = f"`{rel}`" + (f" (part `{part}`)" if part else "")
+    if prov:
+        commit = (prov.get("commit") or "?")[:10]
+        dirty = "" if prov.get("tree_clean", True) else " plus uncommitted changes"
+        return (
+            f"Source: {label}, made at commit `{commit}`{dirty} on {prov.get('date_utc', '?')} "
+            f"in {format_cost(prov.get('cost_s'))} by `{prov.get('command', '?')}`."
+        )
+    saved = _git("log", "-1", "--format=%h %ad", "--date=short", "--", rel)
+    if not saved:
+        return f"Source: {label} (not committed yet; no provenance recorded)."
+    commit, date = saved.split(" ", 1)
+    later = _git("rev-list", "--count", f"{commit}..HEAD", "--", *CODE_PATHS) or "?"
+    return (
+        f"Source: {label}, saved at commit `{commit}` ({date}; no provenance recorded: the code "
+        f"version is that of the commit that saved it); {later} later commits changed `jaxabc/` or `md/`."
+    )
+
+
+def table(header: Sequence[str], rows: Sequence[Sequence[Any]]) -> str:
+    """A Markdown table."""
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    lines += ["| " + " | ".join(str(c) for c in row) + " |" for row in rows]
+    return "\n".join(lines)
+
+
+def f(x: float | None, digits: int = 3) -> str:
+    """Fixed-point with ``digits`` decimals; '-' for None."""
+    return "-" if x is None else f"{x:.{digits}f}"
+
+
+def g(x: float | None, digits: int = 3) -> str:
+    """``digits`` significant figures; '-' for None."""
+    return "-" if x is None else f"{x:.{digits}g}"
+
+
+def span(values: Sequence[float], digits: int = 2) -> str:
+    """'a' or 'a-b' for the min and max of ``values``."""
+    lo, hi = f(min(values), digits), f(max(values), digits)
+    return lo if lo == hi else f"{lo}-{hi}"
+
+
+# ----------------------------------------------------------------------------- pages
+
+
+def page_helium_table1() -> str:
+    d = load("helium_table1")
+    if d is None:
+        return "# Helium Table 1\n\nNot saved yet.\n"
+    s, setup = d["summary_over_seeds"], d["setup"]
+    rows = []
+    for name, label in (("apmcabc", "APMCABC"), ("abcsubsim", "ABCsubsim")):
+        rows.append(
+            [
+                label,
+                f"{f(s[f'{name}_d_E_mean'])} +- {f(s[f'{name}_d_E_sd'])}",
+                f"{f(s[f'{name}_gamma_final_mean'])} +- {f(s[f'{name}_gamma_final_sd'])}",
+                f"{s[f'{name}_simulations_mean']:.0f}",
+                d["paper"][name]["d_E"],
+                d["paper"][name]["gamma_final"],
+            ]
+        )
+    per_seed = []
+    for p in d["per_seed"]:
+        for name in ("apmcabc", "abcsubsim"):
+            a = p["algorithms"][name]
+            per_seed.append(
+                [
+                    p["seed"],
+                    name,
+                    f(a["d_E"], 4),
+                    f(a["gamma_final"], 4),
+                    a["simulations"],
+                    a["distinct_particles"],
+                    f(a["effective_sample_size"], 1),
+                    f(a["correlation"], 2),
+                    ", ".join(f(v, 4) for v in a["bayes_estimate"]),
+                ]
+            )
+    return f"""# Helium Table 1 on a CPU
+
+Same observed data, prior, KL distance and {setup["num_particles"]} particles for both algorithms,
+N_step = {setup["num_steps"]}, preset `{setup["preset"]}`; {len(setup["seeds"])} independent repetitions
+(observed data and seed), mean +- sd over them.  d_E is the distance of the Bayes estimate from
+the truth {setup["truth"]} (nm, zJ), gamma_final the final threshold.
+
+{source("helium_table1")}
+
+{table(["algorithm", "d_E (here)", "gamma_final (here)", "simulations", "d_E (paper)", "gamma_final (paper)"], rows)}
+
+Per repetition:
+
+{
+        table(
+            [
+                "seed",
+                "algorithm",
+                "d_E",
+                "gamma_final",
+                "simulations",
+                "distinct particles",
+                "ESS",
+                "corr",
+                "Bayes estimate (nm, zJ)",
+            ],
+            per_seed,
+        )
+    }
+"""
+
+
+def page_identifiability() -> str:
+    d = load("helium_identifiability")
+    if d is None:
+        return "# Helium identifiability\n\nNot saved yet.\n"
+    rows = [
+        [
+            f"`{c['name']}`",
+            f(c["fraction_clearly_wrong_separated"], 2),
+            f(c["fraction_near_truth_separated"], 2),
+            f(c["seed_kl_median"], 3),
+            f(c["seed_kl_q95"], 3),
+            f(c["seconds_per_simulation_batched"], 3),
+            c["num_failed"],
+        ]
+        for c in d["candidates"]
+    ]
+    header = [
+        "candidate preset",
+        "clearly wrong separated",
+        "near truth separated",
+        "seed KL median",
+        "seed KL q95",
+        "s per simulation (batched)",
+        "failed",
+    ]
+    return f"""# Which helium set-up lets the KL distance tell parameters apart?
+
+For each candidate preset: the fraction of grid parameters whose KL distance to the observed f_B
+series exceeds the 95th percentile of the seed-to-seed KL at the truth ("separated"), for
+clearly wrong parameters (more than 10 % of the prior width away) and for the four near the
+truth, and the cost of one simulation on the machine that made the JSON.
+
+{source("helium_identifiability")}
+
+{table(header, rows)}
+"""
+
+
+def page_engine() -> str:
+    parts = [
+        "# Engine throughput: jax-md against LAMMPS\n",
+        "Atom-steps per second per core, both engines timed in the same run (LAMMPS by its own loop "
+        "time).  `single core`: jax-md pinned to one core with single-threaded XLA, rates per CPU "
+        "second; `vmapped`: jax-md on every core XLA gets, wall clock.  Timings depend on the machine "
+        "and its load: compare ratios within one run.\n",
+    ]
+    for name, label in (("engine_throughput_single_core", "single core"), ("engine_throughput", "vmapped")):
+        d = load(name)
+        if d is None:
+            continue
+        rows = []
+        for r in d["records"]:
+            rows.append(
+                [
+                    r["setup"],
+                    r["engine"],
+                    r["batch"],
+                    f"{r['atom_steps_per_second_per_core']:.3e}",
+                    f(r.get("ratio_to_lammps_per_core_same_run"), 2),
+                    r.get("measure", "-"),
+                ]
+            )
+        parts += [
+            f"## {label}\n",
+            source(name) + "\n",
+            table(["setup", "engine", "batch", "atom-steps/s/core", "x LAMMPS (same run)", "clock"], rows) + "\n",
+        ]
+        ps = d.get("per_simulation")
+        if ps:
+            parts.append(
+                f"Per complete ABC simulation of the `{ps['setup']}` preset: jax-md "
+                f"{f(ps['jax_md_core_seconds_per_simulation'], 3)} core-s (batch of {ps['jax_md_batch']}, in "
+                f"process), LAMMPS {f(ps['lammps_core_seconds_per_simulation'], 3)} s as an external program "
+                f"(start-up and files included): "
+                f"{ps['lammps_core_seconds_per_simulation'] / ps['jax_md_core_seconds_per_simulation']:.1f}x in "
+                "jax-md's favour.\n"
+            )
+    return "\n".join(parts)
+
+
+def page_lammps() -> str:
+    d = load("helium_lammps_agreement")
+    if d is None:
+        return "# LAMMPS agreement\n\nNot saved yet.\n"
+    rows = []
+    for r in d["records"]:
+        q = r["quantities"]
+        rows.append(
+            [
+                r["preset"]["name"],
+                ", ".join(str(t) for t in r["theta"]),
+                r["num_seeds"],
+                *(f(q[k]["z"], 2) for k in ("temperature_k", "pressure_atm", "volume_nm3", "f_b")),
+                f"{np.median(r['kl_cross']):.3f} ({span(r['kl_cross'], 3)})",
+                f"{np.median(r['kl_jax_md_seed_to_seed']):.3f} ({span(r['kl_jax_md_seed_to_seed'], 3)})",
+                f(r["seconds"]["jax_md_batched_including_compile"] / r["num_seeds"], 1),
+                f(r["seconds"]["lammps_sequential"] / r["num_seeds"], 1),
+            ]
+        )
+    sources = "\n".join(f"- {source('helium_lammps_agreement', p, d)}" for p in ("cpu", "paper"))
+    return f"""# The helium engine against LAMMPS
+
+jax-md and LAMMPS on the same helium system and settings, independent seeds in each engine.  z is
+the difference of the engines' means in units of its standard error; the KL of the f_B series
+between the engines (cross) is to be read against jax-md's own seed-to-seed KL.
+
+{sources}
+
+{
+        table(
+            [
+                "preset",
+                "theta (nm, zJ)",
+                "seeds",
+                "z T",
+                "z P",
+                "z V",
+                "z mean f_B",
+                "KL cross median (range)",
+                "KL seed-to-seed median (range)",
+                "jax-md s/run (with compile)",
+                "LAMMPS s/run",
+            ],
+            rows,
+        )
+    }
+"""
+
+
+def _coverage_label(case: dict[str, Any]) -> str:
+    s = case["settings"]
+    if case["algorithm"] == "apmcabc":
+        return f"APMCABC N = {s['num_particles']}, alpha {s['alpha']}"
+    return f"rejection ABC, {s['num_particles']} particles"
+
+
+def page_coverage() -> str:
+    d = load("coverage")
+    if d is None:
+        return "# Coverage\n\nNot saved yet.\n"
+    rows = []
+    for c in d["cases"]:
+        h = c["hpd_coverage"]
+        rows.append(
+            [
+                _coverage_label(c),
+                f"{c['median_posterior_size']:.0f} ({c['median_ess']:.1f})",
+                *(f(h[q][0], 2) for q in ("0.5", "0.9", "0.95")),
+                span(c["interval_coverage"]["0.95"][0], 2),
+                " / ".join(f(c["abc_posterior_hpd_coverage"][q], 2) for q in ("0.5", "0.9", "0.95")),
+                c["num_datasets"],
+            ]
+        )
+    return f"""# Do the credible regions hold what they claim?
+
+Simulation-based calibration on the correlated Gaussian problem ({d["problem"]}): how often each
+region holds the truth over the data sets.  Posterior: median number of final particles (median
+ESS).  The last column is what the exact ABC posterior at each run's final tolerance would cover
+(analytic, HPD 50 / 90 / 95 %).
+
+{source("coverage")}
+
+{
+        table(
+            [
+                "run",
+                "posterior (ESS)",
+                "HPD 50 %",
+                "HPD 90 %",
+                "HPD 95 %",
+                "95 % intervals",
+                "exact ABC at its tolerance",
+                "data sets",
+            ],
+            rows,
+        )
+    }
+"""
+
+
+ORDERS = (
+    ("dynamic", "arrival"),
+    ("dynamic_longest_first", "longest predicted first"),
+    ("dynamic_lpt_oracle", "true durations (LPT, a bound)"),
+)
+
+
+def _speedup_tables(name: str) -> str:
+    d = load(name)
+    if d is None:
+        return f"`{name}.json` not saved yet.\n"
+    algos = d["model"]["algorithms"]
+    rows = []
+    for key, label in ORDERS:
+        cells = [label]
+        for field, powers in (
+            ("makespan_over_lower_bound_max", True),
+            ("makespan_over_lower_bound_max", False),
+            ("makespan_over_tight_lower_bound_max", False),
+        ):
+            pair = []
+            for alg in ("apmcabc", "abcsubsim"):
+                n = np.asarray(algos[alg]["n"])
+                vals = np.asarray(algos[alg][key][field])
+                mask = ((n & (n - 1)) == 0) & (n <= 1024) if powers else np.ones(n.size, bool)
+                pair.append(f(float(vals[mask].max()), 2))
+            cells.append(" / ".join(pair))
+        rows.append(cells)
+    settings = d["model"]["settings"]
+    durations = d["distribution"].get("source", "")
+    out = [
+        source(name, "model", d) + "\n",
+        f"N = {settings['num_particles']}, alpha {settings['alpha']}, P0 {settings['p0']}, "
+        f"{settings['steps']} steps, {settings['reps']} repetitions; durations: {durations}" + "\n",
+        table(
+            ["order (APMCABC / ABCsubsim)", "n = 1, 2, 4, ..., 1024", "every n", "every n, over the pigeonhole bound"],
+            rows,
+        )
+        + "\n",
+    ]
+    noise = d["model"].get("prediction_noise")
+    if noise:
+        sds = list(noise["apmcabc"]["by_log_error_sd"])
+        nrows = [
+            [
+                s,
+                *(f(noise[a]["by_log_error_sd"][s]["worst_over_tight_bound"], 3) for a in ("apmcabc", "abcsubsim")),
+                *(f(noise[a]["by_log_error_sd"][s]["worst_over_plain_bound"], 3) for a in ("apmcabc", "abcsubsim")),
+            ]
+            for s in sds
+        ]
+        out += [
+            "Predictions equal to the true durations times exp(s Z), worst makespan in the hard range of n "
+            f"(APMCABC n = {noise['apmcabc']['n'][0]}-{noise['apmcabc']['n'][-1]}, ABCsubsim "
+            f"n = {noise['abcsubsim']['n'][0]}-{noise['abcsubsim']['n'][-1]}):\n",
+            table(
+                [
+                    "s",
+                    "APMCABC / pigeonhole bound",
+                    "ABCsubsim / pigeonhole bound",
+                    "APMCABC / plain bound",
+                    "ABCsubsim / plain bound",
+                ],
+                nrows,
+            )
+            + "\n",
+        ]
+    eff = d.get("targets", {}).get("apmcabc_efficiency_0.8")
+    if eff:
+        out.append(
+            f"At n = {eff['n'][-1]} (every APMCABC task on its own worker) no scheduler beats efficiency = "
+            f"mean / max duration = {f(eff['efficiency_ceiling_any_scheduler'][-1], 2)}.\n"
+        )
+    hard = d.get("targets", {}).get("dynamic_within_1.1x_lower_bound", {}).get("n_where_no_scheduler_is_within_1.1x")
+    if hard:
+        out.append(
+            f"No schedule can come within 1.1x of max(total/n, longest) at n = {hard['apmcabc']} (APMCABC) "
+            f"and {hard['abcsubsim']} (ABCsubsim): the pigeonhole bound is above it there.\n"
+        )
+    return "\n".join(out)
+
+
+def page_speedup() -> str:
+    return f"""# Speedup and scheduling
+
+Discrete-event model of a whole ABC run on n workers: makespan over max(total/n, longest task),
+worst over n and repetitions, for each queue order.  The pigeonhole bound (some worker runs k + 1
+of the k n + 1 longest tasks) is what any schedule of indivisible tasks must exceed.
+
+## Neutron water calibration's records
+
+{_speedup_tables("speedup")}
+
+## Simulated-water calibration's records
+
+{_speedup_tables("speedup_model_simulated_records")}
+"""
+
+
+def page_abc_overhead() -> str:
+    d = load("abc_overhead")
+    if d is None:
+        return "# ABC overhead\n\nNot saved yet.\n"
+    rows = []
+    for r in d["rows"]:
+        ab = r.get("abcpy_0_6_3", {})
+        rows.append(
+            [
+                r["num_particles"],
+                r["dim"],
+                f(r["jax_kernels"]["median_s"] * 1e3, 2),
+                f(r["jax_driver"]["per_step_s"] * 1e3, 1),
+                f(r["numpy"]["median_s"] * 1e3, 2),
+                f(ab["step_s"], 2) if "step_s" in ab else ab.get("error", "-"),
+                f(r["numpy_over_jax"], 1),
+                f(r.get("abcpy_over_jax"), 0),
+                f(r.get("abcpy_over_jax_driver"), 0),
+            ]
+        )
+    return f"""# Cost of one APMCABC step without simulation
+
+One step (resample, perturb, weights, merge, quantile, covariance) with synthetic distances;
+ABCpy 0.6.3's step is the difference of a 2-step and a 1-step run.  Times on the machine that
+made the JSON.
+
+{source("abc_overhead")}
+
+{
+        table(
+            [
+                "N",
+                "d",
+                "jaxabc kernels (ms)",
+                "jaxabc driver step (ms)",
+                "NumPy (ms)",
+                "ABCpy 0.6.3 (s)",
+                "NumPy / jaxabc",
+                "ABCpy / jaxabc kernels",
+                "ABCpy / jaxabc driver",
+            ],
+            rows,
+        )
+    }
+"""
+
+
+WATER_LABELS = {
+    "simulated": "simulated at TIP4P",
+    "xray": "X-ray g_OO (Skinner 2013)",
+    "neutron": "neutron g_OO, g_OH (Soper 2013 EPSR)",
+}
+
+
+def page_water() -> str:
+    rows, sources, validation = [], [], []
+    saving_commits: set[str] = set()
+    for data in ("simulated", "xray", "neutron"):
+        d = load(f"water_{data}")
+        if d is None:
+            continue
+        for stats in ("robust", "paper"):
+            e = d.get(stats)
+            if not e:
+                continue
+            ci = e["credible_interval_95"]
+            paper = e["paper"]
+            rows.append(
+                [
+                    WATER_LABELS[data],
+                    f"{stats} ({e['settings']['particles']} particles)",
+                    f"{f(e['bayes_estimate'][0], 4)} [{f(ci[0][0], 4)}, {f(ci[0][1], 4)}]",
+                    f"{f(e['bayes_estimate'][1])} [{f(ci[1][0])}, {f(ci[1][1])}]",
+                    f(e["correlation"], 3),
+                    f"{e['num_simulations']} ({e['num_failures']})",
+                    f(e["final_threshold"], 3),
+                    format_cost(e["wall_time_s"]),
+                    f"{paper['bayes_estimate'][0]}, {paper['bayes_estimate'][1]}, {paper['correlation']}",
+                ]
+            )
+            sources.append(f"- {source(f'water_{data}', stats, d)}")
+            if not d.get("provenance_parts", {}).get(stats):
+                saving_commits.add(_git("log", "-1", "--format=%h", "--", f"benchmarks/results/water_{data}.json"))
+            v = e.get("validation")
+            if v:
+                for point in ("bayes_estimate", "tip4p"):
+                    p = v[point]
+                    validation.append(
+                        [
+                            f"{data} {stats} {point.replace('_', ' ')} ({f(p['theta'][0], 4)}, {f(p['theta'][1])})",
+                            f"{p['density_kg_m3']:.1f} +- {p['density_se']:.1f}",
+                            f"{p['compressibility_per_bar'] * 1e6:.0f} +- {p['compressibility_se'] * 1e6:.0f}",
+                            f"{p['heat_capacity_j_mol_k']:.1f} +- {p['heat_capacity_se']:.1f}",
+                            f"{p['dielectric_constant']:.0f}",
+                        ]
+                    )
+                x = v["experiment"]
+                exp_row = [
+                    "experiment (298 K)",
+                    x["density_kg_m3"],
+                    f"{x['compressibility_per_bar'] * 1e6:.1f}",
+                    x["heat_capacity_j_mol_k"],
+                    x["dielectric_constant"],
+                ]
+    # The oldest commit that saved one of these results: every later change to the water pipeline,
+    # the criticism catalogue or the inference core is one that some of them predate.
+    saved = sorted(c for c in saving_commits if c)
+    oldest = max(saved, key=lambda c: int(_git("rev-list", "--count", f"{c}..HEAD") or 0)) if saved else None
+    predate = ""
+    if oldest:
+        predate = _git(
+            "log",
+            "--format=- `%h` %ad %<(100,trunc)%s",
+            "--date=short",
+            f"{oldest}..HEAD",
+            "--",
+            "md/water",
+            "md/criticism_catalogue.py",
+            "jaxabc",
+        )
+    predate = "\n".join(line.rstrip() for line in predate.splitlines())
+    out = f"""# Water calibrations (GROMACS TIP4P, quick preset)
+
+APMCABC, alpha 0.1, acceptance cutoff 0.03, prior U[0.281, 0.53] nm x U[0.2, 0.9] kJ/mol;
+`robust` statistics with the pilot-MAD-scaled mean absolute difference, `paper` statistics with
+the paper's mean absolute difference.  Bayes estimate [95 % interval] (read these intervals as
+roughly 75 % intervals: see the coverage page); simulations (failed); wall time on the machine
+that made them.
+
+{
+        table(
+            [
+                "data",
+                "statistics",
+                "sigma_OW (nm)",
+                "epsilon_OW (kJ/mol)",
+                "corr.",
+                "sims (failed)",
+                "final threshold",
+                "wall time",
+                "paper (sigma, epsilon, corr.)",
+            ],
+            rows,
+        )
+    }
+
+Which code made them: these hours-long runs were saved before results recorded their provenance,
+so the code version is that of the commit that saved each JSON part (the commit of the last
+change to the file bounds it from above):
+
+{chr(10).join(sources)}
+
+Commits after the oldest of these (`{oldest}`) that changed the water pipeline, the criticism
+catalogue or the inference core (`jaxabc/`), newest first; each result predates those made after
+the commit that saved it:
+
+{predate or "- (none)"}
+"""
+    if validation:
+        out += (
+            "\n## Validation properties (the paper's Table 2)\n\n"
+            + table(
+                ["parameters", "density (kg/m3)", "kappa_T (1e-6/bar)", "C_p (J/mol/K)", "epsilon"],
+                [*validation, exp_row],
+            )
+            + "\n"
+        )
+    return out
+
+
+def page_criticism() -> str:
+    parts = [
+        "# Model criticism of calibrated TIP4P water\n",
+        "Posterior-predictive misfits, ranked causes from the water catalogue, the refit with the top "
+        "cause, and the held-out gain.  GROMACS quick preset.\n",
+    ]
+    for name, label in (("criticism_water_neutron", "Neutron data"), ("criticism_water", "X-ray data")):
+        d = load(name)
+        if d is None:
+            continue
+        misfits = [
+            [
+                m["name"],
+                f(m["observed"], 3),
+                f"{f(m['band'][0], 3)}-{f(m['band'][1], 3)}",
+                f(m["residual"], 1),
+                g(m["adjusted_p_value"], 2),
+                "held out" if m["held_out"] else "fitted",
+            ]
+            for m in d["misfits"][:8]
+        ]
+        causes = [
+            [
+                c["name"],
+                f(c["score"], 1),
+                f"{100 * c['fraction_explained']:.0f} %",
+                g(c["adjusted_p_value"], 2),
+                "yes" if c["ambiguous"] else "no",
+                c.get("note", ""),
+            ]
+            for c in d["causes"]
+        ]
+        ext = d["extension"]
+        est = ", ".join(
+            f"{n} {f(b, 4)} [{f(lo, 4)}, {f(hi, 4)}]"
+            for n, b, (lo, hi) in zip(ext["names"], ext["bayes_estimate"], ext["ci95"], strict=True)
+        )
+        gain = d["gain"]
+        parts += [
+            f"## {label}\n",
+            source(name, data=d) + "\n",
+            f"Held out: {', '.join(d['held_out'])}; base fit: {d['base_result']}; wall time "
+            f"{format_cost(d['wall_time_s'])}.\n",
+            f"Verdict: {d['verdict']}\n",
+            table(["misfit", "observed", "predictive 90 % band", "z", "adjusted p", ""], misfits) + "\n",
+            table(["cause", "score", "explains", "adjusted p", "ambiguous", "note"], causes) + "\n",
+            f"Refit with the top cause: {est}.  Held-out delta log predictive density "
+            f"{f(gain['delta_lpd'], 2)} +- {f(gain['delta_lpd_se'], 2)} (exceeds its uncertainty: "
+            f"{'yes' if gain['significant'] else 'no'}); the new parameter's posterior is "
+            f"{100 * gain['effect_contraction']:.0f} % narrower than its prior; gain counted: "
+            f"{'yes' if gain['significant'] and gain['effect_excludes_null'] else 'no'}.\n",
+        ]
+    return "\n".join(parts)
+
+
+def page_index() -> str:
+    rows = []
+    for e in REGISTRY:
+        st = status_of(e)
+        rows.append(
+            [
+                f"`{e.name}`",
+                st.state,
+                format_cost(st.cost_s) + ("" if st.cost_source == "recorded" else " (est.)"),
+                ", ".join(st.changed[:3]) + (" ..." if len(st.changed) > 3 else ""),
+            ]
+        )
+    return f"""# Results
+
+Every number on these pages is read from `benchmarks/results/*.json` by `benchmarks/make_docs.py`;
+each table names its JSON and the commit that made it.  `python benchmarks/status.py` says which
+results the current code still produces, `python benchmarks/regenerate.py --budget 1h` reruns the
+stale ones that fit, and `python3 -m pytest -m slow tests/test_benchmarks_repro.py` checks that
+every benchmark's quick mode reproduces its saved numbers.
+
+- [Helium Table 1](helium_table1.md) and [the choice of the CPU preset](helium_identifiability.md)
+- [Engine throughput](engine_throughput.md) and [agreement with LAMMPS](lammps_agreement.md)
+- [Coverage of credible regions](coverage.md)
+- [Speedup and scheduling](speedup.md)
+- [Cost of an ABC step](abc_overhead.md)
+- [Water calibrations](water_calibrations.md)
+- [Model criticism of water](criticism.md)
+
+Status when these pages were generated:
+
+{table(["result", "state", "cost", "changed since"], rows)}
+"""
+
+
+PAGES: dict[str, Callable[[], str]] = {
+    "index.md": page_index,
+    "helium_table1.md": page_helium_table1,
+    "helium_identifiability.md": page_identifiability,
+    "engine_throughput.md": page_engine,
+    "lammps_agreement.md": page_lammps,
+    "coverage.md": page_coverage,
+    "speedup.md": page_speedup,
+    "abc_overhead.md": page_abc_overhead,
+    "water_calibrations.md": page_water,
+    "criticism.md": page_criticism,
+}
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Write (or with ``--check`` compare) every page; exit 1 when a checked page differs."""
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--check", action="store_true", help="compare instead of writing")
+    parser.add_argument("--out", type=Path, default=DOCS)
+    args = parser.parse_args(argv)
+    differ = []
+    for name, render in PAGES.items():
+        text = render().rstrip() + "\n"
+        path = args.out / name
+        if args.check:
+            if not path.is_file() or path.read_text() != text:
+                differ.append(name)
+            continue
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(text)
+    if differ:
+        print(f"out of date: {', '.join(differ)} (run python benchmarks/make_docs.py)")
+        return 1
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,313 @@
+"""The one table of saved results: what writes each, its full and quick commands, and its cost.
+
+``benchmarks/status.py`` checks every entry's provenance, ``benchmarks/regenerate.py`` reruns the
+stale ones, and ``tests/test_benchmarks_repro.py`` reruns every quick command and compares its
+numbers with the saved quick JSON.  A new benchmark adds one :class:`Entry` here.
+
+Commands are run from the repository root with ``PYTHONPATH`` set to it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+__all__ = ["REGISTRY", "TIMING_KEYS", "Entry", "by_name"]
+
+#: Key patterns (fnmatch, on the key alone) that hold wall/CPU times, loads or rates derived from
+#: them: they differ from run to run and are left out of the exact reproduction comparison.
+TIMING_KEYS = (
+    "*seconds*",
+    "*_s",
+    "*time*",
+    "*per_second*",
+    "*per_core*",
+    "load_average*",
+    "*ratio_to_lammps*",
+    "*_over_jax*",
+    "numpy_over_jax",
+    "*fraction_of_step*",
+    "cost_s",
+)
+
+
+@dataclass(frozen=True)
+class Entry:
+    """One saved result (or one part of a result file that several commands fill in).
+
+    Attributes
+    ----------
+    name
+        Unique name, ``<file stem>`` or ``<file stem>:<part>``.
+    output
+        Result JSON, relative to the repository root.
+    full
+        Command that regenerates the saved result.
+    part
+        Part of ``output`` this command writes (``provenance_parts`` key), or None for the whole file.
+    quick, quick_output
+        A quick command (at most a few minutes on 2 cores) and the JSON it writes; None when the
+        entry shares another entry's quick mode or has none.
+    long
+        Hours-long runs (water calibrations, criticism): listed with their cost, never chosen by a
+        budget under their cost.
+    legacy_cost_keys
+        ``/``-separated paths of wall-time fields in results written before provenance existed;
+        their sum estimates the cost when the JSON records no ``cost_s``.
+    estimated_cost_s
+        Seconds to assume when neither a recorded cost nor legacy fields exist.
+    requires
+        Programs the command needs (``gmx``, ``lmp``, ``mpiexec``).
+    compare_tolerance
+        Relative tolerance of the quick comparison (0: exact); non-zero only where XLA's
+        vectorised rounding may differ between runs, with the reason in ``note``.
+    ignore_keys
+        Further key patterns left out of the quick comparison (beyond :data:`TIMING_KEYS`).
+    note
+        What a reader of ``status`` should know.
+    """
+
+    name: str
+    output: str
+    full: str
+    part: str | None = None
+    quick: str | None = None
+    quick_output: str | None = None
+    long: bool = False
+    legacy_cost_keys: tuple[str, ...] = ()
+    estimated_cost_s: float | None = None
+    requires: tuple[str, ...] = ()
+    compare_tolerance: float = 0.0
+    ignore_keys: tuple[str, ...] = ()
+    note: str = ""
+
+
+R = "benchmarks/results"
+Q = "benchmarks/results/quick"
+
+REGISTRY: tuple[Entry, ...] = (
+    Entry(
+        "helium_table1",
+        f"{R}/helium_table1.json",
+        "python benchmarks/helium_table1.py --num-particles 500 --seeds 0 1 2",
+        quick="python benchmarks/helium_table1.py --quick",
+        quick_output=f"{Q}/helium_table1.json",
+        legacy_cost_keys=("total_wall_time_s",),
+    ),
+    Entry(
+        "helium_identifiability",
+        f"{R}/helium_identifiability.json",
+        "python benchmarks/helium_identifiability.py",
+        quick="python benchmarks/helium_identifiability.py --quick",
+        quick_output=f"{Q}/helium_identifiability.json",
+        estimated_cost_s=600.0,
+        note="no recorded time; the script's docstring says about 10 minutes on 2 cores",
+    ),
+    Entry(
+        "helium_lammps_agreement:cpu",
+        f"{R}/helium_lammps_agreement.json",
+        "python benchmarks/helium_lammps_agreement.py",
+        part="cpu",
+        quick=f"python benchmarks/helium_lammps_agreement.py --seeds 4 --output {Q}/helium_lammps_agreement.json",
+        quick_output=f"{Q}/helium_lammps_agreement.json",
+        estimated_cost_s=120.0,
+        requires=("lmp",),
+        note="no recorded time; the script's docstring says about 1 minute",
+    ),
+    Entry(
+        "helium_lammps_agreement:paper",
+        f"{R}/helium_lammps_agreement.json",
+        "python benchmarks/helium_lammps_agreement.py --preset paper --seeds 4",
+        part="paper",
+        estimated_cost_s=900.0,
+        requires=("lmp",),
+        note="no recorded time; the script's docstring says about 15 minutes on 2 cores",
+    ),
+    Entry(
+        "coverage",
+        f"{R}/coverage.json",
+        "python benchmarks/coverage.py",
+        quick="python benchmarks/coverage.py --quick",
+        quick_output=f"{Q}/coverage.json",
+        legacy_cost_keys=("cases/*/seconds",),
+    ),
+    Entry(
+        "abc_overhead",
+        f"{R}/abc_overhead.json",
+        "python benchmarks/abc_overhead.py --sizes 1000 5000 20000 --dims 2 9 --abcpy-sizes 1000 5000 "
+        "--abcpy-python /tmp/abcpyenv/bin/python --repeats 5",
+        quick=f"python benchmarks/abc_overhead.py --sizes 1000 --dims 2 --repeats 2 --abcpy-sizes 0 "
+        f"--output {Q}/abc_overhead.json",
+        quick_output=f"{Q}/abc_overhead.json",
+        estimated_cost_s=900.0,
+        note="timings only: the quick comparison checks the rows' settings, not their times; the full "
+        "command needs a venv with abcpy==0.6.3 at /tmp/abcpyenv (skipped, with the reason in the "
+        "JSON, when missing); no recorded time, ABCpy's 900 s timeout bounds it",
+    ),
+    Entry(
+        "engine_throughput",
+        f"{R}/engine_throughput.json",
+        "python benchmarks/engine_throughput.py",
+        quick=f"python benchmarks/engine_throughput.py --quick --output {Q}/engine_throughput.json",
+        quick_output=f"{Q}/engine_throughput.json",
+        estimated_cost_s=600.0,
+        requires=("lmp",),
+        note="timings: the quick comparison checks step counts and rebuild counts; run on a quiet machine",
+    ),
+    Entry(
+        "engine_throughput_single_core",
+        f"{R}/engine_throughput_single_core.json",
+        "python benchmarks/engine_throughput.py --single-core --quick",
+        estimated_cost_s=600.0,
+        requires=("lmp",),
+        note="timings on one pinned core; run on a quiet machine",
+    ),
+    Entry(
+        "imbalance:water",
+        f"{R}/imbalance.json",
+        "python benchmarks/imbalance.py --systems water --num 24 --workers 2",
+        part="water",
+        legacy_cost_keys=("systems/water/batch_wall_seconds",),
+        requires=("gmx",),
+    ),
+    Entry(
+        "imbalance:helium",
+        f"{R}/imbalance.json",
+        "python benchmarks/imbalance.py --systems helium --helium-num 32",
+        part="helium",
+        quick="python benchmarks/imbalance.py --quick",
+        quick_output=f"{Q}/imbalance.json",
+        ignore_keys=("stats_all", "stats_ok", "stats_failed"),
+        legacy_cost_keys=("systems/helium/wall_time_s/*", "systems/helium/compile_seconds"),
+    ),
+    Entry(
+        "speedup:model",
+        f"{R}/speedup.json",
+        "python benchmarks/speedup.py --parts model --records benchmarks/results/water_neutron_robust.npz",
+        part="model",
+        quick="python benchmarks/speedup.py --parts model --records benchmarks/results/water_neutron_robust.npz "
+        f"--reps 1 --num-particles 500 --output {Q}/speedup.json --figure {Q}/speedup.png",
+        quick_output=f"{Q}/speedup.json",
+        legacy_cost_keys=("model/seconds",),
+    ),
+    Entry(
+        "speedup:ranks",
+        f"{R}/speedup.json",
+        "python benchmarks/speedup.py --parts ranks --records benchmarks/results/water_neutron_robust.npz "
+        "--ranks 1 2 4 8 16 32",
+        part="ranks",
+        estimated_cost_s=900.0,
+        requires=("mpiexec",),
+        note="no recorded time",
+    ),
+    Entry(
+        "speedup:real",
+        f"{R}/speedup.json",
+        "python benchmarks/speedup.py --parts real",
+        part="real",
+        estimated_cost_s=600.0,
+        requires=("mpiexec", "gmx"),
+        note="no recorded time",
+    ),
+    Entry(
+        "speedup_model_simulated_records",
+        f"{R}/speedup_model_simulated_records.json",
+        "python benchmarks/speedup.py --parts model --records benchmarks/results/water_simulated_robust.npz "
+        "--output benchmarks/results/speedup_model_simulated_records.json "
+        "--figure benchmarks/results/speedup_model_simulated_records.png",
+        part="model",
+        legacy_cost_keys=("model/seconds",),
+    ),
+    Entry(
+        "water_example_curves",
+        f"{R}/water_example_curves.json",
+        "python benchmarks/water_example_curves.py",
+        quick="python benchmarks/water_example_curves.py --quick",
+        quick_output=f"{Q}/water_example_curves.json",
+        legacy_cost_keys=("setup/total_wall_time_s",),
+        requires=("gmx",),
+    ),
+    # The water calibrations: their saved JSONs recorded no command; these are rebuilt from the
+    # settings each entry recorded (particles, steps, workers, order, preset) and the water README.
+    Entry(
+        "water_simulated:robust",
+        f"{R}/water_simulated.json",
+        "python benchmarks/water_calibration.py --data simulated --statistics robust --workers 2 --predictive 20",
+        part="robust",
+        long=True,
+        legacy_cost_keys=("robust/wall_time_s",),
+        requires=("gmx",),
+        quick="python benchmarks/water_calibration.py --quick --data simulated --statistics robust --workers 2",
+        quick_output=f"{Q}/water_simulated.json",
+    ),
+    Entry(
+        "water_xray:robust",
+        f"{R}/water_xray.json",
+        "python benchmarks/water_calibration.py --data xray --statistics robust --workers 2 --predictive 20 "
+        "--validation-ps 500",
+        part="robust",
+        long=True,
+        legacy_cost_keys=("robust/wall_time_s",),
+        requires=("gmx",),
+    ),
+    Entry(
+        "water_xray:paper",
+        f"{R}/water_xray.json",
+        "python benchmarks/water_calibration.py --data xray --statistics paper --particles 50 --workers 2 "
+        "--predictive 20",
+        part="paper",
+        long=True,
+        legacy_cost_keys=("paper/wall_time_s",),
+        requires=("gmx",),
+    ),
+    Entry(
+        "water_neutron:robust",
+        f"{R}/water_neutron.json",
+        "python benchmarks/water_calibration.py --data neutron --statistics robust --workers 2 --predictive 20 "
+        "--validation-ps 500",
+        part="robust",
+        long=True,
+        legacy_cost_keys=("robust/wall_time_s",),
+        requires=("gmx",),
+    ),
+    Entry(
+        "water_neutron:paper",
+        f"{R}/water_neutron.json",
+        "python benchmarks/water_calibration.py --data neutron --statistics paper --particles 50 --workers 2 "
+        "--predictive 20",
+        part="paper",
+        long=True,
+        legacy_cost_keys=("paper/wall_time_s",),
+        requires=("gmx",),
+    ),
+    Entry(
+        "criticism_water",
+        f"{R}/criticism_water.json",
+        "python benchmarks/criticism_water.py --data xray --base-result benchmarks/results/water_xray_robust.npz "
+        "--held-out density --workers 2 --num-draws 40 --num-replicates 32 --num-gradient-replicates 12 "
+        "--num-refit-iterations 2 --refit-particles 40 --refit-alpha 0.3 --refit-steps 6",
+        long=True,
+        legacy_cost_keys=("wall_time_s",),
+        requires=("gmx",),
+        quick="python benchmarks/criticism_water.py --tiny --workers 2",
+        quick_output=f"{Q}/criticism_water.json",
+    ),
+    Entry(
+        "criticism_water_neutron",
+        f"{R}/criticism_water_neutron.json",
+        "python benchmarks/criticism_water.py --data neutron --base-result "
+        "benchmarks/results/water_neutron_robust.npz --held-out density --workers 2 --num-draws 40 "
+        "--num-replicates 32 --num-gradient-replicates 12 --num-refit-iterations 2 --refit-particles 40 "
+        "--refit-alpha 0.3 --refit-steps 6",
+        long=True,
+        legacy_cost_keys=("wall_time_s",),
+        requires=("gmx",),
+    ),
+)
+
+
+def by_name(name: str) -> Entry:
+    """The entry called ``name``; ``KeyError`` listing the known names otherwise."""
+    for entry in REGISTRY:
+        if entry.name == name:
+            return entry
+    raise KeyError(f"no benchmark {name!r}; known: {', '.join(e.name for e in REGISTRY)}")

@@ -1,0 +1,266 @@
+"""Which saved results does the current code still produce?  current / stale / unknown.
+
+For every entry of :data:`registry.REGISTRY` (and every other JSON in ``benchmarks/results/``)
+this compares the fingerprint recorded at write time (per-file AST hashes of the project modules
+the run imported, byte hashes of the data it declared) with the files as they are now:
+
+- ``current``: nothing the result depends on changed (a reformatting or a docstring edit does not
+  count: code is hashed without docstrings, comments or layout);
+- ``stale``: some file changed or disappeared (they are named);
+- ``unknown``: the result records no provenance (written before it existed, or by hand).
+
+Modules that the current code would import but the recorded run did not (a new file after a
+split) are seen through the files that import them, which changed.
+
+Usage::
+
+    python benchmarks/status.py            # or: python -m benchmarks.status
+    python benchmarks/status.py --quick    # the quick-mode results under benchmarks/results/quick/
+    python benchmarks/status.py --json
+"""
+
+from __future__ import annotations
+
+import argparse
+import fnmatch
+import json
+import math
+import sys
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _common import ROOT, code_hash, data_hash
+from registry import REGISTRY, TIMING_KEYS, Entry
+
+__all__ = [
+    "Status",
+    "check_provenance",
+    "compare_numbers",
+    "deterministic_view",
+    "legacy_cost",
+    "main",
+    "status_all",
+    "status_of",
+]
+
+
+@dataclass
+class Status:
+    """The state of one saved result.
+
+    ``cost_s`` is the recorded cost (``provenance.cost_s``), else the legacy wall-time fields'
+    sum, else the registry's estimate; ``cost_source`` says which.
+    """
+
+    name: str
+    output: str
+    state: str  # "current", "stale", "unknown" or "missing"
+    changed: list[str] = field(default_factory=list)
+    cost_s: float | None = None
+    cost_source: str = "none"
+    commit: str | None = None
+    date_utc: str | None = None
+    tree_clean: bool | None = None
+    long: bool = False
+    note: str = ""
+
+
+def check_provenance(prov: dict[str, Any], root: Path = ROOT) -> list[str]:
+    """Files recorded in ``prov['fingerprint']`` whose content differs now (empty: current).
+
+    Each entry is a repository-relative path, followed by `` (removed)`` when it no longer exists.
+    """
+    changed = []
+    fp = prov.get("fingerprint", {})
+    for kind, hasher in (("code", code_hash), ("data", data_hash)):
+        for rel, recorded in fp.get(kind, {}).items():
+            path = Path(rel) if Path(rel).is_absolute() else root / rel
+            if not path.is_file():
+                changed.append(f"{rel} (removed)")
+            elif hasher(path) != recorded:
+                changed.append(rel)
+    return changed
+
+
+def _walk(data: Any, keys: list[str]) -> list[Any]:
+    if not keys:
+        return [data]
+    head, rest = keys[0], keys[1:]
+    if head == "*":
+        values = data.values() if isinstance(data, dict) else data if isinstance(data, list) else []
+        return [v for item in values for v in _walk(item, rest)]
+    if isinstance(data, dict) and head in data:
+        return _walk(data[head], rest)
+    return []
+
+
+def legacy_cost(data: dict[str, Any], keys: tuple[str, ...]) -> float | None:
+    """Sum of the wall-time fields at ``/``-separated paths (``*`` for every item), or None."""
+    values = [v for k in keys for v in _walk(data, k.split("/")) if isinstance(v, int | float)]
+    return float(sum(values)) if values else None
+
+
+def _provenance_of(data: dict[str, Any], part: str | None) -> dict[str, Any] | None:
+    if part is None:
+        return data.get("provenance")
+    return data.get("provenance_parts", {}).get(part)
+
+
+def status_of(entry: Entry, quick: bool = False, root: Path = ROOT) -> Status:
+    """Check one registry entry (its quick output with ``quick``)."""
+    output = entry.quick_output if quick else entry.output
+    st = Status(entry.name, output or "", "missing", long=entry.long and not quick, note=entry.note)
+    if output is None:
+        st.state, st.note = "missing", "no quick mode"
+        return st
+    path = root / output
+    if not path.is_file():
+        return st
+    data = json.loads(path.read_text())
+    prov = _provenance_of(data, None if quick else entry.part)
+    if prov is None and quick:
+        prov = _provenance_of(data, entry.part)
+    if prov is None:
+        st.state = "unknown"
+        cost = legacy_cost(data, entry.legacy_cost_keys)
+        if cost is not None:
+            st.cost_s, st.cost_source = cost, "legacy wall-time fields"
+        elif entry.estimated_cost_s is not None:
+            st.cost_s, st.cost_source = entry.estimated_cost_s, "registry estimate"
+        return st
+    st.changed = check_provenance(prov, root)
+    st.state = "stale" if st.changed else "current"
+    st.cost_s, st.cost_source = prov.get("cost_s"), "recorded"
+    st.commit, st.date_utc, st.tree_clean = prov.get("commit"), prov.get("date_utc"), prov.get("tree_clean")
+    return st
+
+
+def status_all(quick: bool = False, root: Path = ROOT) -> list[Status]:
+    """Every registry entry (with a quick mode, for ``quick``) plus unregistered result JSONs."""
+    out = [status_of(e, quick, root) for e in REGISTRY if not quick or e.quick_output]
+    if not quick:
+        known = {e.output for e in REGISTRY}
+        for path in sorted((root / "benchmarks" / "results").glob("*.json")):
+            rel = path.relative_to(root).as_posix()
+            if rel not in known:
+                data = json.loads(path.read_text())
+                prov = data.get("provenance") if isinstance(data, dict) else None
+                st = Status(path.stem, rel, "unknown", note="not in benchmarks/registry.py")
+                if prov is not None:
+                    st.changed = check_provenance(prov, root)
+                    st.state = "stale" if st.changed else "current"
+                out.append(st)
+    return out
+
+
+# ----------------------------------------------------------------------------- reproduction
+
+
+def deterministic_view(data: Any, ignore: tuple[str, ...] = ()) -> Any:
+    """``data`` without provenance, machine records, commands, dates and timing keys."""
+    skip = (
+        *TIMING_KEYS,
+        *ignore,
+        "provenance",
+        "provenance_parts",
+        "machine",
+        "command",
+        "commands",
+        "date_utc",
+        "versions",
+        "description",
+    )
+    if isinstance(data, dict):
+        return {
+            k: deterministic_view(v, ignore)
+            for k, v in data.items()
+            if not any(fnmatch.fnmatchcase(k, p) for p in skip)
+        }
+    if isinstance(data, list):
+        return [deterministic_view(v, ignore) for v in data]
+    return data
+
+
+def compare_numbers(saved: Any, new: Any, rtol: float = 0.0, path: str = "") -> list[str]:
+    """Differences between two JSON trees: structure exactly, numbers within ``rtol`` (0: equal).
+
+    NaN equals NaN; each difference is reported as ``path: saved != new``.
+    """
+    if isinstance(saved, dict) and isinstance(new, dict):
+        diffs = [f"{path}/{k}: only in one" for k in sorted(set(saved) ^ set(new))]
+        for k in sorted(set(saved) & set(new)):
+            diffs += compare_numbers(saved[k], new[k], rtol, f"{path}/{k}")
+        return diffs
+    if isinstance(saved, list) and isinstance(new, list):
+        if len(saved) != len(new):
+            return [f"{path}: length {len(saved)} != {len(new)}"]
+        return [
+            d
+            for i, (a, b) in enumerate(zip(saved, new, strict=True))
+            for d in compare_numbers(a, b, rtol, f"{path}[{i}]")
+        ]
+    numeric = (int, float)
+    if (
+        isinstance(saved, numeric)
+        and isinstance(new, numeric)
+        and not isinstance(saved, bool)
+        and not isinstance(new, bool)
+    ):
+        if math.isnan(saved) and math.isnan(new):
+            return []
+        if saved == new or (rtol and math.isclose(saved, new, rel_tol=rtol, abs_tol=rtol * 1e-6)):
+            return []
+        return [f"{path}: {saved!r} != {new!r}"]
+    return [] if saved == new else [f"{path}: {saved!r} != {new!r}"]
+
+
+# ----------------------------------------------------------------------------- command line
+
+
+def format_cost(seconds: float | None) -> str:
+    """``'12 s'``, ``'3.4 min'``, ``'1.6 h'`` or ``'?'``."""
+    if seconds is None:
+        return "?"
+    if seconds < 120:
+        return f"{seconds:.0f} s"
+    if seconds < 7200:
+        return f"{seconds / 60:.1f} min"
+    return f"{seconds / 3600:.1f} h"
+
+
+def render(rows: list[Status]) -> str:
+    """Plain-text table of the statuses."""
+    lines = [f"{'result':34s} {'state':8s} {'cost':>9s}  {'commit':8s} {'date (UTC)':20s} what changed / note"]
+    for s in rows:
+        cost = format_cost(s.cost_s) + ("*" if s.cost_source not in ("recorded", "none") else "")
+        commit = (s.commit or "-")[:8] + ("+" if s.tree_clean is False else "")
+        detail = ", ".join(s.changed[:6]) + (f" (+{len(s.changed) - 6} more)" if len(s.changed) > 6 else "")
+        if not detail:
+            detail = {"unknown": "no provenance recorded", "missing": "not written yet"}.get(s.state, "")
+        tag = " [long]" if s.long else ""
+        lines.append(f"{s.name + tag:34s} {s.state:8s} {cost:>9s}  {commit:8s} {s.date_utc or '-':20s} {detail}")
+    lines.append(
+        "cost*: estimated (legacy wall-time fields or the registry), not recorded; commit+: uncommitted "
+        "changes at write time"
+    )
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Print the status table; exit status 1 when any result is stale, unknown or missing."""
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--quick", action="store_true", help="the quick-mode results instead")
+    parser.add_argument("--json", action="store_true", help="machine-readable output")
+    args = parser.parse_args(argv)
+    rows = status_all(args.quick)
+    if args.json:
+        print(json.dumps([asdict(r) for r in rows], indent=1))
+    else:
+        print(render(rows))
+    return 0 if all(r.state == "current" for r in rows) else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

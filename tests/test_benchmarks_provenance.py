@@ -1,0 +1,243 @@
+"""Provenance of saved benchmark results: fingerprints, the stale check, the regeneration plan.
+
+Fast: everything runs on small files in a temporary directory; no benchmark runs.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import sys
+import textwrap
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "benchmarks"))
+
+import _common  # noqa: E402
+import regenerate  # noqa: E402
+import registry  # noqa: E402
+import status  # noqa: E402
+
+SOURCE = textwrap.dedent('''
+    """Module docstring."""
+
+    import math
+
+    SCALE = 2.0
+
+
+    def f(x):
+        """Twice x."""
+        return SCALE * math.sqrt(x)  # a comment
+''')
+
+
+def test_code_hash_ignores_docstrings_comments_and_layout(tmp_path: Path) -> None:
+    a, b = tmp_path / "a.py", tmp_path / "b.py"
+    a.write_text(SOURCE)
+    b.write_text(
+        'import math\nSCALE = 2.0\ndef f(x):\n    """Another docstring,\n    two lines."""\n'
+        "    # new comment\n    return SCALE * math.sqrt(\n        x\n    )\n"
+    )
+    assert _common.code_hash(a) == _common.code_hash(b)
+
+
+@pytest.mark.parametrize(
+    "edit",
+    [
+        ("SCALE = 2.0", "SCALE = 2.5"),
+        ("math.sqrt(x)", "math.sqrt(x + 0)"),
+        ('"""Twice x."""\n', '"""Twice x."""\n    x = abs(x)\n'),
+    ],
+)
+def test_code_hash_sees_changes_of_meaning(tmp_path: Path, edit: tuple[str, str]) -> None:
+    a, b = tmp_path / "a.py", tmp_path / "b.py"
+    a.write_text(SOURCE)
+    b.write_text(SOURCE.replace(*edit))
+    assert b.read_text() != a.read_text()
+    assert _common.code_hash(a) != _common.code_hash(b)
+
+
+def test_function_made_only_of_a_docstring_still_hashes(tmp_path: Path) -> None:
+    a = tmp_path / "a.py"
+    a.write_text('def f():\n    """Nothing."""\n')
+    b = tmp_path / "b.py"
+    b.write_text("def f():\n    pass\n")
+    assert _common.code_hash(a) == _common.code_hash(b)
+
+
+@pytest.fixture
+def fake_repo(tmp_path: Path, monkeypatch: pytest.MonkeyPatch):
+    """A repository root with one imported project module and one data file."""
+    (tmp_path / "jaxabc").mkdir()
+    module_file = tmp_path / "jaxabc" / "fake_dependency.py"
+    module_file.write_text(SOURCE)
+    data = tmp_path / "data.txt"
+    data.write_text("1 2 3\n")
+    spec = importlib.util.spec_from_file_location("fake_dependency_for_provenance", module_file)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    monkeypatch.setitem(sys.modules, "fake_dependency_for_provenance", module)
+    monkeypatch.setattr(_common, "ROOT", tmp_path)
+    monkeypatch.setattr(_common, "_declared_inputs", set())
+    # The machine record imports jax for its versions: not what these tests are about.
+    monkeypatch.setattr(_common, "machine", lambda: {"cpu": "test"})
+    return tmp_path
+
+
+def write_fake(root: Path, name: str = "res", **kwargs) -> Path:
+    return _common.write_result(
+        root / "benchmarks" / "results" / f"{name}.json",
+        {"value": 1.5},
+        inputs=[root / "data.txt"],
+        command="python benchmarks/fake.py",
+        **kwargs,
+    )
+
+
+def test_write_result_records_provenance(fake_repo: Path) -> None:
+    data = json.loads(write_fake(fake_repo).read_text())
+    prov = data["provenance"]
+    assert data["value"] == 1.5 and data["benchmark"] == "res"
+    assert prov["command"] == "python benchmarks/fake.py"
+    assert prov["fingerprint"]["code"] == {
+        "jaxabc/fake_dependency.py": _common.code_hash(fake_repo / "jaxabc/fake_dependency.py")
+    }
+    assert list(prov["fingerprint"]["data"]) == ["data.txt"]
+    assert prov["cost_s"] >= 0 and prov["date_utc"].endswith("Z")
+    assert {"commit", "tree_clean", "dirty_files", "machine"} <= set(prov)
+    assert status.check_provenance(prov, fake_repo) == []
+
+
+def test_stale_check_names_what_changed(fake_repo: Path) -> None:
+    prov = json.loads(write_fake(fake_repo).read_text())["provenance"]
+    module_file = fake_repo / "jaxabc/fake_dependency.py"
+    module_file.write_text(SOURCE.replace('"""Twice x."""', '"""Twice x, reworded."""') + "# trailing\n")
+    assert status.check_provenance(prov, fake_repo) == []
+    module_file.write_text(SOURCE.replace("SCALE = 2.0", "SCALE = 3.0"))
+    assert status.check_provenance(prov, fake_repo) == ["jaxabc/fake_dependency.py"]
+    (fake_repo / "data.txt").write_text("1 2 4\n")
+    assert status.check_provenance(prov, fake_repo) == ["jaxabc/fake_dependency.py", "data.txt"]
+    module_file.unlink()
+    assert status.check_provenance(prov, fake_repo)[0] == "jaxabc/fake_dependency.py (removed)"
+
+
+def test_missing_declared_input_is_an_error(fake_repo: Path) -> None:
+    with pytest.raises(FileNotFoundError, match="declared input"):
+        _common.write_result(fake_repo / "r.json", {}, inputs=[fake_repo / "absent.txt"])
+
+
+def test_parts_keep_each_commands_provenance(fake_repo: Path) -> None:
+    path = write_fake(fake_repo, part="cpu")
+    _common.write_result(path, json.loads(path.read_text()), part=["paper", "gpu"], command="python other.py")
+    data = json.loads(path.read_text())
+    assert set(data["provenance_parts"]) == {"cpu", "paper", "gpu"}
+    assert data["provenance_parts"]["cpu"]["command"] == "python benchmarks/fake.py"
+    assert data["provenance_parts"]["paper"]["command"] == "python other.py"
+
+
+def test_status_of_entries(fake_repo: Path) -> None:
+    write_fake(fake_repo, part="a")
+    legacy = fake_repo / "benchmarks/results/legacy.json"
+    legacy.write_text(json.dumps({"runs": [{"seconds": 2.0}, {"seconds": 3.0}]}))
+    entry = registry.Entry("res:a", "benchmarks/results/res.json", "python x.py", part="a")
+    assert status.status_of(entry, root=fake_repo).state == "current"
+    other_part = registry.Entry("res:b", "benchmarks/results/res.json", "python x.py", part="b", estimated_cost_s=7.0)
+    st = status.status_of(other_part, root=fake_repo)
+    assert (st.state, st.cost_s, st.cost_source) == ("unknown", 7.0, "registry estimate")
+    old = registry.Entry(
+        "legacy", "benchmarks/results/legacy.json", "python x.py", legacy_cost_keys=("runs/*/seconds",)
+    )
+    st = status.status_of(old, root=fake_repo)
+    assert (st.state, st.cost_s) == ("unknown", 5.0)
+    absent = registry.Entry("absent", "benchmarks/results/absent.json", "python x.py")
+    assert status.status_of(absent, root=fake_repo).state == "missing"
+    (fake_repo / "data.txt").write_text("changed\n")
+    st = status.status_of(entry, root=fake_repo)
+    assert (st.state, st.changed) == ("stale", ["data.txt"])
+
+
+def test_deterministic_view_and_comparison() -> None:
+    saved = {
+        "d_E": 0.0272,
+        "wall_time_s": 10.0,
+        "rows": [{"seconds": 1.0, "n": 3, "x": float("nan")}],
+        "provenance": {"commit": "a"},
+        "machine": {"cpu": "x"},
+    }
+    rerun = {
+        "d_E": 0.0272,
+        "wall_time_s": 99.0,
+        "rows": [{"seconds": 2.0, "n": 3, "x": float("nan")}],
+        "provenance": {"commit": "b"},
+        "machine": {"cpu": "y"},
+    }
+    view = status.deterministic_view
+    assert status.compare_numbers(view(saved), view(rerun)) == []
+    rerun["d_E"] = 0.0273
+    assert status.compare_numbers(view(saved), view(rerun)) == ["/d_E: 0.0272 != 0.0273"]
+    assert status.compare_numbers(view(saved), view(rerun), rtol=0.01) == []
+    rerun["rows"].append({})
+    assert status.compare_numbers(view(saved), view(rerun))[-1] == "/rows: length 1 != 2"
+
+
+def test_budget_and_plan_run_cheapest_first_within_budget() -> None:
+    assert regenerate.parse_budget("1h") == 3600
+    assert regenerate.parse_budget("1h30m") == 5400
+    assert regenerate.parse_budget("45") == 45
+    with pytest.raises(Exception, match="budget"):
+        regenerate.parse_budget("soon")
+
+    def item(name: str, state: str, cost: float | None, long: bool = False):
+        entry = registry.Entry(name, f"benchmarks/results/{name}.json", f"python {name}.py", long=long)
+        return entry, status.Status(name, entry.output, state, cost_s=cost)
+
+    statuses = [
+        item("big", "stale", 3000.0),
+        item("small", "unknown", 60.0),
+        item("ok", "current", 1.0),
+        item("mid", "stale", 600.0),
+        item("water", "stale", 20000.0, long=True),
+    ]
+    run, skipped = regenerate.plan(statuses, budget_s=3600.0)
+    assert [e.name for e, _, _ in run] == ["small", "mid"]
+    assert [e.name for e, *_ in skipped] == ["big", "water"]
+    assert all("budget" in why for *_, why in skipped)
+
+
+def test_registry_is_consistent() -> None:
+    names = [e.name for e in registry.REGISTRY]
+    assert len(names) == len(set(names))
+    for e in registry.REGISTRY:
+        script = e.full.split()[1]
+        assert (ROOT / script).is_file(), e.name
+        assert e.output.startswith("benchmarks/results/") and e.output.endswith(".json")
+        assert (e.quick is None) == (e.quick_output is None), e.name
+        if e.quick_output:
+            assert e.quick_output.startswith("benchmarks/results/quick/"), e.name
+        if ":" in e.name:
+            assert e.part == e.name.split(":", 1)[1], e.name
+
+
+def test_every_benchmark_script_saves_through_write_result() -> None:
+    tools = {"_common.py", "status.py", "regenerate.py", "registry.py", "make_docs.py"}
+    scripts = [p for p in (ROOT / "benchmarks").glob("*.py") if p.name not in tools]
+    assert scripts
+    registered = {e.full.split()[1] for e in registry.REGISTRY}
+    for script in scripts:
+        assert "write_result(" in script.read_text(), f"{script.name} must save its JSON through write_result"
+        assert f"benchmarks/{script.name}" in registered, f"{script.name} has no entry in registry.py"
+
+
+def test_results_pages_render_and_name_their_sources() -> None:
+    import make_docs
+
+    for name, render in make_docs.PAGES.items():
+        text = render()
+        assert text.startswith("# "), name
+        if name != "index.md":
+            assert "Source: `benchmarks/results/" in text, f"{name} does not name its JSON"
+            assert "commit `" in text, f"{name} does not name the commit of its JSON"
