@@ -20,13 +20,14 @@ from jaxabc import algorithms as _algorithms
 from jaxabc.algorithms.base import ABCAlgorithm
 from jaxabc.distances import get_distance
 from jaxabc.errors import STATUS_BAD_DISTANCE, STATUS_NAMES, STATUS_OK
-from jaxabc.executors import Executor
+from jaxabc.executors import Executor, VmapExecutor
 
 __all__ = [
     "Compiled",
     "Context",
     "Progress",
     "Recorder",
+    "SharedVmapExecutor",
     "compile_algorithm",
     "make_distance_fn",
     "posterior_distances",
@@ -35,6 +36,7 @@ __all__ = [
 _CACHE_SIZE = 32
 _compiled_cache: collections.OrderedDict[Any, Compiled] = collections.OrderedDict()
 _distance_cache: collections.OrderedDict[Any, Callable] = collections.OrderedDict()
+_simulator_cache: collections.OrderedDict[Any, Callable] = collections.OrderedDict()
 
 
 class Compiled(NamedTuple):
@@ -173,6 +175,25 @@ def make_distance_fn(distance: Any, observed: np.ndarray, dtype: Any) -> Callabl
         return out, bad
 
     return compute
+
+
+class SharedVmapExecutor(VmapExecutor):
+    """The default executor: a :class:`VmapExecutor` whose compiled ``jit(vmap(simulate))``
+    outlives the run, keyed on the simulator object itself (held, so its id cannot be reused),
+    so a second run with the same simulator does not recompile it."""
+
+    def _batched(self, simulate: Callable) -> Callable:
+        if hasattr(simulate, "simulate_batch"):
+            return super()._batched(simulate)
+        try:
+            fn = _simulator_cache.get(simulate)
+        except TypeError:  # an unhashable callable object: compile per run
+            return super()._batched(simulate)
+        if fn is None:
+            fn = _remember(_simulator_cache, simulate, jax.jit(jax.vmap(simulate)))
+        else:
+            _simulator_cache.move_to_end(simulate)
+        return fn
 
 
 class Recorder:

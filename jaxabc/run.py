@@ -27,6 +27,7 @@ from jaxabc._driver import (
     Context,
     Progress,
     Recorder,
+    SharedVmapExecutor,
     builder_accepts,
     compile_algorithm,
     make_distance_fn,
@@ -336,7 +337,7 @@ def run(
         algo = compiled.algorithm
         check_stopping_rule(algo, num_steps, final_threshold, max_simulations, max_wall_time)
         own_executor = not hasattr(executor, "map")
-        ex = get_executor(executor)
+        ex = SharedVmapExecutor() if executor in (None, "vmap") else get_executor(executor)
         try:
             check_shape(ex, simulate, prior, obs, distance)
             fp = _ckpt.fingerprint(
