@@ -9,12 +9,14 @@ particle then gets distance ``+inf`` and the run goes on.
 from __future__ import annotations
 
 __all__ = [
+    "STATUS_BAD_DISTANCE",
     "STATUS_FAILED",
     "STATUS_NAMES",
     "STATUS_NONFINITE",
     "STATUS_OK",
     "STATUS_TIMEOUT",
     "STATUS_WORKER_DIED",
+    "NoPosterior",
     "SimulationFailure",
     "TooManyFailures",
 ]
@@ -28,6 +30,8 @@ STATUS_NONFINITE = 2
 STATUS_TIMEOUT = 3
 #: The worker process running the simulation died (killed, segfault, out of memory).
 STATUS_WORKER_DIED = 4
+#: The simulation succeeded but its distance to the observed data was NaN (or ``-inf``).
+STATUS_BAD_DISTANCE = 5
 
 STATUS_NAMES = {
     STATUS_OK: "ok",
@@ -35,6 +39,7 @@ STATUS_NAMES = {
     STATUS_NONFINITE: "non-finite summaries",
     STATUS_TIMEOUT: "timeout",
     STATUS_WORKER_DIED: "worker died",
+    STATUS_BAD_DISTANCE: "distance was NaN",
 }
 
 
@@ -48,3 +53,7 @@ class SimulationFailure(RuntimeError):
 
 class TooManyFailures(RuntimeError):
     """Raised by the driver when the fraction of failed simulations exceeds its limit."""
+
+
+class NoPosterior(RuntimeError):
+    """Raised by the driver when a run ends before it has any accepted particle to return."""

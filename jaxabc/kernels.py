@@ -210,7 +210,7 @@ def log_truncation_normalizer(
             frac = jnp.mean(jnp.all((x >= low) & (x <= high), axis=-1))
             # At least one hit is guaranteed for an accepted centre inside the box in practice;
             # the floor keeps log finite when the estimate underflows.
-            return jnp.log(jnp.maximum(frac, 0.5 / num_mc))
+            return jnp.log(jnp.maximum(frac, 0.5 / num_mc)).astype(means.dtype)
 
         return jax.lax.map(one, means, batch_size=256)
 

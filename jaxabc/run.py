@@ -6,12 +6,13 @@ executor, turns failures into ``+inf`` distances, updates the algorithm's state 
 checkpoint.  Because nothing else feeds the random stream, a run killed at any point and resumed
 from its checkpoint gives exactly the result of the uninterrupted run, and the result does not
 depend on the executor or the number of workers.
+
+The driver knows no algorithm by name: stop reasons, result extras and whether a stopping rule
+is required come from the :class:`~jaxabc.algorithms.base.ABCAlgorithm` fields.
 """
 
 from __future__ import annotations
 
-import os
-import pickle
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -21,160 +22,210 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxabc import algorithms as _algorithms
+from jaxabc import checkpoint as _ckpt
+from jaxabc._driver import (
+    Context,
+    Progress,
+    Recorder,
+    SharedVmapExecutor,
+    builder_accepts,
+    compile_algorithm,
+    make_distance_fn,
+    mark_bad_distances,
+    posterior_distances,
+)
+from jaxabc._driver_checks import (
+    cast_prior,
+    check_shape,
+    check_stopping_rule,
+    precision,
+    shapes_compatible,
+    validate_arguments,
+    validate_observed,
+)
+from jaxabc._driver_result import assemble
+from jaxabc.algorithms.base import ABCAlgorithm
+from jaxabc.checkpoint import CHECKPOINT_NAME
 from jaxabc.distances import get_distance
-from jaxabc.errors import STATUS_NAMES, STATUS_OK, TooManyFailures
+from jaxabc.errors import STATUS_OK, TooManyFailures
 from jaxabc.executors import Executor, get_executor
 from jaxabc.priors import Uniform
-from jaxabc.results import ABCResult, versions
+from jaxabc.results import ABCResult
 
 __all__ = ["CHECKPOINT_NAME", "run"]
 
-CHECKPOINT_NAME = "checkpoint.pkl"
 _MIN_FOR_FAILURE_CHECK = 20
 
 
-def _validate_observed(observed: Any) -> np.ndarray:
-    try:
-        obs = np.asarray(observed, dtype=np.float64)
-    except (TypeError, ValueError) as exc:
-        raise ValueError(f"observed data must be a numeric array: {exc}") from None
-    if obs.ndim == 0:
-        obs = obs[None]
-    if obs.size == 0:
-        raise ValueError("observed data is empty: pass the measured summary vector or series")
-    bad = ~np.isfinite(obs)
-    if np.any(bad):
+# ----------------------------------------------------------------------------- the loop
+
+
+def _simulate_batch(ctx: Context, prog: Progress, k_sim: jax.Array, thetas: np.ndarray,
+                    active: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+    """Simulate the active slots; distances (m,) and, if the algorithm wants them, summaries."""
+    m = thetas.shape[0]
+    distances = np.full(m, np.inf)
+    summaries = None
+    if ctx.compiled.algorithm.uses_summaries:
+        summaries = np.full((m, *ctx.observed.shape), np.nan)
+    if not active.any():
+        return distances, summaries
+    sim_keys = np.asarray(jax.random.key_data(jax.random.split(k_sim, m)))
+    batch = ctx.executor.map(ctx.simulate, sim_keys[active], thetas[active])
+    ok = np.asarray(batch.status) == STATUS_OK
+    if ok.any() and not shapes_compatible(batch.summaries.shape[1:], ctx.observed.shape,
+                                           ctx.distance):
         raise ValueError(
-            f"observed data contains {int(bad.sum())} NaN or infinite values (first at flat "
-            f"index {int(np.flatnonzero(bad.ravel())[0])}): clean or drop them before calibrating"
+            f"the simulator returned summaries of shape {batch.summaries.shape[1:]} "
+            f"but the observed data has shape {ctx.observed.shape}: they must match"
         )
-    return obs
+    dist, bad = ctx.distances_of(batch.summaries, ok)
+    status, reasons = mark_bad_distances(batch.status, batch.reasons, bad, dist)
+    distances[active] = dist
+    if summaries is not None:
+        if summaries.shape[1:] != batch.summaries.shape[1:]:
+            summaries = np.full((m, *batch.summaries.shape[1:]), np.nan)
+        summaries[np.flatnonzero(active)[ok & ~bad]] = batch.summaries[ok & ~bad]
+    prog.recorder.add(prog.iteration, thetas[active], batch, dist, status, reasons)
+    prog.num_sims += int(active.sum())
+    prog.sims_this_generation += int(active.sum())
+    _check_failures(prog.recorder, ctx.max_failure_fraction)
+    return distances, summaries
 
 
-def _cast_prior(prior: Uniform, dtype: Any) -> Uniform:
-    if not isinstance(prior, Uniform):
-        return prior
-    out = Uniform.__new__(Uniform)
-    out.__dict__.update(prior.__dict__)
-    out.low, out.high = jnp.asarray(prior.low, dtype), jnp.asarray(prior.high, dtype)
-    return out
-
-
-def _shapes_compatible(simulated: tuple, observed: tuple, distance: Any) -> bool:
-    if getattr(get_distance(distance), "compares_samples", False):
-        return len(simulated) == len(observed) == 1
-    return tuple(simulated) == tuple(observed)
-
-
-def _check_shape(executor: Executor, simulate: Callable, prior: Uniform,
-                 observed: np.ndarray, distance: Any) -> None:
-    """Fail early, with a clear message, when a JAX simulator's output shape is wrong."""
-    if executor.name != "vmap" or hasattr(simulate, "simulate_batch"):
-        return
-    try:
-        out = jax.eval_shape(simulate, jax.random.key(0), jnp.zeros((prior.dim,), prior.low.dtype))
-    except Exception as exc:
-        raise TypeError(
-            f"could not trace simulate(key, theta) with theta of shape ({prior.dim},): {exc}. "
-            "A vmap executor needs a JAX-traceable simulator; use executor='serial' or "
-            "'process_pool' for other code"
-        ) from exc
-    if not _shapes_compatible(tuple(out.shape), observed.shape, distance):
-        raise ValueError(
-            f"the simulator returns summaries of shape {tuple(out.shape)} but the observed data "
-            f"has shape {observed.shape}: they must match"
+def _check_failures(recorder: Recorder, max_failure_fraction: float) -> None:
+    total, failed, examples = recorder.failures()
+    if total and failed == total:
+        # Nothing was learnt: whatever the limit, a posterior now would be prior draws.
+        raise TooManyFailures(
+            f"all {total} simulations failed, so there is no posterior to return; first "
+            "failures:\n  " + "\n  ".join(examples)
+        )
+    if total >= _MIN_FOR_FAILURE_CHECK and failed > max_failure_fraction * total:
+        raise TooManyFailures(
+            f"{failed} of {total} simulations failed (limit {max_failure_fraction:.0%}); first "
+            "failures:\n  " + "\n  ".join(examples)
         )
 
 
-def _make_distance_fn(distance: Any, observed: np.ndarray, dtype: Any) -> Callable:
-    dist = get_distance(distance)
-    obs = jnp.asarray(observed, dtype)
-    batched = jax.jit(jax.vmap(lambda s: dist(obs, s)))
-
-    def compute(summaries: np.ndarray, ok: np.ndarray) -> np.ndarray:
-        out = np.full(summaries.shape[0], np.inf)
-        good = summaries[ok]
-        if good.shape[0]:
-            # Pad to a power of two so that varying batch sizes reuse a few compiled shapes.
-            size = max(64, 1 << (good.shape[0] - 1).bit_length())
-            padded = np.concatenate([good, np.repeat(good[:1], size - good.shape[0], axis=0)])
-            d = np.asarray(batched(jnp.asarray(padded, dtype)), dtype=np.float64)[: good.shape[0]]
-            out[ok] = np.where(np.isfinite(d), d, np.inf)
-        return out
-
-    return compute
-
-
-def _build_algorithm(name: str, prior: Uniform, num_particles: int, options: dict):
-    try:
-        builder = _algorithms.BUILDERS[name]
-    except KeyError:
-        raise ValueError(
-            f"unknown algorithm {name!r}: use one of {sorted(_algorithms.BUILDERS)}"
-        ) from None
-    try:
-        return builder(prior, num_particles, **options)
-    except TypeError as exc:
-        raise TypeError(f"bad option for {name!r}: {exc}") from None
+def _step(ctx: Context, prog: Progress) -> Any:
+    """One iteration: propose, simulate, update.  Returns the algorithm's Info, or None when the
+    simulation budget stopped the run before simulating."""
+    c = ctx.compiled
+    key = jax.random.fold_in(ctx.root, prog.iteration)
+    k_prop, k_sim, k_upd = jax.random.split(key, 3)
+    proposal = c.initial_proposal(k_prop) if prog.state is None else c.propose(k_prop, prog.state)
+    if not bool(proposal.ok):
+        raise RuntimeError(
+            f"{c.algorithm.name}: the truncated perturbation kernel could not reach the prior's "
+            "support from some particles (no draw inside the box in 10,000 tries). The "
+            "posterior is piled against a prior bound: widen the prior there"
+        )
+    active = np.asarray(proposal.active, bool)
+    thetas = np.asarray(proposal.thetas)
+    if ctx.max_simulations is not None and prog.state is not None \
+            and prog.num_sims + int(active.sum()) > ctx.max_simulations:
+        prog.stop_reason = f"simulation budget {ctx.max_simulations} reached"
+        return None
+    distances, summaries = _simulate_batch(ctx, prog, k_sim, thetas, active)
+    d = np.asarray(distances) if c.algorithm.host else jnp.asarray(distances, ctx.jdtype)
+    extra = () if summaries is None else (summaries if c.algorithm.host else jnp.asarray(summaries),)
+    if prog.state is None:
+        prog.state, info = c.init(k_upd, proposal, d, *extra)
+    else:
+        prog.state, info = c.update(k_upd, prog.state, proposal, d, *extra)
+    prog.iteration += 1
+    return info
 
 
-class _Recorder:
-    """Accumulates the record of every simulation."""
+def _end_generation(ctx: Context, prog: Progress, info: Any) -> None:
+    particles, log_w = ctx.compiled.posterior(prog.state)
+    prog.last_posterior = (np.asarray(particles), np.asarray(log_w),
+                           posterior_distances(prog.state, len(log_w)))
+    h = prog.history
+    h["threshold"].append(float(info.threshold))
+    h["sims"].append(prog.sims_this_generation)
+    h["acceptance"].append(float(info.acceptance_rate))
+    h["ess"].append(float(info.ess))
+    h["wall"].append(time.perf_counter() - ctx.t_start)
+    prog.sims_this_generation = 0
+    if ctx.bar is not None:
+        ctx.bar.update(1)
+        ctx.bar.set_postfix(threshold=f"{float(info.threshold):.4g}",
+                            acceptance=f"{float(info.acceptance_rate):.3f}", sims=prog.num_sims)
+    algo = ctx.compiled.algorithm
+    if bool(info.stop):
+        prog.stop_reason = algo.stop_reason(algo.settings, info)
+    elif ctx.num_steps is not None and len(h["threshold"]) >= ctx.num_steps:
+        prog.stop_reason = f"{ctx.num_steps} steps done"
+    elif ctx.final_threshold is not None and float(info.threshold) <= ctx.final_threshold:
+        prog.stop_reason = f"final threshold {ctx.final_threshold} reached"
 
-    def __init__(self, keep_summaries: bool):
-        self.keep_summaries = keep_summaries
-        self.chunks: list[dict[str, Any]] = []
 
-    def restore(self, chunks: list[dict[str, Any]]) -> None:
-        self.chunks = chunks
+def _loop(ctx: Context, prog: Progress) -> None:
+    while not prog.stop_reason:
+        info = _step(ctx, prog)
+        if info is None:
+            break
+        if bool(info.generation_done):
+            _end_generation(ctx, prog, info)
+        if not prog.stop_reason and ctx.max_wall_time is not None \
+                and time.perf_counter() - ctx.t_start > ctx.max_wall_time:
+            prog.stop_reason = f"wall time {ctx.max_wall_time} s reached"
+        if ctx.ckpt_path is not None:
+            _save(ctx, prog)
+        if ctx.stop_after_iterations is not None and prog.iteration >= ctx.stop_after_iterations \
+                and not prog.stop_reason:
+            prog.stop_reason = f"stopped after {prog.iteration} iterations (resumable)"
 
-    def add(self, iteration: int, thetas, batch, distances) -> None:
-        self.chunks.append({
-            "theta": np.asarray(thetas, np.float64),
-            "summaries": np.asarray(batch.summaries) if self.keep_summaries else None,
-            "distance": distances,
-            "status": np.asarray(batch.status, np.int32),
-            "wall_time": np.asarray(batch.wall_time),
-            "cpu_time": (np.full(len(distances), np.nan) if batch.cpu_time is None
-                         else np.asarray(batch.cpu_time, np.float64)),
-            "worker": np.asarray(batch.worker, np.int32),
-            "iteration": np.full(len(distances), iteration, np.int32),
-            "reasons": list(batch.reasons),
-        })
 
-    def arrays(self) -> dict[str, Any]:
-        if not self.chunks:
-            return {}
-        out: dict[str, Any] = {}
-        for key in ("theta", "distance", "status", "wall_time", "worker", "iteration"):
-            out[key] = np.concatenate([c[key] for c in self.chunks])
-        # Checkpoints written before CPU times were recorded lack them: NaN there.
-        out["cpu_time"] = np.concatenate([c.get("cpu_time", np.full(len(c["distance"]), np.nan))
-                                          for c in self.chunks])
-        if self.keep_summaries:
-            shapes = {c["summaries"].shape[1:] for c in self.chunks}
-            if len(shapes) == 1:
-                out["summaries"] = np.concatenate([c["summaries"] for c in self.chunks])
-        out["reasons"] = [r for c in self.chunks for r in c["reasons"]]
-        return out
+# ----------------------------------------------------------------------------- checkpoints
 
-    def failures(self) -> tuple[int, int, list[str]]:
-        total = sum(len(c["distance"]) for c in self.chunks)
-        failed = sum(int(np.sum(c["status"] != STATUS_OK)) for c in self.chunks)
-        examples: list[str] = []
-        for c in self.chunks:
-            for i in np.flatnonzero(c["status"] != STATUS_OK)[: 5 - len(examples)]:
-                status = STATUS_NAMES.get(int(c["status"][i]), int(c["status"][i]))
-                examples.append(f"theta={np.array2string(c['theta'][i], precision=4)}: {status}: "
-                                f"{c['reasons'][i]}")
-            if len(examples) >= 5:
-                break
-        return total, failed, examples
+
+def _save(ctx: Context, prog: Progress) -> None:
+    _ckpt.save(ctx.ckpt_path, _ckpt.Checkpoint(
+        fingerprint=ctx.fingerprint,
+        state_leaves=_ckpt.flatten_state(prog.state),
+        counters={"iteration": prog.iteration, "num_sims": prog.num_sims,
+                  "sims_this_generation": prog.sims_this_generation,
+                  "stop_reason": prog.stop_reason},
+        history=prog.history, records=prog.recorder.chunks, last_posterior=prog.last_posterior,
+    ))
+
+
+def _state_template(ctx: Context) -> Any:
+    algo = ctx.compiled.algorithm
+    key = jax.random.key(0)
+    proposal = jax.eval_shape(algo.initial_proposal, key)
+    m = proposal.thetas.shape[0]
+    args = [key, proposal, jax.ShapeDtypeStruct((m,), ctx.jdtype)]
+    if algo.uses_summaries:
+        args.append(jax.ShapeDtypeStruct((m, *ctx.observed.shape), jnp.result_type(float)))
+    return jax.eval_shape(algo.init, *args)[0]
+
+
+def _restore(ctx: Context, prog: Progress) -> None:
+    ck = _ckpt.load(ctx.ckpt_path)
+    _ckpt.check_fingerprint(ck.fingerprint, ctx.fingerprint, ctx.ckpt_path)
+    algo = ctx.compiled.algorithm
+    if algo.restore_state is not None:
+        prog.state = algo.restore_state(ck.state_leaves)
+    else:
+        prog.state = _ckpt.restore_state(ck.state_leaves, _state_template(ctx), ctx.ckpt_path)
+    c = ck.counters
+    prog.iteration, prog.num_sims = int(c["iteration"]), int(c["num_sims"])
+    prog.sims_this_generation = int(c["sims_this_generation"])
+    prog.stop_reason = c["stop_reason"]
+    prog.history = ck.history
+    prog.recorder.chunks = ck.records
+    prog.last_posterior = ck.last_posterior
+
+
+# ----------------------------------------------------------------------------- entry point
 
 
 def run(
-    algorithm: str,
+    algorithm: str | ABCAlgorithm,
     simulate: Callable,
     prior: Uniform,
     observed: Any,
@@ -190,6 +241,8 @@ def run(
     max_failure_fraction: float = 0.5,
     checkpoint_dir: str | Path | None = None,
     resume: bool = False,
+    overwrite: bool = False,
+    simulator_id: str | None = None,
     stop_after_iterations: int | None = None,
     keep_summaries: bool = True,
     progress: bool = False,
@@ -201,23 +254,25 @@ def run(
 
     Parameters
     ----------
-    algorithm : {"apmcabc", "abcsubsim", "pmcabc", "rejection"}
+    algorithm : {"apmcabc", "abcsubsim", "pmcabc", "rejection"} or ABCAlgorithm
+        A name is built from :data:`jaxabc.algorithms.BUILDERS` with ``prior``,
+        ``num_particles`` and ``**algorithm_options``; an algorithm object is used as it is.
     simulate : callable ``(key, theta) -> summaries``
-        One parameter vector in, a fixed-shape summary array out.  A JAX function for the
-        ``"vmap"`` executor; any picklable callable for ``"process_pool"`` / ``"mpi"`` (it then
-        gets the key as raw ``uint32[2]`` data; see :func:`jaxabc.seeding.seed_from_key`).
-        Failures: raise :class:`jaxabc.SimulationFailure` or return NaN.
+        One parameter vector in, a fixed-shape summary array (or a scalar) out.  A JAX function
+        for the ``"vmap"`` executor; any picklable callable for ``"process_pool"`` / ``"mpi"``
+        (it then gets the key as raw ``uint32[2]`` data; see
+        :func:`jaxabc.seeding.seed_from_key`).  Failures: raise
+        :class:`jaxabc.SimulationFailure` or return NaN.
     prior : Uniform
     observed : array_like
         The measured summaries, same shape as ``simulate``'s output.
     num_particles : int
         Population size ``N``.
     num_steps : int, optional
-        Maximum number of ABC steps (generations / levels), the initial prior sample included
-        (ABCpy's ``steps``).  Default: no limit (another rule must stop the run).
+        Maximum number of ABC steps (generations / levels), the initial prior sample included.
     distance : str or callable
-        ``"mean_abs"`` (the paper's water distance), ``"euclidean"``, ``"kl"`` (the helium
-        distance) or ``distance(observed, simulated) -> scalar``.
+        ``"mean_abs"``, ``"euclidean"``, ``"kl"`` or ``distance(observed, simulated) -> scalar``.
+        A NaN distance of a successful simulation is recorded as a failure.
     seed : int
         The run's only source of randomness.
     executor : str or Executor
@@ -226,17 +281,26 @@ def run(
     final_threshold : float, optional
         Stop once a generation's threshold is at or below this.
     max_simulations : int, optional
-        Simulation budget: stop before an iteration that would exceed it.
+        Simulation budget: stop before an iteration that would exceed it.  A run stopped before
+        its first generation completed returns the particles accepted so far, flagged
+        ``incomplete`` in ``stop_reason`` and ``metadata``.
     max_wall_time : float, optional
         Seconds; checked after each iteration.
     max_failure_fraction : float
         Stop with :class:`jaxabc.TooManyFailures` when more than this fraction of simulations
-        (after the first 20) failed.
+        (after the first 20) failed, or when every simulation so far failed.
     checkpoint_dir : path, optional
-        Write ``checkpoint.pkl`` there after every iteration (atomically).
+        Write ``checkpoint.npz`` there after every iteration (atomically).  A fresh run into a
+        folder holding a checkpoint is refused unless ``resume`` or ``overwrite`` is given.
     resume : bool
         Continue from the checkpoint in ``checkpoint_dir``; the result equals that of the
-        uninterrupted run.
+        uninterrupted run.  Refused when the problem differs (prior, observed values, distance,
+        simulator, algorithm and settings, seed, ``num_particles``, dtype).
+    overwrite : bool
+        Delete an existing checkpoint in ``checkpoint_dir`` and start over.
+    simulator_id : str, optional
+        The simulator's identity in checkpoints (default ``module:qualname``): set it for
+        closures and external programs whose name says nothing about what they compute.
     stop_after_iterations : int, optional
         Stop after this many iterations (for tests and for splitting long runs).
     keep_summaries : bool
@@ -244,235 +308,64 @@ def run(
     progress : bool
         Show a progress bar with threshold, acceptance and ETA.
     dtype : {"float32", "float64"}
-        Working precision of the inference kernels; ``"float64"`` turns on ``jax_enable_x64``.
+        Working precision of the inference kernels; ``"float64"`` enables ``jax_enable_x64``
+        for the duration of the run only.
     metadata : dict, optional
         Stored in the result.
     **algorithm_options
-        Passed to the algorithm: APMCABC ``alpha``, ``acceptance_cutoff``,
-        ``covariance_factor``, ``weights``; ABCsubsim ``p0``, ``acceptance_floor``; PMC-ABC
-        ``thresholds``, ``quantile``; rejection ``threshold`` or ``quantile``.
+        Passed to the algorithm's builder (see :mod:`jaxabc.algorithms`).
 
     Returns
     -------
     ABCResult
+
+    Raises
+    ------
+    TooManyFailures, NoPosterior, jaxabc.checkpoint.CheckpointError, FileExistsError
     """
     t_start = time.perf_counter()
-    if dtype not in ("float32", "float64"):
-        raise ValueError(f"dtype must be 'float32' or 'float64', got {dtype!r}")
-    if dtype == "float64":
-        jax.config.update("jax_enable_x64", True)
-    jdtype = jnp.float64 if dtype == "float64" else jnp.float32
-    if not isinstance(num_particles, int | np.integer) or num_particles < 1:
-        raise ValueError(f"num_particles must be a positive integer, got {num_particles!r}")
-    if num_steps is not None and num_steps < 1:
-        raise ValueError(f"num_steps must be at least 1, got {num_steps}")
-    if not 0.0 < max_failure_fraction <= 1.0:
-        raise ValueError(f"max_failure_fraction must lie in (0, 1], got {max_failure_fraction}")
-    if not callable(simulate):
-        raise TypeError("simulate must be a callable simulate(key, theta) -> summaries")
-    if not hasattr(prior, "sample") or not hasattr(prior, "low"):
-        raise TypeError("prior must be a jaxabc prior such as jaxabc.Uniform(low, high, names)")
-    obs = _validate_observed(observed)
-    prior = _cast_prior(prior, jdtype)
-    if algorithm == "abcsubsim" and final_threshold is not None:
-        algorithm_options.setdefault("final_threshold", final_threshold)
-    algo = _build_algorithm(algorithm, prior, int(num_particles), algorithm_options)
-    if num_steps is None and final_threshold is None and max_simulations is None \
-            and max_wall_time is None and algorithm in ("pmcabc", "abcsubsim") \
-            and not algorithm_options.get("acceptance_floor"):
-        raise ValueError(
-            f"{algorithm} needs a stopping rule: give num_steps, final_threshold, "
-            "max_simulations or max_wall_time"
-        )
-    own_executor = not hasattr(executor, "map")
-    ex = get_executor(executor)
-    _check_shape(ex, simulate, prior, obs, distance)
-    if hasattr(ex, "summary_shape") and not getattr(get_distance(distance), "compares_samples", False):
-        ex.summary_shape = tuple(obs.shape)  # a batch where every task fails keeps this shape
-    distances_of = _make_distance_fn(distance, obs, jdtype)
+    validate_arguments(dtype, num_particles, num_steps, max_failure_fraction, simulate, prior)
+    obs = validate_observed(observed)
+    ckpt_path = _ckpt.prepare_folder(checkpoint_dir, resume, overwrite)
+    with precision(dtype):
+        jdtype = jnp.float64 if dtype == "float64" else jnp.float32
+        prior = cast_prior(prior, jdtype)
+        if isinstance(algorithm, str) and final_threshold is not None \
+                and builder_accepts(algorithm, "final_threshold"):
+            algorithm_options.setdefault("final_threshold", final_threshold)
+        compiled = compile_algorithm(algorithm, prior, int(num_particles), algorithm_options,
+                                     dtype)
+        algo = compiled.algorithm
+        check_stopping_rule(algo, num_steps, final_threshold, max_simulations, max_wall_time)
+        own_executor = not hasattr(executor, "map")
+        ex = SharedVmapExecutor() if executor in (None, "vmap") else get_executor(executor)
+        try:
+            check_shape(ex, simulate, prior, obs, distance)
+            if hasattr(ex, "summary_shape") and not getattr(get_distance(distance),
+                                                           "compares_samples", False):
+                ex.summary_shape = tuple(obs.shape)  # a batch where every task fails keeps it
+            fp = _ckpt.fingerprint(
+                algorithm=algo.name, settings=algo.settings, prior=prior, observed=obs,
+                distance=distance, simulator_id=_ckpt.simulator_identity(simulate, simulator_id),
+                seed=seed, num_particles=int(num_particles), dtype=dtype)
+            ctx = Context(compiled, simulate, ex, obs, distance,
+                           make_distance_fn(distance, obs, jdtype), jdtype, jax.random.key(seed),
+                           t_start, num_steps, final_threshold, max_simulations, max_wall_time,
+                           max_failure_fraction, stop_after_iterations, ckpt_path, fp)
+            prog = Progress(Recorder(keep_summaries))
+            if resume:
+                _restore(ctx, prog)
+            if progress:
+                from tqdm.auto import tqdm
 
-    jit_initial = jax.jit(algo.initial_proposal)
-    jit_init = jax.jit(algo.init)
-    jit_propose = jax.jit(algo.propose)
-    jit_update = jax.jit(algo.update)
-    jit_posterior = jax.jit(algo.posterior)
-
-    root = jax.random.key(seed)
-    ckpt_path = Path(checkpoint_dir) / CHECKPOINT_NAME if checkpoint_dir is not None else None
-    recorder = _Recorder(keep_summaries)
-    history: dict[str, list] = {"threshold": [], "sims": [], "acceptance": [], "ess": [], "wall": []}
-    state = None
-    iteration = 0
-    num_sims = 0
-    sims_this_generation = 0
-    last_posterior = None
-    last_level = 0
-    stop_reason = ""
-    run_id = {"algorithm": algorithm, "settings": algo.settings, "seed": seed,
-              "num_particles": int(num_particles), "observed_shape": obs.shape}
-
-    if resume:
-        if ckpt_path is None:
-            raise ValueError("resume=True needs checkpoint_dir= (the folder of the checkpoint)")
-        if not ckpt_path.exists():
-            raise FileNotFoundError(
-                f"no checkpoint at {ckpt_path}: run without resume=True to start afresh"
-            )
-        with open(ckpt_path, "rb") as fh:
-            ck = pickle.load(fh)
-        if ck["run_id"] != run_id:
-            raise ValueError(
-                f"the checkpoint in {checkpoint_dir} belongs to a different run "
-                f"({ck['run_id']}); use another folder or the same settings"
-            )
-        state = jax.tree.map(jnp.asarray, ck["state"])
-        iteration, num_sims = ck["iteration"], ck["num_sims"]
-        sims_this_generation = ck["sims_this_generation"]
-        history = ck["history"]
-        recorder.restore(ck["records"])
-        last_posterior, last_level = ck["last_posterior"], ck.get("last_level", 0)
-        stop_reason = ck.get("stop_reason", "")
-
-    bar = None
-    if progress:
-        from tqdm.auto import tqdm
-
-        bar = tqdm(total=num_steps, desc=algorithm, unit="step", initial=len(history["threshold"]))
-
-    try:
-        while not stop_reason:
-            key = jax.random.fold_in(root, iteration)
-            k_prop, k_sim, k_upd = jax.random.split(key, 3)
-            proposal = jit_initial(k_prop) if state is None else jit_propose(k_prop, state)
-            if not bool(proposal.ok):
-                raise RuntimeError(
-                    f"{algorithm}: the truncated perturbation kernel could not reach the prior's "
-                    "support from some particles (no draw inside the box in 10,000 tries). The "
-                    "posterior is piled against a prior bound: widen the prior there"
-                )
-            active = np.asarray(proposal.active)
-            thetas = np.asarray(proposal.thetas)
-            n_active = int(active.sum())
-            if max_simulations is not None and state is not None \
-                    and num_sims + n_active > max_simulations:
-                stop_reason = f"simulation budget {max_simulations} reached"
-                break
-            sim_keys = np.asarray(jax.random.key_data(jax.random.split(k_sim, thetas.shape[0])))
-            distances = np.full(thetas.shape[0], np.inf)
-            if n_active:
-                batch = ex.map(simulate, sim_keys[active], thetas[active])
-                if np.any(batch.status == STATUS_OK) and not _shapes_compatible(
-                        batch.summaries.shape[1:], obs.shape, distance):
-                    raise ValueError(
-                        f"the simulator returned summaries of shape {batch.summaries.shape[1:]} "
-                        f"but the observed data has shape {obs.shape}: they must match"
-                    )
-                ok = batch.status == STATUS_OK
-                distances[active] = distances_of(batch.summaries, ok)
-                recorder.add(iteration, thetas[active], batch, distances[active])
-                num_sims += n_active
-                sims_this_generation += n_active
-                total, failed, examples = recorder.failures()
-                if total >= _MIN_FOR_FAILURE_CHECK and failed > max_failure_fraction * total:
-                    raise TooManyFailures(
-                        f"{failed} of {total} simulations failed (limit "
-                        f"{max_failure_fraction:.0%}); first failures:\n  " + "\n  ".join(examples)
-                    )
-            d = jnp.asarray(distances, jdtype)
-            if state is None:
-                state, info = jit_init(k_upd, proposal, d)
-            else:
-                state, info = jit_update(k_upd, state, proposal, d)
-            iteration += 1
-            if bool(info.generation_done):
-                particles, log_w = jit_posterior(state)
-                last_posterior = (np.asarray(particles), np.asarray(log_w),
-                                  _posterior_distances(state))
-                last_level = int(getattr(state, "level", 0))
-                history["threshold"].append(float(info.threshold))
-                history["sims"].append(sims_this_generation)
-                history["acceptance"].append(float(info.acceptance_rate))
-                history["ess"].append(float(info.ess))
-                history["wall"].append(time.perf_counter() - t_start)
-                sims_this_generation = 0
-                if bar is not None:
-                    bar.update(1)
-                    bar.set_postfix(threshold=f"{float(info.threshold):.4g}",
-                                    acceptance=f"{float(info.acceptance_rate):.3f}", sims=num_sims)
-                if bool(info.stop):
-                    stop_reason = _algorithm_stop_reason(algorithm, algo.settings, info)
-                elif num_steps is not None and len(history["threshold"]) >= num_steps:
-                    stop_reason = f"{num_steps} steps done"
-                elif final_threshold is not None and float(info.threshold) <= final_threshold:
-                    stop_reason = f"final threshold {final_threshold} reached"
-            if not stop_reason and max_wall_time is not None \
-                    and time.perf_counter() - t_start > max_wall_time and last_posterior is not None:
-                stop_reason = f"wall time {max_wall_time} s reached"
-            if ckpt_path is not None:
-                _write_checkpoint(ckpt_path, {
-                    "run_id": run_id, "state": jax.tree.map(np.asarray, state),
-                    "iteration": iteration, "num_sims": num_sims,
-                    "sims_this_generation": sims_this_generation, "history": history,
-                    "records": recorder.chunks, "last_posterior": last_posterior,
-                    "last_level": last_level, "stop_reason": stop_reason,
-                })
-            if stop_after_iterations is not None and iteration >= stop_after_iterations \
-                    and not stop_reason:
-                stop_reason = f"stopped after {iteration} iterations (resumable)"
-    finally:
-        if bar is not None:
-            bar.close()
-        if own_executor:
-            ex.close()
-
-    particles, log_w, dist = last_posterior
-    keep = np.isfinite(log_w)
-    w = np.exp(log_w[keep] - np.max(log_w[keep]))
-    meta = {"versions": versions(), "executor": ex.name,
-            "distance": distance if isinstance(distance, str) else getattr(distance, "__name__", "custom"),
-            "dtype": dtype, "observed": obs.tolist() if obs.size <= 10_000 else None,
-            # Seconds since this process started the run, at the end of each generation (after
-            # a resume, counted from the resume).
-            "generation_wall_times": history["wall"]}
-    meta.update(metadata or {})
-    log_ev = None
-    if algorithm == "abcsubsim":
-        from jaxabc.algorithms.subsim import log_evidence
-
-        log_ev = log_evidence(last_level, algo.settings["p0"])
-    return ABCResult(
-        particles=particles[keep].astype(np.float64), weights=w / w.sum(),
-        distances=dist[keep] if dist is not None else np.full(int(keep.sum()), np.nan),
-        thresholds=np.asarray(history["threshold"]), simulations_per_step=np.asarray(history["sims"]),
-        acceptance_rates=np.asarray(history["acceptance"]), ess=np.asarray(history["ess"]),
-        num_simulations=num_sims, algorithm=algorithm, settings=algo.settings, prior=prior,
-        seed=seed, stop_reason=stop_reason, wall_time=time.perf_counter() - t_start,
-        log_evidence=log_ev, records=recorder.arrays(), metadata=meta,
-    )
-
-
-def _posterior_distances(state: Any) -> np.ndarray:
-    # Each algorithm's state keeps its distances aligned with its posterior particles.
-    return np.asarray(state.distances)
-
-
-def _algorithm_stop_reason(algorithm: str, settings: dict, info: Any) -> str:
-    if algorithm == "apmcabc":
-        return (f"acceptance {float(info.acceptance_rate):.4f} < cutoff "
-                f"{settings['acceptance_cutoff']}")
-    if algorithm == "abcsubsim":
-        return (f"final threshold {settings['final_threshold']} or acceptance floor "
-                f"{settings['acceptance_floor']} reached")
-    return "done"
-
-
-def _write_checkpoint(path: Path, payload: dict) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + ".tmp")
-    with open(tmp, "wb") as fh:
-        pickle.dump(payload, fh, protocol=pickle.HIGHEST_PROTOCOL)
-        fh.flush()
-        os.fsync(fh.fileno())
-    os.replace(tmp, path)
-
-
+                ctx.bar = tqdm(total=num_steps, desc=algo.name, unit="step",
+                               initial=len(prog.history["threshold"]))
+            try:
+                _loop(ctx, prog)
+            finally:
+                if ctx.bar is not None:
+                    ctx.bar.close()
+        finally:
+            if own_executor:
+                ex.close()
+        return assemble(ctx, prog, dtype, metadata, seed, prior)

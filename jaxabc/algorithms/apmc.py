@@ -213,4 +213,11 @@ def build(
         "covariance_factor": covariance_factor,
         "weights": weights,
     }
-    return ABCAlgorithm("apmcabc", initial_proposal, init, propose, update, posterior, settings)
+    return ABCAlgorithm("apmcabc", initial_proposal, init, propose, update, posterior, settings,
+                        stop_reason=_stop_reason,
+                        # A zero cutoff never fires: the run needs another rule.
+                        needs_stopping_rule=acceptance_cutoff == 0.0)
+
+
+def _stop_reason(settings: dict, info: Info) -> str:
+    return f"acceptance {float(info.acceptance_rate):.4f} < cutoff {settings['acceptance_cutoff']}"

@@ -21,7 +21,15 @@ from typing import Any, NamedTuple
 import jax
 import jax.numpy as jnp
 
-__all__ = ["ABCAlgorithm", "Info", "Proposal", "make_jax_step", "masked_percentile"]
+__all__ = [
+    "ABCAlgorithm",
+    "Info",
+    "Proposal",
+    "default_stop_reason",
+    "make_jax_step",
+    "masked_percentile",
+    "no_extras",
+]
 
 
 class Proposal(NamedTuple):
@@ -70,21 +78,54 @@ class Info(NamedTuple):
     ess: jax.Array
 
 
+def default_stop_reason(settings: dict, info: Info) -> str:
+    """The stop reason of an algorithm that does not say why its own rule fired."""
+    del settings, info
+    return "the algorithm's stopping rule fired"
+
+
+def no_extras(state: Any) -> dict:
+    """The result extras of an algorithm that has none."""
+    del state
+    return {}
+
+
 class ABCAlgorithm(NamedTuple):
-    """An ABC algorithm as pure functions.
+    """An ABC algorithm as pure functions, and what the driver needs to know about it.
+
+    The driver (:func:`jaxabc.run`) never branches on ``name``: everything algorithm-specific
+    comes from these fields.  States are (nested) NamedTuples of arrays, so checkpoints can store
+    them as arrays keyed by ``jax.tree_util.keystr`` paths.
 
     Attributes
     ----------
     name : str
     initial_proposal : callable ``(key) -> Proposal``
         The first batch (prior draws).
-    init : callable ``(key, proposal, distances) -> (state, Info)``
+    init : callable ``(key, proposal, distances[, summaries]) -> (state, Info)``
     propose : callable ``(key, state) -> Proposal``
-    update : callable ``(key, state, proposal, distances) -> (state, Info)``
+    update : callable ``(key, state, proposal, distances[, summaries]) -> (state, Info)``
     posterior : callable ``(state) -> (particles (n, d), log_weights (n,))``
         The current posterior sample; zero-weight slots have log weight ``-inf``.
     settings : dict
-        The configuration bound in the closures, JSON-serialisable, for result files.
+        The configuration bound in the closures, JSON-serialisable, for result files and
+        checkpoint fingerprints.
+    stop_reason : callable ``(settings, info) -> str``
+        Why the run ended, called when ``info.stop`` fires.
+    finalize : callable ``(state) -> dict``
+        Result extras of the final state, e.g. ``{"log_evidence": float}``; the key
+        ``"log_evidence"`` fills :attr:`ABCResult.log_evidence`, others go to its metadata.
+    needs_stopping_rule : bool
+        The algorithm may never stop by itself; the driver refuses a run without ``num_steps``,
+        ``final_threshold``, ``max_simulations`` or ``max_wall_time``.
+    host : bool
+        The functions are host (NumPy) code; the driver does not ``jax.jit`` them.
+    uses_summaries : bool
+        ``init`` / ``update`` also receive ``summaries``, a float64 array
+        ``(m, *summary_shape)`` with NaN rows for failed or inactive slots.
+    restore_state : callable ``(flat) -> state``, optional
+        Rebuilds a host algorithm's state from ``{keystr path: numpy array}``; without it the
+        driver rebuilds the state from ``jax.eval_shape`` of ``init``.
     """
 
     name: str
@@ -94,6 +135,12 @@ class ABCAlgorithm(NamedTuple):
     update: Callable[..., tuple[Any, Info]]
     posterior: Callable[[Any], tuple[jax.Array, jax.Array]]
     settings: dict
+    stop_reason: Callable[[dict, Info], str] = default_stop_reason
+    finalize: Callable[[Any], dict] = no_extras
+    needs_stopping_rule: bool = False
+    host: bool = False
+    uses_summaries: bool = False
+    restore_state: Callable[[dict], Any] | None = None
 
 
 def masked_percentile(x: jax.Array, valid: jax.Array, q: float) -> jax.Array:

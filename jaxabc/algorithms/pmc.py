@@ -141,8 +141,8 @@ def build(
         log_weights = jnp.where(accept, new_lw, state.log_weights)
         dists = jnp.where(accept, distances, state.distances)
         filled = state.filled | accept
-        sims = state.round_simulations + jnp.sum(proposal.active)
-        acc = state.round_accepted + jnp.sum(accept)
+        sims = state.round_simulations + jnp.sum(proposal.active, dtype=jnp.int32)
+        acc = state.round_accepted + jnp.sum(accept, dtype=jnp.int32)
         done = jnp.all(filled)
         rate = (acc / jnp.maximum(sims, 1)).astype(particles.dtype)
 
@@ -167,7 +167,8 @@ def build(
         "quantile": quantile,
         "covariance_factor": covariance_factor,
     }
-    return ABCAlgorithm("pmcabc", initial_proposal, init, propose, update, posterior, settings)
+    return ABCAlgorithm("pmcabc", initial_proposal, init, propose, update, posterior, settings,
+                        needs_stopping_rule=True)
 
 
 def build_rejection(
@@ -233,8 +234,8 @@ def build_rejection(
         particles = jnp.where(take[:, None], proposal.thetas[source], state.particles)
         dists = jnp.where(take, distances[source], state.distances)
         filled = state.filled | take
-        sims = state.round_simulations + jnp.sum(proposal.active)
-        acc = state.round_accepted + jnp.sum(take)
+        sims = state.round_simulations + jnp.sum(proposal.active, dtype=jnp.int32)
+        acc = state.round_accepted + jnp.sum(take, dtype=jnp.int32)
         done = jnp.all(filled)
         dtype = particles.dtype
         new_state = state._replace(particles=particles, distances=dists, filled=filled,
@@ -246,4 +247,12 @@ def build_rejection(
         return state.particles, jnp.where(state.filled, 0.0, -jnp.inf).astype(state.particles.dtype)
 
     settings = {"num_particles": n, "threshold": threshold, "quantile": quantile}
-    return ABCAlgorithm("rejection", initial_proposal, init, propose, update, posterior, settings)
+    # With a threshold nothing bounds the number of rounds: an unreachable one would run forever.
+    return ABCAlgorithm("rejection", initial_proposal, init, propose, update, posterior, settings,
+                        stop_reason=_rejection_stop_reason, needs_stopping_rule=threshold is not None)
+
+
+def _rejection_stop_reason(settings: dict, info: Info) -> str:
+    if settings["threshold"] is not None:
+        return f"{settings['num_particles']} particles within threshold {settings['threshold']}"
+    return f"kept the {settings['num_particles']} closest (quantile {settings['quantile']})"

@@ -175,9 +175,9 @@ def build(
         position = jnp.where(accept[:, None], proposal.thetas, state.chain_position)
         chain_d = jnp.where(accept, distances, state.chain_distance)
         start = state.chain_step * num_chains
-        particles = jax.lax.dynamic_update_slice(state.buffer, position, (start, 0))
+        particles = jax.lax.dynamic_update_slice(state.buffer, position, (start, jnp.int32(0)))
         dists = jax.lax.dynamic_update_slice(state.buffer_distances, chain_d, (start,))
-        accepted = state.moves_accepted + jnp.sum(accept)
+        accepted = state.moves_accepted + jnp.sum(accept, dtype=jnp.int32)
         proposed = state.moves_proposed + num_chains
         step = state.chain_step + 1
         level_done = step == chain_length
@@ -214,7 +214,18 @@ def build(
         "acceptance_floor": acceptance_floor,
         "initial_scale": initial_scale,
     }
-    return ABCAlgorithm("abcsubsim", initial_proposal, init, propose, update, posterior, settings)
+    def finalize(state):
+        level = int(state.level)
+        return {"log_evidence": log_evidence(level, p0), "level": level}
+
+    return ABCAlgorithm("abcsubsim", initial_proposal, init, propose, update, posterior, settings,
+                        stop_reason=_stop_reason, finalize=finalize,
+                        needs_stopping_rule=not (final_threshold > 0 or acceptance_floor > 0))
+
+
+def _stop_reason(settings: dict, info: Info) -> str:
+    return (f"final threshold {settings['final_threshold']} or acceptance floor "
+            f"{settings['acceptance_floor']} reached")
 
 
 def log_evidence(level: int, p0: float) -> float:

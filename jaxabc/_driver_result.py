@@ -1,0 +1,69 @@
+"""Result assembly: the driver's final state becomes an :class:`~jaxabc.results.ABCResult`."""
+
+from __future__ import annotations
+
+import time
+from typing import Any
+
+import numpy as np
+
+from jaxabc._driver import Context, Progress, posterior_distances
+from jaxabc.errors import NoPosterior
+from jaxabc.results import ABCResult, versions
+
+__all__ = ["assemble", "final_posterior"]
+
+
+def final_posterior(ctx: Context, prog: Progress) -> tuple[tuple, bool]:
+    """The last completed generation's posterior, or (flagged incomplete) the accepted
+    particles of the generation under way when the run stopped before completing one."""
+    if prog.last_posterior is not None:
+        return prog.last_posterior, False
+    if prog.state is not None:
+        particles, log_w = ctx.compiled.posterior(prog.state)
+        log_w = np.asarray(log_w)
+        if np.any(np.isfinite(log_w)):
+            return (np.asarray(particles), log_w,
+                    posterior_distances(prog.state, len(log_w))), True
+    raise NoPosterior(
+        f"the run stopped ({prog.stop_reason}) after {prog.num_sims} simulations without "
+        "accepting any particle: raise max_simulations / max_wall_time or loosen the threshold"
+    )
+
+
+def assemble(ctx: Context, prog: Progress, dtype: str, metadata: dict | None,
+              seed: int, prior: Any) -> ABCResult:
+    (particles, log_w, dist), incomplete = final_posterior(ctx, prog)
+    algo = ctx.compiled.algorithm
+    stop_reason = prog.stop_reason
+    keep = np.isfinite(log_w)
+    if incomplete:
+        stop_reason += (f"; incomplete: the first generation was not completed, the posterior "
+                        f"holds the {int(keep.sum())} particles accepted so far")
+    w = np.exp(log_w[keep] - np.max(log_w[keep]))
+    distance = ctx.distance
+    meta: dict[str, Any] = {
+        "versions": versions(), "executor": ctx.executor.name,
+        "distance": distance if isinstance(distance, str) else getattr(distance, "__name__", "custom"),
+        "dtype": dtype, "observed": ctx.observed.tolist() if ctx.observed.size <= 10_000 else None,
+        # Seconds since this process started the run, at the end of each generation (after a
+        # resume, counted from the resume).
+        "generation_wall_times": prog.history["wall"],
+        "simulator": ctx.fingerprint["simulator"],
+        "incomplete": incomplete,
+    }
+    extras = dict(algo.finalize(prog.state)) if prog.state is not None else {}
+    log_ev = extras.pop("log_evidence", None)
+    meta.update(extras)
+    meta.update(metadata or {})
+    h = prog.history
+    return ABCResult(
+        particles=particles[keep].astype(np.float64), weights=w / w.sum(),
+        distances=dist[keep] if dist is not None else np.full(int(keep.sum()), np.nan),
+        thresholds=np.asarray(h["threshold"]), simulations_per_step=np.asarray(h["sims"]),
+        acceptance_rates=np.asarray(h["acceptance"]), ess=np.asarray(h["ess"]),
+        num_simulations=prog.num_sims, algorithm=algo.name, settings=algo.settings, prior=prior,
+        seed=seed, stop_reason=stop_reason, wall_time=time.perf_counter() - ctx.t_start,
+        log_evidence=None if log_ev is None else float(log_ev), records=prog.recorder.arrays(),
+        metadata=meta,
+    )
