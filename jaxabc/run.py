@@ -459,8 +459,9 @@ def _algorithm_stop_reason(algorithm: str, settings: dict, info: Any) -> str:
         return (f"acceptance {float(info.acceptance_rate):.4f} < cutoff "
                 f"{settings['acceptance_cutoff']}")
     if algorithm == "abcsubsim":
-        return (f"final threshold {settings['final_threshold']} or acceptance floor "
-                f"{settings['acceptance_floor']} reached")
+        from jaxabc.algorithms.subsim import stop_reason
+
+        return stop_reason(settings, info)
     return "done"
 
 
