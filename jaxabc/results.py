@@ -528,9 +528,10 @@ def load(path: str | Path) -> ABCResult:
     if path.is_dir():
         raise ValueError(f"{path} is a directory, not a jaxabc result file (.npz)")
     try:
-        with np.load(path, allow_pickle=False) as data:
-            if not hasattr(data, "files"):
-                raise ValueError(f"{path} is a single .npy array, not a jaxabc result file (.npz)")
+        data = np.load(path, allow_pickle=False)
+        if not hasattr(data, "files"):
+            raise ValueError(f"{path} is a single .npy array, not a jaxabc result file (.npz)")
+        with data:
             return _from_npz(path, data)
     except (zipfile.BadZipFile, zlib.error, EOFError, OSError, KeyError) as exc:
         raise ValueError(
