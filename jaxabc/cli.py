@@ -127,7 +127,8 @@ def run_config(cfg: dict, resume: bool = False, progress: bool = True):
 def write_outputs(result, folder: Path, truth=None) -> None:
     """Result file, posterior figure and a text summary in ``folder``."""
     folder.mkdir(parents=True, exist_ok=True)
-    result.save(folder / "result.npz")
+    # The folder is the run's own (its checkpoint guards it): a resumed run replaces its result.
+    result.save(folder / "result.npz", overwrite=True)
     if result.particles.shape[1] >= 2:
         result.plot_posterior(folder / "posterior.png",
                               truth=None if truth is None else np.asarray(truth))
