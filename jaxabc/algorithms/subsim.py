@@ -18,6 +18,15 @@ rejected without simulating.
 The chains of a level are sequential: ``1 / P0 - 1`` rounds of ``N P0`` parallel simulations.
 That is why ABCsubsim parallelises less well than APMCABC (``N - N alpha`` independent
 simulations per step), which the speedup benchmark shows.
+
+A level's ``N`` particles are not ``N`` independent draws: they are ``N P0`` chains of
+``1 / P0`` states, and the chains share ancestors (the seeds of a level are states of the
+previous level's chains, often repeated).  As the threshold shrinks, moves are rejected and the
+population collapses onto a few points.  ``Info.ess`` is therefore :func:`population_ess_bound`
+(distinct particles, independent lineages, batch means over lineages), :func:`finalize` adds
+ArviZ's autocorrelation-aware estimate along the chains, and a ``UserWarning`` names the level
+whose chains stopped moving; ``min_distinct_fraction`` and ``acceptance_floor`` stop the run
+there instead.
 """
 
 from __future__ import annotations
