@@ -16,6 +16,7 @@ from jaxabc.errors import SimulationFailure, TooManyFailures
 from jaxabc.executors import ProcessPoolExecutor, SerialExecutor, SimulationBatch, VmapExecutor
 from jaxabc.mpi import MPIExecutor
 from jaxabc.priors import Uniform
+from jaxabc.priors_numpyro import Independent
 from jaxabc.results import ABCResult, load
 from jaxabc.run import run
 from jaxabc.seeding import seed_from_key
@@ -24,6 +25,7 @@ __all__ = [
     "ALGORITHMS",
     "ABCResult",
     "CoverageStudy",
+    "Independent",
     "MPIExecutor",
     "ProcessPoolExecutor",
     "SerialExecutor",

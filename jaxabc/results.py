@@ -564,6 +564,8 @@ def _from_npz(path: Path, data: Any) -> ABCResult:
                 if k not in meta]
     if missing:
         raise ValueError(f"{path} is an incomplete jaxabc result file: missing {', '.join(missing)}")
+    from jaxabc.priors_numpyro import prior_from_dict
+
     records = {k[len("record_"):]: data[k] for k in data.files if k.startswith("record_")}
     records["reasons"] = meta.get("reasons", [])
     return ABCResult(
@@ -571,7 +573,7 @@ def _from_npz(path: Path, data: Any) -> ABCResult:
         thresholds=data["thresholds"], simulations_per_step=data["simulations_per_step"],
         acceptance_rates=data["acceptance_rates"], ess=data["ess"],
         num_simulations=int(meta["num_simulations"]), algorithm=meta["algorithm"],
-        settings=meta["settings"], prior=Uniform.from_dict(meta["prior"]), seed=meta["seed"],
+        settings=meta["settings"], prior=prior_from_dict(meta["prior"]), seed=meta["seed"],
         stop_reason=meta.get("stop_reason", ""), wall_time=meta.get("wall_time", 0.0),
         log_evidence=meta.get("log_evidence"), records=records,
         metadata=meta.get("metadata", {}), diagnostics=meta.get("diagnostics") or {},

@@ -11,9 +11,9 @@ The chains use a Gaussian random-walk proposal with covariance ``lambda x`` the 
 covariance, re-estimated each level; ``lambda`` is adapted from the previous level's move
 acceptance rate to bring it into ``[0.2, 0.5]`` (Chiachio et al. recommend that band): it is
 multiplied by ``acceptance / 0.35`` (limited to ``[0.5, 2]``) whenever the rate falls outside.
-Under a uniform prior the Metropolis ratio is one inside the box, so a move is accepted iff the
-proposal lies in the prior box and meets the level's threshold; proposals outside the box are
-rejected without simulating.
+A move is accepted iff the proposal lies in the prior box, meets the level's threshold and
+passes the Metropolis test on the prior ratio (always, under a uniform prior); proposals outside
+the box are rejected without simulating.
 
 The chains of a level are sequential: ``1 / P0 - 1`` rounds of ``N P0`` parallel simulations.
 That is why ABCsubsim parallelises less well than APMCABC (``N - N alpha`` independent
@@ -224,8 +224,11 @@ def build(
         return Proposal(proposal, inside, jnp.bool_(True))
 
     def update(key, state, proposal, distances):
-        del key
-        accept = proposal.active & (distances < state.threshold)
+        # Metropolis within the level: the prior ratio (one inside the box for a uniform prior,
+        # so then every proposal meeting the threshold is accepted) and the threshold.
+        log_ratio = prior.log_prob(proposal.thetas) - prior.log_prob(state.chain_position)
+        log_u = jnp.log(jax.random.uniform(key, (num_chains,), state.chain_position.dtype))
+        accept = proposal.active & (distances < state.threshold) & (log_u < log_ratio)
         position = jnp.where(accept[:, None], proposal.thetas, state.chain_position)
         chain_d = jnp.where(accept, distances, state.chain_distance)
         start = state.chain_step * num_chains
