@@ -69,7 +69,7 @@ def main() -> None:
             first_rows, first_results = rows, results
         if seed == args.seeds[0] and not args.quick:
             for name, result in results.items():
-                result.save(RESULTS / f"helium_table1_{name}.npz")
+                result.save(RESULTS / f"helium_table1_{name}.npz", overwrite=True)
             draw_figure(results, truth, RESULTS / "helium_table1.png")
     summary = {}
     for name in ("apmcabc", "abcsubsim"):

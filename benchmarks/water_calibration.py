@@ -426,7 +426,7 @@ def main(argv=None) -> dict:
 
     args.out_dir.mkdir(parents=True, exist_ok=True)
     stem = f"water_{args.data}_{args.statistics}"
-    result.save(args.out_dir / f"{stem}.npz")
+    result.save(args.out_dir / f"{stem}.npz", overwrite=True)
     truth = TIP4P_THETA if args.data == "simulated" else None
     result.plot_posterior(args.out_dir / f"{stem}_posterior.png", truth=truth)
     failures = result.records["status"] != 0

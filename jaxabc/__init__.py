@@ -25,6 +25,7 @@ from jaxabc.executors import (
     task_durations,
 )
 from jaxabc.priors import Uniform
+from jaxabc.priors_numpyro import Independent
 from jaxabc.results import ABCResult, load
 from jaxabc.run import run
 from jaxabc.seeding import seed_from_key
@@ -34,6 +35,7 @@ __all__ = [
     "ABCResult",
     "CoverageStudy",
     "DaskExecutor",
+    "Independent",
     "MPIExecutor",
     "ProcessPoolExecutor",
     "SerialExecutor",

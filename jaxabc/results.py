@@ -3,13 +3,23 @@
 A result file is a single ``.npz`` holding the arrays (particles, weights, the record of every
 simulation) and a JSON string ``metadata`` (algorithm, settings, seed, prior, versions,
 threshold history, stopping reason), so it can be read back with NumPy alone.
+
+The Monte Carlo error of the summaries is set by the effective sample size: Kish's
+``1 / sum w^2`` for weighted independent particles; for ABCsubsim, whose population is a set of
+short Markov chains with shared ancestors, the honest estimate of
+:func:`jaxabc.algorithms.subsim.chain_diagnostics` (never more than the distinct particles).
 """
 
 from __future__ import annotations
 
 import json
+import os
 import platform
-from dataclasses import dataclass, field
+import tempfile
+import warnings
+import zipfile
+import zlib
+from dataclasses import InitVar, dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -18,6 +28,10 @@ import numpy as np
 from jaxabc.priors import Uniform
 
 __all__ = ["ABCResult", "load", "versions", "write_outputs"]
+
+RESULT_FORMAT = "jaxabc-result-1"
+_REQUIRED_ARRAYS = ("particles", "weights", "distances", "thresholds", "simulations_per_step",
+                    "acceptance_rates", "ess")
 
 
 def versions() -> dict[str, str]:
@@ -70,6 +84,12 @@ class ABCResult:
         ``iteration``, and ``reasons`` (list of str).
     metadata : dict
         Versions, executor, distance, anything else worth keeping.
+    diagnostics : dict
+        Monte Carlo diagnostics of the final population (for ABCsubsim: distinct particles,
+        chain ESS, whether the chains stopped moving); filled in on construction.
+    check : bool
+        Warn on construction when the final population is degenerate (ABCsubsim chains that
+        stopped moving); :func:`load` passes False.
     """
 
     particles: np.ndarray
@@ -89,6 +109,37 @@ class ABCResult:
     log_evidence: float | None = None
     records: dict[str, Any] = field(default_factory=dict)
     metadata: dict[str, Any] = field(default_factory=dict)
+    diagnostics: dict[str, Any] = field(default_factory=dict)
+    check: InitVar[bool] = True
+
+    def __post_init__(self, check: bool) -> None:
+        if not self._is_chain_population() or "chain_ess" in self.diagnostics:
+            return
+        from jaxabc.algorithms.subsim import chain_diagnostics
+
+        ess = np.array(self.ess, dtype=np.float64, copy=True)
+        level = len(self.thresholds) - 1
+        acceptance = float(self.acceptance_rates[-1]) if len(self.acceptance_rates) else 1.0
+        # The driver's per-level ESS (ABCsubsim's jittable lineage bound) caps the chain estimate.
+        bound = float(ess[-1]) if ess.size else None
+        self.diagnostics = {**self.diagnostics,
+                            **chain_diagnostics(self.particles, self.settings, level, acceptance,
+                                                bound)}
+        if ess.size:
+            ess[-1] = self.diagnostics["ess"]
+            self.ess = ess
+        if check and self.diagnostics["warning"]:
+            warnings.warn(self.diagnostics["warning"], UserWarning, stacklevel=3)
+
+    def _is_chain_population(self) -> bool:
+        """ABCsubsim's population (equal weights, chains stored step-major), intact."""
+        if self.algorithm != "abcsubsim":
+            return False
+        num_chains = self.settings.get("num_chains")
+        chain_length = self.settings.get("chain_length")
+        return (num_chains is not None and chain_length is not None
+                and np.ndim(self.particles) == 2
+                and self.particles.shape[0] == int(num_chains) * int(chain_length))
 
     @classmethod
     def from_sample(cls, particles: np.ndarray, weights: np.ndarray, prior: Uniform,
@@ -139,13 +190,53 @@ class ABCResult:
         return cov / np.outer(sd, sd)
 
     def effective_sample_size(self) -> float:
-        """Kish's ``1 / sum w^2``."""
-        return float(1.0 / np.sum(self.weights**2))
+        """Effective sample size of the final population, the one that sets Monte Carlo errors.
 
-    def credible_interval(self, level: float = 0.95) -> np.ndarray:
-        """Equal-tailed weighted credible interval per parameter, shape (d, 2)."""
+        Kish's ``1 / sum w^2`` for weighted independent particles; for an ABCsubsim population
+        of Markov chains the autocorrelation- and lineage-aware estimate in ``ess[-1]``
+        (never more than the distinct particles).
+        """
+        kish = float(1.0 / np.sum(self.weights**2))
+        if self._is_chain_population() and "ess" in self.diagnostics:
+            return min(kish, float(self.diagnostics["ess"]))
+        return kish
+
+    def mcse(self) -> np.ndarray:
+        """Monte Carlo standard error of :meth:`bayes_estimate`, shape (d,).
+
+        The posterior standard deviation over ``sqrt(ESS)`` with the ESS of
+        :meth:`effective_sample_size`: the error of the estimate from the finite sample, not
+        the posterior's width.
+        """
+        return np.sqrt(np.diag(self.covariance()) / self.effective_sample_size())
+
+    def credible_interval(self, level: float = 0.95, adjust_for_ess: bool = False) -> np.ndarray:
+        """Equal-tailed weighted credible interval per parameter, shape (d, 2).
+
+        Parameters
+        ----------
+        level : float
+            In (0, 1).
+        adjust_for_ess : bool
+            Widen each interval about the weighted median by the factor
+            ``t_{ESS-1}(q) sqrt(1 + 1 / ESS) / z(q)`` (a prediction interval from ``ESS``
+            effective draws), so that a small effective sample does not give overconfident
+            intervals; the ESS is :meth:`effective_sample_size`.
+        """
         if not 0.0 < level < 1.0:
             raise ValueError(f"level must lie in (0, 1), got {level}")
+        out = self._quantile_interval(level)
+        if adjust_for_ess:
+            from scipy.stats import norm, t
+
+            ess = max(self.effective_sample_size(), 2.0)
+            q = (1.0 + level) / 2.0
+            factor = t.ppf(q, ess - 1.0) * np.sqrt(1.0 + 1.0 / ess) / norm.ppf(q)
+            median = self._quantile_interval(1e-9)[:, 0]
+            out = median[:, None] + factor * (out - median[:, None])
+        return out
+
+    def _quantile_interval(self, level: float) -> np.ndarray:
         lo_q, hi_q = (1.0 - level) / 2.0, (1.0 + level) / 2.0
         out = np.empty((self.particles.shape[1], 2))
         for j in range(self.particles.shape[1]):
@@ -210,17 +301,20 @@ class ABCResult:
         return self.particles[rng.choice(self.particles.shape[0], size=num, p=self.weights)]
 
     def summary(self) -> str:
-        """A few lines for a terminal."""
-        est, ci = self.bayes_estimate(), self.credible_interval(0.95)
+        """A few lines for a terminal: estimates with their Monte Carlo errors and intervals."""
+        est, ci, err = self.bayes_estimate(), self.credible_interval(0.95), self.mcse()
         lines = [
             f"{self.algorithm}: {self.num_simulations} simulations "
             f"({self.num_failures} failed), {len(self.thresholds)} steps, "
-            f"final threshold {self.thresholds[-1]:.4g}, ESS {self.effective_sample_size():.0f}, "
-            f"stopped: {self.stop_reason}, {self.wall_time:.1f} s",
+            f"final threshold {self.thresholds[-1]:.4g}, ESS {self.effective_sample_size():.1f} "
+            f"of {self.particles.shape[0]}, stopped: {self.stop_reason}, {self.wall_time:.1f} s",
         ]
+        if self.diagnostics.get("warning"):
+            lines.append(f"  warning: {self.diagnostics['warning']}")
         for j, name in enumerate(self.names):
             unit = self.prior.units[j] if self.prior.units[j] else ""
-            lines.append(f"  {name:>12s} = {est[j]:.5g} {unit}  95% CI [{ci[j, 0]:.5g}, {ci[j, 1]:.5g}]")
+            lines.append(f"  {name:>12s} = {est[j]:.5g} +- {err[j]:.2g} (MCSE) {unit}  "
+                         f"95% CI [{ci[j, 0]:.5g}, {ci[j, 1]:.5g}]")
         if len(self.names) > 1:
             lines.append("  correlation:\n" + np.array2string(self.correlation(), precision=3))
         return "\n".join(lines)
@@ -229,7 +323,7 @@ class ABCResult:
 
     def to_metadata(self) -> dict:
         return {
-            "format": "jaxabc-result-1",
+            "format": RESULT_FORMAT,
             "algorithm": self.algorithm,
             "settings": self.settings,
             "prior": self.prior.to_dict(),
@@ -242,13 +336,36 @@ class ABCResult:
             "correlation": self.correlation().tolist(),
             "reasons": list(self.records.get("reasons", [])),
             "metadata": self.metadata,
+            "diagnostics": self.diagnostics,
         }
 
-    def save(self, path: str | Path) -> Path:
-        """Write the result to ``path`` (``.npz`` appended if missing); returns the path."""
+    def save(self, path: str | Path, overwrite: bool = False) -> Path:
+        """Write the result to ``path`` with ``.npz`` appended unless it ends in ``.npz``.
+
+        The file is written to a temporary file in the same folder and moved into place, so an
+        interrupted save leaves either the old file or the complete new one.
+
+        Parameters
+        ----------
+        path : str or Path
+            ``"run_alpha0.1"`` writes ``run_alpha0.1.npz``.
+        overwrite : bool
+            Replace an existing file; without it an existing file raises ``FileExistsError``.
+
+        Returns
+        -------
+        Path
+            The file written.
+        """
         path = Path(path)
         if path.suffix != ".npz":
-            path = path.with_suffix(".npz")
+            path = path.with_name(path.name + ".npz")
+        if path.is_dir():
+            raise IsADirectoryError(f"cannot save the result to {path}: it is a directory")
+        if path.exists() and not overwrite:
+            raise FileExistsError(
+                f"{path} exists: pass overwrite=True to replace it, or choose another name"
+            )
         path.parent.mkdir(parents=True, exist_ok=True)
         arrays = {
             "particles": self.particles,
@@ -262,11 +379,82 @@ class ABCResult:
         for k, v in self.records.items():
             if k != "reasons":
                 arrays[f"record_{k}"] = np.asarray(v)
-        tmp = path.with_name(path.name + ".tmp.npz")
-        np.savez_compressed(tmp, metadata=json.dumps(self.to_metadata(), default=_json_default),
-                            **arrays)
-        tmp.replace(path)
+        metadata = json.dumps(self.to_metadata(), default=_json_default)
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+        try:
+            with os.fdopen(fd, "wb") as fh:
+                np.savez_compressed(fh, metadata=metadata, **arrays)
+                fh.flush()
+                os.fsync(fh.fileno())
+            os.replace(tmp, path)
+        except BaseException:
+            Path(tmp).unlink(missing_ok=True)
+            raise
         return path
+
+    def to_arviz(self, num_draws: int | None = None, seed: int = 0):
+        """The posterior as an ArviZ ``InferenceData``.
+
+        Groups: ``posterior`` (one variable per parameter name), ``sample_stats``
+        (``distance`` of each draw), ``observed_data`` (``observed``, when the run stored it) and
+        ``constant_data`` (per-step ``threshold``, ``simulations``, ``acceptance_rate``,
+        ``ess``).  An ABCsubsim population is given as its chains (``num_chains`` chains of
+        ``1 / P0`` draws), so ArviZ's diagnostics see the autocorrelation; any other posterior
+        is resampled by weight into one chain of ``num_draws`` equally weighted draws
+        (default: as many as particles).  ``attrs`` state the algorithm, how the draws were
+        made and the effective sample size.
+
+        Raises
+        ------
+        ImportError
+            Without ArviZ (``pip install arviz``, or the ``arviz`` extra of jaxabc).
+        """
+        try:
+            with warnings.catch_warnings():
+                # ArviZ 0.x announces its 1.0 refactor with a FutureWarning on import.
+                warnings.simplefilter("ignore", FutureWarning)
+                import arviz as az
+        except ImportError as exc:
+            raise ImportError("to_arviz needs ArviZ: pip install arviz") from exc
+        if self._is_chain_population() and num_draws is None:
+            from jaxabc.algorithms.subsim import level_chains
+
+            num_chains = int(self.settings["num_chains"])
+            draws = level_chains(self.particles, num_chains)
+            distances = level_chains(np.asarray(self.distances)[:, None], num_chains)[..., 0]
+            how = f"ABCsubsim chains: {num_chains} chains of {draws.shape[1]} states"
+        else:
+            n = self.particles.shape[0] if num_draws is None else int(num_draws)
+            if n < 1:
+                raise ValueError(f"num_draws must be a positive integer, got {num_draws}")
+            rng = np.random.default_rng(seed)
+            idx = rng.choice(self.particles.shape[0], size=n, p=self.weights)
+            draws = self.particles[idx][None]
+            distances = np.asarray(self.distances)[idx][None]
+            how = f"{n} draws resampled by weight (seed {seed})"
+        posterior = {name: draws[..., j] for j, name in enumerate(self.names)}
+        constant = {"threshold": np.asarray(self.thresholds, np.float64),
+                    "simulations": np.asarray(self.simulations_per_step),
+                    "acceptance_rate": np.asarray(self.acceptance_rates, np.float64),
+                    "ess": np.asarray(self.ess, np.float64)}
+        dims = {k: ["step"] for k in constant}
+        observed = self.metadata.get("observed")
+        kwargs = {}
+        if observed is not None:
+            kwargs["observed_data"] = {"observed": np.asarray(observed, np.float64)}
+        with warnings.catch_warnings():
+            # ABCsubsim has more chains than draws by design; ArviZ warns about that shape.
+            warnings.filterwarnings("ignore", message="More chains", category=UserWarning)
+            return az.from_dict(
+                posterior=posterior,
+                sample_stats={"distance": np.asarray(distances, np.float64)},
+                constant_data=constant,
+                dims=dims,
+                attrs={"algorithm": self.algorithm, "draws": how,
+                       "effective_sample_size": self.effective_sample_size(),
+                       "stop_reason": self.stop_reason, "inference_library": "jaxabc"},
+                **kwargs,
+            )
 
     # -- plots -------------------------------------------------------------------------------
 
@@ -324,26 +512,73 @@ def _json_default(obj: Any) -> Any:
 
 
 def load(path: str | Path) -> ABCResult:
-    """Read a result written by :meth:`ABCResult.save`."""
+    """Read a result written by :meth:`ABCResult.save`.
+
+    Raises
+    ------
+    FileNotFoundError
+        If there is no file at ``path``.
+    ValueError
+        If ``path`` is a directory, or not a readable jaxabc result file (corrupt, truncated,
+        another program's ``.npz``); the message names the file and what is wrong.
+    """
     path = Path(path)
     if not path.exists():
         raise FileNotFoundError(f"no result file at {path}")
-    with np.load(path, allow_pickle=False) as data:
-        meta = json.loads(str(data["metadata"]))
-        if meta.get("format") != "jaxabc-result-1":
-            raise ValueError(f"{path} is not a jaxabc result file (format {meta.get('format')!r})")
-        records = {k[len("record_"):]: data[k] for k in data.files if k.startswith("record_")}
-        records["reasons"] = meta.get("reasons", [])
-        return ABCResult(
-            particles=data["particles"], weights=data["weights"], distances=data["distances"],
-            thresholds=data["thresholds"], simulations_per_step=data["simulations_per_step"],
-            acceptance_rates=data["acceptance_rates"], ess=data["ess"],
-            num_simulations=int(meta["num_simulations"]), algorithm=meta["algorithm"],
-            settings=meta["settings"], prior=Uniform.from_dict(meta["prior"]), seed=meta["seed"],
-            stop_reason=meta.get("stop_reason", ""), wall_time=meta.get("wall_time", 0.0),
-            log_evidence=meta.get("log_evidence"), records=records,
-            metadata=meta.get("metadata", {}),
+    if path.is_dir():
+        raise ValueError(f"{path} is a directory, not a jaxabc result file (.npz)")
+    try:
+        data = np.load(path, allow_pickle=False)
+        if not hasattr(data, "files"):
+            raise ValueError(f"{path} is a single .npy array, not a jaxabc result file (.npz)")
+        with data:
+            return _from_npz(path, data)
+    except (zipfile.BadZipFile, zlib.error, EOFError, OSError, KeyError) as exc:
+        raise ValueError(
+            f"{path} cannot be read as a jaxabc result file (corrupt or truncated .npz?): "
+            f"{type(exc).__name__}: {exc}"
+        ) from None
+    except ValueError as exc:
+        if str(path) in str(exc):
+            raise
+        # np.load's own refusals: not an .npy/.npz, or pickled objects.
+        raise ValueError(f"{path} is not a jaxabc result file: {exc}") from None
+
+
+def _from_npz(path: Path, data: Any) -> ABCResult:
+    if "metadata" not in data.files:
+        raise ValueError(
+            f"{path} is an .npz without jaxabc metadata (arrays: {', '.join(data.files[:8])}): "
+            "not a jaxabc result file"
         )
+    try:
+        meta = json.loads(str(data["metadata"]))
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"{path}: the result metadata is not valid JSON ({exc})") from None
+    if not isinstance(meta, dict) or meta.get("format") != RESULT_FORMAT:
+        found = meta.get("format") if isinstance(meta, dict) else type(meta).__name__
+        raise ValueError(f"{path} is not a jaxabc result file (format {found!r}, "
+                         f"expected {RESULT_FORMAT!r})")
+    missing = [k for k in _REQUIRED_ARRAYS if k not in data.files]
+    missing += [k for k in ("num_simulations", "algorithm", "settings", "prior", "seed")
+                if k not in meta]
+    if missing:
+        raise ValueError(f"{path} is an incomplete jaxabc result file: missing {', '.join(missing)}")
+    from jaxabc.priors_numpyro import prior_from_dict
+
+    records = {k[len("record_"):]: data[k] for k in data.files if k.startswith("record_")}
+    records["reasons"] = meta.get("reasons", [])
+    return ABCResult(
+        particles=data["particles"], weights=data["weights"], distances=data["distances"],
+        thresholds=data["thresholds"], simulations_per_step=data["simulations_per_step"],
+        acceptance_rates=data["acceptance_rates"], ess=data["ess"],
+        num_simulations=int(meta["num_simulations"]), algorithm=meta["algorithm"],
+        settings=meta["settings"], prior=prior_from_dict(meta["prior"]), seed=meta["seed"],
+        stop_reason=meta.get("stop_reason", ""), wall_time=meta.get("wall_time", 0.0),
+        log_evidence=meta.get("log_evidence"), records=records,
+        metadata=meta.get("metadata", {}), diagnostics=meta.get("diagnostics") or {},
+        check=False,
+    )
 
 
 def write_outputs(result: ABCResult, folder: str | Path, truth: np.ndarray | None = None) -> None:
@@ -353,7 +588,8 @@ def write_outputs(result: ABCResult, folder: str | Path, truth: np.ndarray | Non
     """
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
-    result.save(folder / "result.npz")
+    # The folder is the run's own (its checkpoint guards it): a resumed run replaces its result.
+    result.save(folder / "result.npz", overwrite=True)
     if result.particles.shape[1] >= 2:
         result.plot_posterior(folder / "posterior.png", truth=None if truth is None else np.asarray(truth))
     (folder / "summary.txt").write_text(result.summary() + "\n")

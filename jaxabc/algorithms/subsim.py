@@ -11,28 +11,52 @@ The chains use a Gaussian random-walk proposal with covariance ``lambda x`` the 
 covariance, re-estimated each level; ``lambda`` is adapted from the previous level's move
 acceptance rate to bring it into ``[0.2, 0.5]`` (Chiachio et al. recommend that band): it is
 multiplied by ``acceptance / 0.35`` (limited to ``[0.5, 2]``) whenever the rate falls outside.
-Under a uniform prior the Metropolis ratio is one inside the box, so a move is accepted iff the
-proposal lies in the prior box and meets the level's threshold; proposals outside the box are
-rejected without simulating.
+A move is accepted iff the proposal lies in the prior box, meets the level's threshold and
+passes the Metropolis test on the prior ratio (always, under a uniform prior); proposals outside
+the box are rejected without simulating.
 
 The chains of a level are sequential: ``1 / P0 - 1`` rounds of ``N P0`` parallel simulations.
 That is why ABCsubsim parallelises less well than APMCABC (``N - N alpha`` independent
 simulations per step), which the speedup benchmark shows.
+
+A level's ``N`` particles are not ``N`` independent draws: they are ``N P0`` chains of
+``1 / P0`` states, and the chains share ancestors (the seeds of a level are states of the
+previous level's chains, often repeated).  As the threshold shrinks, moves are rejected and the
+population collapses onto a few points.  ``Info.ess`` is therefore :func:`population_ess_bound`
+(distinct particles, independent lineages, batch means over lineages), :func:`finalize` adds
+ArviZ's autocorrelation-aware estimate along the chains, and a ``UserWarning`` names the level
+whose chains stopped moving; ``min_distinct_fraction`` and ``acceptance_floor`` stop the run
+there instead.
 """
 
 from __future__ import annotations
 
+import functools
 import math
-from typing import NamedTuple
+import warnings
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from jaxabc import kernels
 from jaxabc.algorithms.base import ABCAlgorithm, Info, Proposal
+from jaxabc.diagnostics import chain_ess
+from jaxabc.diagnostics import count_distinct as count_distinct_host
 from jaxabc.priors import Prior
 
-__all__ = ["SubsimState", "build"]
+__all__ = [
+    "SubsimState",
+    "build",
+    "chain_diagnostics",
+    "count_distinct",
+    "finalize",
+    "level_chains",
+    "log_evidence",
+    "population_ess_bound",
+    "stop_reason",
+]
 
 
 class SubsimState(NamedTuple):
@@ -63,6 +87,18 @@ class SubsimState(NamedTuple):
     moves_proposed : jax.Array, shape ()
     level_acceptance : jax.Array, shape ()
         Move acceptance rate of the last completed level.
+    ancestors : jax.Array, shape (N,), int32
+        For each particle of ``particles``, the index of its level-0 (prior draw) ancestor.
+    chain_ancestors : jax.Array, shape (C,), int32
+        The level-0 ancestor of each chain of the level being built.
+    num_distinct : jax.Array, shape (), int32
+        Distinct parameter vectors in ``particles``.
+
+    Notes
+    -----
+    ``particles`` and ``buffer`` are stored step-major: row ``s C + c`` is chain ``c`` after
+    ``s`` moves, so ``particles.reshape(1 / P0, C, d).swapaxes(0, 1)`` gives the chains
+    (see :func:`level_chains`).
     """
 
     particles: jax.Array
@@ -79,6 +115,9 @@ class SubsimState(NamedTuple):
     moves_accepted: jax.Array
     moves_proposed: jax.Array
     level_acceptance: jax.Array
+    ancestors: jax.Array
+    chain_ancestors: jax.Array
+    num_distinct: jax.Array
 
 
 def build(
@@ -88,6 +127,7 @@ def build(
     final_threshold: float = 0.0,
     acceptance_floor: float = 0.0,
     initial_scale: float = 1.0,
+    min_distinct_fraction: float = 0.0,
 ) -> ABCAlgorithm:
     """Build ABCsubsim.
 
@@ -104,7 +144,18 @@ def build(
         Stop when a level's move acceptance rate falls below this (the chains no longer mix).
     initial_scale : float
         Starting ``lambda``.
+    min_distinct_fraction : float
+        Stop when a level holds fewer than ``min_distinct_fraction * N`` distinct particles (the
+        chains have stopped moving; the population is a few points repeated), in [0, 1].
+
+    Notes
+    -----
+    ``Info.ess`` is :func:`population_ess_bound` (jittable); :func:`finalize` adds ArviZ's
+    autocorrelation-aware estimate along the chains on the host and warns when the chains of
+    the last level stopped moving.
     """
+    if not 0.0 <= min_distinct_fraction <= 1.0:
+        raise ValueError(f"min_distinct_fraction must lie in [0, 1], got {min_distinct_fraction}")
     if not 0.0 < p0 <= 0.5:
         raise ValueError(f"p0 must lie in (0, 0.5], got {p0}; Chiachio et al. use 0.1-0.2")
     chain_length = round(1.0 / p0)
@@ -119,7 +170,7 @@ def build(
         raise ValueError(f"num_particles*p0 = {num_chains} chains: need at least 2")
     low, high = prior.low, prior.high
 
-    def _new_level(particles, distances, scale, level, level_acceptance):
+    def _new_level(particles, distances, ancestors, scale, level, level_acceptance):
         order = jnp.argsort(distances, stable=True)
         sorted_d = distances[order]
         threshold = 0.5 * (sorted_d[num_chains - 1] + sorted_d[num_chains])
@@ -146,10 +197,13 @@ def build(
             moves_accepted=jnp.int32(0),
             moves_proposed=jnp.int32(0),
             level_acceptance=level_acceptance,
+            ancestors=ancestors,
+            chain_ancestors=ancestors[order[:num_chains]],
+            num_distinct=count_distinct(particles),
         )
 
     def _info(state, done, stop, threshold, acceptance):
-        return Info(done, stop, threshold, acceptance, jnp.asarray(n, state.particles.dtype))
+        return Info(done, stop, threshold, acceptance, population_ess_bound(state))
 
     def initial_proposal(key):
         return Proposal(prior.sample(key, n), jnp.ones((n,), bool), jnp.bool_(True))
@@ -157,8 +211,8 @@ def build(
     def init(key, proposal, distances):
         del key
         dtype = proposal.thetas.dtype
-        state = _new_level(proposal.thetas, distances, jnp.asarray(initial_scale, dtype),
-                           jnp.int32(0), jnp.asarray(1.0, dtype))
+        state = _new_level(proposal.thetas, distances, jnp.arange(n, dtype=jnp.int32),
+                           jnp.asarray(initial_scale, dtype), jnp.int32(0), jnp.asarray(1.0, dtype))
         # Level 0's population is the prior sample, at tolerance +inf.
         return state, _info(state, jnp.bool_(True), jnp.bool_(False),
                             jnp.asarray(jnp.inf, dtype), jnp.asarray(1.0, dtype))
@@ -170,8 +224,11 @@ def build(
         return Proposal(proposal, inside, jnp.bool_(True))
 
     def update(key, state, proposal, distances):
-        del key
-        accept = proposal.active & (distances < state.threshold)
+        # Metropolis within the level: the prior ratio (one inside the box for a uniform prior,
+        # so then every proposal meeting the threshold is accepted) and the threshold.
+        log_ratio = prior.log_prob(proposal.thetas) - prior.log_prob(state.chain_position)
+        log_u = jnp.log(jax.random.uniform(key, (num_chains,), state.chain_position.dtype))
+        accept = proposal.active & (distances < state.threshold) & (log_u < log_ratio)
         position = jnp.where(accept[:, None], proposal.thetas, state.chain_position)
         chain_d = jnp.where(accept, distances, state.chain_distance)
         start = state.chain_step * num_chains
@@ -189,7 +246,9 @@ def build(
             factor = jnp.where(out_of_band, jnp.clip(rate / 0.35, 0.5, 2.0), 1.0)
             # The level's population (all below state.threshold) is the posterior at that
             # tolerance; the next level's seeds and threshold come from it.
-            return _new_level(particles, dists, state.scale * factor, state.level + 1, rate)
+            ancestors = jnp.tile(state.chain_ancestors, chain_length)
+            return _new_level(particles, dists, ancestors, state.scale * factor, state.level + 1,
+                              rate)
 
         def carry_on(_):
             return state._replace(
@@ -199,7 +258,8 @@ def build(
             )
 
         new_state = jax.lax.cond(level_done, finish, carry_on, None)
-        stop = level_done & ((state.threshold <= final_threshold) | (rate < acceptance_floor))
+        stop = level_done & ((state.threshold <= final_threshold) | (rate < acceptance_floor)
+                             | (new_state.num_distinct < min_distinct_fraction * n))
         return new_state, _info(new_state, level_done, stop, state.threshold, rate)
 
     def posterior(state):
@@ -213,21 +273,146 @@ def build(
         "final_threshold": final_threshold,
         "acceptance_floor": acceptance_floor,
         "initial_scale": initial_scale,
+        "min_distinct_fraction": min_distinct_fraction,
     }
-    def finalize(state):
-        level = int(state.level)
-        return {"log_evidence": log_evidence(level, p0), "level": level}
-
     return ABCAlgorithm("abcsubsim", initial_proposal, init, propose, update, posterior, settings,
-                        stop_reason=_stop_reason, finalize=finalize,
+                        stop_reason=stop_reason,
+                        finalize=functools.partial(finalize, settings=settings),
                         needs_stopping_rule=not (final_threshold > 0 or acceptance_floor > 0))
 
 
-def _stop_reason(settings: dict, info: Info) -> str:
-    return (f"final threshold {settings['final_threshold']} or acceptance floor "
-            f"{settings['acceptance_floor']} reached")
+def count_distinct(x: jax.Array) -> jax.Array:
+    """Number of distinct rows of ``x`` (shape (n, d) or (n,)), jittable; shape (), int32."""
+    x = x.reshape(x.shape[0], -1)
+    order = jnp.lexsort(tuple(x[:, j] for j in reversed(range(x.shape[1]))))
+    xs = x[order]
+    return (1 + jnp.sum(jnp.any(xs[1:] != xs[:-1], axis=1))).astype(jnp.int32)
+
+
+def population_ess_bound(state: SubsimState) -> jax.Array:
+    """A jittable bound on the effective sample size of ``state.particles``; shape ().
+
+    The chains of a level share ancestors (seeds are repeated and descend from earlier chains),
+    so their particles are correlated across chains as well as along them.  The bound is the
+    smallest of the number of distinct particles, the number of distinct level-0 ancestors
+    (independent lineages) and, per parameter, a batch-means estimate over lineages
+    (``var / Var(mean)`` with the variance of the mean from the lineages' sums, a cluster-robust
+    estimate).  With one lineage it is 1.  The host adds an autocorrelation-aware estimate along
+    the chains (:func:`jaxabc.diagnostics.chain_ess`).
+    """
+    x = state.particles.reshape(state.particles.shape[0], -1)
+    n = x.shape[0]
+    dtype = x.dtype
+    lineages = count_distinct(state.ancestors)
+    sums = jax.ops.segment_sum(x, state.ancestors, num_segments=n)
+    counts = jax.ops.segment_sum(jnp.ones((n,), dtype), state.ancestors, num_segments=n)
+    mean = jnp.mean(x, axis=0)
+    k = lineages.astype(dtype)
+    var_of_mean = (jnp.sum((sums - counts[:, None] * mean) ** 2, axis=0) / n**2
+                   * k / jnp.maximum(k - 1.0, 1.0))
+    var = jnp.var(x, axis=0, ddof=1)
+    # A parameter that does not vary across lineages (or at all) carries no bound of its own.
+    per_param = jnp.where(var_of_mean > 0, var / jnp.where(var_of_mean > 0, var_of_mean, 1.0),
+                          jnp.inf)
+    bound = jnp.minimum(jnp.minimum(state.num_distinct, lineages).astype(dtype),
+                        jnp.min(per_param))
+    return jnp.maximum(bound, 1.0)
 
 
 def log_evidence(level: int, p0: float) -> float:
     """``log P(d < eps_level)`` estimated by ABCsubsim: ``level * log(P0)``."""
     return level * math.log(p0)
+
+
+def level_chains(particles: Any, num_chains: int) -> np.ndarray:
+    """A level's population as its chains, shape (num_chains, 1 / P0, d).
+
+    ``particles`` (shape (N, d), as in :class:`SubsimState` and in the result) is step-major:
+    row ``s C + c`` is chain ``c`` after ``s`` moves.
+    """
+    x = np.asarray(particles)
+    if x.ndim != 2 or x.shape[0] % num_chains:
+        raise ValueError(f"particles of shape {x.shape} are not {num_chains} chains of equal length")
+    return x.reshape(x.shape[0] // num_chains, num_chains, x.shape[1]).swapaxes(0, 1)
+
+
+def chain_diagnostics(particles: Any, settings: dict, level: int, level_acceptance: float,
+                      ess_bound: float | None = None) -> dict:
+    """Host diagnostics of a completed level's population, with a warning when stuck.
+
+    Parameters
+    ----------
+    particles : array_like, shape (N, d)
+        The level's population in state order (see :func:`level_chains`).
+    settings : dict
+        The algorithm's settings (``num_chains``, ``chain_length``, ``acceptance_floor``).
+    level : int
+        ``j``; level 0 is the prior sample (independent draws).
+    level_acceptance : float
+        The level's chain-move acceptance rate.
+    ess_bound : float, optional
+        :func:`population_ess_bound` of the state, when the state is at hand.
+
+    Returns
+    -------
+    dict
+        ``ess`` (the smaller of :func:`jaxabc.diagnostics.chain_ess` and ``ess_bound``),
+        ``chain_ess``, ``ess_bound``, ``num_distinct``, ``level``, ``level_acceptance``,
+        ``chains_stuck`` (fewer distinct particles than chains, or acceptance below the floor)
+        and ``warning`` (the message, empty when not stuck).
+    """
+    x = np.asarray(particles, np.float64)
+    n, num_chains = x.shape[0], int(settings["num_chains"])
+    distinct = count_distinct_host(x)
+    # Level 0 is the prior sample: independent draws, not chains.
+    ess = float(distinct) if level == 0 else chain_ess(level_chains(x, num_chains))
+    chain_value = ess
+    if ess_bound is not None:
+        ess = min(ess, float(ess_bound))
+    floor = float(settings.get("acceptance_floor", 0.0))
+    stuck = level > 0 and (distinct < num_chains or level_acceptance < floor)
+    message = ""
+    if stuck:
+        message = (
+            f"ABCsubsim level {level}: the chains have stopped moving (move acceptance "
+            f"{level_acceptance:.3g}, {distinct} distinct particles of {n} for {num_chains} "
+            f"chains); the effective sample size is {ess:.1f}, not {n}. Stop earlier "
+            "(num_steps, final_threshold) or set acceptance_floor / min_distinct_fraction"
+        )
+    return {"ess": ess, "chain_ess": chain_value, "ess_bound": None if ess_bound is None else float(ess_bound),
+            "num_distinct": distinct, "level": int(level),
+            "level_acceptance": float(level_acceptance), "chains_stuck": bool(stuck),
+            "warning": message}
+
+
+def finalize(state: SubsimState, settings: dict) -> dict:
+    """Result extras of a run that ended in ``state``: ESS, level, evidence, diagnostics.
+
+    Warns (``UserWarning``) when the last level's chains stopped moving.
+
+    Returns
+    -------
+    dict
+        ``{"ess": float, "level": int, "log_evidence": float, "diagnostics": dict}`` with the
+        diagnostics of :func:`chain_diagnostics`.
+    """
+    level = int(state.level)
+    diagnostics = chain_diagnostics(state.particles, settings, level,
+                                    float(state.level_acceptance),
+                                    float(population_ess_bound(state)))
+    if diagnostics["warning"]:
+        warnings.warn(diagnostics["warning"], UserWarning, stacklevel=2)
+    return {"ess": diagnostics["ess"], "level": level,
+            "log_evidence": log_evidence(level, settings["p0"]), "diagnostics": diagnostics}
+
+
+def stop_reason(settings: dict, info: Info) -> str:
+    """Which of ABCsubsim's own stopping rules fired, for a level whose ``info.stop`` is set."""
+    threshold, rate = float(info.threshold), float(info.acceptance_rate)
+    if threshold <= settings["final_threshold"]:
+        return f"final threshold {settings['final_threshold']} reached ({threshold:.4g})"
+    if rate < settings["acceptance_floor"]:
+        return (f"chains stopped moving: move acceptance {rate:.3g} < acceptance floor "
+                f"{settings['acceptance_floor']}")
+    return (f"chains stopped moving: fewer than {settings['min_distinct_fraction']} x "
+            f"{settings['num_particles']} distinct particles (ESS bound {float(info.ess):.1f})")

@@ -263,5 +263,5 @@ class CritiqueReport:
         (out / "report.md").write_text(self.to_markdown(figs))
         (out / "report.json").write_text(json.dumps(self.to_dict(), indent=1, default=str))
         if self.extension is not None:
-            self.extension.save(out / "extension.npz")
+            self.extension.save(out / "extension.npz", overwrite=True)
         return out
