@@ -54,16 +54,22 @@ def assemble(ctx: Context, prog: Progress, dtype: str, metadata: dict | None,
     }
     extras = dict(algo.finalize(prog.state)) if prog.state is not None else {}
     log_ev = extras.pop("log_evidence", None)
+    diagnostics = extras.pop("diagnostics", None) or {}
+    final_ess = extras.pop("ess", None)
     meta.update(extras)
     meta.update(metadata or {})
     h = prog.history
+    ess = np.asarray(h["ess"], np.float64)
+    if final_ess is not None and ess.size:
+        # The algorithm's own end-of-run estimate (e.g. ABCsubsim's chain ESS) bounds the last.
+        ess[-1] = min(ess[-1], float(final_ess))
     return ABCResult(
         particles=particles[keep].astype(np.float64), weights=w / w.sum(),
         distances=dist[keep] if dist is not None else np.full(int(keep.sum()), np.nan),
         thresholds=np.asarray(h["threshold"]), simulations_per_step=np.asarray(h["sims"]),
-        acceptance_rates=np.asarray(h["acceptance"]), ess=np.asarray(h["ess"]),
+        acceptance_rates=np.asarray(h["acceptance"]), ess=ess,
         num_simulations=prog.num_sims, algorithm=algo.name, settings=algo.settings, prior=prior,
         seed=seed, stop_reason=stop_reason, wall_time=time.perf_counter() - ctx.t_start,
         log_evidence=None if log_ev is None else float(log_ev), records=prog.recorder.arrays(),
-        metadata=meta,
+        metadata=meta, diagnostics=diagnostics,
     )
