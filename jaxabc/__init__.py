@@ -47,6 +47,18 @@ def __dir__() -> list[str]:
     return sorted(set(globals()) | set(_LAZY))
 
 
+def _cache_from_environment() -> None:
+    import os
+
+    if os.environ.get("JAXABC_COMPILATION_CACHE"):
+        from jaxabc.fused import enable_compilation_cache
+
+        enable_compilation_cache()
+
+
+_cache_from_environment()
+
+
 __all__ = [
     "ALGORITHMS",
     "ABCResult",
