@@ -9,9 +9,8 @@ The public API::
 
 __version__ = "0.1.0"
 
-from jaxabc import distances, kernels, scheduling
+from jaxabc import distances, kernels
 from jaxabc.algorithms import BUILDERS as ALGORITHMS
-from jaxabc.coverage import CoverageStudy, coverage_study
 from jaxabc.errors import SimulationFailure, TooManyFailures
 from jaxabc.executors import (
     DaskExecutor,
@@ -27,8 +26,48 @@ from jaxabc.executors import (
 from jaxabc.priors import Uniform
 from jaxabc.priors_numpyro import Independent
 from jaxabc.results import ABCResult, load
-from jaxabc.run import run
+from jaxabc.run import run  # eager: the function shadows the submodule ``jaxabc.run``
 from jaxabc.seeding import seed_from_key
+
+# Imported on first use (PEP 562), so that ``import jaxabc`` and a plain ``run`` do not pay
+# for modules they do not touch.
+_LAZY = {
+    "CoverageStudy": ("jaxabc.coverage", "CoverageStudy"),
+    "coverage_study": ("jaxabc.coverage", "coverage_study"),
+    "enable_compilation_cache": ("jaxabc.fused", "enable_compilation_cache"),
+    "run_fused": ("jaxabc.fused", "run_fused"),
+    "scheduling": ("jaxabc.scheduling", None),
+}
+
+
+def __getattr__(name: str):
+    try:
+        module_name, attr = _LAZY[name]
+    except KeyError:
+        raise AttributeError(f"module 'jaxabc' has no attribute {name!r}") from None
+    import importlib
+
+    module = importlib.import_module(module_name)
+    value = module if attr is None else getattr(module, attr)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(_LAZY))
+
+
+def _cache_from_environment() -> None:
+    import os
+
+    if os.environ.get("JAXABC_COMPILATION_CACHE"):
+        from jaxabc.fused import enable_compilation_cache
+
+        enable_compilation_cache()
+
+
+_cache_from_environment()
+
 
 __all__ = [
     "ALGORITHMS",
@@ -47,11 +86,13 @@ __all__ = [
     "__version__",
     "coverage_study",
     "distances",
+    "enable_compilation_cache",
     "get_executor",
     "kernels",
     "load",
     "mark_nonfinite",
     "run",
+    "run_fused",
     "scheduling",
     "seed_from_key",
     "task_durations",

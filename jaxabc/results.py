@@ -35,20 +35,22 @@ _REQUIRED_ARRAYS = ("particles", "weights", "distances", "thresholds", "simulati
 
 
 def versions() -> dict[str, str]:
-    """Versions of the packages that shape a result, for result files and benchmarks."""
-    import jax
+    """Versions of the packages that shape a result, for result files and benchmarks.
 
-    out = {"python": platform.python_version(), "numpy": np.__version__, "jax": jax.__version__}
-    try:
-        from importlib.metadata import version
+    Read from the installed distributions' metadata, so stamping a result never imports
+    jax-md or mdtraj (importing jax-md alone costs seconds).  A package that is not installed
+    is left out.
+    """
+    from importlib.metadata import PackageNotFoundError, version
 
-        import jax_md
-
-        out["jax_md"] = version("jax-md") if jax_md else "unknown"
-    except ImportError:
-        pass
     from jaxabc import __version__
 
+    out = {"python": platform.python_version(), "numpy": np.__version__}
+    for key, dist in (("jax", "jax"), ("jaxlib", "jaxlib"), ("jax_md", "jax-md")):
+        try:
+            out[key] = version(dist)
+        except PackageNotFoundError:
+            pass
     out["jaxabc"] = __version__
     return out
 

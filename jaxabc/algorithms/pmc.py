@@ -1,10 +1,16 @@
 """Population Monte Carlo ABC (Beaumont, Cornuet, Marin & Robert 2009), and rejection ABC.
 
-PMC-ABC fills each generation of ``N`` particles by repeated rounds: every empty slot draws a
-parent from the previous generation, perturbs it with a truncated Gaussian of twice the
-previous weighted covariance, simulates, and is filled when the distance is at most the
-generation's threshold.  The weights are ``prior / sum_j w_j K(theta | theta_j)``.  Thresholds
-come from a schedule or, by default, the ``quantile`` of the previous generation's distances.
+PMC-ABC fills each generation of ``N`` particles by rounds of over-proposal: a round draws
+parents from the previous generation, perturbs them with a truncated Gaussian of twice the
+previous weighted covariance and simulates about ``missing / acceptance`` of them (the
+acceptance estimated from the rounds so far); the accepted ones (distance at most the
+generation's threshold) fill the empty slots in proposal order, and accepted proposals beyond
+the missing count are discarded.  Every kept particle is an independent draw from the same
+distribution as in the one-proposal-per-slot scheme of Beaumont et al.  The weights
+``prior / sum_j w_j K(theta | theta_j)`` depend only on the particle and the previous
+generation, so they are computed once per generation, for the ``N`` kept particles.
+Thresholds come from a schedule or, by default, the ``quantile`` of the previous generation's
+distances.
 
 Rejection ABC is the same filling loop with the prior as proposal and a single generation; with
 ``threshold=None`` it instead simulates ``ceil(N / quantile)`` prior draws and keeps the best
@@ -46,7 +52,10 @@ class PMCState(NamedTuple):
         The tolerance of the generation being filled.
     generation : jax.Array, shape ()
     round_simulations, round_accepted : jax.Array, shape ()
-        Counters over the generation being filled (for the acceptance rate).
+        Counters over the generation being filled: simulations and accepted proposals (the
+        acceptance rate; discarded surplus acceptances included).
+    acceptance_estimate : jax.Array, shape ()
+        Acceptance rate used to size the next round before this generation has any of its own.
     """
 
     particles: jax.Array
@@ -61,6 +70,23 @@ class PMCState(NamedTuple):
     generation: jax.Array
     round_simulations: jax.Array
     round_accepted: jax.Array
+    acceptance_estimate: jax.Array
+
+
+def _fill_in_order(filled: jax.Array, accept: jax.Array) -> tuple[jax.Array, jax.Array]:
+    """The i-th accepted proposal (in proposal order) fills the i-th empty slot.
+
+    Returns ``take (N,)``, which slots get a proposal, and ``source (N,)``, its index in the
+    proposal batch (0 where nothing is taken).
+    """
+    n, m = filled.shape[0], accept.shape[0]
+    empty_rank = jnp.cumsum(~filled) - 1
+    acc_rank = jnp.cumsum(accept) - 1
+    num_empty = jnp.sum(~filled)
+    slot = jnp.where(accept & (acc_rank < num_empty), acc_rank, n)
+    src = jnp.zeros((n,), jnp.int32).at[slot].set(jnp.arange(m, dtype=jnp.int32), mode="drop")
+    take = (~filled) & (empty_rank < jnp.sum(accept))
+    return take, jnp.where(take, src[jnp.clip(empty_rank, 0, n - 1)], 0)
 
 
 def build(
@@ -70,6 +96,7 @@ def build(
     quantile: float = 0.5,
     covariance_factor: float = 2.0,
     max_tries: int = 10_000,
+    batch_size: int | None = None,
 ) -> ABCAlgorithm:
     """Build PMC-ABC.
 
@@ -85,8 +112,15 @@ def build(
         In (0, 1); the adaptive tolerance rule.
     covariance_factor : float
         Beaumont et al.'s 2.
+    batch_size : int, optional
+        Proposal slots per round (default ``N``); a round simulates only as many of them as
+        it expects to need.  Larger batches mean fewer rounds; a fused JAX run simulates every
+        slot, so there a larger batch costs simulations.
     """
     n = int(num_particles)
+    m = n if batch_size is None else int(batch_size)
+    if m < 1:
+        raise ValueError(f"batch_size must be a positive integer, got {batch_size}")
     if not 0.0 < quantile < 1.0:
         raise ValueError(f"quantile must lie in (0, 1), got {quantile}")
     schedule = jnp.asarray(list(thresholds) if thresholds else [jnp.inf], dtype=prior.low.dtype)
@@ -95,7 +129,7 @@ def build(
         raise ValueError(f"thresholds must be non-increasing, got {list(thresholds)}")
     low, high = prior.low, prior.high
 
-    def _start_generation(key, particles, log_weights, distances, generation):
+    def _start_generation(key, particles, log_weights, distances, generation, acceptance):
         cov = covariance_factor * kernels.weighted_covariance(particles, log_weights)
         chol = jnp.linalg.cholesky(kernels.regularize_covariance(cov, low, high))
         log_norm = kernels.log_truncation_normalizer(key, particles, chol, low, high)
@@ -109,6 +143,7 @@ def build(
             filled=jnp.zeros((n,), bool), parents=particles, parent_log_weights=log_weights,
             chol=chol, log_normalizer=log_norm, threshold=threshold, generation=generation,
             round_simulations=jnp.int32(0), round_accepted=jnp.int32(0),
+            acceptance_estimate=jnp.asarray(acceptance, particles.dtype),
         )
 
     def initial_proposal(key):
@@ -117,44 +152,59 @@ def build(
     def init(key, proposal, distances):
         dtype = proposal.thetas.dtype
         log_w = jnp.zeros((n,), dtype)
-        state = _start_generation(key, proposal.thetas, log_w, distances, jnp.int32(0))
+        # Before any round, guess that the first generation accepts about ``quantile`` of its
+        # proposals (exact if the proposal were the prior itself).
+        state = _start_generation(key, proposal.thetas, log_w, distances, jnp.int32(0), quantile)
         info = Info(jnp.bool_(True), jnp.bool_(False), jnp.asarray(jnp.inf, dtype),
                     jnp.asarray(1.0, dtype), jnp.asarray(n, dtype))
         return state, info
 
     def propose(key, state):
         k1, k2 = jax.random.split(key)
-        parents = kernels.resample_indices(k1, state.parent_log_weights, n)
+        missing = jnp.sum(~state.filled).astype(state.acceptance_estimate.dtype)
+        # Enough proposals that the round fills every slot with high probability: the
+        # accepted count is binomial, so ask for two standard deviations more than missing.
+        want = (missing + 2.0 * jnp.sqrt(missing) + 1.0) / state.acceptance_estimate
+        count = jnp.minimum(jnp.ceil(want), m).astype(jnp.int32)
+        parents = kernels.resample_indices(k1, state.parent_log_weights, m)
         draw = kernels.truncated_gaussian_sample(
             k2, state.parents[parents], state.chol, low, high, max_tries
         )
-        active = ~state.filled
+        active = (jnp.arange(m) < count) & (missing > 0)
         return Proposal(draw.samples, active, jnp.all(draw.ok | ~active))
 
     def update(key, state, proposal, distances):
         accept = proposal.active & (distances <= state.threshold)
-        new_lw = kernels.mixture_log_weights(
-            proposal.thetas, prior.log_prob(proposal.thetas), state.parents,
-            state.parent_log_weights, state.chol, state.log_normalizer,
-        )
-        particles = jnp.where(accept[:, None], proposal.thetas, state.particles)
-        log_weights = jnp.where(accept, new_lw, state.log_weights)
-        dists = jnp.where(accept, distances, state.distances)
-        filled = state.filled | accept
+        take, source = _fill_in_order(state.filled, accept)
+        particles = jnp.where(take[:, None], proposal.thetas[source], state.particles)
+        dists = jnp.where(take, distances[source], state.distances)
+        filled = state.filled | take
         sims = state.round_simulations + jnp.sum(proposal.active, dtype=jnp.int32)
         acc = state.round_accepted + jnp.sum(accept, dtype=jnp.int32)
         done = jnp.all(filled)
-        rate = (acc / jnp.maximum(sims, 1)).astype(particles.dtype)
+        dtype = particles.dtype
+        rate = (acc / jnp.maximum(sims, 1)).astype(dtype)
+        # Half an acceptance when none was seen keeps the next round finite and large.
+        estimate = jnp.where(sims > 0, jnp.maximum(acc, 0.5) / jnp.maximum(sims, 1),
+                             state.acceptance_estimate).astype(dtype)
 
         def finish(_):
-            return _start_generation(key, particles, log_weights, dists, state.generation + 1)
+            # The single weight pass of the generation: the weights depend only on the kept
+            # particle and the previous generation, not on the round that proposed it.
+            log_weights = kernels.mixture_log_weights(
+                particles, prior.log_prob(particles), state.parents, state.parent_log_weights,
+                state.chol, state.log_normalizer,
+            )
+            return _start_generation(key, particles, log_weights, dists, state.generation + 1,
+                                     estimate)
 
         def carry_on(_):
-            return state._replace(particles=particles, log_weights=log_weights, distances=dists,
-                                  filled=filled, round_simulations=sims, round_accepted=acc)
+            return state._replace(particles=particles, distances=dists, filled=filled,
+                                  round_simulations=sims, round_accepted=acc,
+                                  acceptance_estimate=estimate)
 
         new_state = jax.lax.cond(done, finish, carry_on, None)
-        ess = kernels.effective_sample_size(log_weights)
+        ess = kernels.effective_sample_size(new_state.parent_log_weights)
         return new_state, Info(done, jnp.bool_(False), state.threshold, rate, ess)
 
     def posterior(state):
@@ -166,6 +216,7 @@ def build(
         "thresholds": list(thresholds) if thresholds else None,
         "quantile": quantile,
         "covariance_factor": covariance_factor,
+        "batch_size": m,
     }
     return ABCAlgorithm("pmcabc", initial_proposal, init, propose, update, posterior, settings,
                         needs_stopping_rule=True)
@@ -196,7 +247,7 @@ def build_rejection(
         lw = jnp.zeros((n,), dtype)
         return PMCState(particles, lw, distances, filled, particles, lw,
                         jnp.eye(particles.shape[1], dtype=dtype), jnp.zeros((n,), dtype), thr,
-                        jnp.int32(0), sims, acc)
+                        jnp.int32(0), sims, acc, jnp.asarray(1.0, dtype))
 
     def initial_proposal(key):
         return Proposal(prior.sample(key, batch), jnp.ones((batch,), bool), jnp.bool_(True))
@@ -224,13 +275,7 @@ def build_rejection(
         accept = proposal.active & (distances <= state.threshold)
         # Compact: the i-th accepted proposal of this round fills the i-th empty slot, so a
         # round never wastes an accepted simulation on an already filled slot.
-        empty_rank = jnp.cumsum(~state.filled) - 1
-        acc_rank = jnp.cumsum(accept) - 1
-        num_empty = jnp.sum(~state.filled)
-        src = jnp.full((n,), -1).at[jnp.where(accept & (acc_rank < num_empty), acc_rank, n)].set(
-            jnp.arange(n), mode="drop")
-        take = (~state.filled) & (empty_rank < jnp.sum(accept))
-        source = jnp.where(take, src[jnp.clip(empty_rank, 0, n - 1)], 0)
+        take, source = _fill_in_order(state.filled, accept)
         particles = jnp.where(take[:, None], proposal.thetas[source], state.particles)
         dists = jnp.where(take, distances[source], state.distances)
         filled = state.filled | take

@@ -1,0 +1,447 @@
+"""A whole calibration of a JAX simulator as compiled programs.
+
+:func:`run_fused` runs the same iterations as the host driver :func:`jaxabc.run` -- the same
+keys (``fold_in(key(seed), iteration)`` split into proposal, simulation and update keys), the
+same ``propose`` / ``update`` functions, the same stopping rules -- but a chunk of iterations
+is one compiled program: a ``lax.scan`` over ``chunk_size`` steps in which the vmapped
+simulator, the distances and the algorithm's update never leave the device.  The host sees the
+run only between chunks, for the progress bar, the wall-time limit, the failure check and the
+record of simulations.
+
+Compiled chunks are cached in the process, keyed on the algorithm's configuration, the
+simulator and distance functions, the prior, the shapes and the precision; the observed data
+and the stopping limits are traced arguments, so a second run with new data or a new budget
+reuses the compiled program.  :func:`enable_compilation_cache` (or the environment variable
+``JAXABC_COMPILATION_CACHE``) adds JAX's persistent cache across processes.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxabc.algorithms.base import ABCAlgorithm
+from jaxabc.distances import get_distance
+from jaxabc.errors import STATUS_NONFINITE, STATUS_OK, TooManyFailures
+from jaxabc.priors import Uniform
+from jaxabc.results import ABCResult, versions
+from jaxabc.run import (
+    _algorithm_stop_reason,
+    _build_algorithm,
+    _cast_prior,
+    _shapes_compatible,
+    _validate_observed,
+)
+
+__all__ = ["enable_compilation_cache", "run_fused"]
+
+#: Environment variable naming a folder for JAX's persistent compilation cache (opt-in).
+CACHE_ENV = "JAXABC_COMPILATION_CACHE"
+
+_NONE, _STOP_ALGORITHM, _STOP_STEPS, _STOP_THRESHOLD, _STOP_BUDGET = range(5)
+_INT_MAX = np.iinfo(np.int32).max
+_MIN_FOR_FAILURE_CHECK = 20
+_COMPILED: dict[Any, tuple[Callable, Callable]] = {}
+_MAX_COMPILED = 32
+
+
+def enable_compilation_cache(path: str | os.PathLike | None = None) -> Path:
+    """Turn on JAX's persistent compilation cache, so a new process reuses compiled kernels.
+
+    Parameters
+    ----------
+    path : path, optional
+        Cache folder (created if missing).  Default: ``$JAXABC_COMPILATION_CACHE``, else
+        ``~/.cache/jaxabc/xla``.
+
+    Returns
+    -------
+    pathlib.Path
+        The folder in use.  Entries are keyed by JAX on the program, the JAX version and the
+        device, so a stale entry is never used; delete the folder to reclaim space.
+    """
+    folder = Path(path or os.environ.get(CACHE_ENV) or Path.home() / ".cache" / "jaxabc" / "xla")
+    folder.mkdir(parents=True, exist_ok=True)
+    jax.config.update("jax_compilation_cache_dir", str(folder))
+    # ABC kernels compile in well under JAX's default one-second floor, and those are the
+    # ones a cold run pays for many times over: cache everything.
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
+    jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
+    return folder
+
+
+class _Carry(NamedTuple):
+    state: Any
+    iteration: jax.Array  # ()
+    num_sims: jax.Array  # ()
+    generations: jax.Array  # () completed generations
+    generation_sims: jax.Array  # () simulations since the last completed generation
+    stop_code: jax.Array  # ()
+    post_particles: jax.Array  # (n, d) last completed generation
+    post_log_weights: jax.Array  # (n,)
+    post_distances: jax.Array  # (n,)
+    level: jax.Array  # () ABCsubsim's level at the last completed generation
+
+
+class _Limits(NamedTuple):
+    num_steps: jax.Array  # () int
+    final_threshold: jax.Array  # () float, -inf for none
+    max_simulations: jax.Array  # () int
+
+
+def _compile(algo: ABCAlgorithm, simulate: Callable, distance: Callable, chunk_size: int,
+             keep_summaries: bool) -> tuple[Callable, Callable]:
+    """Jitted ``start(root, observed, limits)`` and ``chunk(root, observed, limits, carry)``."""
+
+    def simulate_distances(key, thetas, active, observed):
+        # The host driver's keys: one per proposal slot, split from the simulation key.
+        keys = jax.random.split(key, thetas.shape[0])
+        summaries = jax.vmap(simulate)(keys, thetas)
+        finite = jnp.all(jnp.isfinite(summaries.reshape(summaries.shape[0], -1)), axis=1)
+        dist = jax.vmap(distance, in_axes=(None, 0))(observed, summaries)
+        dist = jnp.where(finite & jnp.isfinite(dist) & active, dist, jnp.inf)
+        return summaries, finite, dist.astype(thetas.dtype)
+
+    def after_update(carry, state, info, n_active, limits):
+        gen_sims = carry.generation_sims + n_active
+        done = info.generation_done
+        particles, log_w = algo.posterior(state)
+        generations = carry.generations + done.astype(jnp.int32)
+        code = jnp.where(info.stop, _STOP_ALGORITHM,
+                         jnp.where(generations >= limits.num_steps, _STOP_STEPS,
+                                   jnp.where(info.threshold <= limits.final_threshold,
+                                             _STOP_THRESHOLD, _NONE)))
+        level = jnp.asarray(getattr(state, "level", 0), jnp.int32)
+        new = _Carry(
+            state=state, iteration=carry.iteration + 1, num_sims=carry.num_sims + n_active,
+            generations=generations, generation_sims=jnp.where(done, 0, gen_sims),
+            stop_code=jnp.where(done, code, _NONE).astype(jnp.int32),
+            post_particles=jnp.where(done, particles, carry.post_particles),
+            post_log_weights=jnp.where(done, log_w, carry.post_log_weights),
+            post_distances=jnp.where(done, state.distances, carry.post_distances),
+            level=jnp.where(done, level, carry.level),
+        )
+        record = {"done": done, "threshold": info.threshold, "acceptance": info.acceptance_rate,
+                  "ess": info.ess, "generation_sims": gen_sims}
+        return new, record
+
+    def start(root, observed, limits):
+        key = jax.random.fold_in(root, 0)
+        k_prop, k_sim, k_upd = jax.random.split(key, 3)
+        proposal = algo.initial_proposal(k_prop)
+        summaries, finite, dist = simulate_distances(k_sim, proposal.thetas, proposal.active,
+                                                     observed)
+        state, info = algo.init(k_upd, proposal, dist)
+        particles, log_w = algo.posterior(state)
+        zero = jnp.int32(0)
+        empty = _Carry(state, zero, zero, zero, zero, zero, jnp.zeros_like(particles),
+                       jnp.full_like(log_w, -jnp.inf), jnp.full_like(state.distances, jnp.inf),
+                       zero)
+        n_active = jnp.sum(proposal.active).astype(jnp.int32)
+        carry, record = after_update(empty, state, info, n_active, limits)
+        record.update(thetas=proposal.thetas, active=proposal.active, distances=dist,
+                      finite=finite, ok=proposal.ok, ran=jnp.bool_(True))
+        if keep_summaries:
+            record["summaries"] = summaries
+        return carry, record
+
+    def one_iteration(root, observed, limits, carry):
+        key = jax.random.fold_in(root, carry.iteration)
+        k_prop, k_sim, k_upd = jax.random.split(key, 3)
+        proposal = algo.propose(k_prop, carry.state)
+        n_active = jnp.sum(proposal.active).astype(jnp.int32)
+        over_budget = carry.num_sims + n_active > limits.max_simulations
+
+        def run(_):
+            summaries, finite, dist = simulate_distances(k_sim, proposal.thetas, proposal.active,
+                                                         observed)
+            state, info = algo.update(k_upd, carry.state, proposal, dist)
+            new, record = after_update(carry, state, info, n_active, limits)
+            record.update(distances=dist, finite=finite, ran=jnp.bool_(True))
+            if keep_summaries:
+                record["summaries"] = summaries
+            return new, record
+
+        def stop(_):
+            # The host driver's rule: stop before an iteration that would exceed the budget.
+            _, record = jax.eval_shape(run, None)
+            record = jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), record)
+            return carry._replace(stop_code=jnp.int32(_STOP_BUDGET)), record
+
+        new, record = jax.lax.cond(over_budget, stop, run, None)
+        record.update(thetas=proposal.thetas, active=proposal.active & ~over_budget,
+                      ok=proposal.ok | over_budget)
+        return new, record
+
+    def chunk(root, observed, limits, carry):
+        def body(c, _):
+            def skip(c):
+                _, record = jax.eval_shape(lambda c: one_iteration(root, observed, limits, c), c)
+                record = jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), record)
+                return c, record
+
+            return jax.lax.cond(c.stop_code != _NONE, skip,
+                                lambda c: one_iteration(root, observed, limits, c), c)
+
+        return jax.lax.scan(body, carry, None, length=chunk_size)
+
+    return jax.jit(start), jax.jit(chunk)
+
+
+def _cache_key(algo: ABCAlgorithm, options: dict, prior: Uniform, simulate: Callable,
+               distance: Callable, obs_shape: tuple, dtype: Any, chunk_size: int,
+               keep_summaries: bool) -> Any:
+    return (algo.name, repr(sorted(algo.settings.items())), repr(sorted(options.items())),
+            simulate, distance, obs_shape,
+            np.dtype(dtype).str, chunk_size, keep_summaries,
+            np.asarray(prior.low).tobytes(), np.asarray(prior.high).tobytes())
+
+
+def run_fused(
+    algorithm: str,
+    simulate: Callable,
+    prior: Uniform,
+    observed: Any,
+    num_particles: int,
+    num_steps: int | None = None,
+    distance: str | Callable = "mean_abs",
+    seed: int = 0,
+    *,
+    final_threshold: float | None = None,
+    max_simulations: int | None = None,
+    max_wall_time: float | None = None,
+    max_failure_fraction: float = 0.5,
+    chunk_size: int = 16,
+    keep_summaries: bool = True,
+    progress: bool = False,
+    dtype: str = "float32",
+    metadata: dict | None = None,
+    **algorithm_options: Any,
+) -> ABCResult:
+    """Calibrate a JAX simulator with the whole loop compiled; the arguments of :func:`jaxabc.run`.
+
+    Parameters
+    ----------
+    algorithm, simulate, prior, observed, num_particles, num_steps, distance, seed
+        As in :func:`jaxabc.run`; ``simulate(key, theta) -> summaries`` must be traceable by
+        JAX (it runs under ``vmap`` inside ``lax.scan``).
+    final_threshold, max_simulations, max_wall_time, max_failure_fraction, keep_summaries
+        As in :func:`jaxabc.run`.  The wall-time limit and the failure check are applied
+        between chunks, so a run may go up to ``chunk_size - 1`` iterations past them.
+    chunk_size : int
+        Iterations per compiled program between two visits to the host.
+    progress, dtype, metadata, **algorithm_options
+        As in :func:`jaxabc.run`.
+
+    Returns
+    -------
+    ABCResult
+        The fields of :func:`jaxabc.run`'s result.  For the same seed the iterations use the
+        same keys as the host driver with the ``"vmap"`` executor; the posterior agrees with it
+        up to floating-point rounding (XLA may fuse the simulator and the distance differently
+        inside one program, which can move a distance across a threshold by one ulp).  Records
+        have no per-simulation wall or CPU time (NaN) and worker 0.
+
+    Raises
+    ------
+    TypeError
+        ``simulate`` cannot be traced by JAX: use :func:`jaxabc.run` with a process executor.
+    ValueError
+        Bad arguments, as in :func:`jaxabc.run`.
+    TooManyFailures
+        More than ``max_failure_fraction`` of the simulations returned non-finite summaries.
+    RuntimeError
+        The truncated kernel could not reach the prior's support.
+    """
+    t_start = time.perf_counter()
+    if dtype not in ("float32", "float64"):
+        raise ValueError(f"dtype must be 'float32' or 'float64', got {dtype!r}")
+    if dtype == "float64":
+        jax.config.update("jax_enable_x64", True)
+    jdtype = jnp.float64 if dtype == "float64" else jnp.float32
+    if not isinstance(num_particles, int | np.integer) or num_particles < 1:
+        raise ValueError(f"num_particles must be a positive integer, got {num_particles!r}")
+    if num_steps is not None and num_steps < 1:
+        raise ValueError(f"num_steps must be at least 1, got {num_steps}")
+    if not isinstance(chunk_size, int | np.integer) or chunk_size < 1:
+        raise ValueError(f"chunk_size must be a positive integer, got {chunk_size!r}")
+    if not 0.0 < max_failure_fraction <= 1.0:
+        raise ValueError(f"max_failure_fraction must lie in (0, 1], got {max_failure_fraction}")
+    if not callable(simulate):
+        raise TypeError("simulate must be a callable simulate(key, theta) -> summaries")
+    if os.environ.get(CACHE_ENV):
+        enable_compilation_cache()
+    obs = _validate_observed(observed)
+    prior = _cast_prior(prior, jdtype)
+    if algorithm == "abcsubsim" and final_threshold is not None:
+        algorithm_options.setdefault("final_threshold", final_threshold)
+    algo = _build_algorithm(algorithm, prior, int(num_particles), algorithm_options)
+    if num_steps is None and final_threshold is None and max_simulations is None \
+            and max_wall_time is None and algorithm in ("pmcabc", "abcsubsim") \
+            and not algorithm_options.get("acceptance_floor"):
+        raise ValueError(f"{algorithm} needs a stopping rule: give num_steps, final_threshold, "
+                         "max_simulations or max_wall_time")
+    try:
+        out = jax.eval_shape(simulate, jax.random.key(0), jnp.zeros((prior.dim,), jdtype))
+    except Exception as exc:
+        raise TypeError(
+            f"could not trace simulate(key, theta) with theta of shape ({prior.dim},): {exc}. "
+            "The fused path needs a JAX-traceable simulator; use jaxabc.run with "
+            "executor='serial' or 'process_pool' for other code"
+        ) from exc
+    if not _shapes_compatible(tuple(out.shape), obs.shape, distance):
+        raise ValueError(f"the simulator returns summaries of shape {tuple(out.shape)} but the "
+                         f"observed data has shape {obs.shape}: they must match")
+    dist_fn = get_distance(distance)
+    key = _cache_key(algo, algorithm_options, prior, simulate, dist_fn, obs.shape, jdtype,
+                     int(chunk_size), keep_summaries)
+    if key not in _COMPILED:
+        if len(_COMPILED) >= _MAX_COMPILED:
+            _COMPILED.pop(next(iter(_COMPILED)))
+        _COMPILED[key] = _compile(algo, simulate, dist_fn, int(chunk_size), keep_summaries)
+    start, chunk = _COMPILED[key]
+
+    root = jax.random.key(seed)
+    obs_j = jnp.asarray(obs, jdtype)
+    limits = _Limits(
+        num_steps=jnp.int32(_INT_MAX if num_steps is None else num_steps),
+        final_threshold=jnp.asarray(-jnp.inf if final_threshold is None else final_threshold,
+                                    jdtype),
+        max_simulations=jnp.int32(_INT_MAX if max_simulations is None
+                                  else min(max_simulations, _INT_MAX)),
+    )
+    records: list[dict[str, np.ndarray]] = []
+    history: dict[str, list] = {"threshold": [], "sims": [], "acceptance": [], "ess": [],
+                                "wall": []}
+    bar = None
+    if progress:
+        from tqdm.auto import tqdm
+
+        bar = tqdm(total=num_steps, desc=algorithm, unit="step")
+    stop_reason = ""
+    try:
+        carry, first = start(root, obs_j, limits)
+        pending = [jax.tree.map(lambda x: np.asarray(x)[None], first)]
+        first_iteration = 0
+        while True:
+            for block in pending:
+                _absorb(block, first_iteration, records, history, t_start, algorithm, bar)
+                first_iteration += int(block["ran"].sum())
+            total = sum(int(r["active"].sum()) for r in records)
+            failed = sum(int(np.sum(r["active"] & ~r["finite"])) for r in records)
+            if total >= _MIN_FOR_FAILURE_CHECK and failed > max_failure_fraction * total:
+                raise TooManyFailures(f"{failed} of {total} simulations returned non-finite "
+                                      f"summaries (limit {max_failure_fraction:.0%})")
+            code = int(carry.stop_code)
+            if code != _NONE:
+                stop_reason = _stop_reason(code, algorithm, algo, history, num_steps,
+                                           final_threshold, max_simulations)
+                break
+            if max_wall_time is not None and time.perf_counter() - t_start > max_wall_time:
+                stop_reason = f"wall time {max_wall_time} s reached"
+                break
+            carry, block = chunk(root, obs_j, limits, carry)
+            pending = [jax.tree.map(np.asarray, block)]
+    finally:
+        if bar is not None:
+            bar.close()
+
+    if int(carry.generations) == 0:
+        raise RuntimeError("the run stopped before completing a generation: raise the budget")
+    particles = np.asarray(carry.post_particles)
+    log_w = np.asarray(carry.post_log_weights)
+    dist = np.asarray(carry.post_distances)
+    keep = np.isfinite(log_w)
+    w = np.exp(log_w[keep] - np.max(log_w[keep]))
+    meta = {"versions": versions(), "executor": "fused",
+            "distance": distance if isinstance(distance, str)
+            else getattr(distance, "__name__", "custom"),
+            "dtype": dtype, "observed": obs.tolist() if obs.size <= 10_000 else None,
+            # Seconds since the run started, at the end of the chunk that completed each
+            # generation (the host does not see generations inside a chunk).
+            "generation_wall_times": history["wall"], "chunk_size": int(chunk_size)}
+    meta.update(metadata or {})
+    log_ev = None
+    if algorithm == "abcsubsim":
+        from jaxabc.algorithms.subsim import log_evidence
+
+        log_ev = log_evidence(int(carry.level), algo.settings["p0"])
+    return ABCResult(
+        particles=particles[keep].astype(np.float64), weights=w / w.sum(),
+        distances=dist[keep].astype(np.float64), thresholds=np.asarray(history["threshold"]),
+        simulations_per_step=np.asarray(history["sims"]),
+        acceptance_rates=np.asarray(history["acceptance"]), ess=np.asarray(history["ess"]),
+        num_simulations=int(carry.num_sims), algorithm=algorithm, settings=algo.settings,
+        prior=prior, seed=seed, stop_reason=stop_reason,
+        wall_time=time.perf_counter() - t_start, log_evidence=log_ev,
+        records=_record_arrays(records, keep_summaries), metadata=meta,
+    )
+
+
+def _absorb(block: dict, first_iteration: int, records: list, history: dict, t_start: float,
+            algorithm: str, bar: Any) -> None:
+    """Move one chunk's per-iteration outputs (leading axis: iteration) into the host record."""
+    ran = np.flatnonzero(block["ran"])
+    if not np.all(block["ok"][ran]):
+        raise RuntimeError(
+            f"{algorithm}: the truncated perturbation kernel could not reach the prior's "
+            "support from some particles (no draw inside the box in 10,000 tries). The "
+            "posterior is piled against a prior bound: widen the prior there")
+    now = time.perf_counter() - t_start
+    for j, i in enumerate(ran):
+        active = block["active"][i]
+        records.append({
+            "theta": block["thetas"][i][active], "distance": block["distances"][i][active],
+            "finite": block["finite"][i][active], "active": active[active],
+            "iteration": np.full(int(active.sum()), first_iteration + j, np.int32),
+            **({"summaries": block["summaries"][i][active]} if "summaries" in block else {}),
+        })
+        if block["done"][i]:
+            history["threshold"].append(float(block["threshold"][i]))
+            history["sims"].append(int(block["generation_sims"][i]))
+            history["acceptance"].append(float(block["acceptance"][i]))
+            history["ess"].append(float(block["ess"][i]))
+            history["wall"].append(now)
+            if bar is not None:
+                bar.update(1)
+                bar.set_postfix(threshold=f"{float(block['threshold'][i]):.4g}",
+                                acceptance=f"{float(block['acceptance'][i]):.3f}")
+
+
+def _record_arrays(records: list[dict], keep_summaries: bool) -> dict[str, Any]:
+    if not records:
+        return {}
+    finite = np.concatenate([r["finite"] for r in records])
+    size = finite.shape[0]
+    out: dict[str, Any] = {
+        "theta": np.concatenate([r["theta"] for r in records]).astype(np.float64),
+        "distance": np.concatenate([r["distance"] for r in records]).astype(np.float64),
+        "status": np.where(finite, STATUS_OK, STATUS_NONFINITE).astype(np.int32),
+        "wall_time": np.full(size, np.nan), "cpu_time": np.full(size, np.nan),
+        "worker": np.zeros(size, np.int32),
+        "iteration": np.concatenate([r["iteration"] for r in records]),
+        "reasons": ["" if f else "simulator returned non-finite summaries" for f in finite],
+    }
+    if keep_summaries:
+        out["summaries"] = np.concatenate([r["summaries"] for r in records])
+    return out
+
+
+def _stop_reason(code: int, algorithm: str, algo: ABCAlgorithm, history: dict,
+                 num_steps: int | None, final_threshold: float | None,
+                 max_simulations: int | None) -> str:
+    if code == _STOP_ALGORITHM:
+        info = NamedTuple("_Info", [("acceptance_rate", float)])(history["acceptance"][-1])
+        return _algorithm_stop_reason(algorithm, algo.settings, info)
+    if code == _STOP_STEPS:
+        return f"{num_steps} steps done"
+    if code == _STOP_THRESHOLD:
+        return f"final threshold {final_threshold} reached"
+    return f"simulation budget {max_simulations} reached"

@@ -1,0 +1,126 @@
+"""The fused path (jaxabc.run_fused) against the host driver with the vmap executor.
+
+Both use the same keys, kernels and stopping rules, so for a seed they give the same
+iterations; the comparison allows float32 rounding, since XLA may fuse the simulator and the
+distance differently inside one program (a distance moved by one ulp across a threshold would
+change a particle: the checks would then fail loudly rather than pass by tolerance).
+"""
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import jaxabc
+
+N = 300
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _simulate(key, theta):
+    return theta + jax.random.normal(key, theta.shape)
+
+
+@pytest.fixture(scope="module")
+def problem():
+    return jaxabc.Uniform([-10.0], [10.0], names=("mu",)), np.zeros(1)
+
+
+def _same_run(host, fast):
+    assert host.num_simulations == fast.num_simulations
+    assert host.stop_reason == fast.stop_reason
+    np.testing.assert_array_equal(host.simulations_per_step, fast.simulations_per_step)
+    np.testing.assert_allclose(host.thresholds, fast.thresholds, rtol=1e-5)
+    np.testing.assert_allclose(host.particles, fast.particles, rtol=1e-5, atol=1e-6)
+    np.testing.assert_allclose(host.weights, fast.weights, rtol=1e-4, atol=1e-9)
+    np.testing.assert_allclose(host.acceptance_rates, fast.acceptance_rates, rtol=1e-5)
+    for name in ("theta", "iteration", "status"):
+        np.testing.assert_allclose(host.records[name], fast.records[name], rtol=1e-5)
+    assert set(host.records) == set(fast.records)
+
+
+@pytest.mark.parametrize("algorithm, options", [
+    ("apmcabc", dict(num_steps=4)),
+    ("pmcabc", dict(num_steps=3)),
+])
+def test_fused_equals_host_driver(problem, algorithm, options):
+    prior, observed = problem
+    kw = dict(num_particles=N, distance="euclidean", seed=3, **options)
+    host = jaxabc.run(algorithm, _simulate, prior, observed, **kw)
+    fast = jaxabc.run_fused(algorithm, _simulate, prior, observed, chunk_size=2, **kw)
+    _same_run(host, fast)
+    assert fast.metadata["executor"] == "fused"
+
+
+def test_fused_simulation_budget_as_host(problem):
+    """Stops before the iteration that would exceed the budget, with the last full generation."""
+    prior, observed = problem
+    kw = dict(num_particles=N, distance="euclidean", seed=4, max_simulations=1000,
+              acceptance_cutoff=0.0)
+    host = jaxabc.run("apmcabc", _simulate, prior, observed, **kw)
+    fast = jaxabc.run_fused("apmcabc", _simulate, prior, observed, chunk_size=2, **kw)
+    assert host.stop_reason.startswith("simulation budget")
+    _same_run(host, fast)
+
+
+def test_second_call_does_not_retrace(problem):
+    """New observed data, seed and limits reuse the compiled chunk: the simulator is not traced."""
+    prior, observed = problem
+    traces = []
+
+    def simulate(key, theta):
+        traces.append(1)
+        return theta + jax.random.normal(key, theta.shape)
+
+    kw = dict(num_particles=100, distance="euclidean", chunk_size=4, acceptance_cutoff=0.0)
+    jaxabc.run_fused("apmcabc", simulate, prior, observed, num_steps=3, seed=0, **kw)
+    first = len(traces)
+    r = jaxabc.run_fused("apmcabc", simulate, prior, observed + 1.0, num_steps=5, seed=1, **kw)
+    # One shape check (eval_shape) per call is allowed; nothing is compiled again.
+    assert len(traces) - first <= 1
+    assert len(r.thresholds) == 5
+
+
+def test_fused_non_finite_summaries_are_failures(problem):
+    prior, observed = problem
+
+    def simulate(key, theta):
+        x = theta + jax.random.normal(key, theta.shape)
+        return jnp.where(theta > 5.0, jnp.nan, x)
+
+    r = jaxabc.run_fused("apmcabc", simulate, prior, observed, num_particles=200, num_steps=2,
+                         distance="euclidean")
+    bad = r.records["theta"][:, 0] > 5.0
+    assert np.all(r.records["status"][bad] == jaxabc.errors.STATUS_NONFINITE)
+    assert np.all(np.isinf(r.records["distance"][bad]))
+    assert np.all(r.records["status"][~bad] == 0)
+
+
+def test_fused_rejects_untraceable_simulator(problem):
+    prior, observed = problem
+
+    def simulate(key, theta):
+        return np.asarray(theta) + 1.0  # host NumPy: cannot be traced
+
+    with pytest.raises(TypeError, match="process_pool"):
+        jaxabc.run_fused("apmcabc", simulate, prior, observed, num_particles=50, num_steps=2)
+    with pytest.raises(ValueError, match="chunk_size"):
+        jaxabc.run_fused("apmcabc", _simulate, prior, observed, num_particles=50, chunk_size=0)
+
+
+def test_enable_compilation_cache(tmp_path):
+    """The opt-in persistent cache writes compiled programs to the folder (fresh process, so
+    the setting does not leak into other tests)."""
+    code = (
+        "import jax, jax.numpy as jnp, jaxabc; "
+        f"jaxabc.enable_compilation_cache({str(tmp_path / 'xla')!r}); "
+        "jax.jit(lambda x: jnp.sin(x) * 2)(jnp.ones(3)).block_until_ready()"
+    )
+    subprocess.run([sys.executable, "-c", code], check=True, timeout=300,
+                   env={**os.environ, "JAX_PLATFORMS": "cpu", "PYTHONPATH": str(ROOT)})
+    assert any((tmp_path / "xla").iterdir())
