@@ -1,0 +1,503 @@
+"""Surrogate-accelerated calibration as an :class:`~jaxabc.algorithms.base.ABCAlgorithm`.
+
+Each ``update`` adds a batch of real simulations to fixed-size buffers, refits the emulator and
+decides what to simulate next:
+
+1. *design*: a Sobol start with replicates (``initial_proposal``), then acquisition batches
+   (:mod:`.design`) until the emulator's variance over the posterior is small next to the
+   simulator noise (``tolerance``) or the design budget is spent;
+2. *validation*: NUTS draws from the surrogate posterior; ``num_holdout`` of them are simulated
+   for real and compared with the emulator's predictions (:mod:`.diagnostics`).  Pass: stop with
+   that posterior.  Fail: the held-out runs join the design and step 1 resumes while the budget
+   allows; otherwise the run stops flagged as unvalidated (or raises, ``on_failure="raise"``).
+
+All functions are host code (``host=True``) calling jitted JAX; arithmetic is float64.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import warnings
+from collections.abc import Callable
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax.tree_util import keystr, tree_flatten_with_path
+
+from jaxabc.algorithms.base import ABCAlgorithm, Info, Proposal
+from jaxabc.surrogate import design, diagnostics, emulator, sampling
+
+__all__ = ["EmulatorFailure", "SurrogateState", "build"]
+
+DESIGN, VALIDATING, DONE = 0, 1, 2
+ROLE_EMPTY, ROLE_DESIGN, ROLE_HOLDOUT, ROLE_FAILED_HOLDOUT = -1, 0, 1, 2
+
+
+class EmulatorFailure(RuntimeError):
+    """The emulator failed its held-out or lack-of-fit checks and the budget is spent."""
+
+
+class SurrogateState(NamedTuple):
+    """Everything a surrogate run has learnt (fixed shapes; ``M = max_simulations``).
+
+    Attributes
+    ----------
+    thetas : array, shape (M, d)
+        Every real simulation's parameters, in the prior's units.
+    summaries : array, shape (M, k)
+        Flattened summaries; NaN for failed runs and unused rows.
+    ok : array of bool, shape (M,)
+    role : array of int, shape (M,)
+        -1 unused, 0 design, 1 held out (not in the fit), 2 held out in a failed validation
+        and then added to the design.
+    group : array of int, shape (M,)
+        Replicate group, -1 for unreplicated runs.
+    count : array, shape ()
+        Rows used.
+    phase : array, shape ()
+        0 design, 1 validating, 2 done.
+    round : array, shape ()
+        Updates so far.
+    pending : array, shape (B, d)
+        The next proposal's parameters (first ``num_pending`` rows).
+    num_pending : array, shape ()
+    draws : array, shape (P, d)
+        The current posterior draws (importance resampled during design; NUTS once validating).
+    hyper : array, shape (q, d + 2)
+        Emulator log hyper-parameters (amplitude, length scales, noise sd) of the last fit.
+    holdout_errors : array, shape (H, q)
+        Standardised errors of the last validation (NaN for failed runs).
+    validated, lack_of_fit_ok : array of bool, shape ()
+    coverage, mean_squared_error, emulator_ratio : array, shape ()
+        Held-out 95 % coverage and mean squared standardised error; posterior mean of
+        ``sum_j var_j / noise_j^2`` at the last fit.
+    rhat : array, shape (d,)
+        Split-R-hat of the NUTS chains (NaN before).
+    """
+
+    thetas: Any
+    summaries: Any
+    ok: Any
+    role: Any
+    group: Any
+    count: Any
+    phase: Any
+    round: Any
+    pending: Any
+    num_pending: Any
+    draws: Any
+    hyper: Any
+    holdout_errors: Any
+    validated: Any
+    lack_of_fit_ok: Any
+    coverage: Any
+    mean_squared_error: Any
+    emulator_ratio: Any
+    rhat: Any
+
+
+def _single_threaded_blas() -> contextlib.AbstractContextManager:
+    """Limit BLAS to one thread: the matrices here are small (hundreds of rows), and a
+    multi-threaded OpenBLAS on a loaded machine spins orders of magnitude slower."""
+    try:
+        from threadpoolctl import threadpool_limits
+    except ImportError:  # optional: without it only speed suffers
+        return contextlib.nullcontext()
+    return threadpool_limits(limits=1, user_api="blas")
+
+
+def _int_seed(key: jax.Array) -> int:
+    return int(jax.random.randint(key, (), 0, 2**31 - 1))
+
+
+def _compatible_algorithm(**fields: Any) -> Any:
+    """An ``ABCAlgorithm`` with the host-protocol fields, or a stand-in until base.py has them."""
+    if "host" in ABCAlgorithm._fields:
+        return ABCAlgorithm(**fields)
+    return _HostAlgorithm(**fields)
+
+
+class _HostAlgorithm(NamedTuple):
+    # Stand-in with the fields agreed for ABCAlgorithm (branch driver); delete once it lands.
+    name: str
+    initial_proposal: Callable
+    init: Callable
+    propose: Callable
+    update: Callable
+    posterior: Callable
+    settings: dict
+    stop_reason: Callable
+    finalize: Callable
+    needs_stopping_rule: bool = False
+    host: bool = False
+    uses_summaries: bool = False
+    restore_state: Callable | None = None
+
+
+def build(
+    prior: Any,
+    num_particles: int = 2000,
+    *,
+    observed: Any,
+    max_simulations: int,
+    num_initial: int | None = None,
+    num_replicates: int = 8,
+    batch_size: int = 10,
+    num_holdout: int = 20,
+    tolerance: float = 0.05,
+    max_outputs: int = 16,
+    num_candidates: int = 4096,
+    num_chains: int = 4,
+    num_warmup: int = 400,
+    thin: int = 2,
+    on_failure: str = "flag",
+) -> Any:
+    """Build the surrogate (GP-emulator synthetic-likelihood) algorithm.
+
+    Parameters
+    ----------
+    prior : Uniform
+        The box the design, the emulator's input scaling and the posterior live in.
+    num_particles : int
+        Posterior draws (at least 1000), a multiple of ``num_chains``.
+    observed : array_like
+        The measured summaries, the simulator's output shape.
+    max_simulations : int
+        Real simulations in all, design plus held-out validation; never exceeded.
+    num_initial : int, optional
+        Sobol points of the start (default ``max(20, 10 d)``).
+    num_replicates : int
+        Extra runs at two replicate sites that measure the simulator's noise (0: none; the
+        lack-of-fit test is then skipped).
+    batch_size : int
+        Simulations per acquisition batch (match the number of workers).
+    num_holdout : int
+        Held-out simulations per validation.
+    tolerance : float
+        Design stops once the posterior mean of ``sum_j var_j / noise_j^2`` is below this.
+    max_outputs : int
+        Summaries beyond this many are projected onto their leading principal components.
+    num_candidates : int
+        Points on which the acquisition and the design-phase posterior are evaluated.
+    num_chains, num_warmup, thin : int
+        NUTS chains, adaptation steps, steps per kept draw.
+    on_failure : {"flag", "raise"}
+        When validation fails with the budget spent: stop with an unvalidated, flagged result
+        and a warning, or raise :class:`EmulatorFailure`.
+
+    Returns
+    -------
+    ABCAlgorithm
+        ``host=True``, ``uses_summaries=True``; ``finalize`` returns the diagnostics.
+    """
+    low = np.asarray(prior.low, np.float64)
+    high = np.asarray(prior.high, np.float64)
+    d = low.size
+    obs = np.asarray(observed, np.float64)
+    k = obs.size
+    if not np.all(np.isfinite(obs)):
+        raise ValueError("observed summaries must be finite")
+    num_initial = max(20, 10 * d) if num_initial is None else int(num_initial)
+    if num_particles < 1000 or num_particles % num_chains:
+        raise ValueError(f"num_particles must be >= 1000 and a multiple of num_chains={num_chains}, "
+                         f"got {num_particles}")
+    if on_failure not in ("flag", "raise"):
+        raise ValueError(f"on_failure must be 'flag' or 'raise', got {on_failure!r}")
+    if num_replicates < 0 or batch_size < 1 or num_holdout < 5:
+        raise ValueError("need num_replicates >= 0, batch_size >= 1 and num_holdout >= 5")
+    first = num_initial + num_replicates
+    if first + num_holdout > max_simulations:
+        raise ValueError(
+            f"max_simulations={max_simulations} leaves no room for validation: the start uses "
+            f"{first} runs and each validation {num_holdout}; raise max_simulations or lower "
+            "num_initial / num_replicates / num_holdout"
+        )
+    q = min(k, max_outputs)
+    M = int(max_simulations)
+    B = max(first, batch_size, num_holdout)
+    settings = {
+        "num_particles": int(num_particles), "max_simulations": M, "num_initial": num_initial,
+        "num_replicates": int(num_replicates), "batch_size": int(batch_size), "num_holdout": int(num_holdout),
+        "tolerance": float(tolerance), "max_outputs": int(max_outputs), "num_candidates": int(num_candidates),
+        "num_chains": int(num_chains), "num_warmup": int(num_warmup), "thin": int(thin),
+        "on_failure": on_failure, "observed_size": k,
+    }
+
+    def to_unit(theta: np.ndarray) -> np.ndarray:
+        return (theta - low) / (high - low)
+
+    def to_theta(x: np.ndarray) -> np.ndarray:
+        return low + x * (high - low)
+
+    def empty_state() -> SurrogateState:
+        return SurrogateState(
+            thetas=np.zeros((M, d)), summaries=np.full((M, k), np.nan), ok=np.zeros(M, bool),
+            role=np.full(M, ROLE_EMPTY, np.int8), group=np.full(M, -1, np.int32), count=np.int64(0),
+            phase=np.int64(DESIGN), round=np.int64(0), pending=np.zeros((B, d)), num_pending=np.int64(0),
+            draws=np.zeros((num_particles, d)), hyper=np.zeros((q, d + 2)),
+            holdout_errors=np.full((num_holdout, q), np.nan), validated=np.bool_(False),
+            lack_of_fit_ok=np.bool_(True), coverage=np.float64(np.nan), mean_squared_error=np.float64(np.nan),
+            emulator_ratio=np.float64(np.nan), rhat=np.full(d, np.nan),
+        )
+
+    def initial_proposal(key: jax.Array) -> Proposal:
+        with jax.enable_x64(True):
+            x, _ = design.initial_design(_int_seed(key), d, num_initial, num_replicates)
+        return Proposal(to_theta(x), np.ones(len(x), bool), np.bool_(True))
+
+    def propose(key: jax.Array, state: SurrogateState) -> Proposal:
+        n = int(state.num_pending)
+        return Proposal(np.array(state.pending[:n]), np.ones(n, bool), np.bool_(True))
+
+    def add_rows(state: SurrogateState, proposal: Proposal, summaries: Any, role: int,
+                 group: np.ndarray | None) -> SurrogateState:
+        active = np.asarray(proposal.active, bool)
+        th = np.asarray(proposal.thetas, np.float64)[active]
+        s = np.asarray(summaries, np.float64)
+        s = s.reshape(s.shape[0], -1)
+        if s.shape[1] != k:
+            raise ValueError(f"summaries have {s.shape[1]} values per simulation but observed has {k}")
+        s = s[active]
+        n, c = th.shape[0], int(state.count)
+        if c + n > M:
+            raise RuntimeError(f"surrogate: {c + n} simulations would exceed max_simulations={M}")
+        ok = np.all(np.isfinite(s), axis=1)
+        thetas, summ = state.thetas.copy(), state.summaries.copy()
+        oks, roles, groups = state.ok.copy(), state.role.copy(), state.group.copy()
+        thetas[c : c + n], summ[c : c + n] = th, np.where(ok[:, None], s, np.nan)
+        oks[c : c + n], roles[c : c + n] = ok, role
+        if group is not None:
+            groups[c : c + n] = group[active]
+        return state._replace(thetas=thetas, summaries=summ, ok=oks, role=roles, group=groups,
+                              count=np.int64(c + n))
+
+    def fit(state: SurrogateState):
+        """Emulator on the design rows; returns (transform, emulator, likelihood model, z_all)."""
+        used = state.role != ROLE_EMPTY
+        design_rows = used & state.ok & (state.role != ROLE_HOLDOUT)
+        if design_rows.sum() < 3:
+            raise RuntimeError(
+                f"surrogate: only {int(design_rows.sum())} of {int(used.sum())} simulations succeeded; "
+                "the emulator needs at least 3. Check the simulator or narrow the prior"
+            )
+        transform = emulator.fit_transform(state.summaries[design_rows], max_outputs)
+        z_all = np.asarray(transform.apply(jnp.asarray(np.nan_to_num(state.summaries))))
+        x_all = to_unit(state.thetas)
+        emu = emulator.fit(x_all, z_all, design_rows)
+        loo = np.asarray(emulator.loo_residuals(emu))[design_rows]
+        corr = _noise_correlation(loo)
+        feas = sampling.Feasibility(
+            jnp.asarray(x_all), jnp.asarray(state.ok), jnp.asarray(used),
+            jnp.asarray(0.5 * max(design_rows.sum(), 1) ** (-1.0 / (d + 4))),
+        )
+        z_obs = transform.apply(jnp.asarray(obs.reshape(-1)))
+        model = sampling.LikelihoodModel(emu, z_obs, jnp.linalg.cholesky(jnp.asarray(corr)), feas)
+        return transform, emu, model, z_all
+
+    def importance_posterior(rng: np.random.Generator, model: sampling.LikelihoodModel):
+        """Candidate points with self-normalised importance weights of the surrogate posterior."""
+        cand = design.candidates(rng, d, num_candidates)
+        lp, ratio = _evaluate(model, cand.x)
+        w = np.exp(lp - cand.log_q - np.max(lp - cand.log_q))
+        w /= w.sum()
+        mean = w @ cand.x
+        cov = (cand.x - mean).T @ ((cand.x - mean) * w[:, None])
+        cand = design.candidates(rng, d, num_candidates, mean, cov)
+        lp, ratio = _evaluate(model, cand.x)
+        logw = lp - cand.log_q
+        w = np.exp(logw - np.max(logw))
+        w /= w.sum()
+        return cand.x, lp, ratio, w
+
+    def design_step(key: jax.Array, state: SurrogateState) -> SurrogateState:
+        _, emu, model, _ = fit(state)
+        rng = np.random.default_rng(_int_seed(key))
+        x, lp, ratio, w = importance_posterior(rng, model)
+        emulator_ratio = float(w @ ratio)
+        draws = to_theta(x[rng.choice(len(x), size=num_particles, p=w)])
+        hyper = np.asarray(np.column_stack([emu.log_amp, emu.log_ls, emu.log_noise]))
+        state = state._replace(draws=draws, hyper=hyper, emulator_ratio=np.float64(emulator_ratio))
+        room = M - int(state.count)
+        converged = emulator_ratio < tolerance and int(state.round) >= 1
+        if converged or room < batch_size + num_holdout:
+            return start_validation(key, state, model, x, w)
+        acquisition = np.exp(lp - np.max(lp)) * np.sqrt(ratio)
+        lengthscales = np.exp(np.min(np.asarray(emu.log_ls), axis=0))
+        idx = design.select_batch(x, acquisition, lengthscales, batch_size)
+        pending = np.zeros((B, d))
+        pending[:batch_size] = to_theta(x[idx])
+        return state._replace(pending=pending, num_pending=np.int64(batch_size), phase=np.int64(DESIGN))
+
+    def start_validation(key, state, model, x, w) -> SurrogateState:
+        rng = np.random.default_rng(_int_seed(jax.random.fold_in(key, 1)))
+        starts = x[rng.choice(len(x), size=num_chains, p=w)]
+        starts = np.clip(starts, 1e-6, 1 - 1e-6)
+        draws, _ = sampling.nuts(jax.random.fold_in(key, 2), model, jnp.asarray(starts), num_warmup,
+                                 num_particles // num_chains, thin)
+        rhat = np.asarray(sampling.split_rhat(draws))
+        flat = np.asarray(draws).reshape(-1, d)
+        # Held-out points spread over the whole sample (one from each chain in turn).
+        pick = np.asarray(draws)[:, :: max(1, draws.shape[1] * num_chains // num_holdout)].transpose(1, 0, 2)
+        pick = pick.reshape(-1, d)[:num_holdout]
+        pending = np.zeros((B, d))
+        pending[:num_holdout] = to_theta(pick)
+        return state._replace(draws=to_theta(flat), rhat=rhat, pending=pending,
+                              num_pending=np.int64(num_holdout), phase=np.int64(VALIDATING))
+
+    def validate(key: jax.Array, state: SurrogateState) -> SurrogateState:
+        _, emu, _, z_all = fit(state)
+        rows = np.flatnonzero((state.role == ROLE_HOLDOUT) & state.ok)
+        mean, var = emulator.predict(emu, jnp.asarray(to_unit(state.thetas[rows])))
+        noise_var = np.exp(2 * np.asarray(emu.log_noise))
+        check = diagnostics.holdout_check(z_all[rows], np.asarray(mean), np.asarray(var), noise_var)
+        rep_var, df = diagnostics.replicate_variance(z_all, state.group, state.ok & (state.role == ROLE_DESIGN))
+        lof_ok, _ = diagnostics.lack_of_fit(noise_var, rep_var, df)
+        errors = np.full((num_holdout, q), np.nan)
+        errors[: len(rows)] = check.errors
+        passed = check.passed and lof_ok is not False
+        state = state._replace(holdout_errors=errors, coverage=np.float64(check.coverage),
+                               mean_squared_error=np.float64(check.mean_squared),
+                               lack_of_fit_ok=np.bool_(lof_ok is not False))
+        if passed:
+            return state._replace(validated=np.bool_(True), phase=np.int64(DONE), num_pending=np.int64(0))
+        role = state.role.copy()
+        role[role == ROLE_HOLDOUT] = ROLE_FAILED_HOLDOUT
+        state = state._replace(role=role)
+        if M - int(state.count) >= batch_size + num_holdout and lof_ok is not False:
+            # More design may cure an under-resolved emulator; a failed lack-of-fit test will not.
+            return design_step(jax.random.fold_in(key, 3), state)
+        message = (f"surrogate: the emulator failed validation ({_failure_text(state)}); "
+                   f"{int(state.count)} real simulations used. The posterior is not trustworthy")
+        if on_failure == "raise":
+            raise EmulatorFailure(message)
+        warnings.warn(message, RuntimeWarning, stacklevel=2)
+        return state._replace(phase=np.int64(DONE), num_pending=np.int64(0))
+
+    def info_of(state: SurrogateState) -> Info:
+        done = int(state.phase) == DONE
+        threshold = float(state.mean_squared_error) if bool(state.lack_of_fit_ok) else np.inf
+        return Info(generation_done=np.bool_(True), stop=np.bool_(done), threshold=np.float64(threshold),
+                    acceptance_rate=np.float64(state.coverage), ess=np.float64(num_particles))
+
+    def step(key: jax.Array, state: SurrogateState) -> tuple[SurrogateState, Info]:
+        with jax.enable_x64(True), _single_threaded_blas():
+            state = state._replace(round=np.int64(int(state.round) + 1))
+            if int(state.phase) == VALIDATING:
+                state = validate(key, state)
+            else:
+                state = design_step(key, state)
+        return state, info_of(state)
+
+    def init(key: jax.Array, proposal: Proposal, distances: Any, summaries: Any) -> tuple[SurrogateState, Info]:
+        # The replicate layout depends only on the sizes, not on the key of the initial proposal.
+        group = design.replicate_groups(num_initial, num_replicates)
+        if np.asarray(proposal.thetas).shape[0] != group.size:
+            raise ValueError(f"surrogate: init expects the initial proposal of {group.size} points")
+        state = add_rows(empty_state(), proposal, summaries, ROLE_DESIGN, group)
+        return step(key, state._replace(round=np.int64(-1)))
+
+    def update(key: jax.Array, state: SurrogateState, proposal: Proposal, distances: Any,
+               summaries: Any) -> tuple[SurrogateState, Info]:
+        if int(state.phase) == DONE:
+            raise RuntimeError("surrogate: update called after the run stopped")
+        role = ROLE_HOLDOUT if int(state.phase) == VALIDATING else ROLE_DESIGN
+        state = add_rows(state, proposal, summaries, role, None)
+        return step(key, state)
+
+    def posterior(state: SurrogateState) -> tuple[np.ndarray, np.ndarray]:
+        return np.array(state.draws), np.zeros(num_particles)
+
+    def stop_reason(settings: dict, info: Info) -> str:
+        if not np.isfinite(float(info.threshold)) or np.isnan(float(info.acceptance_rate)):
+            return _FLAG + "emulator failed validation (see diagnostics)"
+        n = settings["num_holdout"] * min(settings["observed_size"], settings["max_outputs"])
+        cov_min, msq_max = diagnostics.holdout_bounds(n)
+        if float(info.acceptance_rate) >= cov_min and float(info.threshold) <= msq_max:
+            return (f"emulator validated on held-out simulations (95 % coverage "
+                    f"{float(info.acceptance_rate):.2f}, mean squared standardised error {float(info.threshold):.2f})")
+        return _FLAG + (f"emulator failed validation (coverage {float(info.acceptance_rate):.2f}, "
+                        f"mean squared standardised error {float(info.threshold):.2f})")
+
+    def finalize(state: SurrogateState) -> dict:
+        c = int(state.count)
+        ls = np.exp(state.hyper[:, 1 : 1 + d]) * (high - low)
+        diag = {
+            "validated": bool(state.validated),
+            "failure": "" if bool(state.validated) else _failure_text(state),
+            "num_simulations": c,
+            "num_failed_simulations": int(np.sum(~state.ok[:c])),
+            "num_design": int(np.sum(np.isin(state.role[:c], (ROLE_DESIGN, ROLE_FAILED_HOLDOUT)))),
+            "num_holdout": int(np.sum(state.role[:c] == ROLE_HOLDOUT)),
+            "design_points": state.thetas[:c].tolist(),
+            "design_ok": state.ok[:c].tolist(),
+            "design_role": state.role[:c].tolist(),
+            "holdout_coverage_95": float(state.coverage),
+            "holdout_mean_squared_error": float(state.mean_squared_error),
+            "holdout_errors": np.where(np.isfinite(state.holdout_errors), state.holdout_errors, None).tolist(),
+            "lack_of_fit_ok": bool(state.lack_of_fit_ok),
+            "emulator_to_noise_variance": float(state.emulator_ratio),
+            "lengthscales": ls.tolist(),
+            "amplitude_standardised": np.exp(state.hyper[:, 0]).tolist(),
+            "noise_sd_standardised": np.exp(state.hyper[:, -1]).tolist(),
+            "nuts_split_rhat": state.rhat.tolist(),
+            "rounds": int(state.round),
+        }
+        return {"ess": float(num_particles), "diagnostics": diag}
+
+    def restore_state(flat: dict[str, np.ndarray]) -> SurrogateState:
+        template = empty_state()
+        leaves = tree_flatten_with_path(template)[0]
+        missing = [keystr(p) for p, _ in leaves if keystr(p) not in flat]
+        if missing:
+            raise ValueError(f"checkpoint lacks surrogate state entries {missing}")
+        return SurrogateState(*[np.asarray(flat[keystr(p)], dtype=np.asarray(v).dtype) for p, v in leaves])
+
+    return _compatible_algorithm(
+        name="surrogate", initial_proposal=initial_proposal, init=init, propose=propose, update=update,
+        posterior=posterior, settings=settings, stop_reason=stop_reason, finalize=finalize,
+        needs_stopping_rule=False, host=True, uses_summaries=True, restore_state=restore_state,
+    )
+
+
+_FLAG = "NOT VALIDATED: "
+
+
+def _failure_text(state: SurrogateState) -> str:
+    parts = []
+    if not bool(state.lack_of_fit_ok):
+        parts.append("fitted noise far above the replicate scatter: the GP cannot represent the "
+                     "simulator (a discontinuity or a phase change?)")
+    if np.isfinite(state.coverage):
+        parts.append(f"held-out 95 % coverage {float(state.coverage):.2f}, mean squared standardised "
+                     f"error {float(state.mean_squared_error):.2f}")
+    return "; ".join(parts)
+
+
+def _noise_correlation(residuals: np.ndarray) -> np.ndarray:
+    """Correlation ``(q, q)`` of leave-one-out residuals ``(n, q)``, entries below three standard
+    errors (``3 / sqrt(n)``) set to zero: a spurious correlation tilts the posterior, a missed
+    weak one costs little."""
+    n, q = residuals.shape
+    if q == 1 or n < 5:
+        return np.eye(q)
+    corr = np.corrcoef(residuals.T)
+    corr = np.where(np.isfinite(corr) & (np.abs(corr) >= 3.0 / np.sqrt(n)), corr, 0.0)
+    np.fill_diagonal(corr, 1.0)
+    # Thresholding can break positive definiteness: clip the spectrum and renormalise.
+    w, v = np.linalg.eigh(corr)
+    corr = (v * np.maximum(w, 1e-3)) @ v.T
+    s = np.sqrt(np.diag(corr))
+    return corr / np.outer(s, s)
+
+
+@jax.jit
+def _evaluate_jit(model: sampling.LikelihoodModel, x: jax.Array) -> tuple[jax.Array, jax.Array]:
+    loglik, ratio = sampling.log_likelihood_terms(model, x)
+    return loglik + jnp.log(sampling.feasibility(model.feasible, x)), ratio
+
+
+def _evaluate(model: sampling.LikelihoodModel, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    lp, ratio = _evaluate_jit(model, jnp.asarray(x))
+    return np.asarray(lp, np.float64), np.asarray(ratio, np.float64)

@@ -1,0 +1,93 @@
+"""Can the emulator be trusted?  Replicate lack-of-fit and held-out real simulations.
+
+Two checks, both in emulated-output coordinates:
+
+* lack of fit (the classical regression test): the fitted nugget ``s_j^2`` should match the
+  pure-error variance ``v_j`` of replicate runs; under that hypothesis ``nu v_j / s_j^2`` is
+  chi-square with ``nu`` degrees of freedom.  A nugget far above the replicate scatter means the
+  GP has swallowed structure it cannot represent (a discontinuity, a jump between phases) as
+  noise.  The test assumes homoscedastic noise: replicate sites that are much quieter than the
+  posterior region may trigger it.
+* held-out simulations at posterior draws: standardised errors
+  ``e_ij = (z_ij - mu_j) / sqrt(var_j + s_j^2)`` must be N(0, 1): the fraction inside +-1.96
+  must reach 0.95 minus three binomial standard errors and the mean of ``e^2`` must stay below
+  the 0.999 chi-square quantile (per degree of freedom).
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+import scipy.stats
+
+__all__ = ["HoldoutCheck", "holdout_check", "lack_of_fit", "replicate_variance"]
+
+
+def replicate_variance(z: np.ndarray, group: np.ndarray, ok: np.ndarray) -> tuple[np.ndarray, int]:
+    """Pooled within-group variance ``(q,)`` of successful replicate rows and its degrees of freedom."""
+    ss = np.zeros(z.shape[1])
+    df = 0
+    for g in np.unique(group[(group >= 0) & ok]):
+        rows = z[(group == g) & ok]
+        if rows.shape[0] >= 2:
+            ss += np.sum((rows - rows.mean(axis=0)) ** 2, axis=0)
+            df += rows.shape[0] - 1
+    return (ss / df if df else np.full(z.shape[1], np.nan)), df
+
+
+def lack_of_fit(nugget_variance: np.ndarray, rep_variance: np.ndarray, df: int,
+                level: float = 1e-3) -> tuple[bool | None, np.ndarray]:
+    """Test fitted nuggets against replicate scatter (Bonferroni over outputs).
+
+    Returns
+    -------
+    passed : bool or None
+        None when there are no replicates (``df == 0``).
+    p_values : array, shape (q,)
+        Lower-tail chi-square probabilities (small: replicates much quieter than the nugget).
+    """
+    if df == 0:
+        return None, np.full(nugget_variance.shape, np.nan)
+    p = scipy.stats.chi2.cdf(df * rep_variance / nugget_variance, df)
+    return bool(np.all(p >= level / p.size)), p
+
+
+class HoldoutCheck(NamedTuple):
+    """Outcome of :func:`holdout_check`.
+
+    Attributes
+    ----------
+    errors : array, shape (h, q)
+        Standardised prediction errors of the successful held-out runs.
+    coverage : float
+        Fraction of ``|e| <= 1.96``.
+    mean_squared : float
+        Mean of ``e^2``.
+    coverage_min, mean_squared_max : float
+        The pass bounds.
+    passed : bool
+    """
+
+    errors: np.ndarray
+    coverage: float
+    mean_squared: float
+    coverage_min: float
+    mean_squared_max: float
+    passed: bool
+
+
+def holdout_bounds(n: int) -> tuple[float, float]:
+    """Pass bounds ``(coverage_min, mean_squared_max)`` for ``n`` standardised errors."""
+    return 0.95 - 3.0 * np.sqrt(0.95 * 0.05 / n), float(scipy.stats.chi2.ppf(0.999, n) / n)
+
+
+def holdout_check(z: np.ndarray, mean: np.ndarray, var: np.ndarray, noise_var: np.ndarray) -> HoldoutCheck:
+    """Standardised errors of held-out runs ``z (h, q)`` against predictions ``mean, var (h, q)``."""
+    e = (z - mean) / np.sqrt(var + noise_var)
+    if e.size == 0:
+        return HoldoutCheck(e, np.nan, np.nan, np.nan, np.nan, False)
+    cov_min, msq_max = holdout_bounds(e.size)
+    coverage = float(np.mean(np.abs(e) <= 1.96))
+    msq = float(np.mean(e**2))
+    return HoldoutCheck(e, coverage, msq, cov_min, msq_max, bool(coverage >= cov_min and msq <= msq_max))
