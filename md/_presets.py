@@ -3,9 +3,12 @@
 from __future__ import annotations
 
 import dataclasses
-from typing import Any, TypeVar
+from typing import TYPE_CHECKING, Any, TypeVar
 
-P = TypeVar("P")
+if TYPE_CHECKING:
+    from _typeshed import DataclassInstance
+
+P = TypeVar("P", bound="DataclassInstance")
 
 
 def resolve_preset(preset: str | P, presets: dict[str, P], kind: str, **overrides: Any) -> P:
@@ -15,7 +18,9 @@ def resolve_preset(preset: str | P, presets: dict[str, P], kind: str, **override
     """
     if isinstance(preset, str):
         try:
-            preset = presets[preset]
+            chosen = presets[preset]
         except KeyError:
             raise ValueError(f"unknown {kind} preset {preset!r}: use one of {sorted(presets)}") from None
-    return dataclasses.replace(preset, **overrides) if overrides else preset
+    else:
+        chosen = preset
+    return dataclasses.replace(chosen, **overrides) if overrides else chosen

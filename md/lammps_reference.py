@@ -19,6 +19,7 @@ import tempfile
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import jax
 import numpy as np
@@ -336,7 +337,7 @@ def run_lj_fluid(
     seed: int = 87287,
     executable: str = "lmp",
     timeout_s: float = 600.0,
-) -> dict[str, np.ndarray]:
+) -> dict[str, Any]:
     """The LJ fluid in LAMMPS ``units lj``: NVT Nose-Hoover, plain truncation with tail corrections.
 
     ``pair_style lj/cut`` truncates without a shift, and ``pair_modify tail yes`` adds the

@@ -2,7 +2,11 @@
 
 from __future__ import annotations
 
+import functools
 import os
+import shutil
+import subprocess
+import sys
 
 # Tests run on the CPU with a predictable thread count, whatever the machine offers.
 os.environ.setdefault("JAX_PLATFORMS", "cpu")
@@ -12,6 +16,34 @@ import jax.numpy as jnp
 import pytest
 
 import jaxabc
+
+
+def _mpi_missing() -> str | None:
+    if shutil.which("mpiexec") is None:
+        return "mpiexec not found: apt-get install openmpi-bin libopenmpi-dev"
+    # In a child: importing mpi4py.MPI initialises MPI, which the test process must not do.
+    probe = subprocess.run([sys.executable, "-c", "import mpi4py.MPI"], capture_output=True, text=True)
+    if probe.returncode != 0:  # ImportError, or mpi4py built against a missing libmpi
+        return f"mpi4py unusable ({probe.stderr.strip().splitlines()[-1:]}): pip install mpi4py"
+    return None
+
+
+# What each external-program marker needs; the function returns why the tests cannot run, or None.
+_REQUIREMENTS = {
+    "gromacs": lambda: None if shutil.which("gmx") else "GROMACS `gmx` not found: apt-get install gromacs",
+    "lammps": lambda: None if shutil.which("lmp") else "LAMMPS `lmp` not found: apt-get install lammps",
+    "mpi": _mpi_missing,
+}
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    """Skip tests marked ``gromacs``, ``lammps`` or ``mpi`` with a message saying what to install
+    when the program is missing; each requirement is probed once, and only when a test needs it."""
+    missing = {name: functools.cache(probe) for name, probe in _REQUIREMENTS.items()}
+    for item in items:
+        for name, probe in missing.items():
+            if item.get_closest_marker(name) is not None and (reason := probe()):
+                item.add_marker(pytest.mark.skip(reason=reason))
 
 
 def gaussian_simulate(key, theta):

@@ -35,23 +35,31 @@ from jaxabc.criticism.misfit import adjust_pvalues, refit_operator
 from jaxabc.criticism.predictive import shrunk_covariance
 from md.criticism_catalogue import lj_catalogue, make_lj_surrogate
 
-SETUP = make_lj_surrogate()
-CATALOGUE = SETUP.catalogue
-K = len(CATALOGUE)
-S = len(SETUP.names)
-# Held out: every third g(r) bin from the first peak on, D and U (fitted: the rest of g(r) and P).
-HELD_OUT = np.zeros(S, bool)
-HELD_OUT[np.arange(10, 25, 3)] = True
-HELD_OUT[[25, 27]] = True
+# The surrogate, its noise replicates and what depends on them are built by the autouse fixture
+# below, not at import: building them takes tens of seconds that collection must not pay.
+SETUP = CATALOGUE = K = S = HELD_OUT = FIT_INDEX = FIT_DISTANCE = CRITIQUE_OPTIONS = None
 PRIOR = jaxabc.Uniform([0.9, 0.8], [1.1, 1.2], names=("sigma_nm", "epsilon_kj_mol"), units=("nm", "kJ/mol"))
 EXECUTOR = jaxabc.VmapExecutor()
-_REPS = np.asarray(jax.vmap(SETUP.simulate, (0, None))(
-    jax.random.split(jax.random.key(9), 200), jnp.asarray([1.0, 1.0] + [0.0] * K)))
-_SD = _REPS.std(0)
-FIT_INDEX = np.flatnonzero(~HELD_OUT & (_SD > 0))
-FIT_DISTANCE = jaxabc.distances.standardized_euclidean(jnp.asarray(_SD[FIT_INDEX], jnp.float32))
-CRITIQUE_OPTIONS = dict(summary_names=SETUP.names, groups=SETUP.groups, num_draws=100, num_replicates=100,
-                        executor=EXECUTOR, extend_options=dict(num_particles=400, acceptance_cutoff=0.03))
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _surrogate_setup():
+    global SETUP, CATALOGUE, K, S, HELD_OUT, FIT_INDEX, FIT_DISTANCE, CRITIQUE_OPTIONS
+    SETUP = make_lj_surrogate()
+    CATALOGUE = SETUP.catalogue
+    K = len(CATALOGUE)
+    S = len(SETUP.names)
+    # Held out: every third g(r) bin from the first peak on, D and U (fitted: the rest of g(r) and P).
+    HELD_OUT = np.zeros(S, bool)
+    HELD_OUT[np.arange(10, 25, 3)] = True
+    HELD_OUT[[25, 27]] = True
+    reps = np.asarray(jax.vmap(SETUP.simulate, (0, None))(
+        jax.random.split(jax.random.key(9), 200), jnp.asarray([1.0, 1.0] + [0.0] * K)))
+    sd = reps.std(0)
+    FIT_INDEX = np.flatnonzero(~HELD_OUT & (sd > 0))
+    FIT_DISTANCE = jaxabc.distances.standardized_euclidean(jnp.asarray(sd[FIT_INDEX], jnp.float32))
+    CRITIQUE_OPTIONS = dict(summary_names=SETUP.names, groups=SETUP.groups, num_draws=100, num_replicates=100,
+                            executor=EXECUTOR, extend_options=dict(num_particles=400, acceptance_cutoff=0.03))
 
 
 def base_simulate(key, theta):

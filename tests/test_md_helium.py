@@ -156,9 +156,6 @@ def test_agrees_with_lammps():
     """Same helium system in LAMMPS: T, P, V and f_B means agree within statistical error and
     the jax-md/LAMMPS KL is within the jax-md seed-to-seed KL spread."""
     from md import lammps_reference
-
-    if not lammps_reference.lammps_available():
-        pytest.skip("LAMMPS `lmp` not installed")
     result = lammps_reference.compare_with_jax_md(
         jax.random.PRNGKey(7), helium.TRUE_THETA, "cpu", num_seeds=8
     )

@@ -14,10 +14,9 @@ import numpy as np
 import pytest
 
 from md import lj_fluid
-from md.lammps_reference import lammps_available, run_lj_fluid
+from md.lammps_reference import run_lj_fluid
 
-pytestmark = [pytest.mark.lammps,
-              pytest.mark.skipif(not lammps_available(), reason="lmp not found: apt-get install lammps")]
+pytestmark = pytest.mark.lammps
 
 STATE = dict(temperature=1.5, density=0.7)
 

@@ -116,15 +116,12 @@ def test_nan_energies_in_log_are_detected(tmp_path):
 @pytest.fixture(scope="module")
 def tiny_robust_run(tmp_path_factory):
     """One kept 5 ps run at TIP4P's parameters (robust statistics)."""
-    if GMX is None:
-        pytest.skip("GROMACS `gmx` not installed")
     directory = tmp_path_factory.mktemp("tiny_run")
     simulator = make_simulator("quick", "robust", **TINY)
     return simulator.run(key(0), TIP4P, keep_directory=directory)
 
 
 @pytest.mark.gromacs
-@pytest.mark.skipif(GMX is None, reason="needs GROMACS gmx: apt-get install gromacs")
 def test_grompp_sees_the_defines(tmp_path):
     protocol = gromacs.get_protocol("quick")
     params = gromacs.TIP4PParameters(0.33, 0.5, charge_h_e=0.55)
@@ -150,7 +147,6 @@ EM_CRASHED_AT_EMSTEP_0_01 = [(np.linspace(0.281, 0.53, 12)[i], np.linspace(0.2, 
 
 
 @pytest.mark.gromacs
-@pytest.mark.skipif(GMX is None, reason="needs GROMACS gmx: apt-get install gromacs")
 @pytest.mark.parametrize("theta", EM_CRASHED_AT_EMSTEP_0_01, ids=lambda t: f"{t[0]:.3f}-{t[1]:.3f}")
 def test_energy_minimisation_does_not_crash(tmp_path, theta):
     protocol = gromacs.get_protocol("quick")
@@ -167,7 +163,6 @@ def test_energy_minimisation_does_not_crash(tmp_path, theta):
 
 
 @pytest.mark.gromacs
-@pytest.mark.skipif(GMX is None, reason="needs GROMACS gmx: apt-get install gromacs")
 @pytest.mark.parametrize("preset", ["paper", "quick"])
 def test_preset_builds_and_grompp_accepts_it(tmp_path, preset):
     protocol = gromacs.get_protocol(preset)
@@ -184,7 +179,6 @@ def test_preset_builds_and_grompp_accepts_it(tmp_path, preset):
 
 
 @pytest.mark.gromacs
-@pytest.mark.skipif(GMX is None, reason="needs GROMACS gmx: apt-get install gromacs")
 def test_tiny_run_gives_finite_statistics(tiny_robust_run):
     values = tiny_robust_run.statistics
     assert values.shape == (9,) and np.all(np.isfinite(values))
@@ -196,7 +190,6 @@ def test_tiny_run_gives_finite_statistics(tiny_robust_run):
 
 
 @pytest.mark.gromacs
-@pytest.mark.skipif(GMX is None, reason="needs GROMACS gmx: apt-get install gromacs")
 def test_same_key_same_statistics_and_directory_cleaned(tiny_robust_run, tmp_path, monkeypatch):
     monkeypatch.setenv("JAXABC_TMPDIR", str(tmp_path))
     simulator = make_simulator("quick", "robust", **TINY)
@@ -208,7 +201,6 @@ def test_same_key_same_statistics_and_directory_cleaned(tiny_robust_run, tmp_pat
 
 
 @pytest.mark.gromacs
-@pytest.mark.skipif(GMX is None, reason="needs GROMACS gmx: apt-get install gromacs")
 def test_paper_variant_tiny_run(tmp_path):
     simulator = make_simulator("quick", "paper", **TINY)
     output = simulator.run(key(0), TIP4P)
@@ -227,7 +219,6 @@ def test_paper_variant_tiny_run(tmp_path):
 
 
 @pytest.mark.gromacs
-@pytest.mark.skipif(GMX is None, reason="needs GROMACS gmx: apt-get install gromacs")
 def test_xray_kind_zeroes_unobserved(tiny_robust_run):
     simulator = make_simulator("quick", "robust", observed_kind="xray", **TINY)
     values = simulator(key(0), TIP4P)
@@ -236,7 +227,6 @@ def test_xray_kind_zeroes_unobserved(tiny_robust_run):
 
 
 @pytest.mark.gromacs
-@pytest.mark.skipif(GMX is None, reason="needs GROMACS gmx: apt-get install gromacs")
 def test_vaporising_parameters_fail_with_reason():
     simulator = make_simulator("quick", "robust", **TINY)
     with pytest.raises(SimulationFailure, match="vaporised"):
@@ -244,7 +234,6 @@ def test_vaporising_parameters_fail_with_reason():
 
 
 @pytest.mark.gromacs
-@pytest.mark.skipif(GMX is None, reason="needs GROMACS gmx: apt-get install gromacs")
 def test_collapsing_parameters_fail_with_reason():
     simulator = make_simulator("quick", "robust", **TINY)
     with pytest.raises(SimulationFailure, match="collapsed"):
@@ -265,7 +254,6 @@ exec {GMX} "$@"
 
 
 @pytest.mark.gromacs
-@pytest.mark.skipif(GMX is None, reason="needs GROMACS gmx: apt-get install gromacs")
 def test_killed_run_is_a_failure(tmp_path):
     gmx = _shim(tmp_path, "kill -9 $$")
     simulator = TIP4PSimulator("quick", "robust", gmx=gmx, **TINY)
@@ -274,7 +262,6 @@ def test_killed_run_is_a_failure(tmp_path):
 
 
 @pytest.mark.gromacs
-@pytest.mark.skipif(GMX is None, reason="needs GROMACS gmx: apt-get install gromacs")
 def test_failed_run_reports_gromacs_message(tmp_path):
     gmx = _shim(tmp_path, "printf 'Fatal error:\\nsimulated crash\\n\\n'; exit 1")
     simulator = TIP4PSimulator("quick", "robust", gmx=gmx, **TINY)
@@ -283,7 +270,6 @@ def test_failed_run_reports_gromacs_message(tmp_path):
 
 
 @pytest.mark.gromacs
-@pytest.mark.skipif(GMX is None, reason="needs GROMACS gmx: apt-get install gromacs")
 def test_timeout_kills_the_run(tmp_path):
     gmx = _shim(tmp_path, "exec sleep 30")
     simulator = TIP4PSimulator("quick", "robust", gmx=gmx, timeout_s=3.0, **TINY)
@@ -292,7 +278,6 @@ def test_timeout_kills_the_run(tmp_path):
 
 
 @pytest.mark.gromacs
-@pytest.mark.skipif(GMX is None, reason="needs GROMACS gmx: apt-get install gromacs")
 def test_rdf_agrees_with_gmx_rdf(tiny_robust_run):
     run = tiny_robust_run.run
     trajectory = analysis.load_trajectory(run.trajectory, start_ps=1.0)
@@ -317,7 +302,6 @@ def test_rdf_agrees_with_gmx_rdf(tiny_robust_run):
 
 
 @pytest.mark.gromacs
-@pytest.mark.skipif(GMX is None, reason="needs GROMACS gmx: apt-get install gromacs")
 def test_msd_agrees_with_gmx_msd_at_1ps_spacing(tiny_robust_run):
     # gmx msd 2022.5 aborts at the 0.2 ps spacing we write; -dt 1 makes it read every 5th frame.
     run = tiny_robust_run.run
@@ -339,7 +323,6 @@ def test_msd_agrees_with_gmx_msd_at_1ps_spacing(tiny_robust_run):
 
 @pytest.mark.slow
 @pytest.mark.gromacs
-@pytest.mark.skipif(GMX is None, reason="needs GROMACS gmx: apt-get install gromacs")
 @pytest.mark.parametrize("variant", statistics.VARIANTS)
 def test_quick_preset_at_tip4p(variant):
     values = make_simulator("quick", variant)(key(0), TIP4P)
@@ -349,7 +332,6 @@ def test_quick_preset_at_tip4p(variant):
 
 @pytest.mark.slow
 @pytest.mark.gromacs
-@pytest.mark.skipif(GMX is None, reason="needs GROMACS gmx: apt-get install gromacs")
 def test_paper_preset_paper_statistics_near_published_simulated_vector():
     """The full paper protocol (515 molecules, 100 ps; ~3 min on one core) with the paper's
     statistics lands near the published "simulated observed" vector (obs_data.npy).  Measured

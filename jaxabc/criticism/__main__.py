@@ -19,7 +19,7 @@ from jaxabc.results import load
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m jaxabc.criticism", description=__doc__.split("\n\n")[0])
+    parser = argparse.ArgumentParser(prog="python -m jaxabc.criticism", description=(__doc__ or "").split("\n\n")[0])
     parser.add_argument("config", help="Python file defining setup() -> dict of critique() arguments")
     parser.add_argument("--out", default="criticism_report", help="report directory")
     parser.add_argument("--seed", type=int, default=None, help="override the seed")
@@ -28,6 +28,8 @@ def main(argv: list[str] | None = None) -> int:
     if not path.exists():
         parser.error(f"no config file {path}")
     spec = importlib.util.spec_from_file_location("criticism_config", path)
+    if spec is None or spec.loader is None:
+        parser.error(f"{path} cannot be imported as a Python module: give a .py file")
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     if not hasattr(module, "setup"):

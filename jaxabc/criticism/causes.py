@@ -172,6 +172,11 @@ class Cause(tuple):
     ``ambiguous`` (bool), ``invisible`` (bool), ``note`` (str), ``acts_on`` (group names).
     """
 
+    # Set per instance from ``details``; declared for type checkers.
+    adjusted_p_value: float
+    ambiguous: bool
+    invisible: bool
+
     def __new__(cls, name: str, score: float, **details):
         obj = super().__new__(cls, (name, float(score)))
         obj.__dict__.update(details)

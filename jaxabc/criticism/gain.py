@@ -41,7 +41,9 @@ def gaussian_log_density(y: np.ndarray, draws: np.ndarray) -> np.ndarray:
     """Log density of rows of ``y`` (n, k) under a Gaussian fitted to ``draws`` (m, k); (n,)."""
     mean = draws.mean(axis=0)
     cov = shrunk_covariance(draws) if draws.shape[1] > 1 else np.atleast_2d(draws.var(ddof=1))
-    return stats.multivariate_normal(mean, cov, allow_singular=True).logpdf(np.atleast_2d(y)).reshape(-1)
+    # scipy's stubs type ``cov`` as int; it takes any (k, k) covariance array.
+    dist = stats.multivariate_normal(mean, cov, allow_singular=True)  # pyright: ignore[reportArgumentType]
+    return dist.logpdf(np.atleast_2d(y)).reshape(-1)
 
 
 def _weighted_kde_at(x0: float, x: np.ndarray, w: np.ndarray, low: float, high: float) -> float:

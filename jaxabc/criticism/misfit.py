@@ -43,6 +43,10 @@ class Misfit(tuple):
     ``indices`` (summary indices), ``line`` (a human-readable sentence).
     """
 
+    # Set per instance from ``details``; declared for type checkers.
+    adjusted_p_value: float
+    flagged: bool
+
     def __new__(cls, name: str, residual: float, p_value: float, **details):
         obj = super().__new__(cls, (name, float(residual), float(p_value)))
         obj.__dict__.update(details)

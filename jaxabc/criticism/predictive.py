@@ -215,7 +215,7 @@ def posterior_predictive(
     groups : mapping, optional
         Named regions of the summary vector.
     """
-    ex = executor if hasattr(executor, "map") else get_executor(executor)
+    ex = get_executor(executor)  # an executor object comes back as is
     k_draw, k_rep = jax.random.split(key)
     m = theta_draws.shape[0]
     draws = simulate_many(simulate, jax.random.split(k_draw, m), theta_draws, ex)

@@ -233,7 +233,8 @@ class CritiqueReport:
             fig.savefig(out / "extension.png", dpi=110)
             plt.close(fig)
             figs["extension"] = "extension.png"
-        if self.extension_draws is not None and self.held_out is not None and self.held_out.any():
+        if (p is not None and self.observed is not None and self.extension_draws is not None
+                and self.base_draws is not None and self.held_out is not None and self.held_out.any()):
             h = np.flatnonzero(self.held_out & p.active)
             fig, ax = plt.subplots(figsize=(7, 3.5))
             sd = np.where(p.noise_sd > 0, p.noise_sd, 1.0)[h]

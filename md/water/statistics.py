@@ -146,7 +146,7 @@ def _enable_x64():
     # 0.4.30) have it as jax.experimental.enable_x64.
     if hasattr(jax, "enable_x64"):
         return jax.enable_x64(True)
-    from jax.experimental import enable_x64
+    from jax.experimental import enable_x64  # pyright: ignore[reportAttributeAccessIssue]
 
     return enable_x64()
 
