@@ -70,6 +70,9 @@ class ABCResult:
     simulations_per_step : numpy.ndarray, shape (g,)
         Simulations run to produce each generation.
     acceptance_rates, ess : numpy.ndarray, shape (g,)
+        ``ess`` is each generation's effective sample size; for ABCsubsim the last entry is the
+        honest chain estimate (see :meth:`effective_sample_size`), never more than the distinct
+        particles.
     num_simulations : int
     algorithm : str
     settings : dict

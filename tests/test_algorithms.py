@@ -3,8 +3,8 @@
 Tolerances are Monte Carlo errors at the run's effective sample size: the standard error of a
 weighted mean is sd / sqrt(ESS), of a variance var * sqrt(2 / ESS), of a correlation
 (1 - rho^2) / sqrt(ESS).  Checks use 4 standard errors at fixed seeds.  For ABCsubsim the
-particles of a level are correlated along their chains, so its effective size is taken as the
-number of chains (N P0), a conservative bound.
+particles of a level are correlated along and across their chains; its reported ESS accounts
+for that (and is capped here at the number of chains, N P0).
 """
 
 import math

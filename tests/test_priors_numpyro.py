@@ -82,14 +82,16 @@ def _normal_prior_abc_moments(observed: float, eps: float) -> tuple[float, float
     return x.mean() / 2.0, 0.5 + x.var() / 4.0
 
 
-@pytest.mark.parametrize("algorithm, options", [
-    ("apmcabc", dict(num_particles=2000, num_steps=6, alpha=0.1, acceptance_cutoff=0.03)),
-    ("abcsubsim", dict(num_particles=2000, p0=0.2, num_steps=3)),
+@pytest.mark.parametrize("algorithm, z, options", [
+    ("apmcabc", 4.0, dict(num_particles=2000, num_steps=6, alpha=0.1, acceptance_cutoff=0.03)),
+    ("abcsubsim", 3.0, dict(num_particles=2000, p0=0.1, num_steps=2)),
 ])
-def test_normal_prior_gives_the_analytic_posterior(algorithm, options):
+def test_normal_prior_gives_the_analytic_posterior(algorithm, z, options):
     """With a N(0, 1) prior and observation 2 the posterior is N(1, 1/2) (a flat prior would give
     N(2, 1)): the importance weights (APMCABC) and the Metropolis ratio (ABCsubsim) must use the
-    prior's density.  Checked within 4 Monte Carlo standard errors of the reported ESS."""
+    prior's density.  Checked within ``z`` Monte Carlo standard errors of the reported ESS; for
+    ABCsubsim one level of chains of 10 (they mix) without the prior ratio in the moves gives a
+    mean 3.3-4.4 standard errors too high on every one of 8 seeds."""
     from jaxabc import examples
 
     prior = jaxabc.Independent(mu=dist.Normal(0.0, 1.0), bounds={"mu": (-8.0, 8.0)})
@@ -98,7 +100,7 @@ def test_normal_prior_gives_the_analytic_posterior(algorithm, options):
                         distance="euclidean", seed=3, **options)
     mean, var = _normal_prior_abc_moments(observed, float(result.thresholds[-1]))
     ess = result.effective_sample_size()
-    assert abs(result.bayes_estimate()[0] - mean) < 4 * math.sqrt(var / ess), (result.bayes_estimate(), mean, ess)
-    assert abs(result.covariance()[0, 0] - var) < 4 * var * math.sqrt(2 / ess), (result.covariance(), var, ess)
+    assert abs(result.bayes_estimate()[0] - mean) < z * math.sqrt(var / ess), (result.bayes_estimate(), mean, ess)
+    assert abs(result.covariance()[0, 0] - var) < z * var * math.sqrt(2 / ess), (result.covariance(), var, ess)
     # The flat-prior answer (mean ~ 2) is far outside these errors.
     assert abs(result.bayes_estimate()[0] - observed) > 0.5
