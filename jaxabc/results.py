@@ -469,7 +469,10 @@ class ABCResult:
 
         Returns the matplotlib figure; saves it when ``path`` is given.
         """
-        import matplotlib
+        try:
+            import matplotlib
+        except ImportError as exc:  # the optional `plotting` extra
+            raise ImportError("plot_posterior needs matplotlib: pip install 'jaxabc[plotting]'") from exc
 
         matplotlib.use("Agg", force=False)
         import matplotlib.pyplot as plt

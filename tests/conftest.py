@@ -22,9 +22,13 @@ def _mpi_missing() -> str | None:
     if shutil.which("mpiexec") is None:
         return "mpiexec not found: apt-get install openmpi-bin libopenmpi-dev"
     # In a child: importing mpi4py.MPI initialises MPI, which the test process must not do.
-    probe = subprocess.run([sys.executable, "-c", "import mpi4py.MPI"], capture_output=True, text=True)
+    try:
+        probe = subprocess.run([sys.executable, "-c", "import mpi4py.MPI"], capture_output=True, text=True, timeout=120)
+    except subprocess.TimeoutExpired:
+        return "importing mpi4py.MPI hung for 120 s: check the Open MPI installation"
     if probe.returncode != 0:  # ImportError, or mpi4py built against a missing libmpi
-        return f"mpi4py unusable ({probe.stderr.strip().splitlines()[-1:]}): pip install mpi4py"
+        last = (probe.stderr.strip().splitlines() or ["no message"])[-1]
+        return f"mpi4py unusable ({last}): pip install mpi4py"
     return None
 
 

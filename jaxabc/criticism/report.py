@@ -170,7 +170,10 @@ class CritiqueReport:
     # -- figures ------------------------------------------------------------------------------
 
     def _figures(self, out: Path) -> dict[str, str]:
-        import matplotlib
+        try:
+            import matplotlib
+        except ImportError as exc:  # the optional `plotting` extra
+            raise ImportError("criticism figures need matplotlib: pip install 'jaxabc[plotting]'") from exc
 
         matplotlib.use("Agg", force=False)
         import matplotlib.pyplot as plt

@@ -113,7 +113,10 @@ def load_trajectory(
     ValueError
         Non-orthorhombic box, atom count not a multiple of ``sites_per_molecule``, no frames.
     """
-    import mdtraj.formats as mdformats
+    try:
+        import mdtraj.formats as mdformats
+    except ImportError as exc:  # the optional `water` extra
+        raise ImportError("reading GROMACS trajectories needs mdtraj: pip install 'jaxabc[water]'") from exc
 
     path = Path(path)
     suffix = path.suffix.lower()
