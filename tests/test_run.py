@@ -237,6 +237,8 @@ folder = "out"
         assert (tmp_path / "out" / name).exists()
     again = subprocess.run([*cmd, "--resume"], capture_output=True, text=True, env=env, timeout=300)
     assert again.returncode == 0 and "1120 simulations" in again.stdout
+    fresh = subprocess.run(cmd, capture_output=True, text=True, env=env, timeout=300)
+    assert fresh.returncode == 2 and "--resume" in fresh.stderr, fresh.stderr
     bad = subprocess.run([sys.executable, "-m", "jaxabc.cli", "run", str(tmp_path / "nope.toml")],
                          capture_output=True, text=True, env=env, timeout=120)
     assert bad.returncode == 2 and "no configuration file" in bad.stderr
