@@ -145,7 +145,7 @@ def test_too_many_failures_stop_with_the_reasons():
         return jnp.full((1,), jnp.nan)
 
     prior = jaxabc.Uniform([0.0], [1.0])
-    with pytest.raises(jaxabc.TooManyFailures, match="100 of 100 simulations failed"):
+    with pytest.raises(jaxabc.TooManyFailures, match="all 100 simulations failed"):
         jaxabc.run("apmcabc", always_nan, prior, np.array([0.0]), num_particles=100, seed=0)
 
 
