@@ -36,6 +36,7 @@ __all__ = [
     "LEGACY_CHECKPOINT_NAME",
     "Checkpoint",
     "CheckpointError",
+    "CheckpointExists",
     "check_fingerprint",
     "fingerprint",
     "load",
@@ -53,6 +54,10 @@ _RECORD_KEYS = ("theta", "distance", "status", "wall_time", "cpu_time", "worker"
 
 class CheckpointError(ValueError):
     """A checkpoint that cannot be used: corrupt, foreign, too old, or of another problem."""
+
+
+class CheckpointExists(CheckpointError, FileExistsError):
+    """A fresh run was asked to write into a folder that holds an earlier run's checkpoint."""
 
 
 @dataclass
@@ -312,9 +317,9 @@ def prepare_folder(folder: Path | None, resume: bool, overwrite: bool) -> Path |
     else:
         existing = path if path.exists() else legacy if legacy.exists() else None
         if existing is not None:
-            raise FileExistsError(
+            raise CheckpointExists(
                 f"{existing} holds the checkpoint of an earlier run: continue it with "
                 "resume=True (CLI: --resume), or start over with overwrite=True, which deletes "
-                "it"
+                "it (CLI: delete the file or choose another output folder)"
             )
     return path

@@ -210,7 +210,7 @@ def _example(name: str, folder: Path, quick: bool) -> None:
         prior = jaxabc.Uniform([-10.0, -10.0], [10.0, 10.0], names=("a", "b"))
         result = jaxabc.run("apmcabc", examples.correlated_simulate, prior, jnp.zeros(2),
                             num_particles=2000, num_steps=8, distance="euclidean", seed=0,
-                            progress=True, checkpoint_dir=folder)
+                            progress=True, checkpoint_dir=folder, overwrite=True)
         write_outputs(result, folder, truth=np.zeros(2))
         print(result.summary())
         eps = float(result.thresholds[-1])

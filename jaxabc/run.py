@@ -326,7 +326,6 @@ def run(
     t_start = time.perf_counter()
     validate_arguments(dtype, num_particles, num_steps, max_failure_fraction, simulate, prior)
     obs = validate_observed(observed)
-    ckpt_path = _ckpt.prepare_folder(checkpoint_dir, resume, overwrite)
     with precision(dtype):
         jdtype = jnp.float64 if dtype == "float64" else jnp.float32
         prior = cast_prior(prior, jdtype)
@@ -344,6 +343,8 @@ def run(
             if hasattr(ex, "summary_shape") and not getattr(get_distance(distance),
                                                            "compares_samples", False):
                 ex.summary_shape = tuple(obs.shape)  # a batch where every task fails keeps it
+            # Only now, with every input checked, may overwrite=True delete an old checkpoint.
+            ckpt_path = _ckpt.prepare_folder(checkpoint_dir, resume, overwrite)
             fp = _ckpt.fingerprint(
                 algorithm=algo.name, settings=algo.settings, prior=prior, observed=obs,
                 distance=distance, simulator_id=_ckpt.simulator_identity(simulate, simulator_id),

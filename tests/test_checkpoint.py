@@ -5,6 +5,7 @@ import pickle
 import re
 import zipfile
 from pathlib import Path
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -13,6 +14,7 @@ import pytest
 
 import jaxabc
 from jaxabc import checkpoint
+from jaxabc.algorithms import ABCAlgorithm, Info, Proposal
 from jaxabc.checkpoint import CheckpointError
 
 KW = dict(num_particles=100, num_steps=3, distance="euclidean", seed=1)
@@ -142,3 +144,58 @@ def test_corrupt_checkpoint_is_a_clear_error_naming_the_file(tmp_path, gaussian_
                     np.lib.format.write_array(fh, v)
     with pytest.raises(CheckpointError, match=re.escape(str(path))):
         jaxabc.run("apmcabc", simulate, prior, observed, checkpoint_dir=tmp_path, resume=True, **KW)
+
+
+class _HostState(NamedTuple):
+    particles: np.ndarray  # (n, d)
+    distances: np.ndarray  # (n,)
+    summary_means: np.ndarray  # (rounds,): mean summary of each batch, from `summaries`
+
+
+def _host_best_of(prior, n: int, rounds: int) -> ABCAlgorithm:
+    """A NumPy algorithm that reads the summaries: the n closest of ``rounds`` prior batches."""
+
+    def first(key):
+        return Proposal(np.asarray(prior.sample(key, n)), np.ones(n, bool), True)
+
+    def info(state):
+        done = len(state.summary_means) >= rounds
+        return Info(True, done, state.distances[-1], 1.0 / rounds, float(n))
+
+    def init(key, proposal, distances, summaries):
+        order = np.argsort(distances, kind="stable")
+        state = _HostState(proposal.thetas[order], distances[order],
+                           np.array([np.nanmean(summaries)]))
+        return state, info(state)
+
+    def update(key, state, proposal, distances, summaries):
+        x = np.concatenate([state.particles, proposal.thetas])
+        d = np.concatenate([state.distances, distances])
+        order = np.argsort(d, kind="stable")[:n]
+        means = np.append(state.summary_means, np.nanmean(summaries))
+        state = _HostState(x[order], d[order], means)
+        return state, info(state)
+
+    def restore(flat):
+        return _HostState(flat[".particles"], flat[".distances"], flat[".summary_means"])
+
+    return ABCAlgorithm(
+        "host_best_of", first, init, lambda key, state: first(key), update,
+        lambda state: (state.particles, np.zeros(n)), {"rounds": rounds}, host=True,
+        uses_summaries=True, restore_state=restore,
+        finalize=lambda state: {"summary_means": state.summary_means.tolist()})
+
+
+def test_host_algorithm_with_summaries_resumes_through_restore_state(tmp_path, gaussian_problem):
+    prior, simulate, observed = gaussian_problem
+    kw = dict(num_particles=50, distance="euclidean", seed=4)
+    full = jaxabc.run(_host_best_of(prior, 50, 6), simulate, prior, observed, **kw)
+    # Each batch's mean summary is the mean of its simulated x = theta + noise.
+    per_batch = full.records["summaries"][:, 0].reshape(6, 50).mean(axis=1)
+    np.testing.assert_allclose(full.metadata["summary_means"], per_batch, rtol=1e-5)
+    jaxabc.run(_host_best_of(prior, 50, 6), simulate, prior, observed, checkpoint_dir=tmp_path,
+               stop_after_iterations=3, **kw)
+    rest = jaxabc.run(_host_best_of(prior, 50, 6), simulate, prior, observed,
+                      checkpoint_dir=tmp_path, resume=True, **kw)
+    np.testing.assert_array_equal(full.particles, rest.particles)
+    assert rest.metadata["summary_means"] == full.metadata["summary_means"]

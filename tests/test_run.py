@@ -145,7 +145,7 @@ def test_too_many_failures_stop_with_the_reasons():
         return jnp.full((1,), jnp.nan)
 
     prior = jaxabc.Uniform([0.0], [1.0])
-    with pytest.raises(jaxabc.TooManyFailures, match="100 of 100 simulations failed"):
+    with pytest.raises(jaxabc.TooManyFailures, match="all 100 simulations failed"):
         jaxabc.run("apmcabc", always_nan, prior, np.array([0.0]), num_particles=100, seed=0)
 
 
@@ -237,6 +237,8 @@ folder = "out"
         assert (tmp_path / "out" / name).exists()
     again = subprocess.run([*cmd, "--resume"], capture_output=True, text=True, env=env, timeout=300)
     assert again.returncode == 0 and "1120 simulations" in again.stdout
+    fresh = subprocess.run(cmd, capture_output=True, text=True, env=env, timeout=300)
+    assert fresh.returncode == 2 and "--resume" in fresh.stderr, fresh.stderr
     bad = subprocess.run([sys.executable, "-m", "jaxabc.cli", "run", str(tmp_path / "nope.toml")],
                          capture_output=True, text=True, env=env, timeout=120)
     assert bad.returncode == 2 and "no configuration file" in bad.stderr

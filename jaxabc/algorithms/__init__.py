@@ -1,7 +1,14 @@
 """ABC algorithms as pure ``init`` / ``propose`` / ``update`` functions (see :mod:`.base`)."""
 
 from jaxabc.algorithms import apmc, pmc, subsim
-from jaxabc.algorithms.base import ABCAlgorithm, Info, Proposal, make_jax_step
+from jaxabc.algorithms.base import (
+    ABCAlgorithm,
+    Info,
+    Proposal,
+    default_stop_reason,
+    make_jax_step,
+    no_extras,
+)
 
 BUILDERS = {
     "apmcabc": apmc.build,
@@ -10,4 +17,15 @@ BUILDERS = {
     "rejection": pmc.build_rejection,
 }
 
-__all__ = ["BUILDERS", "ABCAlgorithm", "Info", "Proposal", "apmc", "make_jax_step", "pmc", "subsim"]
+__all__ = [
+    "BUILDERS",
+    "ABCAlgorithm",
+    "Info",
+    "Proposal",
+    "apmc",
+    "default_stop_reason",
+    "make_jax_step",
+    "no_extras",
+    "pmc",
+    "subsim",
+]
