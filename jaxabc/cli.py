@@ -26,7 +26,7 @@ A configuration file describes one calibration::
     options = { alpha = 0.1, acceptance_cutoff = 0.03 }
 
     [executor]
-    name = "vmap"             # serial | process_pool | mpi | mpi_static
+    name = "vmap"             # serial | process_pool | mpi | mpi_static | dask
     options = {}
 
     [output]

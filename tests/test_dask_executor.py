@@ -28,14 +28,15 @@ def _keys(m: int, seed: int = 0) -> np.ndarray:
 def client() -> Iterator[object]:
     import dask
 
-    # Isolation starts a process from each worker, which daemonic workers may not do.
+    # Isolation starts a process from each worker, which daemonic workers may not do; the
+    # nannies read the setting at every (re)start of a worker, so it holds for the whole module.
     with dask.config.set({"distributed.worker.daemon": False}):
         cluster = distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
                                            dashboard_address=None)
-    client = distributed.Client(cluster)
-    yield client
-    client.close()
-    cluster.close()
+        client = distributed.Client(cluster)
+        yield client
+        client.close()
+        cluster.close()
 
 
 def test_same_summaries_as_serial_whatever_worker_ran_them(client) -> None:

@@ -161,7 +161,7 @@ def test_get_executor_names_and_objects() -> None:
     assert isinstance(get_executor(None), VmapExecutor) and isinstance(get_executor("serial"), SerialExecutor)
     ex = SerialExecutor()
     assert get_executor(ex) is ex
-    assert set(EXECUTOR_NAMES) == {"vmap", "serial", "process_pool", "mpi", "mpi_static"}
+    assert set(EXECUTOR_NAMES) == {"vmap", "serial", "process_pool", "mpi", "mpi_static", "dask"}
     with pytest.raises(ValueError, match="unknown executor 'gpu-cluster'"):
         get_executor("gpu-cluster")
     with pytest.raises(ValueError, match="max_workers"):

@@ -16,8 +16,9 @@ A worker lost mid-run (killed, its node gone) has its tasks rerun elsewhere by t
 a task that keeps killing workers ends as ``STATUS_WORKER_DIED`` with the reason.
 
 Isolation starts child processes from the worker, which dask forbids in daemonic workers (its
-default): the local cluster this executor starts sets ``distributed.worker.daemon`` to false;
-for a cluster of your own, set it (``DASK_DISTRIBUTED__WORKER__DAEMON=False``) or use
+default): while the local cluster this executor starts is open, ``distributed.worker.daemon``
+is false in this process (the nannies read it at every worker restart); for a cluster of your
+own, set it (``DASK_DISTRIBUTED__WORKER__DAEMON=False``) or use
 ``isolate=False``.  Install with ``pip install "dask[distributed]"`` (extra ``jaxabc[dask]``).
 """
 
@@ -147,6 +148,7 @@ class DaskExecutor:
         self.summary_shape = None if summary_shape is None else tuple(summary_shape)
         self._client = client
         self._own_cluster: Any = None
+        self._config: Any = None
         self._worker_ids: dict[str, int] = {}
 
     @property
@@ -157,9 +159,11 @@ class DaskExecutor:
 
             distributed = _import_distributed()
             # Isolation starts processes from the workers, which daemonic processes may not do.
-            with dask.config.set({"distributed.worker.daemon": False}):
-                self._own_cluster = distributed.LocalCluster(
-                    n_workers=self.n_workers, threads_per_worker=1, processes=True, dashboard_address=None)
+            # The nannies read this setting whenever they (re)start a worker, so it stays set
+            # until close(), not only while the cluster starts.
+            self._config = dask.config.set({"distributed.worker.daemon": False})
+            self._own_cluster = distributed.LocalCluster(
+                n_workers=self.n_workers, threads_per_worker=1, processes=True, dashboard_address=None)
             self._client = distributed.Client(self._own_cluster)
         return self._client
 
@@ -226,6 +230,7 @@ class DaskExecutor:
             self._client = self._own_cluster = None
             client.close()
             cluster.close()
+            self._config.__exit__(None, None, None)
 
     def __del__(self) -> None:
         try:

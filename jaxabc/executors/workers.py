@@ -107,8 +107,12 @@ def _die_with_parent(poll_seconds: float = 1.0) -> None:
 
 
 def _isolate() -> None:
-    # Host simulators only; keep JAX (if the simulator imports it) off accelerators.
+    # Host simulators only; keep JAX off accelerators unless the user chose a platform.  The
+    # variable is for programs the worker starts: this process imported jax (reading it) already.
     os.environ.setdefault("JAX_PLATFORMS", "cpu")
+    import jax
+
+    jax.config.update("jax_platforms", os.environ["JAX_PLATFORMS"])
     # Own process group: a timeout kills the worker and any program it started (mdrun, lmp).
     os.setpgrp()
     _die_with_parent()
@@ -116,6 +120,13 @@ def _isolate() -> None:
 
 def _worker_main(conn: Any) -> None:
     """Body of a worker process: load simulators and run tasks until told to stop."""
+    try:
+        _serve(conn)
+    except (BrokenPipeError, ConnectionResetError):
+        return  # the parent is gone (killed, or shut down): nobody to answer
+
+
+def _serve(conn: Any) -> None:
     _isolate()
     # Host simulators derive their seeds with seed_from_key: compile it while the worker starts,
     # so that the first task's timeout does not pay for it (seconds on a loaded machine).
