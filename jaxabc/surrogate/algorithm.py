@@ -152,6 +152,7 @@ def build(
     num_chains: int = 4,
     num_warmup: int = 200,
     thin: int = 2,
+    max_emulator_ratio: float = 1.0,
     on_failure: str = "flag",
 ) -> Any:
     """Build the surrogate (GP-emulator synthetic-likelihood) algorithm.
@@ -185,6 +186,10 @@ def build(
         Points on which the acquisition and the design-phase posterior are evaluated.
     num_chains, num_warmup, thin : int
         NUTS chains, discarded steps per chain, steps per kept draw.
+    max_emulator_ratio : float
+        Validation also fails when the posterior mean of ``mean_j var_j / noise_j^2`` stays
+        above this: the posterior would then describe the emulator's ignorance, not the data
+        (a simulator too rough for the GP, e.g. chaotic or discontinuous, or a budget too small).
     on_failure : {"flag", "raise"}
         When validation fails with the budget spent: stop with an unvalidated, flagged result
         and a warning, or raise :class:`EmulatorFailure`.
@@ -224,7 +229,7 @@ def build(
         "num_replicates": int(num_replicates), "batch_size": int(batch_size), "num_holdout": int(num_holdout),
         "tolerance": float(tolerance), "max_outputs": int(max_outputs), "num_candidates": int(num_candidates),
         "num_chains": int(num_chains), "num_warmup": int(num_warmup), "thin": int(thin),
-        "on_failure": on_failure, "observed_size": k,
+        "on_failure": on_failure, "observed_size": k, "max_emulator_ratio": float(max_emulator_ratio),
     }
 
     def to_unit(theta: np.ndarray) -> np.ndarray:
@@ -373,7 +378,8 @@ def build(
         lof_ok, _ = diagnostics.lack_of_fit(noise_var, rep_var, df)
         errors = np.full((num_holdout, q), np.nan)
         errors[: len(rows)] = check.errors
-        passed = check.passed and lof_ok is not False
+        resolved = float(state.emulator_ratio) <= max_emulator_ratio
+        passed = check.passed and lof_ok is not False and resolved
         state = state._replace(holdout_errors=errors, coverage=np.float64(check.coverage),
                                mean_squared_error=np.float64(check.mean_squared),
                                lack_of_fit_ok=np.bool_(lof_ok is not False))
@@ -385,7 +391,7 @@ def build(
         if M - int(state.count) >= batch_size + num_holdout and lof_ok is not False:
             # More design may cure an under-resolved emulator; a failed lack-of-fit test will not.
             return design_step(jax.random.fold_in(key, 3), state)
-        message = (f"surrogate: the emulator failed validation ({_failure_text(state)}); "
+        message = (f"surrogate: the emulator failed validation ({_failure_text(state, max_emulator_ratio)}); "
                    f"{int(state.count)} real simulations used. The posterior is not trustworthy")
         if on_failure == "raise":
             raise EmulatorFailure(message)
@@ -394,7 +400,8 @@ def build(
 
     def info_of(state: SurrogateState) -> Info:
         done = int(state.phase) == DONE
-        threshold = float(state.mean_squared_error) if bool(state.lack_of_fit_ok) else np.inf
+        trusted = bool(state.lack_of_fit_ok) and float(state.emulator_ratio) <= max_emulator_ratio
+        threshold = float(state.mean_squared_error) if trusted else np.inf
         return Info(generation_done=np.bool_(True), stop=np.bool_(done), threshold=np.float64(threshold),
                     acceptance_rate=np.float64(state.coverage), ess=np.float64(num_particles))
 
@@ -442,7 +449,7 @@ def build(
         ls = np.exp(state.hyper[:, 1 : 1 + d]) * (high - low)
         diag = {
             "validated": bool(state.validated),
-            "failure": "" if bool(state.validated) else _failure_text(state),
+            "failure": "" if bool(state.validated) else _failure_text(state, max_emulator_ratio),
             "num_simulations": c,
             "num_failed_simulations": int(np.sum(~state.ok[:c])),
             "num_design": int(np.sum(np.isin(state.role[:c], (ROLE_DESIGN, ROLE_FAILED_HOLDOUT)))),
@@ -481,8 +488,11 @@ def build(
 _FLAG = "NOT VALIDATED: "
 
 
-def _failure_text(state: SurrogateState) -> str:
+def _failure_text(state: SurrogateState, max_emulator_ratio: float) -> str:
     parts = []
+    if float(state.emulator_ratio) > max_emulator_ratio:
+        parts.append(f"the emulator's variance over the posterior is {float(state.emulator_ratio):.2g} times "
+                     "the simulator noise: the GP does not resolve the simulator (too rough, or too few runs)")
     if not bool(state.lack_of_fit_ok):
         parts.append("fitted noise far above the replicate scatter: the GP cannot represent the "
                      "simulator (a discontinuity or a phase change?)")
