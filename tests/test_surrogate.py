@@ -12,7 +12,11 @@ from jax.tree_util import keystr, tree_flatten_with_path
 
 from jaxabc.executors import SerialExecutor, VmapExecutor, mark_nonfinite
 from jaxabc.priors import Uniform
-from jaxabc.surrogate import EmulatorFailure, build, design, diagnostics, emulator
+
+pytest.importorskip("tinygp", reason="jaxabc.surrogate needs the 'surrogate' extra")
+pytest.importorskip("blackjax", reason="jaxabc.surrogate needs the 'surrogate' extra")
+
+from jaxabc.surrogate import EmulatorFailure, build, design, diagnostics, emulator  # noqa: E402
 
 # A linear-Gaussian simulator s = A theta + noise: under a wide uniform prior the posterior is
 # N(A^-1 s_obs, (A^T S^-1 A)^-1), correlated through A.
