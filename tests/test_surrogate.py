@@ -16,7 +16,7 @@ from jaxabc.priors import Uniform
 pytest.importorskip("tinygp", reason="jaxabc.surrogate needs the 'surrogate' extra")
 pytest.importorskip("blackjax", reason="jaxabc.surrogate needs the 'surrogate' extra")
 
-from jaxabc.surrogate import EmulatorFailure, build, design, diagnostics, emulator  # noqa: E402
+from jaxabc.surrogate import EmulatorFailure, build, design, diagnostics, emulator
 
 # A linear-Gaussian simulator s = A theta + noise: under a wide uniform prior the posterior is
 # N(A^-1 s_obs, (A^T S^-1 A)^-1), correlated through A.
