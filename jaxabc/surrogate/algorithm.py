@@ -72,7 +72,7 @@ class SurrogateState(NamedTuple):
     validated, lack_of_fit_ok : array of bool, shape ()
     coverage, mean_squared_error, emulator_ratio : array, shape ()
         Held-out 95 % coverage and mean squared standardised error; posterior mean of
-        ``sum_j var_j / noise_j^2`` at the last fit.
+        ``mean_j var_j / noise_j^2`` at the last fit.
     rhat : array, shape (d,)
         Split-R-hat of the NUTS chains (NaN before).
     """
@@ -146,12 +146,13 @@ def build(
     num_replicates: int = 8,
     batch_size: int = 10,
     num_holdout: int = 20,
-    tolerance: float = 0.05,
+    tolerance: float = 0.01,
     max_outputs: int = 16,
     num_candidates: int = 4096,
     num_chains: int = 4,
-    num_warmup: int = 400,
+    num_warmup: int = 200,
     thin: int = 2,
+    max_emulator_ratio: float = 1.0,
     on_failure: str = "flag",
 ) -> Any:
     """Build the surrogate (GP-emulator synthetic-likelihood) algorithm.
@@ -176,13 +177,19 @@ def build(
     num_holdout : int
         Held-out simulations per validation.
     tolerance : float
-        Design stops once the posterior mean of ``sum_j var_j / noise_j^2`` is below this.
+        Design stops once the posterior mean of ``mean_j var_j / noise_j^2`` (emulator over
+        simulator variance) is below this: 0.01 keeps the emulator's error near a tenth of the
+        noise, so posterior means move by about a tenth of a posterior sd.
     max_outputs : int
         Summaries beyond this many are projected onto their leading principal components.
     num_candidates : int
         Points on which the acquisition and the design-phase posterior are evaluated.
     num_chains, num_warmup, thin : int
-        NUTS chains, adaptation steps, steps per kept draw.
+        NUTS chains, discarded steps per chain, steps per kept draw.
+    max_emulator_ratio : float
+        Validation also fails when the posterior mean of ``mean_j var_j / noise_j^2`` stays
+        above this: the posterior would then describe the emulator's ignorance, not the data
+        (a simulator too rough for the GP, e.g. chaotic or discontinuous, or a budget too small).
     on_failure : {"flag", "raise"}
         When validation fails with the budget spent: stop with an unvalidated, flagged result
         and a warning, or raise :class:`EmulatorFailure`.
@@ -222,7 +229,7 @@ def build(
         "num_replicates": int(num_replicates), "batch_size": int(batch_size), "num_holdout": int(num_holdout),
         "tolerance": float(tolerance), "max_outputs": int(max_outputs), "num_candidates": int(num_candidates),
         "num_chains": int(num_chains), "num_warmup": int(num_warmup), "thin": int(thin),
-        "on_failure": on_failure, "observed_size": k,
+        "on_failure": on_failure, "observed_size": k, "max_emulator_ratio": float(max_emulator_ratio),
     }
 
     def to_unit(theta: np.ndarray) -> np.ndarray:
@@ -288,10 +295,7 @@ def build(
         emu = emulator.fit(x_all, z_all, design_rows)
         loo = np.asarray(emulator.loo_residuals(emu))[design_rows]
         corr = _noise_correlation(loo)
-        feas = sampling.Feasibility(
-            jnp.asarray(x_all), jnp.asarray(state.ok), jnp.asarray(used),
-            jnp.asarray(0.5 * max(design_rows.sum(), 1) ** (-1.0 / (d + 4))),
-        )
+        feas = sampling.fit_feasibility(x_all[used], state.ok[used])
         z_obs = transform.apply(jnp.asarray(obs.reshape(-1)))
         model = sampling.LikelihoodModel(emu, z_obs, jnp.linalg.cholesky(jnp.asarray(corr)), feas)
         return transform, emu, model, z_all
@@ -323,19 +327,37 @@ def build(
         converged = emulator_ratio < tolerance and int(state.round) >= 1
         if converged or room < batch_size + num_holdout:
             return start_validation(key, state, model, x, w)
-        acquisition = np.exp(lp - np.max(lp)) * np.sqrt(ratio)
-        lengthscales = np.exp(np.min(np.asarray(emu.log_ls), axis=0))
-        idx = design.select_batch(x, acquisition, lengthscales, batch_size)
+        # The posterior density already holds p_feasible once; a second factor is the chance
+        # that the run succeeds and teaches the emulator anything.
+        p_ok = np.asarray(sampling.feasibility(model.feasible, jnp.asarray(x)))
+        acquisition = np.exp(lp - np.max(lp)) * np.sqrt(ratio) * p_ok
+        # Penalise around each pick on the scale of the posterior (half its sd), or of the
+        # emulator where that is shorter: GP length scales often exceed the posterior, and a
+        # penalty that wide would push the batch into the corners of the box.
+        post_sd = np.sqrt(w @ (x - w @ x) ** 2)
+        scale = np.minimum(np.exp(np.min(np.asarray(emu.log_ls), axis=0)), 0.5 * post_sd) + 1e-6
+        idx = design.select_batch(x, acquisition, scale, batch_size)
         pending = np.zeros((B, d))
         pending[:batch_size] = to_theta(x[idx])
         return state._replace(pending=pending, num_pending=np.int64(batch_size), phase=np.int64(DESIGN))
 
     def start_validation(key, state, model, x, w) -> SurrogateState:
         rng = np.random.default_rng(_int_seed(jax.random.fold_in(key, 1)))
-        starts = x[rng.choice(len(x), size=num_chains, p=w)]
-        starts = np.clip(starts, 1e-6, 1 - 1e-6)
-        draws, _ = sampling.nuts(jax.random.fold_in(key, 2), model, jnp.asarray(starts), num_warmup,
-                                 num_particles // num_chains, thin)
+        starts = np.clip(x[rng.choice(len(x), size=num_chains, p=w)], 1e-6, 1 - 1e-6)
+        xc = np.clip(x, 1e-9, 1 - 1e-9)
+        u = np.log(xc) - np.log1p(-xc)
+        mu = w @ u
+        metric = (u - mu).T @ ((u - mu) * w[:, None]) + 1e-8 * np.eye(d)
+        step_size = 0.9 * d**-0.25
+        for _ in range(4):
+            draws, acceptance = sampling.nuts(jax.random.fold_in(key, 2), model, jnp.asarray(starts),
+                                              jnp.asarray(metric), jnp.asarray(step_size), num_warmup,
+                                              num_particles // num_chains, thin)
+            # A metric from importance weights may be off; a smaller step restores acceptance
+            # without recompiling (the step size is traced).
+            if float(np.min(acceptance)) >= 0.6:
+                break
+            step_size /= 2
         rhat = np.asarray(sampling.split_rhat(draws))
         flat = np.asarray(draws).reshape(-1, d)
         # Held-out points spread over the whole sample (one from each chain in turn).
@@ -356,7 +378,8 @@ def build(
         lof_ok, _ = diagnostics.lack_of_fit(noise_var, rep_var, df)
         errors = np.full((num_holdout, q), np.nan)
         errors[: len(rows)] = check.errors
-        passed = check.passed and lof_ok is not False
+        resolved = float(state.emulator_ratio) <= max_emulator_ratio
+        passed = check.passed and lof_ok is not False and resolved
         state = state._replace(holdout_errors=errors, coverage=np.float64(check.coverage),
                                mean_squared_error=np.float64(check.mean_squared),
                                lack_of_fit_ok=np.bool_(lof_ok is not False))
@@ -368,7 +391,7 @@ def build(
         if M - int(state.count) >= batch_size + num_holdout and lof_ok is not False:
             # More design may cure an under-resolved emulator; a failed lack-of-fit test will not.
             return design_step(jax.random.fold_in(key, 3), state)
-        message = (f"surrogate: the emulator failed validation ({_failure_text(state)}); "
+        message = (f"surrogate: the emulator failed validation ({_failure_text(state, max_emulator_ratio)}); "
                    f"{int(state.count)} real simulations used. The posterior is not trustworthy")
         if on_failure == "raise":
             raise EmulatorFailure(message)
@@ -377,7 +400,8 @@ def build(
 
     def info_of(state: SurrogateState) -> Info:
         done = int(state.phase) == DONE
-        threshold = float(state.mean_squared_error) if bool(state.lack_of_fit_ok) else np.inf
+        trusted = bool(state.lack_of_fit_ok) and float(state.emulator_ratio) <= max_emulator_ratio
+        threshold = float(state.mean_squared_error) if trusted else np.inf
         return Info(generation_done=np.bool_(True), stop=np.bool_(done), threshold=np.float64(threshold),
                     acceptance_rate=np.float64(state.coverage), ess=np.float64(num_particles))
 
@@ -425,7 +449,7 @@ def build(
         ls = np.exp(state.hyper[:, 1 : 1 + d]) * (high - low)
         diag = {
             "validated": bool(state.validated),
-            "failure": "" if bool(state.validated) else _failure_text(state),
+            "failure": "" if bool(state.validated) else _failure_text(state, max_emulator_ratio),
             "num_simulations": c,
             "num_failed_simulations": int(np.sum(~state.ok[:c])),
             "num_design": int(np.sum(np.isin(state.role[:c], (ROLE_DESIGN, ROLE_FAILED_HOLDOUT)))),
@@ -464,8 +488,11 @@ def build(
 _FLAG = "NOT VALIDATED: "
 
 
-def _failure_text(state: SurrogateState) -> str:
+def _failure_text(state: SurrogateState, max_emulator_ratio: float) -> str:
     parts = []
+    if float(state.emulator_ratio) > max_emulator_ratio:
+        parts.append(f"the emulator's variance over the posterior is {float(state.emulator_ratio):.2g} times "
+                     "the simulator noise: the GP does not resolve the simulator (too rough, or too few runs)")
     if not bool(state.lack_of_fit_ok):
         parts.append("fitted noise far above the replicate scatter: the GP cannot represent the "
                      "simulator (a discontinuity or a phase change?)")
@@ -495,7 +522,7 @@ def _noise_correlation(residuals: np.ndarray) -> np.ndarray:
 @jax.jit
 def _evaluate_jit(model: sampling.LikelihoodModel, x: jax.Array) -> tuple[jax.Array, jax.Array]:
     loglik, ratio = sampling.log_likelihood_terms(model, x)
-    return loglik + jnp.log(sampling.feasibility(model.feasible, x)), ratio
+    return loglik + jnp.log(jnp.maximum(sampling.feasibility(model.feasible, x), 1e-300)), ratio
 
 
 def _evaluate(model: sampling.LikelihoodModel, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

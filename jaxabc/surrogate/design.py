@@ -5,11 +5,12 @@ box centre and the first Sobol point), whose scatter measures the simulator's ow
 
 Later batches maximise a posterior-weighted emulator uncertainty, in the spirit of the
 ``MAXV`` rule of Järvenpää et al. (2019, Bayesian Analysis 14, 595): ``a(x) = pi(x)
-sqrt(sum_j var_j(x) / noise_j^2)``, with ``pi`` the current surrogate posterior density (which
-already contains the feasibility probability, so failed regions are avoided).  A batch is chosen
-greedily; each pick multiplies the acquisition by ``1 - exp(-|x - x_pick|^2_ell / 2)`` with the
-emulator's length scales ``ell`` (local penalisation, González et al. 2016), so that the workers
-of one batch explore different places.
+sqrt(mean_j var_j(x) / noise_j^2) p_feasible(x)``, with ``pi`` the current surrogate posterior
+density (which contains ``p_feasible`` too) and the last factor the chance that a run at ``x``
+succeeds at all, so regions where runs fail are avoided.  A batch is chosen
+greedily; each pick multiplies the acquisition by ``1 - exp(-|x - x_pick|^2_ell / 2)`` with
+``ell`` half the posterior sd or the emulator's length scale where shorter (local
+penalisation, González et al. 2016), so that the workers of one batch explore different places.
 """
 
 from __future__ import annotations
@@ -99,7 +100,7 @@ def candidates(rng: np.random.Generator, dim: int, num: int, centre: np.ndarray 
 def select_batch(x: np.ndarray, acquisition: np.ndarray, lengthscales: np.ndarray, size: int) -> np.ndarray:
     """Greedy batch of ``size`` rows of ``x (n, d)`` maximising the locally penalised acquisition.
 
-    ``lengthscales (d,)`` are in unit-box widths.  Returns indices (size,).
+    ``lengthscales (d,)``, the penalisation radii, are in unit-box widths.  Returns indices (size,).
     """
     a = np.where(np.isfinite(acquisition), acquisition, 0.0).copy()
     chosen = []

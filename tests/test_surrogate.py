@@ -1,0 +1,241 @@
+"""Surrogate calibration (jaxabc.surrogate): analytic posteriors, design, failures, validation."""
+
+from __future__ import annotations
+
+import json
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from jax.tree_util import keystr, tree_flatten_with_path
+
+from jaxabc.executors import SerialExecutor, VmapExecutor, mark_nonfinite
+from jaxabc.priors import Uniform
+
+pytest.importorskip("tinygp", reason="jaxabc.surrogate needs the 'surrogate' extra")
+pytest.importorskip("blackjax", reason="jaxabc.surrogate needs the 'surrogate' extra")
+
+from jaxabc.surrogate import EmulatorFailure, build, design, diagnostics, emulator
+
+# A linear-Gaussian simulator s = A theta + noise: under a wide uniform prior the posterior is
+# N(A^-1 s_obs, (A^T S^-1 A)^-1), correlated through A.
+A = np.array([[1.0, 0.6], [0.0, 1.0]])
+NOISE_SD = np.array([0.3, 0.2])
+OBSERVED = np.array([0.5, -0.7])
+PRIOR = Uniform([-4.0, -4.0], [4.0, 4.0])
+
+
+def linear_gaussian(key, theta):
+    return jnp.asarray(A) @ theta + jnp.asarray(NOISE_SD) * jax.random.normal(key, (2,))
+
+
+def exact_posterior() -> tuple[np.ndarray, np.ndarray]:
+    cov = np.linalg.inv(A.T @ np.diag(NOISE_SD**-2) @ A)
+    return np.linalg.solve(A, OBSERVED), cov
+
+
+def _drive(algorithm, simulate, executor, seed: int = 0, max_iterations: int = 100, observed=OBSERVED):
+    """The host driver loop of the agreed protocol (propose -> simulate -> init/update).
+
+    Stands in for ``jaxabc.run`` until the driver branch accepts algorithm objects; delete then.
+    Returns ``(state, info, num_simulations, proposals)``.
+    """
+    root = jax.random.key(seed)
+    state, info, num_sims, proposals = None, None, 0, []
+    for iteration in range(max_iterations):
+        k_prop, k_sim, k_upd = jax.random.split(jax.random.fold_in(root, iteration), 3)
+        proposal = algorithm.initial_proposal(k_prop) if state is None else algorithm.propose(k_prop, state)
+        thetas, active = np.asarray(proposal.thetas), np.asarray(proposal.active)
+        proposals.append(thetas[active])
+        keys = np.asarray(jax.random.key_data(jax.random.split(k_sim, thetas.shape[0])))
+        batch = mark_nonfinite(executor.map(simulate, keys[active], thetas[active]))
+        summaries = np.full((thetas.shape[0], *np.shape(observed)), np.nan)
+        summaries[active] = batch.summaries
+        flat = summaries.reshape(thetas.shape[0], -1)
+        distances = np.where(np.all(np.isfinite(flat), axis=1),
+                             np.linalg.norm(flat - np.ravel(observed), axis=1), np.inf)
+        num_sims += int(active.sum())
+        if state is None:
+            state, info = algorithm.init(k_upd, proposal, distances, summaries)
+        else:
+            state, info = algorithm.update(k_upd, state, proposal, distances, summaries)
+        if bool(info.stop):
+            break
+    return state, info, num_sims, proposals
+
+
+@pytest.fixture(scope="module")
+def gaussian_run():
+    algorithm = build(PRIOR, 2000, observed=OBSERVED, max_simulations=200)
+    state, info, num_sims, _ = _drive(algorithm, linear_gaussian, VmapExecutor())
+    return algorithm, state, info, num_sims
+
+
+def test_gaussian_posterior_matches_the_analytic_one(gaussian_run):
+    algorithm, state, info, num_sims = gaussian_run
+    assert bool(info.stop) and num_sims <= 200
+    particles, log_weights = algorithm.posterior(state)
+    assert particles.shape == (2000, 2) and np.all(log_weights == log_weights[0])
+    mean, cov = exact_posterior()
+    sd = np.sqrt(np.diag(cov))
+    assert np.all(np.abs(particles.mean(axis=0) - mean) < 0.2 * sd), (particles.mean(axis=0), mean)
+    assert np.all(np.abs(particles.std(axis=0) / sd - 1) < 0.15), (particles.std(axis=0), sd)
+    rho = cov[0, 1] / np.prod(sd)
+    assert abs(np.corrcoef(particles.T)[0, 1] - rho) < 0.1
+    assert algorithm.stop_reason(algorithm.settings, info).startswith("emulator validated")
+
+
+def test_finalize_reports_design_and_validation(gaussian_run):
+    algorithm, state, _, num_sims = gaussian_run
+    extras = algorithm.finalize(state)
+    diag = extras["diagnostics"]
+    json.dumps(extras)  # result files store it as JSON
+    assert diag["validated"] and diag["num_simulations"] == num_sims
+    assert len(diag["design_points"]) == num_sims
+    assert diag["num_holdout"] == algorithm.settings["num_holdout"]
+    assert diag["num_design"] + diag["num_holdout"] == num_sims
+    lo, hi = diagnostics.holdout_bounds(diag["num_holdout"] * 2)
+    assert lo <= diag["holdout_coverage_95"] and diag["holdout_mean_squared_error"] <= hi
+    assert max(diag["nuts_split_rhat"]) < 1.05
+
+
+def test_restore_state_round_trips_a_checkpoint(gaussian_run):
+    algorithm, state, _, _ = gaussian_run
+    flat = {keystr(p): np.asarray(v) for p, v in tree_flatten_with_path(state)[0]}
+    restored = algorithm.restore_state(flat)
+    for a, b in zip(jax.tree.leaves(state), jax.tree.leaves(restored), strict=True):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    del flat[".draws"]
+    with pytest.raises(ValueError, match="draws"):
+        algorithm.restore_state(flat)
+
+
+def test_a_restored_checkpoint_continues_identically(tmp_path):
+    algorithm = build(PRIOR, 1000, observed=OBSERVED, max_simulations=200)
+    state, _, _, _ = _drive(algorithm, linear_gaussian, VmapExecutor(), seed=5, max_iterations=1)
+    np.savez(tmp_path / "state.npz", **{keystr(p): np.asarray(v) for p, v in tree_flatten_with_path(state)[0]})
+    with np.load(tmp_path / "state.npz") as data:
+        restored = build(PRIOR, 1000, observed=OBSERVED, max_simulations=200).restore_state(dict(data))
+    key = jax.random.key(9)
+    proposal = algorithm.propose(key, state)
+    np.testing.assert_array_equal(proposal.thetas, algorithm.propose(key, restored).thetas)
+    keys = jax.random.split(jax.random.key(10), proposal.thetas.shape[0])
+    summaries = np.asarray(jax.vmap(linear_gaussian)(keys, jnp.asarray(proposal.thetas)))
+    distances = np.zeros(proposal.thetas.shape[0])
+    a, _ = algorithm.update(key, state, proposal, distances, summaries)
+    b, _ = algorithm.update(key, restored, proposal, distances, summaries)
+    for x, y in zip(jax.tree.leaves(a), jax.tree.leaves(b), strict=True):
+        np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
+
+
+def test_same_seed_gives_the_same_design_on_any_executor():
+    runs = []
+    for executor in (VmapExecutor(), SerialExecutor()):
+        algorithm = build(PRIOR, 1000, observed=OBSERVED, max_simulations=200)
+        _, _, _, proposals = _drive(algorithm, linear_gaussian, executor, seed=3, max_iterations=2)
+        runs.append(np.concatenate(proposals))
+    np.testing.assert_allclose(runs[0], runs[1], rtol=1e-6, atol=1e-9)
+    algorithm = build(PRIOR, 1000, observed=OBSERVED, max_simulations=200)
+    other = np.asarray(algorithm.initial_proposal(jax.random.key(4)).thetas)
+    assert not np.allclose(other, runs[0][: other.shape[0]])
+
+
+def failing_for_large_theta0(key, theta):
+    # A "gas phase": no summaries when theta0 > 1.
+    s = linear_gaussian(key, theta)
+    return jnp.where(theta[0] > 1.0, jnp.nan, s)
+
+
+def test_failed_simulations_inform_the_design():
+    # Untruncated, P(theta0 > 1 | data) = 0.11; runs there fail, so the posterior must avoid it.
+    observed = np.array([0.6, 0.0])
+    algorithm = build(PRIOR, 1000, observed=observed, max_simulations=200)
+    state, _, _, proposals = _drive(algorithm, failing_for_large_theta0, VmapExecutor(), max_iterations=3,
+                                    observed=observed)
+    c = int(state.count)
+    failed = ~state.ok[:c]
+    assert failed.any() and np.all(state.thetas[:c][failed, 0] > 1.0)
+    assert np.all(np.isnan(state.summaries[:c][failed]))
+    later = np.concatenate(proposals[1:])  # the acquisition batches after the Sobol start
+    assert np.mean(later[:, 0] > 1.0) < 0.1
+    particles, _ = algorithm.posterior(state)
+    # The classifier's boundary is soft after 3 batches (it sharpens as runs gather there): the
+    # mass beyond it shrinks from 0.11, it does not vanish.
+    assert np.mean(particles[:, 0] > 1.0) < 0.08
+    assert np.mean(particles[:, 0] > 0.6) > 0.2  # truncated, not pushed away
+
+
+def test_lack_of_fit_accepts_a_smooth_simulator_and_rejects_an_inflated_nugget():
+    rng = np.random.default_rng(0)
+    x, group = design.initial_design(0, 2, 40, 8)
+    z = x[:, :1] + 0.3 * x[:, 1:] ** 2 + 0.02 * rng.normal(size=(len(x), 1))
+    z = (z - z.mean()) / z.std()
+    ok = np.ones(len(x), bool)
+    emu = emulator.fit(x, z, ok)
+    rep_var, df = diagnostics.replicate_variance(z, group, ok)
+    nugget = np.exp(2 * np.asarray(emu.log_noise))
+    assert df == 7 and diagnostics.lack_of_fit(nugget, rep_var, df)[0] is True
+    # A GP that had swallowed structure as noise: nugget 25 times the replicate scatter.
+    assert diagnostics.lack_of_fit(25 * rep_var, rep_var, df)[0] is False
+    assert diagnostics.lack_of_fit(nugget, rep_var, 0)[0] is None
+
+
+@pytest.mark.parametrize(("options", "match"), [
+    ({"max_simulations": 30}, "no room for validation"),
+    ({"max_simulations": 200, "on_failure": "ignore"}, "on_failure"),
+])
+def test_bad_settings_are_refused(options, match):
+    with pytest.raises(ValueError, match=match):
+        build(PRIOR, 1000, observed=OBSERVED, **options)
+    with pytest.raises(ValueError, match="num_particles"):
+        build(PRIOR, 500, observed=OBSERVED, max_simulations=200)
+
+
+def step_simulator(key, theta):
+    noise = 0.02 * jax.random.normal(key, (2,))
+    return jnp.stack([theta[0] + 2.0 * (theta[0] > 0), theta[1]]) + noise
+
+
+def rough_simulator(key, theta):
+    # Structure far finer than a 120-run design resolves (a chaotic response).
+    noise = 0.02 * jax.random.normal(key, (2,))
+    return jnp.stack([theta[0] + 0.5 * jnp.sin(15 * theta[0] + 10 * theta[1]), theta[1]]) + noise
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("simulator", [step_simulator, rough_simulator])
+def test_a_simulator_the_gp_cannot_fit_is_reported_not_silently_fitted(simulator):
+    observed = np.array([0.1, 0.3])
+    algorithm = build(PRIOR, 1000, observed=observed, max_simulations=120)
+    with pytest.warns(RuntimeWarning, match="failed validation"):
+        state, info, num_sims, _ = _drive(algorithm, simulator, VmapExecutor(), observed=observed)
+    assert bool(info.stop) and num_sims <= 120
+    assert algorithm.stop_reason(algorithm.settings, info).startswith("NOT VALIDATED")
+    diag = algorithm.finalize(state)["diagnostics"]
+    assert not diag["validated"] and diag["failure"]
+    strict = build(PRIOR, 1000, observed=observed, max_simulations=120, on_failure="raise")
+    with pytest.raises(EmulatorFailure):
+        _drive(strict, simulator, VmapExecutor(), observed=observed)
+
+
+@pytest.mark.slow
+def test_nominal_95_percent_intervals_cover_the_truth():
+    # Simulation-based calibration on the linear-Gaussian toy: data first, then the truth from
+    # the exact posterior (flat prior; the box is > 10 posterior sds away), so a calibrated
+    # method holds the truth in its 95 % equal-tailed intervals 95 % of the time.
+    num_datasets = 60
+    rng = np.random.default_rng(2024)
+    _, cov = exact_posterior()
+    inside = []
+    for r in range(num_datasets):
+        observed = rng.uniform(-1.5, 1.5, size=2)
+        truth = rng.multivariate_normal(np.linalg.solve(A, observed), cov)
+        algorithm = build(PRIOR, 1000, observed=observed, max_simulations=200)
+        state, _, _, _ = _drive(algorithm, linear_gaussian, VmapExecutor(), seed=r, observed=observed)
+        particles, _ = algorithm.posterior(state)
+        lo, hi = np.quantile(particles, [0.025, 0.975], axis=0)
+        inside.append((lo <= truth) & (truth <= hi))
+    coverage = float(np.mean(inside))
+    print(f"surrogate 95 % interval coverage over {num_datasets} data sets: {coverage:.3f}")
+    assert 0.90 <= coverage <= 0.98, coverage
