@@ -82,7 +82,8 @@ def _remember(cache: collections.OrderedDict, key: Any, value: Any) -> Any:
     return value
 
 
-def build_by_name(name: str, prior: Any, num_particles: int, options: dict) -> ABCAlgorithm:
+def build_by_name(name: str, prior: Any, num_particles: int | None,
+                  options: dict) -> ABCAlgorithm:
     """``BUILDERS[name](prior, num_particles, **options)`` with clear errors."""
     try:
         builder = _algorithms.BUILDERS[name]
@@ -90,8 +91,14 @@ def build_by_name(name: str, prior: Any, num_particles: int, options: dict) -> A
         raise ValueError(
             f"unknown algorithm {name!r}: use one of {sorted(_algorithms.BUILDERS)}"
         ) from None
+    params = inspect.signature(builder).parameters
+    if num_particles is None:
+        slot = params.get("num_particles")
+        if slot is None or slot.default is inspect.Parameter.empty:
+            raise TypeError(f"{name!r} needs num_particles= (the population size)")
+        num_particles = slot.default
     try:
-        return builder(prior, num_particles, **options)
+        return builder(prior, int(num_particles), **options)
     except TypeError as exc:
         raise TypeError(f"bad option for {name!r}: {exc}") from None
 
@@ -102,7 +109,7 @@ def builder_accepts(name: str, option: str) -> bool:
     return builder is not None and option in inspect.signature(builder).parameters
 
 
-def compile_algorithm(algorithm: str | ABCAlgorithm, prior: Any, num_particles: int,
+def compile_algorithm(algorithm: str | ABCAlgorithm, prior: Any, num_particles: int | None,
                       options: dict, dtype: str) -> Compiled:
     """The algorithm and its jitted functions, reused across calls with the same configuration.
 
@@ -129,7 +136,7 @@ def compile_algorithm(algorithm: str | ABCAlgorithm, prior: Any, num_particles: 
             f"{type(algorithm).__name__}"
         )
     try:
-        key = ("name", algorithm, _freeze(options), _prior_key(prior), int(num_particles), dtype)
+        key = ("name", algorithm, _freeze(options), _prior_key(prior), num_particles, dtype)
     except TypeError:
         return _wrap(build_by_name(algorithm, prior, num_particles, options))
     hit = _compiled_cache.get(key)

@@ -112,7 +112,7 @@ def fingerprint(
     distance: Any,
     simulator_id: str,
     seed: int,
-    num_particles: int,
+    num_particles: int | None,
     dtype: str,
 ) -> dict:
     """The identity of a calibration problem, JSON-serialisable.
@@ -134,7 +134,7 @@ def fingerprint(
         "distance": _callable_id(distance),
         "simulator": simulator_id,
         "seed": int(seed),
-        "num_particles": int(num_particles),
+        "num_particles": None if num_particles is None else int(num_particles),
         "dtype": dtype,
     })
 

@@ -229,7 +229,7 @@ def run(
     simulate: Callable,
     prior: Uniform,
     observed: Any,
-    num_particles: int,
+    num_particles: int | None = None,
     num_steps: int | None = None,
     distance: str | Callable = "mean_abs",
     seed: int = 0,
@@ -266,7 +266,9 @@ def run(
     prior : Uniform
     observed : array_like
         The measured summaries, same shape as ``simulate``'s output.
-    num_particles : int
+    num_particles : int, optional
+        Population size ``N`` (for ``"surrogate"``: posterior draws, default 2000).  Required by
+        the population algorithms.
         Population size ``N``.
     num_steps : int, optional
         Maximum number of ABC steps (generations / levels), the initial prior sample included.
@@ -329,10 +331,13 @@ def run(
     with precision(dtype):
         jdtype = jnp.float64 if dtype == "float64" else jnp.float32
         prior = cast_prior(prior, jdtype)
-        if isinstance(algorithm, str) and final_threshold is not None \
-                and builder_accepts(algorithm, "final_threshold"):
-            algorithm_options.setdefault("final_threshold", final_threshold)
-        compiled = compile_algorithm(algorithm, prior, int(num_particles), algorithm_options,
+        if isinstance(algorithm, str):
+            # Run-level settings that some builders need to see (the surrogate's budget and data).
+            for option, value in (("final_threshold", final_threshold), ("observed", obs),
+                                  ("max_simulations", max_simulations)):
+                if value is not None and builder_accepts(algorithm, option):
+                    algorithm_options.setdefault(option, value)
+        compiled = compile_algorithm(algorithm, prior, num_particles, algorithm_options,
                                      dtype)
         algo = compiled.algorithm
         check_stopping_rule(algo, num_steps, final_threshold, max_simulations, max_wall_time)
@@ -348,7 +353,8 @@ def run(
             fp = _ckpt.fingerprint(
                 algorithm=algo.name, settings=algo.settings, prior=prior, observed=obs,
                 distance=distance, simulator_id=_ckpt.simulator_identity(simulate, simulator_id),
-                seed=seed, num_particles=int(num_particles), dtype=dtype)
+                seed=seed, num_particles=None if num_particles is None else int(num_particles),
+                dtype=dtype)
             ctx = Context(compiled, simulate, ex, obs, distance,
                            make_distance_fn(distance, obs, jdtype), jdtype, jax.random.key(seed),
                            t_start, num_steps, final_threshold, max_simulations, max_wall_time,

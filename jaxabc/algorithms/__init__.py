@@ -10,11 +10,21 @@ from jaxabc.algorithms.base import (
     no_extras,
 )
 
+
+def _surrogate(prior, num_particles: int = 2000, *, observed, max_simulations: int, **options):
+    """:func:`jaxabc.surrogate.build`, imported on first use (tinygp and blackjax are extras)."""
+    from jaxabc.surrogate import build
+
+    return build(prior, num_particles, observed=observed, max_simulations=max_simulations,
+                 **options)
+
+
 BUILDERS = {
     "apmcabc": apmc.build,
     "abcsubsim": subsim.build,
     "pmcabc": pmc.build,
     "rejection": pmc.build_rejection,
+    "surrogate": _surrogate,
 }
 
 __all__ = [
