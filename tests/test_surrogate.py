@@ -36,10 +36,11 @@ def exact_posterior() -> tuple[np.ndarray, np.ndarray]:
 
 
 def _drive(algorithm, simulate, executor, seed: int = 0, max_iterations: int = 100, observed=OBSERVED):
-    """The host driver loop of the agreed protocol (propose -> simulate -> init/update).
+    """The protocol's host loop (propose -> simulate -> init/update), exposing the states.
 
-    Stands in for ``jaxabc.run`` until the driver branch accepts algorithm objects; delete then.
-    Returns ``(state, info, num_simulations, proposals)``.
+    ``jaxabc.run`` drives the same functions (``test_run_surrogate_*``); this loop lets the tests
+    inspect intermediate states and proposals.  Returns ``(state, info, num_simulations,
+    proposals)``.
     """
     root = jax.random.key(seed)
     state, info, num_sims, proposals = None, None, 0, []
@@ -239,3 +240,21 @@ def test_nominal_95_percent_intervals_cover_the_truth():
     coverage = float(np.mean(inside))
     print(f"surrogate 95 % interval coverage over {num_datasets} data sets: {coverage:.3f}")
     assert 0.90 <= coverage <= 0.98, coverage
+
+
+def test_run_surrogate_through_the_driver_resumes_identically(tmp_path):
+    """``jaxabc.run("surrogate", ...)``: budget respected, >= 1000 draws, resume == uninterrupted."""
+    import jaxabc
+
+    kw = dict(max_simulations=80, seed=4, num_particles=1000)
+    full = jaxabc.run("surrogate", linear_gaussian, PRIOR, OBSERVED, **kw)
+    assert full.num_simulations <= 80 and full.particles.shape == (1000, 2)
+    assert "design" in json.dumps(sorted(full.metadata))
+    first = jaxabc.run("surrogate", linear_gaussian, PRIOR, OBSERVED, checkpoint_dir=tmp_path,
+                       stop_after_iterations=2, **kw)
+    assert "resumable" in first.stop_reason
+    resumed = jaxabc.run("surrogate", linear_gaussian, PRIOR, OBSERVED, checkpoint_dir=tmp_path,
+                         resume=True, **kw)
+    np.testing.assert_array_equal(resumed.particles, full.particles)
+    assert resumed.num_simulations == full.num_simulations
+    assert resumed.stop_reason == full.stop_reason

@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import contextlib
 import warnings
-from collections.abc import Callable
 from typing import Any, NamedTuple
 
 import jax
@@ -110,30 +109,6 @@ def _single_threaded_blas() -> contextlib.AbstractContextManager:
 
 def _int_seed(key: jax.Array) -> int:
     return int(jax.random.randint(key, (), 0, 2**31 - 1))
-
-
-def _compatible_algorithm(**fields: Any) -> Any:
-    """An ``ABCAlgorithm`` with the host-protocol fields, or a stand-in until base.py has them."""
-    if "host" in ABCAlgorithm._fields:
-        return ABCAlgorithm(**fields)
-    return _HostAlgorithm(**fields)
-
-
-class _HostAlgorithm(NamedTuple):
-    # Stand-in with the fields agreed for ABCAlgorithm (branch driver); delete once it lands.
-    name: str
-    initial_proposal: Callable
-    init: Callable
-    propose: Callable
-    update: Callable
-    posterior: Callable
-    settings: dict
-    stop_reason: Callable
-    finalize: Callable
-    needs_stopping_rule: bool = False
-    host: bool = False
-    uses_summaries: bool = False
-    restore_state: Callable | None = None
 
 
 def build(
@@ -478,7 +453,7 @@ def build(
             raise ValueError(f"checkpoint lacks surrogate state entries {missing}")
         return SurrogateState(*[np.asarray(flat[keystr(p)], dtype=np.asarray(v).dtype) for p, v in leaves])
 
-    return _compatible_algorithm(
+    return ABCAlgorithm(
         name="surrogate", initial_proposal=initial_proposal, init=init, propose=propose, update=update,
         posterior=posterior, settings=settings, stop_reason=stop_reason, finalize=finalize,
         needs_stopping_rule=False, host=True, uses_summaries=True, restore_state=restore_state,
