@@ -17,7 +17,8 @@ negligible): the error of the weighted mean, ``|mean|``, and of the weighted cov
 
 jaxabc's runs: ``jaxabc.run_fused`` (PMC-ABC) in a fresh process with an empty persistent
 compilation cache (cold), then a second time in the same process (warm: compiled chunks
-reused), then in another fresh process that finds the persistent cache filled (cold, cached).
+reused), then in another fresh process that finds the persistent cache filled (cold, cached), and
+in a fresh process with ``fast_compile=True`` and no persistent cache.
 The host driver ``jaxabc.run`` (PMC-ABC, vmap executor) runs cold once per size.  A last part
 compares PMC-ABC's and APMCABC's steady-state cost per simulation in the host driver at the
 largest size.
@@ -130,13 +131,14 @@ def simulate(key, theta):
     return theta + jax.random.normal(key, theta.shape)
 
 prior = jaxabc.Uniform([-10.0, -10.0], [10.0, 10.0], names=("a", "b"))
-runner = jaxabc.run_fused if mode == "fused" else jaxabc.run
+runner = jaxabc.run if mode == "host" else jaxabc.run_fused
+extra = {"fast_compile": True} if mode == "fused_fast_compile" else {}
 out = []
 for i in range(repeats):
     t0 = time.perf_counter()
     r = runner("pmcabc", simulate, prior, np.zeros(2), num_particles=n, distance="euclidean",
                seed=seed + i, thresholds=thresholds, num_steps=len(thresholds) + 1,
-               keep_summaries=False)
+               keep_summaries=False, **extra)
     run_s = time.perf_counter() - t0
     out.append({"particles": r.particles.tolist(), "weights": r.weights.tolist(),
                 "num_simulations": int(r.num_simulations), "import_s": t_import, "run_s": run_s,
@@ -260,6 +262,10 @@ def jaxabc_rows(n: int, seed: int, thresholds: list, timeout: float, cache: Path
             else summarise(cached["output"][0], cached["process_wall_s"], thresholds[-1]))
     finally:
         shutil.rmtree(xla, ignore_errors=True)
+    fast = run_process([sys.executable, *script, "fused_fast_compile", "1"], timeout, env)
+    rows["fused_cold_fast_compile"] = (
+        fast if "error" in fast
+        else summarise(fast["output"][0], fast["process_wall_s"], thresholds[-1]))
     host = run_process([sys.executable, *script, "host", "1"], timeout, env)
     rows["host_driver_cold"] = (host if "error" in host
                                 else summarise(host["output"][0], host["process_wall_s"],

@@ -20,6 +20,7 @@ from __future__ import annotations
 import os
 import time
 from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any, NamedTuple
 
@@ -50,6 +51,9 @@ _INT_MAX = np.iinfo(np.int32).max
 _MIN_FOR_FAILURE_CHECK = 20
 _COMPILED: dict[Any, tuple[Callable, Callable]] = {}
 _MAX_COMPILED = 32
+# LLVM's optimisation passes are most of XLA:CPU's compile time; the ABC loop's cost is
+# dominated by sorts, gathers and the simulator's own arithmetic, which lose little without them.
+_FAST_COMPILE = {"xla_backend_optimization_level": 0, "xla_llvm_disable_expensive_passes": True}
 
 
 def enable_compilation_cache(path: str | os.PathLike | None = None) -> Path:
@@ -195,12 +199,24 @@ def _compile(algo: ABCAlgorithm, simulate: Callable, distance: Callable, chunk_s
     return jax.jit(start), jax.jit(chunk)
 
 
+def _compile_both(start: Callable, chunk: Callable, root: jax.Array, observed: jax.Array,
+                  limits: _Limits, fast_compile: bool) -> tuple[Callable, Callable]:
+    """Compile the two programs side by side: XLA releases the GIL while it compiles, and a
+    cold run spends most of its time here."""
+    carry = jax.eval_shape(start, root, observed, limits)[0]
+    lowered = [start.lower(root, observed, limits), chunk.lower(root, observed, limits, carry)]
+    options = _FAST_COMPILE if fast_compile else None
+    with ThreadPoolExecutor(max_workers=2) as pool:
+        compiled = list(pool.map(lambda program: program.compile(options), lowered))
+    return compiled[0], compiled[1]
+
+
 def _cache_key(algo: ABCAlgorithm, options: dict, prior: Uniform, simulate: Callable,
                distance: Callable, obs_shape: tuple, dtype: Any, chunk_size: int,
-               keep_summaries: bool) -> Any:
+               keep_summaries: bool, fast_compile: bool) -> Any:
     return (algo.name, repr(sorted(algo.settings.items())), repr(sorted(options.items())),
             simulate, distance, obs_shape,
-            np.dtype(dtype).str, chunk_size, keep_summaries,
+            np.dtype(dtype).str, chunk_size, keep_summaries, fast_compile,
             np.asarray(prior.low).tobytes(), np.asarray(prior.high).tobytes())
 
 
@@ -219,6 +235,7 @@ def run_fused(
     max_wall_time: float | None = None,
     max_failure_fraction: float = 0.5,
     chunk_size: int = 16,
+    fast_compile: bool = False,
     keep_summaries: bool = True,
     progress: bool = False,
     dtype: str = "float32",
@@ -237,6 +254,9 @@ def run_fused(
         between chunks, so a run may go up to ``chunk_size - 1`` iterations past them.
     chunk_size : int
         Iterations per compiled program between two visits to the host.
+    fast_compile : bool
+        Compile with LLVM's optimisation passes off: a cold run compiles faster; the compiled
+        loop may run slower, which matters for expensive simulators (CPU backend only).
     progress, dtype, metadata, **algorithm_options
         As in :func:`jaxabc.run`.
 
@@ -300,14 +320,6 @@ def run_fused(
         raise ValueError(f"the simulator returns summaries of shape {tuple(out.shape)} but the "
                          f"observed data has shape {obs.shape}: they must match")
     dist_fn = get_distance(distance)
-    key = _cache_key(algo, algorithm_options, prior, simulate, dist_fn, obs.shape, jdtype,
-                     int(chunk_size), keep_summaries)
-    if key not in _COMPILED:
-        if len(_COMPILED) >= _MAX_COMPILED:
-            _COMPILED.pop(next(iter(_COMPILED)))
-        _COMPILED[key] = _compile(algo, simulate, dist_fn, int(chunk_size), keep_summaries)
-    start, chunk = _COMPILED[key]
-
     root = jax.random.key(seed)
     obs_j = jnp.asarray(obs, jdtype)
     limits = _Limits(
@@ -317,6 +329,16 @@ def run_fused(
         max_simulations=jnp.int32(_INT_MAX if max_simulations is None
                                   else min(max_simulations, _INT_MAX)),
     )
+    key = _cache_key(algo, algorithm_options, prior, simulate, dist_fn, obs.shape, jdtype,
+                     int(chunk_size), keep_summaries, fast_compile)
+    if key not in _COMPILED:
+        if len(_COMPILED) >= _MAX_COMPILED:
+            _COMPILED.pop(next(iter(_COMPILED)))
+        start, chunk = _compile(algo, simulate, dist_fn, int(chunk_size), keep_summaries)
+        _COMPILED[key] = _compile_both(start, chunk, root, obs_j, limits,
+                                       fast_compile and jax.default_backend() == "cpu")
+    start, chunk = _COMPILED[key]
+
     records: list[dict[str, np.ndarray]] = []
     history: dict[str, list] = {"threshold": [], "sims": [], "acceptance": [], "ess": [],
                                 "wall": []}

@@ -113,12 +113,14 @@ def build(
     covariance_factor : float
         Beaumont et al.'s 2.
     batch_size : int, optional
-        Proposal slots per round (default ``N``); a round simulates only as many of them as
-        it expects to need.  Larger batches mean fewer rounds; a fused JAX run simulates every
-        slot, so there a larger batch costs simulations.
+        Proposal slots per round (default ``4 N``); a round simulates only as many of them as
+        it expects to need.  Larger batches mean fewer rounds; a fused JAX run
+        (:func:`jaxabc.run_fused`) evaluates every slot, so there a larger batch costs compute.
     """
     n = int(num_particles)
-    m = n if batch_size is None else int(batch_size)
+    # Four slots per particle: a round can then fill a generation whose acceptance is down to
+    # about a quarter; proposals are cheap, and only the active slots are simulated.
+    m = 4 * n if batch_size is None else int(batch_size)
     if m < 1:
         raise ValueError(f"batch_size must be a positive integer, got {batch_size}")
     if not 0.0 < quantile < 1.0:
