@@ -17,6 +17,7 @@ reuses the compiled program.  :func:`enable_compilation_cache` (or the environme
 
 from __future__ import annotations
 
+import functools
 import os
 import time
 from collections.abc import Callable
@@ -28,18 +29,19 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxabc.algorithms.base import ABCAlgorithm
+from jaxabc._driver import build_by_name, builder_accepts
+from jaxabc._driver_checks import (
+    cast_prior,
+    check_stopping_rule,
+    precision,
+    shapes_compatible,
+    validate_observed,
+)
+from jaxabc.algorithms.base import ABCAlgorithm, Info
 from jaxabc.distances import get_distance
 from jaxabc.errors import STATUS_NONFINITE, STATUS_OK, TooManyFailures
 from jaxabc.priors import Uniform
 from jaxabc.results import ABCResult, versions
-from jaxabc.run import (
-    _algorithm_stop_reason,
-    _build_algorithm,
-    _cast_prior,
-    _shapes_compatible,
-    _validate_observed,
-)
 
 __all__ = ["enable_compilation_cache", "run_fused"]
 
@@ -220,7 +222,7 @@ def _cache_key(algo: ABCAlgorithm, options: dict, prior: Uniform, simulate: Call
             np.asarray(prior.low).tobytes(), np.asarray(prior.high).tobytes())
 
 
-def run_fused(
+def _run_fused_body(
     algorithm: str,
     simulate: Callable,
     prior: Uniform,
@@ -283,8 +285,6 @@ def run_fused(
     t_start = time.perf_counter()
     if dtype not in ("float32", "float64"):
         raise ValueError(f"dtype must be 'float32' or 'float64', got {dtype!r}")
-    if dtype == "float64":
-        jax.config.update("jax_enable_x64", True)
     jdtype = jnp.float64 if dtype == "float64" else jnp.float32
     if not isinstance(num_particles, int | np.integer) or num_particles < 1:
         raise ValueError(f"num_particles must be a positive integer, got {num_particles!r}")
@@ -298,16 +298,17 @@ def run_fused(
         raise TypeError("simulate must be a callable simulate(key, theta) -> summaries")
     if os.environ.get(CACHE_ENV):
         enable_compilation_cache()
-    obs = _validate_observed(observed)
-    prior = _cast_prior(prior, jdtype)
-    if algorithm == "abcsubsim" and final_threshold is not None:
-        algorithm_options.setdefault("final_threshold", final_threshold)
-    algo = _build_algorithm(algorithm, prior, int(num_particles), algorithm_options)
-    if num_steps is None and final_threshold is None and max_simulations is None \
-            and max_wall_time is None and algorithm in ("pmcabc", "abcsubsim") \
-            and not algorithm_options.get("acceptance_floor"):
-        raise ValueError(f"{algorithm} needs a stopping rule: give num_steps, final_threshold, "
-                         "max_simulations or max_wall_time")
+    obs = validate_observed(observed)
+    prior = cast_prior(prior, jdtype)
+    if isinstance(algorithm, ABCAlgorithm):
+        algo = algorithm
+    else:
+        if final_threshold is not None and builder_accepts(algorithm, "final_threshold"):
+            algorithm_options.setdefault("final_threshold", final_threshold)
+        algo = build_by_name(algorithm, prior, int(num_particles), algorithm_options)
+    if algo.host or algo.uses_summaries:
+        raise ValueError(f"{algo.name} is host code: run it with jaxabc.run, not run_fused")
+    check_stopping_rule(algo, num_steps, final_threshold, max_simulations, max_wall_time)
     try:
         out = jax.eval_shape(simulate, jax.random.key(0), jnp.zeros((prior.dim,), jdtype))
     except Exception as exc:
@@ -316,7 +317,7 @@ def run_fused(
             "The fused path needs a JAX-traceable simulator; use jaxabc.run with "
             "executor='serial' or 'process_pool' for other code"
         ) from exc
-    if not _shapes_compatible(tuple(out.shape), obs.shape, distance):
+    if not shapes_compatible(tuple(out.shape), obs.shape, distance):
         raise ValueError(f"the simulator returns summaries of shape {tuple(out.shape)} but the "
                          f"observed data has shape {obs.shape}: they must match")
     dist_fn = get_distance(distance)
@@ -390,21 +391,31 @@ def run_fused(
             # generation (the host does not see generations inside a chunk).
             "generation_wall_times": history["wall"], "chunk_size": int(chunk_size)}
     meta.update(metadata or {})
-    log_ev = None
-    if algorithm == "abcsubsim":
-        from jaxabc.algorithms.subsim import log_evidence
-
-        log_ev = log_evidence(int(carry.level), algo.settings["p0"])
+    extras = dict(algo.finalize(carry.state))
+    log_ev = extras.pop("log_evidence", None)
+    diagnostics = extras.pop("diagnostics", None) or {}
+    final_ess = extras.pop("ess", None)
+    meta.update(extras)
+    ess = np.asarray(history["ess"], np.float64)
+    if final_ess is not None and ess.size:
+        ess[-1] = min(ess[-1], float(final_ess))
     return ABCResult(
         particles=particles[keep].astype(np.float64), weights=w / w.sum(),
         distances=dist[keep].astype(np.float64), thresholds=np.asarray(history["threshold"]),
         simulations_per_step=np.asarray(history["sims"]),
-        acceptance_rates=np.asarray(history["acceptance"]), ess=np.asarray(history["ess"]),
-        num_simulations=int(carry.num_sims), algorithm=algorithm, settings=algo.settings,
+        acceptance_rates=np.asarray(history["acceptance"]), ess=ess,
+        num_simulations=int(carry.num_sims), algorithm=algo.name, settings=algo.settings,
         prior=prior, seed=seed, stop_reason=stop_reason,
         wall_time=time.perf_counter() - t_start, log_evidence=log_ev,
-        records=_record_arrays(records, keep_summaries), metadata=meta,
+        records=_record_arrays(records, keep_summaries), metadata=meta, diagnostics=diagnostics,
     )
+
+
+@functools.wraps(_run_fused_body)
+def run_fused(*args: Any, dtype: str = "float32", **kwargs: Any) -> ABCResult:
+    # Double precision for this run only (see jaxabc.run): the process-wide flag is restored.
+    with precision(dtype):
+        return _run_fused_body(*args, dtype=dtype, **kwargs)
 
 
 def _absorb(block: dict, first_iteration: int, records: list, history: dict, t_start: float,
@@ -460,8 +471,9 @@ def _stop_reason(code: int, algorithm: str, algo: ABCAlgorithm, history: dict,
                  num_steps: int | None, final_threshold: float | None,
                  max_simulations: int | None) -> str:
     if code == _STOP_ALGORITHM:
-        info = NamedTuple("_Info", [("acceptance_rate", float)])(history["acceptance"][-1])
-        return _algorithm_stop_reason(algorithm, algo.settings, info)
+        info = Info(generation_done=True, stop=True, threshold=history["threshold"][-1],
+                    acceptance_rate=history["acceptance"][-1], ess=history["ess"][-1])
+        return algo.stop_reason(algo.settings, info)
     if code == _STOP_STEPS:
         return f"{num_steps} steps done"
     if code == _STOP_THRESHOLD:
