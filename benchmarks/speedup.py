@@ -144,22 +144,17 @@ def prediction_quality(times: np.ndarray, predicted: np.ndarray) -> dict:
 
 def records_distribution(path: Path, kind: str) -> dict:
     """Durations from a saved ABC run's records (every simulation's theta and time): a result
-    (``.npz``) or a run's checkpoint (``checkpoint.pkl``, for a run still going).
+    (``.npz``) or a run's checkpoint folder (``checkpoint.npz``, for a run still going).
 
     A task's duration is :func:`jaxabc.executors.task_durations`: its CPU time where the run
     recorded one (what the task costs on a core of its own, whatever else shared the machine
     while it was measured), its wall time otherwise (runs recorded before CPU times were).
     """
-    import pickle
-
     import jaxabc
+    from jaxabc.checkpoint import CHECKPOINT_NAME, load_records
 
-    if path.suffix == ".pkl":
-        with open(path, "rb") as fh:
-            chunks = pickle.load(fh)["records"]
-        rec = {k: np.concatenate([np.asarray(c[k]) for c in chunks]) for k in ("wall_time", "theta", "status")}
-        if all("cpu_time" in c for c in chunks):
-            rec["cpu_time"] = np.concatenate([np.asarray(c["cpu_time"]) for c in chunks])
+    if path.is_dir() or path.name == CHECKPOINT_NAME:
+        rec = load_records(path / CHECKPOINT_NAME if path.is_dir() else path)
         executor = "see the run's log (checkpoint)"
     else:
         res = jaxabc.load(path)

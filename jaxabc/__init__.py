@@ -11,7 +11,7 @@ __version__ = "0.1.0"
 
 from jaxabc import distances, kernels
 from jaxabc.algorithms import BUILDERS as ALGORITHMS
-from jaxabc.errors import SimulationFailure, TooManyFailures
+from jaxabc.errors import NoPosterior, SimulationFailure, TooManyFailures
 from jaxabc.executors import (
     DaskExecutor,
     MPIExecutor,
@@ -76,6 +76,7 @@ __all__ = [
     "DaskExecutor",
     "Independent",
     "MPIExecutor",
+    "NoPosterior",
     "ProcessPoolExecutor",
     "SerialExecutor",
     "SimulationBatch",

@@ -320,6 +320,6 @@ def prepare_folder(folder: Path | None, resume: bool, overwrite: bool) -> Path |
             raise CheckpointExists(
                 f"{existing} holds the checkpoint of an earlier run: continue it with "
                 "resume=True (CLI: --resume), or start over with overwrite=True, which deletes "
-                "it (CLI: delete the file or choose another output folder)"
+                "it (CLI: --overwrite)"
             )
     return path

@@ -146,7 +146,7 @@ def load_config(path: str | Path) -> dict:
     return cfg
 
 
-def run_config(cfg: dict, resume: bool = False, progress: bool = True):
+def run_config(cfg: dict, resume: bool = False, progress: bool = True, overwrite: bool = False):
     """Run the calibration a configuration describes; write results into its folder."""
     import jaxabc
     from jaxabc.results import write_outputs
@@ -171,7 +171,8 @@ def run_config(cfg: dict, resume: bool = False, progress: bool = True):
     folder = Path(cfg["output"]["folder"])
     try:
         result = jaxabc.run(name, simulate, prior, observed, executor=executor,
-                            checkpoint_dir=folder, resume=resume, progress=progress,
+                            checkpoint_dir=folder, resume=resume, overwrite=overwrite,
+                            progress=progress,
                             metadata={"config": cfg}, **a, **options)
     finally:
         executor.close()
@@ -236,6 +237,8 @@ def main(argv: list[str] | None = None) -> int:
     p_run = sub.add_parser("run", help="run a calibration described by a TOML file")
     p_run.add_argument("config")
     p_run.add_argument("--resume", action="store_true", help="continue from the checkpoint")
+    p_run.add_argument("--overwrite", action="store_true",
+                       help="start over, replacing a checkpoint left in the output folder")
     p_run.add_argument("--no-progress", action="store_true")
     p_ex = sub.add_parser("example", help="run a built-in example: " + ", ".join(EXAMPLES))
     p_ex.add_argument("name", choices=sorted(EXAMPLES))
@@ -247,7 +250,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         if args.command == "run":
             result = run_config(load_config(args.config), resume=args.resume,
-                                progress=not args.no_progress)
+                                progress=not args.no_progress, overwrite=args.overwrite)
             print(result.summary())
         elif args.command == "example":
             _example(args.name, Path(args.output or f"runs/{args.name}"), args.quick)

@@ -48,7 +48,8 @@ def calibrate(algorithm: str = "apmcabc", preset: str = "cpu", num_particles: in
         options = {"alpha": 0.1, "acceptance_cutoff": 0.03, **options}
     result = jaxabc.run(algorithm, simulate, prior, observed, num_particles=num_particles,
                         num_steps=num_steps, distance="kl", seed=seed, progress=progress,
-                        checkpoint_dir=output, resume=resume,
+                        # An example starts over unless asked to resume (its folder is its own).
+                        checkpoint_dir=output, resume=resume, overwrite=not resume,
                         metadata={"model": "helium", "preset": preset,
                                   "true_theta": list(helium.TRUE_THETA)}, **options)
     if output is not None:
