@@ -13,6 +13,14 @@ LAMMPS one.  The machine is shared, so numbers carry the noise of whatever else 
 
 Run: ``nice -n 5 python benchmarks/engine_throughput.py [--quick]``.
 
+``--small-system`` (implies ``--single-core``'s one XLA thread) times the 32-atom ``cpu``
+preset, batched over parameters, against LAMMPS on the same system, in system-steps per
+CPU-second (``time.process_time``; LAMMPS: loop time x its "% CPU use"), so the ratios hold on a
+machine shared with other work.  With ``--baseline-tree DIR`` (a checkout of an earlier commit)
+the same engine timing and the main job ``jaxabc example helium`` (CPU seconds of the child
+process) run for both trees in the same run, giving the speed-ups over that commit.  It writes
+``engine_throughput_small_system.json``.
+
 ``--single-core`` pins this process (and the LAMMPS it starts) to core 0 and XLA to one thread,
 so both engines are timed on the same single core, the way a process pool with one simulation
 process per core would use a machine; it writes ``engine_throughput_single_core.json``.  Rates
@@ -30,15 +38,20 @@ import platform
 import subprocess
 import sys
 import time
+from collections.abc import Callable
 from importlib import metadata
 from pathlib import Path
 
-SINGLE_CORE = "--single-core" in sys.argv
+SMALL_SYSTEM = "--small-system" in sys.argv
+RATES_ONLY = "--rates-only" in sys.argv
+SINGLE_CORE = "--single-core" in sys.argv or SMALL_SYSTEM
+USER_ENV = dict(os.environ)  # the main job runs as a user runs it, without the flags below
 if SINGLE_CORE:
     # Before JAX is imported: one XLA thread, and this process plus its children on core 0.
     os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "")
                                + " --xla_cpu_multi_thread_eigen=false intra_op_parallelism_threads=1")
-    os.sched_setaffinity(0, {0})
+    if not SMALL_SYSTEM:
+        os.sched_setaffinity(0, {0})
 
 import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
@@ -50,7 +63,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import write_result  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parent / "results" / (
-    "engine_throughput_single_core.json" if SINGLE_CORE else "engine_throughput.json")
+    "engine_throughput_small_system.json" if SMALL_SYSTEM
+    else "engine_throughput_single_core.json" if SINGLE_CORE else "engine_throughput.json")
 
 
 def versions() -> dict:
@@ -187,6 +201,106 @@ def per_simulation(preset: helium.HeliumPreset, batch: int = 64, repeats: int = 
     }
 
 
+def small_system_rates(batches: tuple[int, ...], num_blocks: int) -> list[dict]:
+    """jax-md system-steps per CPU-second of the ``cpu`` preset at each batch size."""
+    preset = helium.get_preset("cpu")
+    return [time_jax_md(preset, b, num_blocks) for b in batches]
+
+
+def _in_tree(tree: Path, args: list[str], timeout: float = 3600) -> str:
+    """Stdout of ``python args`` run with ``tree`` first on the path."""
+    env = dict(os.environ, PYTHONPATH=str(tree))
+    return subprocess.run([sys.executable, *args], env=env, cwd=tree, capture_output=True,
+                          text=True, timeout=timeout, check=True).stdout
+
+
+def main_job_seconds(trees: dict[str, Path]) -> Callable[[], dict]:
+    """Wall and CPU seconds of ``jaxabc example helium`` (the main job) run from each tree.
+
+    The runs start at once and go concurrently with whatever this process does next (on a
+    shared machine their CPU seconds, from ``os.wait4``, are what compares); call the returned
+    function to wait for them and get the record.
+    """
+    import tempfile
+
+    folders, procs, starts, out = {}, {}, {}, {}
+    for name, tree in trees.items():
+        folders[name] = tempfile.TemporaryDirectory()
+        code = ("import sys; from jaxabc.cli import main; "
+                f"sys.exit(main(['example', 'helium', '--output', {folders[name].name!r}]))")
+        starts[name] = time.perf_counter()
+        procs[name] = subprocess.Popen([sys.executable, "-c", code], cwd=tree,
+                                       env=dict(USER_ENV, PYTHONPATH=str(tree)),
+                                       stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+
+    def wait() -> dict:
+        for name, proc in procs.items():
+            _, status, usage = os.wait4(proc.pid, 0)
+            out[name] = {"tree": str(trees[name]), "exit_status": status,
+                         "wall_seconds": time.perf_counter() - starts[name],
+                         "cpu_seconds": usage.ru_utime + usage.ru_stime}
+            folders[name].cleanup()
+        return out
+
+    return wait
+
+
+def small_system(args: argparse.Namespace) -> None:
+    """The small-system comparison (see the module notes)."""
+    batches, blocks = (64, 256), 400
+    if RATES_ONLY:
+        print(json.dumps(small_system_rates(batches, blocks)))
+        return
+    here = Path(__file__).resolve().parent.parent
+    trees = {"this": here}
+    if args.baseline_tree is not None:
+        trees["baseline"] = args.baseline_tree.resolve()
+    wait_for_jobs = main_job_seconds(trees) if args.main_job else None
+    preset = helium.get_preset("cpu")
+    lmp = time_lammps(preset, 250_000) if lammps_reference.lammps_available() else None
+    script = str(Path(__file__).resolve())
+    rates, jobs = {}, {}
+    for name, tree in trees.items():
+        out = _in_tree(tree, [script, "--small-system", "--rates-only"])
+        rates[name] = json.loads(out.strip().splitlines()[-1])
+        for r in rates[name]:
+            r["ratio_to_lammps_same_run"] = (
+                r["system_steps_per_second"] / lmp["system_steps_per_second"] if lmp else None)
+            print(f"{name:9s} b={r['batch']:<4d} {r['system_steps_per_second']:10.0f} "
+                  f"system-steps/CPU-s  ({r['ratio_to_lammps_same_run'] or float('nan'):.2f} x "
+                  "LAMMPS)", flush=True)
+    if wait_for_jobs is not None:
+        jobs = wait_for_jobs()
+        print(f"main job: {jobs}", flush=True)
+    ratios = {}
+    if "baseline" in rates:
+        ratios["engine_speedup_over_baseline"] = {
+            str(a["batch"]): a["system_steps_per_second"] / b["system_steps_per_second"]
+            for a, b in zip(rates["this"], rates["baseline"], strict=True)}
+    if "baseline" in jobs:
+        ratios["main_job_cpu_speedup_over_baseline"] = (
+            jobs["baseline"]["cpu_seconds"] / jobs["this"]["cpu_seconds"])
+        ratios["main_job_wall_speedup_over_baseline"] = (
+            jobs["baseline"]["wall_seconds"] / jobs["this"]["wall_seconds"])
+    if lmp:
+        ratios["best_ratio_to_lammps"] = max(
+            r["ratio_to_lammps_same_run"] for r in rates["this"])
+    args.output.parent.mkdir(parents=True, exist_ok=True)
+    args.output.write_text(json.dumps({
+        "description": __doc__,
+        "command": " ".join([os.path.basename(sys.executable), *sys.argv]),
+        "measure": "CPU seconds (process_time; LAMMPS loop time x % CPU): the machine is shared",
+        "versions": versions(),
+        "machine": {"cpus": os.cpu_count(), "platform": platform.platform(),
+                    "processor": platform.processor(), "jax": jax.__version__,
+                    "load_average_at_end": os.getloadavg()},
+        "lammps": lmp,
+        "jax_md": rates,
+        "main_job": jobs,
+        "ratios": ratios,
+    }, indent=1))
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="batch sizes 1 and 8 only")
@@ -195,7 +309,17 @@ def main() -> None:
                         help="both engines on core 0, XLA single-threaded (see the module notes)")
     parser.add_argument("--per-simulation-only", action="store_true",
                         help="only (re)measure the per-simulation comparison, keep the rest")
+    parser.add_argument("--small-system", action="store_true",
+                        help="the 32-atom cpu preset against LAMMPS (see the module notes)")
+    parser.add_argument("--rates-only", action="store_true", help=argparse.SUPPRESS)
+    parser.add_argument("--baseline-tree", type=Path, default=None,
+                        help="with --small-system: also time this checkout, same run")
+    parser.add_argument("--main-job", action="store_true",
+                        help="with --small-system: also time `jaxabc example helium`")
     args = parser.parse_args()
+    if SMALL_SYSTEM:
+        small_system(args)
+        return
     if args.per_simulation_only:
         data = json.loads(args.output.read_text())
         data["per_simulation"] = per_simulation(helium.get_preset("cpu"))

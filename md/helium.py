@@ -117,9 +117,8 @@ class HeliumPreset:
         Members advanced together by ``jax.vmap`` inside a batch; the batch is a sequential
         ``jax.lax.map`` over groups of this size.  None: the whole batch in one vmap.  On CPU
         vmapping large systems is slower than running them one after another (XLA's batched
-        gathers and scatters, and working sets beyond the caches): 1000-atom helium runs at
-        ~63 ns/atom-step one by one against ~100-120 vmapped 2 to 32 wide; 32-atom systems
-        need the vmap to amortise per-operation overhead (see benchmarks/engine_throughput.py).
+        gathers and scatters, and working sets beyond the caches); 32-atom systems need the
+        vmap to amortise per-operation overhead (see benchmarks/engine_throughput.py).
     """
 
     name: str
@@ -218,17 +217,9 @@ PRESETS: dict[str, HeliumPreset] = {
         production_ps=2000.0,
         sample_every_ps=2.0,
         use_neighbor_list=True,
-        # A dilute gas has ~0.05 neighbours within r_c.  With the sort-free cell list
-        # (md.lj.build_neighbor_list) and a sparse half pair list, a rebuild costs ~440 us
-        # and a step ~20 us on one core, so rebuilds dominated at a fixed 20-step interval.
-        # The 0.6 nm skin is rebuilt when needed (members run one at a time, vmap_width=1,
-        # so the lax.cond is real), which took the single-core ratio to LAMMPS from 0.78-0.80x
-        # to 0.89-0.93x.  Checking every 5 steps rather than 10 halves the flight margin
-        # of the check, so the list lasts ~40 steps instead of ~34 at 300 K; with md.lj's
-        # per-block unwrapping that made 0.96-1.08x LAMMPS over three runs (saved:
-        # benchmarks/results/engine_throughput_single_core.json, 1.02x at batch 8).  Larger skins
-        # cost more in pair work than they save in rebuilds (0.8 nm: -5%; this and the
-        # per-step costs above are one-off profiling probes, not saved benchmarks).
+        # A dilute gas: rebuilds, not pairs, dominate, so a wide skin rebuilt only when needed
+        # (members run one at a time, so the lax.cond is real), checked every 5 steps.
+        # benchmarks/engine_throughput.py measures it against LAMMPS.
         skin_nm=0.6,
         rebuild_every=5,
         rebuild="when_needed",

@@ -182,6 +182,42 @@ def test_engine_reallocates_its_lists_after_overflow():
     _assert_list_equals_all_pairs(engine, carry)
 
 
+@pytest.mark.parametrize("fmt", ["sparse", "dense"])
+def test_small_box_all_pairs_kernel_matches_neighbor_list(fmt):
+    """The structure-of-arrays all-pairs kernel (small boxes, no list) gives the energies,
+    forces and virial of a neighbour list holding every pair within the cutoff, batched over
+    parameters with vmap, and its forces are minus the gradient of the energy."""
+    n, side, cutoff = 32, 2.4, 0.639  # the cpu helium preset's size: cutoff > box / 4
+    energy_fn = lj.make_energy_fn(cutoff)
+    box = jnp.eye(3, dtype=jnp.float32) * side
+    position = jax.random.uniform(jax.random.PRNGKey(2), (n, 3), dtype=jnp.float32)
+    # Every atom a candidate (no cell grid), capacity for every pair: nothing can be dropped.
+    capacity = n * (n - 1) // 2 if fmt == "sparse" else n - 1
+    spec = lj.NeighborSpec(fmt, n, cutoff, 0, n * n, capacity, n)
+    nbrs = lj.build_neighbor_list(spec, position, box)
+    assert not bool(nbrs.did_buffer_overflow)
+    params = lj.LJParams(jnp.asarray([0.2556, 0.3, 0.5], jnp.float32),
+                         jnp.asarray([0.085, 0.3, 0.01], jnp.float32),
+                         jnp.zeros(3, jnp.float32), jnp.ones(3, jnp.float32))
+
+    def both(p):
+        dense = energy_fn.force_and_strain(position, box, idx=None, params=p)
+        listed = energy_fn.force_and_strain(position, box, idx=nbrs.idx, params=p)
+        energies = (energy_fn(position, box, idx=None, params=p),
+                    energy_fn(position, box, idx=nbrs.idx, params=p))
+        gradient = jax.grad(energy_fn)(position, box, params=p)
+        return dense, listed, energies, gradient
+
+    (f_dense, s_dense), (f_list, s_list), (e_dense, e_list), grad = jax.jit(jax.vmap(both))(params)
+    assert np.all(np.max(np.abs(np.asarray(f_dense)), axis=(1, 2)) > 0)  # real interactions
+    np.testing.assert_allclose(e_dense, e_list, rtol=1e-5)
+    scale = np.max(np.abs(np.asarray(f_list)), axis=(1, 2), keepdims=True)
+    np.testing.assert_allclose(f_dense / scale, f_list / scale, atol=1e-5)
+    np.testing.assert_allclose(s_dense, s_list, rtol=1e-5)
+    # The energy's custom JVP turns gradients in fractional positions into real-space ones.
+    np.testing.assert_allclose(f_dense / scale, -np.asarray(grad) / scale, atol=1e-4)
+
+
 def test_feynman_hibbs_strength_is_traced():
     """fh_scale multiplies the quantum correction: 0 is the classical energy, the correction is
     linear in it, and a vmapped batch varies it per member without recompiling."""

@@ -9,6 +9,7 @@ NPT box of jax-md's Nose-Hoover-chain barostat.
 - :mod:`md.lj.energy`: composable energy terms (:func:`make_energy_fn`): the plain-truncated or
   shifted LJ pair term, Axilrod-Teller three-body and Feynman-Hibbs corrections.
 - :mod:`md.lj.neighbor`: the cell-hashed neighbour list and its static capacities.
+- :mod:`md.lj.dense`: the all-pairs kernel for small boxes (no list), vmap-friendly layout.
 - :mod:`md.lj.engine`: :class:`LJEngine`, whose ``init``/``run`` are pure JAX and which owns
   its neighbour lists (allocation and re-allocation after an overflow on the host).
 """

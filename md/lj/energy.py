@@ -14,6 +14,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from md.lj.config import Array, LJParams
+from md.lj.dense import all_pairs_force_and_strain
 from md.lj.neighbor import HalfPairs, _neighbor_vectors
 from md.units import HBAR_KJ_MOL_PS
 
@@ -184,6 +185,9 @@ def make_energy_fn(
         ``F_i = sum_j 2 u'(r_ij^2) r_ij`` and ``dU/d eps = sum_pairs 2 r^2 u'(r^2)`` for the
         isotropic strain ``r -> (1 + eps) r``.
         """
+        if idx is None:
+            # Small boxes: all pairs, one (N, N) array per component (see md.lj.dense).
+            return all_pairs_force_and_strain(pair_energy, cutoff_nm, position, box, params)
         vectors, valid = _neighbor_vectors(position, idx, box, None, autodiff=False)
         r2 = jnp.sum(vectors * vectors, axis=-1)
         inside = valid & (r2 < cutoff_nm**2)

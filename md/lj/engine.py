@@ -30,8 +30,8 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jax_md import quantity, space
 from jax_md import simulate as jmd_simulate
+from jax_md import space
 
 from md.lj.batch import _advance_batch, _init_batch, _rebuild_batch, batched
 from md.lj.config import Array, Carry, Diagnostics, EngineConfig, LJParams, Thermo
@@ -44,7 +44,7 @@ from md.lj.neighbor import (
     allocate_neighbor_list,
     build_neighbor_list,
 )
-from md.lj.npt import npt_step
+from md.lj.npt import jax_md_float32, kinetic_energy, npt_step
 from md.units import BOLTZMANN_KJ_MOL_K
 
 __all__ = ["LJEngine", "batched"]
@@ -347,12 +347,13 @@ class LJEngine:
             nbrs = None
         kw = self._step_kwargs(self._idx(nbrs), params)
         mass = jnp.float32(c.mass_amu)
-        if c.ensemble == "npt":
-            md = self._init_fn(k_mom, position, self.box0, mass=mass, **kw)
-        elif c.ensemble == "nve":
-            md = self._init_fn(k_mom, position, self._kt_integrator, mass=mass, **kw)
-        else:
-            md = self._init_fn(k_mom, position, mass=mass, **kw)
+        with jax_md_float32():
+            if c.ensemble == "npt":
+                md = self._init_fn(k_mom, position, self.box0, mass=mass, **kw)
+            elif c.ensemble == "nve":
+                md = self._init_fn(k_mom, position, self._kt_integrator, mass=mass, **kw)
+            else:
+                md = self._init_fn(k_mom, position, mass=mass, **kw)
         diag = Diagnostics(
             overflow=jnp.asarray(False),
             max_skin_ratio=jnp.asarray(0.0, jnp.float32),
@@ -419,7 +420,8 @@ class LJEngine:
             if c.ensemble == "npt":
                 md, strain = npt_step(self, md, strain, **kw)
             else:
-                md = self._apply_fn(md, **kw)
+                with jax_md_float32():
+                    md = self._apply_fn(md, **kw)
             if not with_list:
                 d = md.position - old
                 return md, unwrapped + (d - jnp.round(d)), max_disp2, strain  # no skin to track
@@ -505,7 +507,7 @@ class LJEngine:
             return self.energy_fn(md.position, box, perturbation=1.0 + eps, idx=idx, params=params)
 
         potential, d_energy = jax.value_and_grad(energy)(jnp.float32(0.0))
-        kinetic = quantity.kinetic_energy(momentum=md.momentum, mass=md.mass)
+        kinetic = kinetic_energy(md.momentum, md.mass)
         volume = jnp.abs(jnp.linalg.det(box))
         virial = -d_energy
         return Thermo(

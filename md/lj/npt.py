@@ -1,17 +1,47 @@
-"""The NPT (MTTK) step of the LJ engine with a cached strain derivative."""
+"""The NPT (MTTK) step of the LJ engine with a cached strain derivative, and float32 helpers
+for jax-md's integrators."""
 
 from __future__ import annotations
 
+import contextlib
+import warnings
+from collections.abc import Iterator
 from typing import Any
 
 import jax.numpy as jnp
-from jax_md import quantity
 from jax_md import simulate as jmd_simulate
 
 from md.lj.config import Array
 from md.lj.neighbor import _box_diagonal
 
-__all__ = ["npt_step"]
+__all__ = ["jax_md_float32", "kinetic_energy", "npt_step"]
+
+
+def kinetic_energy(momentum: Array, mass: Array) -> Array:
+    """sum p^2 / (2 m), kJ/mol, in the arrays' precision.
+
+    jax-md's ``quantity.kinetic_energy`` asks for a float64 sum, which JAX truncates to float32
+    with a warning when x64 is off; this is the same float32 sum without the request.
+    """
+    return 0.5 * jnp.sum(momentum**2 / mass)
+
+
+@contextlib.contextmanager
+def jax_md_float32() -> Iterator[None]:
+    """Trace jax-md's integrators without their float64-truncation warnings.
+
+    jax-md sums kinetic energies with ``dtype=float64`` (``util.high_precision_sum``); with x64
+    off JAX truncates that to float32 and warns at every traced call site, a screen of warnings
+    a user cannot act on.  The engine runs in float32 by design, so exactly that warning is
+    silenced, only while jax-md code is being traced; every other warning still shows.
+    """
+    with warnings.catch_warnings():
+        warnings.filterwarnings(
+            "ignore",
+            message=r"Explicitly requested dtype float64 requested in .* is not available",
+            category=UserWarning,
+        )
+        yield
 
 
 def npt_step(engine: Any, state: Any, strain: Array, **kwargs: Any) -> tuple[Any, Array]:
@@ -82,7 +112,7 @@ def npt_step(engine: Any, state: Any, strain: Array, **kwargs: Any) -> tuple[Any
     p_b = p_b + dt_2 * box_force(alpha, vol, strain, ke2)
 
     tc = tc.set(kinetic_energy=0.5 * ke2)
-    bc = bc.set(kinetic_energy=quantity.kinetic_energy(momentum=p_b, mass=box_mass))
+    bc = bc.set(kinetic_energy=kinetic_energy(p_b, box_mass))
     p, tc = engine._thermostat.half_step(p, tc, kt)
     p_b, bc = engine._barostat.half_step(p_b, bc, kt)
     s = s.set(

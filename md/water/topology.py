@@ -7,10 +7,12 @@ its values through the ``define`` line of the ``.mdp`` file (:meth:`TIP4PParamet
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 __all__ = ["TIP4P_PARAMETERS", "TIP4PParameters", "topology_text"]
 
 
+@dataclass(frozen=True)
 class TIP4PParameters:
     """TIP4P force-field parameters that a run may vary.
 
