@@ -301,7 +301,9 @@ def test_abcsubsim_warns_and_stops_when_the_chains_stop_moving(correlated_proble
     assert diag["chains_stuck"] and diag["num_distinct"] < 100
     assert diag["level"] == len(r.thresholds) - 1 < 8
     assert "chains stopped moving" in r.stop_reason and "distinct" in r.stop_reason
-    assert r.ess[-1] == r.effective_sample_size() <= diag["num_distinct"]
+    # float32 (the population) against float64 (the diagnostics): equal to rounding.
+    assert r.ess[-1] == pytest.approx(r.effective_sample_size(), rel=1e-6)
+    assert r.effective_sample_size() <= diag["num_distinct"]
     assert "MCSE" in r.summary() and "stopped moving" in r.summary()
     with pytest.raises(ValueError, match="min_distinct_fraction"):
         jaxabc.run("abcsubsim", simulate, prior, np.array(SUBSIM_OBSERVED), num_particles=500,
