@@ -91,7 +91,7 @@ def main(argv=None) -> dict:
     if args.tiny:
         overrides = {"num_steps": 2500, "analysis_start_ps": 1.0}  # 5 ps with the quick preset's 2 fs step
         # 20 particles: APMCABC keeps N alpha >= 2 (alpha 0.1), and most prior draws vaporise.
-        args.num_particles, args.num_steps, args.num_draws = 20, 2, 6
+        args.num_particles, args.num_steps, args.num_draws = 20, 2, 10  # the predictive needs 10 draws
         args.num_replicates, args.num_gradient_replicates = 12, 4
     simulate = WaterSimulatorWithEffects("quick", args.statistics, args.data, with_density=True, **overrides)
     catalogue = water_catalogue()
