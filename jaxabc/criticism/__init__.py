@@ -6,6 +6,8 @@
     report = critique(result, simulate_with_effects, observed, catalogue, held_out=[...], seed=0)
     report.misfits      # flagged, ranked (name, standardised residual, p-value)
     report.causes       # ranked (effect name, score), with .ambiguous / .note
+    report.cause_analysis.needed       # effects still needed after the stronger ones (joint test)
+    report.cause_analysis.unexplained  # residual after them still significant: cause not catalogued
     report.extension    # ABCResult over base parameters + the top effect
     report.gain         # held-out measures with standard errors
     report.write("report_dir/")

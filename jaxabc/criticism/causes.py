@@ -169,7 +169,9 @@ class Cause(tuple):
 
     Further attributes: ``statistic`` (signed t), ``p_value``, ``adjusted_p_value``,
     ``significant``, ``fraction_explained``, ``estimate`` (linearised eta), ``max_snr``,
-    ``ambiguous`` (bool), ``invisible`` (bool), ``note`` (str), ``acts_on`` (group names).
+    ``ambiguous`` (bool), ``invisible`` (bool), ``note`` (str), ``acts_on`` (group names),
+    ``needed`` (bool: selected by the conditional test), ``conditional_score`` and
+    ``conditional_p_value`` (what it adds beyond the effects selected before it).
     """
 
     # Set per instance from ``details``; declared for type checkers.
@@ -262,6 +264,16 @@ class CauseAnalysis:
     cosines : numpy.ndarray, shape (K, K)
         Cosines between projected directions in the ``C^+`` metric (NaN for invisible ones).
     ambiguities : list of str
+    needed : list of str
+        Effects selected in order by the conditional (joint) test: what the data still need
+        after the stronger ones are included.  Read this, not ``significant``, for "the causes".
+    total_chi2 : float
+        ``r_c' C^+ r_c``, the residual the effects compete for.
+    residual : dict
+        ``chi2``, ``dof``, ``p_value`` of the residual after projecting out the needed effects.
+    residual_after_top : dict
+        The same after the top-ranked visible effect alone (the extension that is refitted).
+    alpha : float
     """
 
     causes: list[Cause]
@@ -269,6 +281,24 @@ class CauseAnalysis:
     projected: np.ndarray
     cosines: np.ndarray
     ambiguities: list[str] = field(default_factory=list)
+    needed: list[str] = field(default_factory=list)
+    total_chi2: float = 0.0
+    residual: dict = field(default_factory=dict)
+    residual_after_top: dict = field(default_factory=dict)
+    alpha: float = 0.05
+
+    @property
+    def explained_fraction(self) -> float:
+        """Share of ``total_chi2`` that the needed effects explain (0 when none is needed)."""
+        if self.total_chi2 <= 0 or not self.residual:
+            return 0.0
+        return float(max(0.0, 1.0 - self.residual["chi2"] / self.total_chi2))
+
+    @property
+    def unexplained(self) -> bool:
+        """True when the residual after the needed effects is still significant at ``alpha``:
+        no catalogue effect (or combination the test selected) accounts for the misfit."""
+        return bool(self.residual) and self.residual["p_value"] <= self.alpha
 
     @property
     def top(self) -> Cause | None:
@@ -286,6 +316,9 @@ def rank_causes(
     alpha: float = 0.05,
     ambiguity_cosine: float = 0.95,
     invisible_snr: float = 3.0,
+    near_tie_cosine: float = 0.8,
+    near_tie_log_lr: float = 3.0,
+    num_replicates: int | None = None,
 ) -> CauseAnalysis:
     """Score every effect by how much of the refit residual its projected signature explains.
 
@@ -299,6 +332,16 @@ def rank_causes(
     null_cov : numpy.ndarray, shape (s, s)
     groups : dict
         Used to say which regions each effect acts on.
+    alpha : float
+        Level of the Holm-adjusted per-effect and conditional tests, and of the residual test.
+    ambiguity_cosine : float
+        |cos| at or above which two admissible signatures are confusable whatever their scores.
+    near_tie_cosine, near_tie_log_lr : float
+        Below ``ambiguity_cosine``, a partner with |cos| >= ``near_tie_cosine`` is also ambiguous
+        when the data favour the leader alone over it alone by a log likelihood ratio
+        ``(score_a^2 - score_b^2) / 2`` below ``near_tie_log_lr`` (3: odds of 20 to 1).
+    num_replicates : int, optional
+        Replicates behind ``null_cov`` (F tail for the residual test; chi-squared if None).
     """
     prec = np.linalg.pinv(null_cov, rcond=1e-8, hermitian=True)
     u = refit @ directions
@@ -348,20 +391,83 @@ def rank_causes(
             row["note"] = (f"invisible in the available summaries (largest signal over the prior "
                            f"{row['max_snr']:.2g} noise sd after the base parameters absorb theirs)"
                            + (f"; needs {eff.separated_by}" if eff.separated_by else ""))
-    # Ambiguity matters where it could change the verdict: among the significant causes and the
-    # leader, any partner pointing the same way (either sign of the cosine: the sign of eta is free).
+    # Which effects are still needed once the stronger ones are in: forward selection on
+    # conditional scores (each candidate's signature and the residual with the selected
+    # signatures projected out, Holm over the remaining candidates).  Per-effect scores share
+    # the residual, so an absent effect that points partly the same way as the true one is
+    # "significant" on its own; the conditional score asks what it adds.
+    spans = {k: _span(eff) for k, eff in enumerate(catalogue)}
+    visible_idx = [names.index(row["name"]) for row in rows if not row["invisible"]]
+    selected: list[int] = []
+    conditional: dict[int, tuple[float, float]] = {}
+    while True:
+        cand, stats_, ps = [], [], []
+        proj = _projector(u[:, selected], prec)
+        r_perp = proj @ r
+        for k in visible_idx:
+            if k in selected:
+                continue
+            up = proj @ u[:, k]
+            nk = float(np.sqrt(max(up @ prec @ up, 0.0)))
+            if nk * spans[k] < invisible_snr:
+                continue  # nothing left that the selected effects do not already do
+            t = float(up @ prec @ r_perp / nk)
+            side = catalogue.effects[k].one_sided
+            signed = t * (side if side else 1.0)
+            cand.append(k)
+            stats_.append(max(signed, 0.0) if side else abs(t))
+            ps.append(float(stats.norm.sf(signed) if side else 2 * stats.norm.sf(abs(t))))
+        if not cand:
+            break
+        adj_c = adjust_pvalues(np.array(ps), "holm")
+        for k, sc, q in zip(cand, stats_, adj_c, strict=True):
+            conditional.setdefault(k, (sc, float(q)))
+        best = int(np.argmax(stats_))
+        if adj_c[best] > alpha:
+            break
+        selected.append(cand[best])
+        for k, sc, q in zip(cand, stats_, adj_c, strict=True):
+            conditional[k] = (sc, float(q))
+    proj = _projector(u[:, selected], prec)
+    residual = _residual_test(proj @ r, null_cov, num_replicates, len(selected))
+    top_k = visible_idx[0] if visible_idx else None
+    after_top = _residual_test(_projector(u[:, [top_k]] if top_k is not None else u[:, []], prec) @ r,
+                               null_cov, num_replicates, int(top_k is not None))
+    for row in rows:
+        k = names.index(row["name"])
+        row["needed"] = k in selected
+        sc, q = conditional.get(k, (0.0, 1.0))
+        row["conditional_score"], row["conditional_p_value"] = sc, q
+
+    # Ambiguity: can the data tell a partner from a leader under the priors?  A partner counts
+    # only if its own prior allows the sign the data ask for (score > 0).  Then either its
+    # signature is collinear (|cos| >= ambiguity_cosine), or it points mostly the same way and the
+    # data barely prefer the leader: fitting one effect alone removes score^2 from the residual
+    # chi2, so (score_a^2 - score_b^2) / 2 is the log likelihood ratio of "a alone" over "b alone".
+    # The score gap's noise sd, sqrt(2 (1 - |cos|)), is reported beside it.
+    by_name = {row["name"]: row for row in rows}
     leaders = [row for row in rows if row["significant"]] or rows[:1]
     for row in leaders:
         if row["invisible"]:
             continue
         a = names.index(row["name"])
-        partners = [(names[b], cos[a, b]) for b in range(k_eff)
-                    if b != a and np.isfinite(cos[a, b]) and abs(cos[a, b]) >= ambiguity_cosine]
+        partners = []
+        for b in range(k_eff):
+            other = by_name[names[b]]
+            if b == a or not np.isfinite(cos[a, b]) or other["invisible"] or other["score"] <= 0:
+                continue
+            c = abs(cos[a, b])
+            log_lr = 0.5 * (row["score"] ** 2 - other["score"] ** 2)
+            gap_sd = float(np.sqrt(max(2.0 * (1.0 - c), 0.0)))
+            near_tie = c >= near_tie_cosine and log_lr < near_tie_log_lr
+            if c >= ambiguity_cosine or near_tie:
+                partners.append((names[b], cos[a, b], row["score"] - other["score"], gap_sd, log_lr))
         if partners:
             row["ambiguous"] = True
-            needs = "; ".join(sorted({catalogue[n].separated_by for n, _ in [*partners, (row["name"], 0)]
+            needs = "; ".join(sorted({catalogue[n].separated_by for n, *_ in [*partners, (row["name"],)]
                                       if catalogue[n].separated_by}))
-            txt = ", ".join(f"{n} (cos {c:+.3f})" for n, c in partners)
+            txt = ", ".join(f"{n} (cos {c:+.3f}, score gap {g:.2f}, gap noise sd {gs:.2f}, log LR {lr:.1f})"
+                            for n, c, g, gs, lr in partners)
             row["note"] = f"ambiguous with {txt}: these summaries cannot tell them apart" + (
                 f"; needs {needs}" if needs else "")
             ambiguities.append(f"{row['name']}: {row['note']}")
@@ -371,4 +477,42 @@ def rank_causes(
                 name_b, c = max(others, key=lambda x: abs(x[1]))
                 row["note"] = f"closest competitor {name_b} (cos {c:+.2f})"
     causes = [Cause(row.pop("name"), row.pop("score"), **row) for row in rows]
-    return CauseAnalysis(causes, directions, u, cos, ambiguities)
+    return CauseAnalysis(causes, directions, u, cos, ambiguities, needed=[names[k] for k in selected],
+                         total_chi2=total, residual=residual, residual_after_top=after_top, alpha=alpha)
+
+
+def _span(eff: Effect) -> float:
+    """Largest move of the effect parameter away from its null that its prior allows."""
+    if eff.one_sided == 1:
+        return eff.high - eff.null
+    if eff.one_sided == -1:
+        return eff.null - eff.low
+    return max(eff.high - eff.null, eff.null - eff.low)
+
+
+def _projector(u: np.ndarray, prec: np.ndarray) -> np.ndarray:
+    """``I - U (U' W U)^+ U' W``: removes what the columns of ``u`` explain in the ``W`` metric."""
+    s = u.shape[0]
+    if u.shape[1] == 0:
+        return np.eye(s)
+    return np.eye(s) - u @ np.linalg.pinv(u.T @ prec @ u, rcond=1e-10, hermitian=True) @ u.T @ prec
+
+
+def _residual_test(r: np.ndarray, cov: np.ndarray, num_replicates: int | None, num_fitted: int) -> dict:
+    """Quadratic form of a residual in the null precision and its tail p-value.
+
+    The rank of ``cov`` less ``num_fitted`` (effect amplitudes fitted by projection) is the
+    degrees of freedom; with ``num_replicates`` the Hotelling F tail accounts for a covariance
+    estimated from that many replicates, otherwise the chi-squared tail.
+    """
+    w, v = np.linalg.eigh(cov)
+    keep = w > 1e-8 * max(w.max(), 1e-300)
+    proj = v[:, keep].T @ r
+    q = float(np.sum(proj**2 / w[keep]))
+    k = max(int(keep.sum()) - num_fitted, 1)
+    if num_replicates is not None and num_replicates - k > 2:
+        dof = num_replicates - k
+        p = float(stats.f.sf(q * dof / (k * (num_replicates - 1)), k, dof))
+    else:
+        p = float(stats.chi2.sf(q, k))
+    return dict(chi2=q, dof=k, p_value=p)

@@ -200,7 +200,8 @@ def critique(
 
     mis = analyse_misfits(obs, pred, jac, held, alpha=alpha, correction=correction, level=level)
     causes = rank_causes(catalogue, directions, mis.refit, mis.refit_residual, mis.null_cov, group_idx,
-                         alpha=cause_alpha, ambiguity_cosine=ambiguity_cosine, invisible_snr=invisible_snr)
+                         alpha=cause_alpha, ambiguity_cosine=ambiguity_cosine, invisible_snr=invisible_snr,
+                         num_replicates=len(pred.replicate_keys))
     report = CritiqueReport(
         misfits=mis.flagged, all_misfits=mis.misfits, causes=causes.causes, extension=None, base_refit=None,
         gain={}, ambiguities=causes.ambiguities, predictive=pred, misfit_analysis=mis, cause_analysis=causes,

@@ -82,11 +82,21 @@ class CritiqueReport:
         if not visible:
             return f"Misfit in {top.name}, but no catalogue effect is visible in these summaries."
         c = visible[0]
-        if c.ambiguous:
+        ca = self.cause_analysis
+        if ca is not None and ca.unexplained:
+            res = ca.residual
+            best = ", ".join(ca.needed) or c.name
+            why = (f"no catalogue effect accounts for it: the best extension ({best}) explains "
+                   f"{100 * (ca.explained_fraction if ca.needed else c.fraction_explained):.0f}% of the remaining "
+                   f"residual and leaves chi2 {res['chi2']:.1f} on {res['dof']} dof (p={res['p_value']:.1e}); "
+                   "the cause is probably outside the catalogue")
+        elif c.ambiguous:
             why = f"the most likely cause is {c.name} but it is ambiguous: {c.note}"
         elif c.significant:
             why = (f"the most likely cause is {c.name} (score {c.score:.1f}, explains "
                    f"{100 * c.fraction_explained:.0f}% of the remaining residual)")
+            if ca is not None and ca.needed and ca.needed != [c.name]:
+                why += f"; effects needed jointly: {', '.join(ca.needed)}"
         else:
             why = f"no catalogue effect explains it significantly (best: {c.name}, score {c.score:.1f})"
         g = self.gain
@@ -110,12 +120,22 @@ class CritiqueReport:
             "causes": [dict(name=c.name, score=c.score, statistic=c.statistic, p_value=c.p_value,
                             adjusted_p_value=c.adjusted_p_value, significant=c.significant,
                             fraction_explained=c.fraction_explained, estimate=c.estimate, max_snr=c.max_snr,
-                            ambiguous=c.ambiguous, invisible=c.invisible, note=c.note, acts_on=c.acts_on)
+                            ambiguous=c.ambiguous, invisible=c.invisible, note=c.note, acts_on=c.acts_on,
+                            needed=getattr(c, "needed", False),
+                            conditional_score=getattr(c, "conditional_score", None),
+                            conditional_p_value=getattr(c, "conditional_p_value", None))
                        for c in self.causes],
             "ambiguities": self.ambiguities,
             "gain": self.gain,
             "settings": self.settings,
         }
+        ca = self.cause_analysis
+        if ca is not None:
+            d["needed"] = list(ca.needed)
+            d["unexplained"] = ca.unexplained
+            d["explained_fraction"] = ca.explained_fraction
+            d["residual_after_needed"] = ca.residual
+            d["residual_after_top"] = ca.residual_after_top
         if self.misfit_analysis is not None:
             d["global_chi2"] = dict(statistic=self.misfit_analysis.chi2, dof=self.misfit_analysis.chi2_dof,
                                     p_value=self.misfit_analysis.chi2_p_value)
@@ -149,6 +169,14 @@ class CritiqueReport:
         for i, c in enumerate(self.causes):
             lines.append(f"| {i + 1} | {c.name} | {c.score:.2f} | {c.adjusted_p_value:.2g} | "
                          f"{100 * c.fraction_explained:.0f}% | {c.estimate:.4g} | {c.note} |")
+        ca = self.cause_analysis
+        if ca is not None and ca.residual:
+            res = ca.residual
+            lines += ["", f"Needed after the stronger effects are included (conditional Holm test): "
+                          f"{', '.join(ca.needed) or 'none'}. Residual after them: chi2 {res['chi2']:.1f} on "
+                          f"{res['dof']} dof (p={res['p_value']:.2g}); explained fraction "
+                          f"{100 * ca.explained_fraction:.0f}%"
+                          + (" -- **no catalogue effect accounts for the misfit**." if ca.unexplained else ".")]
         if self.ambiguities:
             lines += ["", "Ambiguities:"] + [f"- {a}" for a in self.ambiguities]
         if "causes" in figures:

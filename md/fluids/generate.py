@@ -1,0 +1,140 @@
+"""Write the neon and argon "measured" data files from CoolProp's reference equations of state.
+
+Run ``python -m md.fluids.generate`` (needs ``pip install jaxabc[fluids]``); it rewrites
+``md/fluids/data/<fluid>/*.csv`` and ``PROVENANCE.md``.  The values are those of the reference
+Helmholtz-energy equations, which are fitted to measurements; the uncertainties attached are
+the ones documented in :data:`FLUIDS` (see each PROVENANCE.md for which are stated by the
+equation's authors and which are conservative assumptions).
+"""
+
+from __future__ import annotations
+
+import csv
+from pathlib import Path
+
+DATA = Path(__file__).with_name("data")
+
+# Grids and uncertainties per fluid.  Relative uncertainties are fractions.
+FLUIDS: dict[str, dict] = {
+    "neon": dict(
+        coolprop="Neon",
+        equation="Thol, Beckmueller, Weiss, Harvey, Lemmon, Jacobsen & Span (2019), Helmholtz-energy "
+                 "equation of state for neon (CoolProp key Thol-JPCRD-2019-Neon)",
+        liquid_isotherms_k=[26.0, 30.0, 34.0, 38.0, 42.0],
+        supercritical_isotherms_k=[50.0, 60.0],
+        compression=[1.00, 1.03, 1.06],          # rho / rho_sat_liquid(T) on liquid isotherms
+        supercritical_density_ratio=[2.0, 2.2, 2.4],   # rho / rho_c on supercritical isotherms
+        saturation_k=[25.0, 26.0, 28.0, 30.0, 32.0, 34.0, 36.0, 38.0, 40.0, 42.0, 43.0],
+        b2_k=[30.0, 40.0, 50.0, 70.0, 100.0, 150.0, 200.0, 300.0],
+        u_rho=0.002, u_energy=0.01, u_b2_rel=0.01, u_b2_abs=0.5e-6,
+    ),
+    "argon": dict(
+        coolprop="Argon",
+        equation="Tegeler, Span & Wagner (1999), J. Phys. Chem. Ref. Data 28, 779: reference "
+                 "equation of state for argon (CoolProp key Tegeler-JPCRD-1999)",
+        liquid_isotherms_k=[90.0, 100.0, 110.0, 120.0, 130.0, 140.0],
+        supercritical_isotherms_k=[160.0, 200.0],
+        compression=[1.00, 1.03, 1.06],
+        supercritical_density_ratio=[2.0, 2.2, 2.4],
+        saturation_k=[85.0, 90.0, 100.0, 110.0, 120.0, 130.0, 140.0, 145.0],
+        b2_k=[90.0, 110.0, 130.0, 160.0, 200.0, 300.0, 400.0, 600.0],
+        u_rho=0.001, u_energy=0.005, u_b2_rel=0.01, u_b2_abs=0.5e-6,
+    ),
+}
+
+
+def _write(path: Path, header: list[str], rows: list[list]) -> None:
+    with path.open("w", newline="") as fh:
+        w = csv.writer(fh, lineterminator="\n")
+        w.writerow(header)
+        for row in rows:
+            w.writerow([f"{v:.10g}" if isinstance(v, float) else v for v in row])
+
+
+def generate(fluid: str, data_dir: Path = DATA) -> dict[str, int]:
+    """Write one fluid's CSV files and PROVENANCE.md under ``data_dir / fluid``; returns row counts."""
+    import CoolProp
+    from CoolProp.CoolProp import PropsSI
+
+    cfg = FLUIDS[fluid]
+    name = cfg["coolprop"]
+    out = Path(data_dir) / fluid
+    out.mkdir(parents=True, exist_ok=True)
+    state = CoolProp.AbstractState("HEOS", name)
+    r_gas = state.gas_constant()
+    rho_c = PropsSI("rhomolar_critical", name)
+
+    points = [(t, f * PropsSI("Dmolar", "T", t, "Q", 0, name), "liquid") for t in cfg["liquid_isotherms_k"]
+              for f in cfg["compression"]]
+    points += [(t, f * rho_c, "supercritical") for t in cfg["supercritical_isotherms_k"]
+               for f in cfg["supercritical_density_ratio"]]
+    rows = []
+    for t, rho, phase in points:
+        state.update(CoolProp.DmolarT_INPUTS, rho, t)
+        p = state.p()
+        # Residual (configurational) energy: u_res / (R T) = tau * d alpha_r / d tau.
+        u_res = r_gas * t * state.tau() * state.dalphar_dTau()
+        # A relative density uncertainty u_rho maps to pressure through the isothermal stiffness.
+        dp_drho = state.first_partial_deriv(CoolProp.iP, CoolProp.iDmolar, CoolProp.iT)
+        rows.append([t, rho, phase, p, rho * dp_drho * cfg["u_rho"], u_res, abs(u_res) * cfg["u_energy"]])
+    _write(out / "state_points.csv",
+           ["T_K", "rho_mol_m3", "phase", "P_Pa", "u_P_Pa", "U_res_J_mol", "u_U_res_J_mol"], rows)
+
+    sat = [[t, PropsSI("Dmolar", "T", t, "Q", 0, name), PropsSI("Dmolar", "T", t, "Q", 0, name) * cfg["u_rho"],
+            PropsSI("P", "T", t, "Q", 0, name)] for t in cfg["saturation_k"]]
+    _write(out / "saturated_liquid.csv", ["T_K", "rho_liquid_mol_m3", "u_rho_mol_m3", "P_sat_Pa"], sat)
+
+    b2 = []
+    for t in cfg["b2_k"]:
+        state.update(CoolProp.DmolarT_INPUTS, 1e-3, t)
+        b = state.Bvirial()
+        b2.append([t, b, max(cfg["u_b2_rel"] * abs(b), cfg["u_b2_abs"])])
+    _write(out / "b2.csv", ["T_K", "B2_m3_mol", "u_B2_m3_mol"], b2)
+    (out / "PROVENANCE.md").write_text(_provenance(fluid, cfg, CoolProp.__version__, len(rows)))
+    return dict(state_points=len(rows), saturated_liquid=len(sat), b2=len(b2), coolprop=CoolProp.__version__)
+
+
+def _provenance(fluid: str, cfg: dict, version: str, num_points: int) -> str:
+    return f"""# {fluid.capitalize()}: provenance
+
+**What these numbers are.** Values of a reference equation of state, not raw measurements. The
+equation is a Helmholtz-energy correlation fitted by its authors to the measured pressure-density-
+temperature, caloric, speed-of-sound and phase-equilibrium data of {fluid}; within its stated
+uncertainty it represents those measurements. Raw measured points are not redistributed here
+(no maintained package ships them in machine-readable form).
+
+- Source: CoolProp {version} (`pip install coolprop`), backend `HEOS`, fluid `{cfg['coolprop']}`.
+- Equation: {cfg['equation']}.
+- Generated by `python -m md.fluids.generate` (this file is rewritten with the data).
+
+## Files and state points
+
+- `state_points.csv` ({num_points} rows): pressure `P_Pa` and residual (configurational) molar
+  internal energy `U_res_J_mol = R T tau d(alpha_r)/d(tau)` at fixed (T, rho). Liquid isotherms
+  {cfg['liquid_isotherms_k']} K at rho / rho_sat,liquid(T) = {cfg['compression']}; dense
+  supercritical isotherms {cfg['supercritical_isotherms_k']} K at rho / rho_c =
+  {cfg['supercritical_density_ratio']}.
+- `saturated_liquid.csv`: saturated-liquid density and vapour pressure at {cfg['saturation_k']} K.
+- `b2.csv`: second virial coefficient B2(T) of the equation (its zero-density limit) at
+  {cfg['b2_k']} K.
+
+## Uncertainties used as measurement errors
+
+- Density: relative {100 * cfg['u_rho']:.2g} % (saturated-liquid density column `u_rho_mol_m3`).
+  Pressure at fixed (T, rho): the density uncertainty propagated through the isothermal
+  stiffness, `u_P = rho (dP/drho)_T u_rho`; in a liquid this is hundreds of kPa.
+- Residual energy: relative {100 * cfg['u_energy']:.2g} %.
+- B2: the larger of {100 * cfg['u_b2_rel']:.2g} % and {cfg['u_b2_abs'] * 1e6:.2g} cm^3/mol.
+
+These are deliberately conservative round values at or above the uncertainties the equation's
+authors state for the liquid and gas regions (the published argon equation claims about 0.02-0.03 %
+in liquid density below 30 MPa and 0.2-2 % in heat capacities); they have not been checked line
+by line against the papers' uncertainty tables, and the energy and B2 values are assumptions in
+the spirit of the caloric and gas-phase uncertainties. The model errors of a 64-500 atom LJ
+simulation are far larger than any of them.
+"""
+
+
+if __name__ == "__main__":
+    for f in FLUIDS:
+        print(f, generate(f))
