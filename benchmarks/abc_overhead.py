@@ -292,6 +292,7 @@ def main() -> None:
                         default=Path.home() / ".cache" / "jaxabc_benchmarks",
                         help="where the peers' virtual environments are made and kept")
     parser.add_argument("--skip-peers", action="store_true")
+    parser.add_argument("--output", type=Path, default=None, help="default: results/abc_overhead.json")
     parser.add_argument("--note", default="", help="stored in the JSON (e.g. machine load)")
     args = parser.parse_args()
     args.cache_dir.mkdir(parents=True, exist_ok=True)
@@ -338,7 +339,7 @@ def main() -> None:
         "targets": {"jaxabc_fused_vs_peers_end_to_end_cold": ">= 10x",
                     "pmc_over_apmc_per_simulation_at_N5000": "<= 2"},
     }
-    path = write_result("abc_overhead", payload)
+    path = write_result(args.output or "abc_overhead", payload)
     print(f"wrote {path}")
 
 

@@ -441,49 +441,43 @@ of the k n + 1 longest tasks) is what any schedule of indivisible tasks must exc
 def page_abc_overhead() -> str:
     d = load("abc_overhead")
     if d is None:
-        return "# ABC overhead\n\nNot saved yet.\n"
+        return "# Whole-run cost against ELFI and pyABC\n\nNot saved yet.\n"
+    runs = [("fused_cold", "jaxabc fused, cold"), ("fused_cold_persistent_cache", "jaxabc fused, cache"),
+            ("fused_warm", "jaxabc fused, warm"), ("host_driver_cold", "jaxabc host driver, cold")]
     rows = []
     for r in d["rows"]:
-        ab = r.get("abcpy_0_6_3", {})
-        rows.append(
-            [
-                r["num_particles"],
-                r["dim"],
-                f(r["jax_kernels"]["median_s"] * 1e3, 2),
-                f(r["jax_driver"]["per_step_s"] * 1e3, 1),
-                f(r["numpy"]["median_s"] * 1e3, 2),
-                f(ab["step_s"], 2) if "step_s" in ab else ab.get("error", "-"),
-                f(r["numpy_over_jax"], 1),
-                f(r.get("abcpy_over_jax"), 0),
-                f(r.get("abcpy_over_jax_driver"), 0),
-            ]
-        )
-    return f"""# Cost of one APMCABC step without simulation
+        n = r["num_particles"]
+        for key, label in runs:
+            x = r.get("jaxabc", {}).get(key)
+            if x:
+                rows.append([n, label, x.get("num_simulations"), f(x.get("process_wall_s"), 1),
+                             f(x.get("us_per_simulation_whole_process"), 1), f(x.get("mean_error")),
+                             f(x.get("cov_error_vs_exact"))])
+        for key, label in (("elfi_smc", "ELFI SMC"), ("pyabc_abcsmc", "pyABC ABC-SMC")):
+            x = r.get(key) or {}
+            if "process_wall_s" in x:
+                rows.append([n, f"{label} {x.get('version', '')}", x.get("num_simulations"),
+                             f(x.get("process_wall_s"), 1), f(x.get("us_per_simulation_whole_process"), 1),
+                             f(x.get("mean_error")), f(x.get("cov_error_vs_exact"))])
+            elif x:
+                rows.append([n, label, "-", x.get("error", "did not finish"), "-", "-", "-"])
+    pmc = d.get("pmc_vs_apmc_host_driver_per_simulation", {})
+    header = ["N", "run", "simulations", "whole process (s)", "us / simulation", "mean error",
+              "covariance error"]
+    return f"""# Whole-run cost against ELFI and pyABC
 
-One step (resample, perturb, weights, merge, quantile, covariance) with synthetic distances;
-ABCpy 0.6.3's step is the difference of a 2-step and a 1-step run.  Times on the machine that
-made the JSON.
+{d.get("description", "")}
+
+Every run is a fresh process on the same 2-D Gaussian problem and tolerance schedule; the peers
+run in their own virtual environments.  Note recorded with the run: {d.get("note", "-")}
 
 {source("abc_overhead")}
 
-{
-        table(
-            [
-                "N",
-                "d",
-                "jaxabc kernels (ms)",
-                "jaxabc driver step (ms)",
-                "NumPy (ms)",
-                "ABCpy 0.6.3 (s)",
-                "NumPy / jaxabc",
-                "ABCpy / jaxabc kernels",
-                "ABCpy / jaxabc driver",
-            ],
-            rows,
-        )
-    }
-"""
+{table(header, rows)}
 
+PMC-ABC against APMCABC per simulation (host driver, warm):
+{f(pmc.get("pmc_over_apmc"), 2)}x.
+"""
 
 WATER_LABELS = {
     "simulated": "simulated at TIP4P",

@@ -133,15 +133,19 @@ REGISTRY: tuple[Entry, ...] = (
     Entry(
         "abc_overhead",
         f"{R}/abc_overhead.json",
-        "python benchmarks/abc_overhead.py --sizes 1000 5000 20000 --dims 2 9 --abcpy-sizes 1000 5000 "
-        "--abcpy-python /tmp/abcpyenv/bin/python --repeats 5",
-        quick=f"python benchmarks/abc_overhead.py --sizes 1000 --dims 2 --repeats 2 --abcpy-sizes 0 "
-        f"--output {Q}/abc_overhead.json",
+        "python benchmarks/abc_overhead.py --sizes 1000 5000",
+        quick=f"python benchmarks/abc_overhead.py --sizes 1000 --skip-peers --output {Q}/abc_overhead.json",
         quick_output=f"{Q}/abc_overhead.json",
-        estimated_cost_s=900.0,
+        estimated_cost_s=1800.0,
         note="timings only: the quick comparison checks the rows' settings, not their times; the full "
-        "command needs a venv with abcpy==0.6.3 at /tmp/abcpyenv (skipped, with the reason in the "
-        "JSON, when missing); no recorded time, ABCpy's 900 s timeout bounds it",
+        "command makes ELFI and pyABC virtual environments under ~/.cache/jaxabc_benchmarks (PyPI)",
+    ),
+    Entry(
+        "surrogate_helium",
+        f"{R}/surrogate_helium.json",
+        "python benchmarks/surrogate_helium.py",
+        estimated_cost_s=1800.0,
+        note="a sketch, never run: simulations the surrogate needs against the saved APMCABC run",
     ),
     Entry(
         "engine_throughput",
