@@ -297,7 +297,7 @@ def restore_state(flat: dict[str, np.ndarray], template: Any, path: Path) -> Any
     return jax.tree_util.tree_unflatten(treedef, out)
 
 
-def prepare_folder(folder: Path | None, resume: bool, overwrite: bool) -> Path | None:
+def prepare_folder(folder: str | Path | None, resume: bool, overwrite: bool) -> Path | None:
     """The checkpoint path, after refusing to clobber an existing checkpoint by accident."""
     if folder is None:
         if resume:
