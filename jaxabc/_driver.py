@@ -10,7 +10,7 @@ import inspect
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, NamedTuple
+from typing import Any, NamedTuple, cast
 
 import jax
 import jax.numpy as jnp
@@ -96,7 +96,7 @@ def build_by_name(name: str, prior: Any, num_particles: int | None,
         slot = params.get("num_particles")
         if slot is None or slot.default is inspect.Parameter.empty:
             raise TypeError(f"{name!r} needs num_particles= (the population size)")
-        num_particles = slot.default
+        num_particles = cast(int, slot.default)
     try:
         return builder(prior, int(num_particles), **options)
     except TypeError as exc:

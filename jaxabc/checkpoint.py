@@ -193,7 +193,7 @@ def save(path: Path, ckpt: Checkpoint) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(path.name + ".tmp")
     with open(tmp, "wb") as fh:
-        np.savez(fh, **arrays)
+        np.savez(fh, **arrays)  # pyright: ignore[reportArgumentType]  # numpy stubs: **kwds may bind allow_pickle
         fh.flush()
         os.fsync(fh.fileno())
     os.replace(tmp, path)
@@ -247,11 +247,14 @@ def _unpack(header: dict, arrays: dict[str, np.ndarray]) -> Checkpoint:
     state = {k: arrays[f"state/{k}"] for k in header["state_keys"]}
     post = None
     if "posterior/particles" in arrays:
-        post = tuple(arrays[f"posterior/{n}"] for n in ("particles", "log_weights", "distances"))
+        post = (arrays["posterior/particles"], arrays["posterior/log_weights"],
+                arrays["posterior/distances"])
     chunks: list[dict[str, Any]] = []
     start = 0
     for i, size in enumerate(header["chunk_sizes"]):
-        chunk = {k: arrays[f"records/{k}"][start:start + size] for k in _RECORD_KEYS}
+        chunk: dict[str, Any] = {
+            k: arrays[f"records/{k}"][start:start + size] for k in _RECORD_KEYS
+        }
         chunk["summaries"] = arrays.get(f"records/summaries/{i}")
         chunk["reasons"] = header["reasons"][start:start + size]
         chunks.append(chunk)
@@ -294,7 +297,7 @@ def restore_state(flat: dict[str, np.ndarray], template: Any, path: Path) -> Any
     return jax.tree_util.tree_unflatten(treedef, out)
 
 
-def prepare_folder(folder: Path | None, resume: bool, overwrite: bool) -> Path | None:
+def prepare_folder(folder: str | Path | None, resume: bool, overwrite: bool) -> Path | None:
     """The checkpoint path, after refusing to clobber an existing checkpoint by accident."""
     if folder is None:
         if resume:

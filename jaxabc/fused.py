@@ -471,7 +471,8 @@ def _stop_reason(code: int, algorithm: str, algo: ABCAlgorithm, history: dict,
                  num_steps: int | None, final_threshold: float | None,
                  max_simulations: int | None) -> str:
     if code == _STOP_ALGORITHM:
-        info = Info(generation_done=True, stop=True, threshold=history["threshold"][-1],
+        done = jnp.asarray(True)
+        info = Info(generation_done=done, stop=done, threshold=history["threshold"][-1],
                     acceptance_rate=history["acceptance"][-1], ess=history["ess"][-1])
         return algo.stop_reason(algo.settings, info)
     if code == _STOP_STEPS:

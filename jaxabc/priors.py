@@ -33,6 +33,8 @@ class Prior(Protocol):
 
     def log_prob(self, theta: jax.Array) -> jax.Array: ...
 
+    def contains(self, theta: jax.Array) -> jax.Array: ...
+
 
 class Uniform:
     """Independent uniform prior on the box ``[low, high]``.

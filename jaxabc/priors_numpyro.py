@@ -12,7 +12,7 @@ uses the inverse CDF, so each base distribution must implement ``cdf`` and ``icd
 from __future__ import annotations
 
 from collections.abc import Mapping
-from typing import Any
+from typing import Any, cast
 
 import jax
 import jax.numpy as jnp
@@ -133,7 +133,11 @@ class Independent:
         theta = jnp.asarray(theta)
         # Evaluate inside the box only: numpyro warns about out-of-support values otherwise.
         x = jnp.clip(theta, self.low.astype(theta.dtype), self.high.astype(theta.dtype))
-        total = sum(d.log_prob(x[..., j]) for j, d in enumerate(self.distributions.values()))
+        # A sum of Arrays (there is at least one distribution), not the int start value.
+        total = cast(
+            jax.Array,
+            sum(d.log_prob(x[..., j]) for j, d in enumerate(self.distributions.values())),
+        )
         total = total - jnp.sum(self._log_mass).astype(total.dtype)
         return jnp.where(self.contains(theta), total, -jnp.inf)
 

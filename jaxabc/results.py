@@ -388,7 +388,7 @@ class ABCResult:
         fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
         try:
             with os.fdopen(fd, "wb") as fh:
-                np.savez_compressed(fh, metadata=metadata, **arrays)
+                np.savez_compressed(fh, metadata=metadata, **arrays)  # pyright: ignore[reportArgumentType]  # numpy stubs: **kwds may bind allow_pickle
                 fh.flush()
                 os.fsync(fh.fileno())
             os.replace(tmp, path)

@@ -16,7 +16,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import jax
 import jax.numpy as jnp
@@ -183,6 +183,7 @@ def _loop(ctx: Context, prog: Progress) -> None:
 
 
 def _save(ctx: Context, prog: Progress) -> None:
+    assert ctx.ckpt_path is not None, "only called when checkpointing"
     _ckpt.save(ctx.ckpt_path, _ckpt.Checkpoint(
         fingerprint=ctx.fingerprint,
         state_leaves=_ckpt.flatten_state(prog.state),
@@ -205,6 +206,7 @@ def _state_template(ctx: Context) -> Any:
 
 
 def _restore(ctx: Context, prog: Progress) -> None:
+    assert ctx.ckpt_path is not None, "only called when resuming from a checkpoint"
     ck = _ckpt.load(ctx.ckpt_path)
     _ckpt.check_fingerprint(ck.fingerprint, ctx.fingerprint, ctx.ckpt_path)
     algo = ctx.compiled.algorithm
@@ -347,7 +349,8 @@ def run(
             check_shape(ex, simulate, prior, obs, distance)
             if hasattr(ex, "summary_shape") and not getattr(get_distance(distance),
                                                            "compares_samples", False):
-                ex.summary_shape = tuple(obs.shape)  # a batch where every task fails keeps it
+                # A batch where every task fails keeps it (not on the Executor protocol).
+                cast(Any, ex).summary_shape = tuple(obs.shape)
             # Only now, with every input checked, may overwrite=True delete an old checkpoint.
             ckpt_path = _ckpt.prepare_folder(checkpoint_dir, resume, overwrite)
             fp = _ckpt.fingerprint(

@@ -58,7 +58,7 @@ def calibrate(algorithm: str = "apmcabc", preset: str = "cpu", num_particles: in
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser = argparse.ArgumentParser(description=(__doc__ or "").split("\n\n")[0])
     parser.add_argument("--output", default="runs/helium")
     parser.add_argument("--algorithm", default="apmcabc", choices=["apmcabc", "abcsubsim"])
     parser.add_argument("--preset", default="cpu", choices=sorted(helium.PRESETS))

@@ -20,6 +20,7 @@ from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 __all__ = [
     "ABCAlgorithm",
@@ -30,6 +31,11 @@ __all__ = [
     "masked_percentile",
     "no_extras",
 ]
+
+
+# What a field holds: jax arrays from jitted algorithms, NumPy arrays or scalars from host ones
+# (``ABCAlgorithm.host``).
+HostArray = jax.Array | np.ndarray | np.bool_ | np.number
 
 
 class Proposal(NamedTuple):
@@ -46,9 +52,9 @@ class Proposal(NamedTuple):
         (see :func:`jaxabc.kernels.truncated_gaussian_sample`); the driver raises.
     """
 
-    thetas: jax.Array
-    active: jax.Array
-    ok: jax.Array
+    thetas: jax.Array | np.ndarray
+    active: jax.Array | np.ndarray
+    ok: HostArray
 
 
 class Info(NamedTuple):
@@ -71,11 +77,11 @@ class Info(NamedTuple):
         Effective sample size of the current posterior population.
     """
 
-    generation_done: jax.Array
-    stop: jax.Array
-    threshold: jax.Array
-    acceptance_rate: jax.Array
-    ess: jax.Array
+    generation_done: HostArray
+    stop: HostArray
+    threshold: HostArray
+    acceptance_rate: HostArray
+    ess: HostArray
 
 
 def default_stop_reason(settings: dict, info: Info) -> str:
@@ -133,7 +139,7 @@ class ABCAlgorithm(NamedTuple):
     init: Callable[..., tuple[Any, Info]]
     propose: Callable[[jax.Array, Any], Proposal]
     update: Callable[..., tuple[Any, Info]]
-    posterior: Callable[[Any], tuple[jax.Array, jax.Array]]
+    posterior: Callable[[Any], tuple[HostArray, HostArray]]
     settings: dict
     stop_reason: Callable[[dict, Info], str] = default_stop_reason
     finalize: Callable[[Any], dict] = no_extras
@@ -175,8 +181,9 @@ def make_jax_step(
     """
 
     def distances_of(key: jax.Array, proposal: Proposal) -> jax.Array:
-        keys = jax.random.split(key, proposal.thetas.shape[0])
-        summaries = jax.vmap(simulate)(keys, proposal.thetas)
+        thetas = jnp.asarray(proposal.thetas)  # a no-op under jit
+        keys = jax.random.split(key, thetas.shape[0])
+        summaries = jax.vmap(simulate)(keys, thetas)
         dist = jax.vmap(distance, in_axes=(None, 0))(observed, summaries)
         finite = jnp.all(jnp.isfinite(summaries.reshape(summaries.shape[0], -1)), axis=1)
         dist = jnp.where(finite & jnp.isfinite(dist), dist, jnp.inf)

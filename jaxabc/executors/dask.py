@@ -146,7 +146,7 @@ class DaskExecutor:
         self.n_workers = n_workers
         self.cost_model = get_cost_model(order)
         self.summary_shape = None if summary_shape is None else tuple(summary_shape)
-        self._client = client
+        self._client: Any = client
         self._own_cluster: Any = None
         self._config: Any = None
         self._worker_ids: dict[str, int] = {}
@@ -155,7 +155,7 @@ class DaskExecutor:
     def client(self) -> Any:
         """The ``distributed.Client`` (starts the local cluster if there is none)."""
         if self._client is None:
-            import dask
+            import dask.config
 
             distributed = _import_distributed()
             # Isolation starts processes from the workers, which daemonic processes may not do.

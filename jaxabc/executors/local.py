@@ -125,6 +125,7 @@ class ProcessPoolExecutor:
     def _spawn(self) -> WorkerProcess:
         worker = WorkerProcess(self._next_id, self.start_method)
         self._next_id += 1
+        assert self._payload is not None, "_start loads the simulator before spawning"
         worker.send_load(self._payload)
         self._workers.append(worker)
         return worker

@@ -356,6 +356,7 @@ class MPIExecutor:
                     if fut.running():
                         started.setdefault(fut, now)
                 # A static chunk of k tasks may take k timeouts.
+                assert self.timeout is not None  # watch implies a timeout
                 late = [f for f in pending if f in started and now - started[f] > self.timeout * len(futs[f])]
                 if late:
                     self._broken = (f"{len(late)} future(s) ran past the {self.timeout} s timeout on ranks "

@@ -185,7 +185,9 @@ class WorkerProcess:
         ctx = mp.get_context(start_method)
         self.wid = wid
         self.conn, child = ctx.Pipe(duplex=True)
-        self.proc = ctx.Process(target=_worker_main, args=(child,), daemon=True)
+        # typeshed declares Process on each concrete context, not on BaseContext.
+        self.proc = ctx.Process(  # pyright: ignore[reportAttributeAccessIssue]
+            target=_worker_main, args=(child,), daemon=True)
         self.proc.start()
         child.close()
         self.ready = False
@@ -343,6 +345,7 @@ class TaskRunner:
             if payload != self.payload:
                 self.payload, self.simulate = None, pickle.loads(payload)
                 self.payload = payload
+            assert self.simulate is not None  # loaded with the payload
             return timed_run(self.simulate, key, theta)
         if self.child is None:
             self.child = WorkerProcess(self.wid)

@@ -434,7 +434,10 @@ def build(
             "design_role": state.role[:c].tolist(),
             "holdout_coverage_95": float(state.coverage),
             "holdout_mean_squared_error": float(state.mean_squared_error),
-            "holdout_errors": np.where(np.isfinite(state.holdout_errors), state.holdout_errors, None).tolist(),
+            # numpy's stubs reject None as the fill (an object array, which is what JSON needs).
+            "holdout_errors": np.where(
+                np.isfinite(state.holdout_errors), state.holdout_errors, None
+            ).tolist(),  # pyright: ignore[reportAttributeAccessIssue]
             "lack_of_fit_ok": bool(state.lack_of_fit_ok),
             "emulator_to_noise_variance": float(state.emulator_ratio),
             "lengthscales": ls.tolist(),

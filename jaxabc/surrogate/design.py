@@ -40,7 +40,9 @@ def initial_design(seed: int, dim: int, num_points: int, num_replicates: int) ->
     group : array of int, shape (num_points + num_replicates,)
         Replicate group per row, -1 for unreplicated points.
     """
-    sobol = scipy.stats.qmc.Sobol(dim, scramble=True, seed=seed)
+    # seed= (scipy < 1.15 has no rng=) is added by scipy's rng-transition decorator, unseen by
+    # its annotations.
+    sobol = scipy.stats.qmc.Sobol(dim, scramble=True, seed=seed)  # pyright: ignore[reportCallIssue]
     # The first 2^m points of a scrambled Sobol sequence are balanced; taking the first n of
     # them keeps low discrepancy without scipy's warning about non-powers of two.
     x = sobol.random_base2(int(np.ceil(np.log2(max(num_points, 2)))))[:num_points]
@@ -81,18 +83,22 @@ class Candidates:
 def candidates(rng: np.random.Generator, dim: int, num: int, centre: np.ndarray | None = None,
                cov: np.ndarray | None = None) -> Candidates:
     """Draw ``num`` candidates; with ``centre``/``cov`` (unit-box coordinates) half are local."""
-    sobol = scipy.stats.qmc.Sobol(dim, scramble=True, seed=rng)
+    # seed= as in initial_design (scipy's decorator adds it; its annotations do not show it).
+    sobol = scipy.stats.qmc.Sobol(dim, scramble=True, seed=rng)  # pyright: ignore[reportCallIssue]
     n_uniform = num if centre is None else num // 2
     xu = sobol.random_base2(int(np.ceil(np.log2(n_uniform))))[:n_uniform]
     if centre is None:
         return Candidates(xu, np.zeros(n_uniform))
+    assert cov is not None, "a local proposal needs both centre and cov"
     cov = 4.0 * cov + 1e-8 * np.eye(dim)
     draws = rng.multivariate_normal(centre, cov, size=4 * (num - n_uniform))
     inside = np.all((draws > 0) & (draws < 1), axis=1)
     frac_inside = max(inside.mean(), 1.0 / draws.shape[0])
     xl = draws[inside][: num - n_uniform]
     x = np.concatenate([xu, xl])
-    local = scipy.stats.multivariate_normal(centre, cov).logpdf(x).reshape(-1) - np.log(frac_inside)
+    # scipy's unannotated multivariate_normal(mean=None, cov=1) makes pyright infer cov: int.
+    mvn = scipy.stats.multivariate_normal(centre, cov)  # pyright: ignore[reportArgumentType]
+    local = mvn.logpdf(x).reshape(-1) - np.log(frac_inside)
     log_q = np.logaddexp(np.log(n_uniform / len(x)), np.log(len(xl) / len(x)) + local)
     return Candidates(x, log_q)
 

@@ -155,14 +155,14 @@ def fit(x: np.ndarray, z: np.ndarray, mask: np.ndarray, starts: tuple[float, ...
     """
     if int(np.sum(mask)) < 3:
         raise ValueError(f"an emulator needs at least 3 successful simulations, got {int(np.sum(mask))}")
-    x = jnp.asarray(np.where(mask[:, None], x, 0.5))
+    xj = jnp.asarray(np.where(mask[:, None], x, 0.5))
     zj = jnp.asarray(np.where(mask[:, None], z, 0.0))
     m = jnp.asarray(mask)
-    q, d = z.shape[1], x.shape[1]
+    q, d = z.shape[1], xj.shape[1]
     bounds = [_LOG_AMP_BOUNDS, *([_LOG_LS_BOUNDS] * d), _LOG_NOISE_BOUNDS] * q
 
     def objective(flat: np.ndarray) -> tuple[float, np.ndarray]:
-        v, g = _value_and_grad(jnp.asarray(flat.reshape(q, d + 2)), x, zj, m)
+        v, g = _value_and_grad(jnp.asarray(flat.reshape(q, d + 2)), xj, zj, m)
         v = float(v)
         g = np.asarray(g, np.float64).ravel()
         if not np.isfinite(v) or not np.all(np.isfinite(g)):
@@ -177,7 +177,8 @@ def fit(x: np.ndarray, z: np.ndarray, mask: np.ndarray, starts: tuple[float, ...
                                       options={"maxiter": 300})
         if best is None or res.fun < best.fun:
             best = res
-    return _condition(jnp.asarray(best.x.reshape(q, d + 2)), x, zj, m)
+    assert best is not None, "fit needs at least one start"
+    return _condition(jnp.asarray(best.x.reshape(q, d + 2)), xj, zj, m)
 
 
 def predict(emulator: Emulator, x_new: jax.Array) -> tuple[jax.Array, jax.Array]:

@@ -161,12 +161,14 @@ def nuts(key: jax.Array, model: LikelihoodModel, x_init: jax.Array, inverse_mass
     logdensity = partial(_logdensity_u, model)
     kernel = blackjax.nuts(logdensity, step_size, inverse_mass_matrix)
 
+    # blackjax annotates init as needing rng_key (NUTS does not) and step as returning its
+    # generic State/Info protocols, which lack NUTS's position and acceptance_rate.
     def chain(k, x0):
-        state = kernel.init(jnp.log(x0) - jnp.log1p(-x0))
+        state = kernel.init(jnp.log(x0) - jnp.log1p(-x0))  # pyright: ignore[reportCallIssue]
 
         def step(state, k):
             state, info = kernel.step(k, state)
-            return state, (state.position, info.acceptance_rate)
+            return state, (state.position, info.acceptance_rate)  # pyright: ignore[reportAttributeAccessIssue]
 
         k_warm, k_run = jax.random.split(k)
         state, _ = jax.lax.scan(step, state, jax.random.split(k_warm, num_warmup))

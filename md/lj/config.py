@@ -51,8 +51,8 @@ class LJParams(NamedTuple):
 
     sigma_nm: Array
     epsilon_kj_mol: Array
-    c9_kj_mol_nm9: Array = 0.0
-    fh_scale: Array = 1.0
+    c9_kj_mol_nm9: float | Array = 0.0
+    fh_scale: float | Array = 1.0
 
 
 @dataclasses.dataclass(frozen=True)
@@ -208,7 +208,7 @@ class Diagnostics(NamedTuple):
     max_skin_ratio: Array
     nonfinite: Array
     box_too_small: Array
-    rebuilds: Array = 0
+    rebuilds: int | Array = 0
 
     def failed(self) -> Array:
         """True when the trajectory cannot be trusted (for any reason but a fixable overflow)."""
@@ -241,9 +241,9 @@ class Carry(NamedTuple):
     neighbors: Any
     unwrapped: Array
     diagnostics: Diagnostics
-    strain_derivative: Array = 0.0
+    strain_derivative: float | Array = 0.0
     list_reference: Array | None = None
-    list_side: Array = 0.0
+    list_side: float | Array = 0.0
 
 
 class Thermo(NamedTuple):

@@ -57,7 +57,7 @@ def feynman_hibbs_correction(
 
 
 def axilrod_teller_energy(
-    vectors: Array, mask: Array, c9: Array, cutoff_nm: float
+    vectors: Array, mask: Array, c9: float | Array, cutoff_nm: float
 ) -> Array:
     """Axilrod-Teller triple-dipole energy summed over triples, kJ/mol.
 
@@ -160,6 +160,8 @@ def make_energy_fn(
         params: LJParams | None = None,
         **unused: Any,
     ) -> Array:
+        # Optional only so jax-md can call with keyword arguments; the engine always passes it.
+        assert params is not None, "energy_fn needs params=LJParams(...)"
         vectors, valid = _neighbor_vectors(position, idx, box, perturbation)
         r2 = jnp.sum(vectors * vectors, axis=-1)
         inside = valid & (r2 < cutoff_nm**2)
@@ -185,6 +187,7 @@ def make_energy_fn(
         ``F_i = sum_j 2 u'(r_ij^2) r_ij`` and ``dU/d eps = sum_pairs 2 r^2 u'(r^2)`` for the
         isotropic strain ``r -> (1 + eps) r``.
         """
+        assert params is not None, "force_and_strain needs params=LJParams(...)"
         if idx is None:
             # Small boxes: all pairs, one (N, N) array per component (see md.lj.dense).
             return all_pairs_force_and_strain(pair_energy, cutoff_nm, position, box, params)

@@ -126,11 +126,16 @@ class LJEngine:
         """``"dense"`` when the three-body term needs it, else the configured format."""
         return "dense" if self.config.three_body else self.config.neighbor_format
 
+    def _template(self) -> NeighborList:
+        # Set by allocate_neighbors, which __init__ calls whenever the engine uses a list.
+        assert self.neighbor_template is not None, "this engine has no neighbour list template"
+        return self.neighbor_template
+
     def _build(self, position: Array, box: Array) -> NeighborList:
-        return build_neighbor_list(self.neighbor_template.spec, position, box)
+        return build_neighbor_list(self._template().spec, position, box)
 
     def allocate_neighbors(
-        self, position: Array | None = None, previous: NeighborSpec | None = None
+        self, position: Array | np.ndarray | None = None, previous: NeighborSpec | None = None
     ) -> NeighborList:
         """Size a neighbour list on the host and make it the engine's template.
 
@@ -168,13 +173,13 @@ class LJEngine:
         )
         return self.neighbor_template
 
-    def reallocate(self, position: Array) -> NeighborList:
+    def reallocate(self, position: Array | np.ndarray) -> NeighborList:
         """Replace the template by a larger one sized on ``position`` (N, 3), host only.
 
         Every capacity at least doubles (the old ones are added as head-room).  Returns the new
         template; rebuild members' lists from it with :meth:`rebuild_neighbors`.
         """
-        return self.allocate_neighbors(position, previous=self.neighbor_template.spec)
+        return self.allocate_neighbors(position, previous=self._template().spec)
 
     def rebuild_neighbors(self, carry: Carry, neighbors: NeighborList | None = None) -> Carry:
         """Rebuild one member's list with the spec of ``neighbors`` (traced; vmap over a batch).
@@ -183,7 +188,7 @@ class LJEngine:
         """
         if self.neighbor_fn is None:
             return carry
-        template = self.neighbor_template if neighbors is None else neighbors
+        template = self._template() if neighbors is None else neighbors
         box = self.box(carry.md)
         nbrs = template.update(carry.md.position, box=box)
         diag = carry.diagnostics._replace(rebuilds=carry.diagnostics.rebuilds + 1)
@@ -302,7 +307,7 @@ class LJEngine:
         # None means all pairs (see _neighbor_vectors).
         return None if carry_neighbors is None else carry_neighbors.idx
 
-    def _step_kwargs(self, idx: Array, params: LJParams) -> dict:
+    def _step_kwargs(self, idx: Array | None, params: LJParams) -> dict:
         kwargs = {"idx": idx, "params": params}
         if self.config.ensemble != "npt":
             # npt_nose_hoover passes its own current box; the fixed-box integrators need it.
@@ -341,7 +346,7 @@ class LJEngine:
             position = jnp.mod(lattice + jitter, 1.0)
         position = position.astype(jnp.float32)
         if self.neighbor_fn is not None:
-            template = self.neighbor_template if neighbors is None else neighbors
+            template = self._template() if neighbors is None else neighbors
             nbrs = template.update(position, box=self.box0)
         else:
             nbrs = None
@@ -385,6 +390,7 @@ class LJEngine:
         nbrs = carry.neighbors
         overflow = carry.diagnostics.overflow
         ref, side_ref = carry.list_reference, carry.list_side
+        assert ref is not None, "init sets list_reference"
         rebuilds = carry.diagnostics.rebuilds
         if nbrs is not None:
 

@@ -48,7 +48,7 @@ class HalfPairs(NamedTuple):
     j: Array
 
 
-def _box_diagonal(box: Array) -> Array:
+def _box_diagonal(box: float | Array) -> Array:
     """Side lengths (3,) of an orthorhombic box given as (3, 3), (3,) or a scalar."""
     box = jnp.asarray(box)
     if box.ndim == 2:

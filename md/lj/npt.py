@@ -67,11 +67,11 @@ def npt_step(engine: Any, state: Any, strain: Array, **kwargs: Any) -> tuple[Any
     def sinhx_x(x: Array) -> Array:
         return 1 + x**2 / 6 + x**4 / 120 + x**6 / 5040 + x**8 / 362_880 + x**10 / 39_916_800
 
-    def box_force(alpha: float, vol: Array, dudv: Array, ke2: Array):
+    def box_force(alpha: float, vol: float | Array, dudv: Array, ke2: Array):
         # ke2 = sum p^2 / m = 2 KE, passed in: the thermostat already tracks it.
         return alpha * ke2 - dudv - pressure * vol * dim
 
-    def exp_il1(box: Array, r: Array, v: Array, v_b: Array) -> Array:
+    def exp_il1(box: float | Array, r: Array, v: Array, v_b: Array) -> Array:
         x = v_b * dt
         x_2 = x / 2
         # jax-md's shift_fn: dR in real units, transformed by the inverse box and wrapped
