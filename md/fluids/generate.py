@@ -51,7 +51,7 @@ def _write(path: Path, header: list[str], rows: list[list]) -> None:
             w.writerow([f"{v:.10g}" if isinstance(v, float) else v for v in row])
 
 
-def generate(fluid: str, data_dir: Path = DATA) -> dict[str, int]:
+def generate(fluid: str, data_dir: Path = DATA) -> dict[str, int | str]:
     """Write one fluid's CSV files and PROVENANCE.md under ``data_dir / fluid``; returns row counts."""
     import CoolProp
     from CoolProp.CoolProp import PropsSI
@@ -60,7 +60,7 @@ def generate(fluid: str, data_dir: Path = DATA) -> dict[str, int]:
     name = cfg["coolprop"]
     out = Path(data_dir) / fluid
     out.mkdir(parents=True, exist_ok=True)
-    state = CoolProp.AbstractState("HEOS", name)
+    state = CoolProp.AbstractState("HEOS", name)  # pyright: ignore[reportPrivateImportUsage] (exported by the compiled module)
     r_gas = state.gas_constant()
     rho_c = PropsSI("rhomolar_critical", name)
 

@@ -59,7 +59,7 @@ def b2_reduced(temperature: float, d_star: float = 0.0) -> float:
         raise ValueError("d_star must be >= 0: the FH term with a negative coefficient diverges to -inf at r -> 0")
 
     def f(r: float) -> float:
-        return (np.expm1(-lj_fh_potential(r, d_star) / temperature)) * r * r
+        return float(np.expm1(-lj_fh_potential(np.asarray(r), d_star) / temperature)) * r * r
 
     # The core (r < 0.5) contributes -1 * r^2 to high accuracy: exp(-u/T) underflows there.
     core = -(0.5**3) / 3.0
