@@ -53,7 +53,7 @@ PEERS = {
     "pyabc_abcsmc": {"requirement": "pyabc>=0.13,<0.14", "module": "pyabc"},
 }
 
-ELFI_SCRIPT = r'''
+ELFI_SCRIPT = r"""
 import time
 t_start = time.perf_counter()
 import json, sys
@@ -80,9 +80,9 @@ w = np.ones(len(x)) if res.weights is None else np.asarray(res.weights, float)
 print(json.dumps({"particles": x.tolist(), "weights": w.tolist(), "num_simulations": int(res.n_sim),
                   "import_s": t_import, "run_s": run_s, "version": elfi.__version__,
                   "numpy": np.__version__}))
-'''
+"""
 
-PYABC_SCRIPT = r'''
+PYABC_SCRIPT = r"""
 import time
 t_start = time.perf_counter()
 import json, logging, os, sys, tempfile
@@ -114,9 +114,9 @@ print(json.dumps({"particles": df[["a", "b"]].to_numpy().tolist(),
                   "weights": np.asarray(w, float).tolist(), "num_simulations": sims,
                   "import_s": t_import, "run_s": run_s, "version": pyabc.__version__,
                   "numpy": np.__version__}))
-'''
+"""
 
-JAXABC_SCRIPT = r'''
+JAXABC_SCRIPT = r"""
 import time
 t_start = time.perf_counter()
 import json, sys
@@ -145,9 +145,9 @@ for i in range(repeats):
                 "since_start_s": time.perf_counter() - t_start,
                 "iterations": int(r.records["iteration"].max()) + 1})
 print(json.dumps(out))
-'''
+"""
 
-PER_SIMULATION_SCRIPT = r'''
+PER_SIMULATION_SCRIPT = r"""
 import json, sys
 import numpy as np
 import jax
@@ -172,7 +172,7 @@ for name, kw in (("apmcabc", dict(num_steps=7, acceptance_cutoff=0.0)),
                  "thresholds": r.thresholds.tolist()}
 out["pmc_over_apmc"] = out["pmcabc"]["us_per_simulation"] / out["apmcabc"]["us_per_simulation"]
 print(json.dumps(out))
-'''
+"""
 
 
 def make_venv(cache: Path, name: str, requirement: str, module: str) -> dict:
@@ -186,8 +186,11 @@ def make_venv(cache: Path, name: str, requirement: str, module: str) -> dict:
     subprocess.run([sys.executable, "-m", "venv", str(venv)], check=True)
     # The host's pip installs into the venv: the venv's own bundled pip may be too old for
     # some packages' metadata.
-    pip = subprocess.run([sys.executable, "-m", "pip", "--python", str(python), "install", "-q",
-                          requirement], capture_output=True, text=True)
+    pip = subprocess.run(
+        [sys.executable, "-m", "pip", "--python", str(python), "install", "-q", requirement],
+        capture_output=True,
+        text=True,
+    )
     if pip.returncode != 0:
         return {"error": f"pip install {requirement} failed: {pip.stderr.strip()[-500:]}"}
     # The first import byte-compiles the package; do it here so that timed runs are cold
@@ -202,8 +205,7 @@ def run_process(argv: list[str], timeout: float, env: dict | None = None) -> dic
     """Run one cold process; its wall time includes interpreter start and imports."""
     t0 = time.perf_counter()
     try:
-        out = subprocess.run(argv, capture_output=True, text=True, timeout=timeout,
-                             env={**os.environ, **(env or {})})
+        out = subprocess.run(argv, capture_output=True, text=True, timeout=timeout, env={**os.environ, **(env or {})})
     except subprocess.TimeoutExpired:
         return {"error": f"did not finish in {timeout:.0f} s", "process_wall_s": timeout}
     wall = time.perf_counter() - t0
@@ -219,19 +221,26 @@ def accuracy(particles: list, weights: list, final_threshold: float) -> dict:
     mean = w @ x
     cov = np.cov(x, aweights=w, rowvar=False)
     abc_cov = (1 + final_threshold**2 / 4) * np.eye(2)
-    return {"mean": mean.tolist(), "cov": cov.tolist(),
-            "mean_error": float(np.linalg.norm(mean)),
-            "cov_error_vs_exact": float(np.linalg.norm(cov - np.eye(2))),
-            "cov_error_vs_abc_limit": float(np.linalg.norm(cov - abc_cov)),
-            "ess": float(1.0 / np.sum(w**2))}
+    return {
+        "mean": mean.tolist(),
+        "cov": cov.tolist(),
+        "mean_error": float(np.linalg.norm(mean)),
+        "cov_error_vs_exact": float(np.linalg.norm(cov - np.eye(2))),
+        "cov_error_vs_abc_limit": float(np.linalg.norm(cov - abc_cov)),
+        "ess": float(1.0 / np.sum(w**2)),
+    }
 
 
 def summarise(output: dict, wall: float, final_threshold: float) -> dict:
-    row = {"num_simulations": output["num_simulations"], "process_wall_s": wall,
-           "run_s": output["run_s"], "import_s": output["import_s"],
-           "us_per_simulation_whole_process": 1e6 * wall / output["num_simulations"],
-           "us_per_simulation_run": 1e6 * output["run_s"] / output["num_simulations"],
-           **accuracy(output["particles"], output["weights"], final_threshold)}
+    row = {
+        "num_simulations": output["num_simulations"],
+        "process_wall_s": wall,
+        "run_s": output["run_s"],
+        "import_s": output["import_s"],
+        "us_per_simulation_whole_process": 1e6 * wall / output["num_simulations"],
+        "us_per_simulation_run": 1e6 * output["run_s"] / output["num_simulations"],
+        **accuracy(output["particles"], output["weights"], final_threshold),
+    }
     for key in ("version", "numpy", "iterations"):
         if key in output:
             row[key] = output[key]
@@ -244,37 +253,37 @@ def jaxabc_rows(n: int, seed: int, thresholds: list, timeout: float, cache: Path
     script = ["-c", JAXABC_SCRIPT, str(n), str(seed), json.dumps(thresholds)]
     xla = Path(tempfile.mkdtemp(prefix="jaxabc-xla-", dir=cache))
     try:
-        cold = run_process([sys.executable, *script, "fused", "2"], timeout,
-                           {**env, "JAXABC_COMPILATION_CACHE": str(xla)})
+        cold = run_process(
+            [sys.executable, *script, "fused", "2"], timeout, {**env, "JAXABC_COMPILATION_CACHE": str(xla)}
+        )
         if "error" in cold:
             rows["fused_cold"] = cold
         else:
             first, second = cold["output"]
             # The first run's process wall: everything up to its end (start, imports, run).
-            rows["fused_cold"] = summarise(first, cold["process_wall_s"] - second["run_s"],
-                                           thresholds[-1])
+            rows["fused_cold"] = summarise(first, cold["process_wall_s"] - second["run_s"], thresholds[-1])
             rows["fused_warm"] = summarise(second, second["run_s"], thresholds[-1])
             rows["fused_warm"]["note"] = "second run in the same process: compiled chunks reused"
-        cached = run_process([sys.executable, *script, "fused", "1"], timeout,
-                             {**env, "JAXABC_COMPILATION_CACHE": str(xla)})
+        cached = run_process(
+            [sys.executable, *script, "fused", "1"], timeout, {**env, "JAXABC_COMPILATION_CACHE": str(xla)}
+        )
         rows["fused_cold_persistent_cache"] = (
-            cached if "error" in cached
-            else summarise(cached["output"][0], cached["process_wall_s"], thresholds[-1]))
+            cached if "error" in cached else summarise(cached["output"][0], cached["process_wall_s"], thresholds[-1])
+        )
     finally:
         shutil.rmtree(xla, ignore_errors=True)
     fast = run_process([sys.executable, *script, "fused_fast_compile", "1"], timeout, env)
     rows["fused_cold_fast_compile"] = (
-        fast if "error" in fast
-        else summarise(fast["output"][0], fast["process_wall_s"], thresholds[-1]))
+        fast if "error" in fast else summarise(fast["output"][0], fast["process_wall_s"], thresholds[-1])
+    )
     host = run_process([sys.executable, *script, "host", "1"], timeout, env)
-    rows["host_driver_cold"] = (host if "error" in host
-                                else summarise(host["output"][0], host["process_wall_s"],
-                                               thresholds[-1]))
+    rows["host_driver_cold"] = (
+        host if "error" in host else summarise(host["output"][0], host["process_wall_s"], thresholds[-1])
+    )
     return rows
 
 
-def peer_row(python: str, script: str, n: int, seed: int, thresholds: list,
-             timeout: float) -> dict:
+def peer_row(python: str, script: str, n: int, seed: int, thresholds: list, timeout: float) -> dict:
     out = run_process([python, "-c", script, str(n), str(seed), json.dumps(thresholds)], timeout)
     if "error" in out:
         return out
@@ -286,58 +295,75 @@ def main() -> None:
     parser.add_argument("--sizes", type=int, nargs="+", default=[1000, 5000])
     parser.add_argument("--thresholds", type=float, nargs="+", default=[6.0, 3.0, 1.5, 0.75])
     parser.add_argument("--seed", type=int, default=1)
-    parser.add_argument("--timeout", type=float, default=300,
-                        help="seconds per process before it is reported as not finished")
-    parser.add_argument("--cache-dir", type=Path,
-                        default=Path.home() / ".cache" / "jaxabc_benchmarks",
-                        help="where the peers' virtual environments are made and kept")
+    parser.add_argument(
+        "--timeout", type=float, default=300, help="seconds per process before it is reported as not finished"
+    )
+    parser.add_argument(
+        "--cache-dir",
+        type=Path,
+        default=Path.home() / ".cache" / "jaxabc_benchmarks",
+        help="where the peers' virtual environments are made and kept",
+    )
     parser.add_argument("--skip-peers", action="store_true")
     parser.add_argument("--output", type=Path, default=None, help="default: results/abc_overhead.json")
     parser.add_argument("--note", default="", help="stored in the JSON (e.g. machine load)")
     args = parser.parse_args()
     args.cache_dir.mkdir(parents=True, exist_ok=True)
     t_start = time.perf_counter()
-    envs = {} if args.skip_peers else {
-        name: make_venv(args.cache_dir, name, spec["requirement"], spec["module"])
-        for name, spec in PEERS.items()}
+    envs = (
+        {}
+        if args.skip_peers
+        else {
+            name: make_venv(args.cache_dir, name, spec["requirement"], spec["module"]) for name, spec in PEERS.items()
+        }
+    )
     scripts = {"elfi_smc": ELFI_SCRIPT, "pyabc_abcsmc": PYABC_SCRIPT}
     rows = []
     for n in args.sizes:
-        row: dict = {"num_particles": n, "jaxabc": jaxabc_rows(n, args.seed, args.thresholds,
-                                                               args.timeout, args.cache_dir)}
+        row: dict = {
+            "num_particles": n,
+            "jaxabc": jaxabc_rows(n, args.seed, args.thresholds, args.timeout, args.cache_dir),
+        }
         for name, env in envs.items():
-            row[name] = (env if "error" in env else
-                         peer_row(env["python"], scripts[name], n, args.seed, args.thresholds,
-                                  args.timeout))
+            row[name] = (
+                env
+                if "error" in env
+                else peer_row(env["python"], scripts[name], n, args.seed, args.thresholds, args.timeout)
+            )
         ratios = {}
         for peer in envs:
             for mode, jrow in row["jaxabc"].items():
-                if "process_wall_s" in jrow and "num_simulations" in row[peer] \
-                        and "num_simulations" in jrow:
+                if "process_wall_s" in jrow and "num_simulations" in row[peer] and "num_simulations" in jrow:
                     ratios[f"{peer}_over_jaxabc_{mode}_per_simulation"] = (
-                        row[peer]["us_per_simulation_whole_process"]
-                        / jrow["us_per_simulation_whole_process"])
+                        row[peer]["us_per_simulation_whole_process"] / jrow["us_per_simulation_whole_process"]
+                    )
                     ratios[f"{peer}_over_jaxabc_{mode}_whole_run"] = (
-                        row[peer]["process_wall_s"] / jrow["process_wall_s"])
+                        row[peer]["process_wall_s"] / jrow["process_wall_s"]
+                    )
         row["ratios"] = ratios
         print(json.dumps(row, default=float)[:2000], flush=True)
         rows.append(row)
-    per_sim = run_process([sys.executable, "-c", PER_SIMULATION_SCRIPT, str(max(args.sizes))],
-                          args.timeout * 2, {"PYTHONPATH": str(ROOT)})
+    per_sim = run_process(
+        [sys.executable, "-c", PER_SIMULATION_SCRIPT, str(max(args.sizes))], args.timeout * 2, {"PYTHONPATH": str(ROOT)}
+    )
     payload = {
         "description": __doc__.split("\n\n")[0],
-        "problem": {"simulator": "x = theta + N(0, I_2)", "observed": [0.0, 0.0],
-                    "prior": "U(-10, 10)^2", "distance": "euclidean",
-                    "thresholds": args.thresholds, "exact_posterior": "N(0, I)",
-                    "abc_limit_covariance": f"(1 + {args.thresholds[-1]}^2 / 4) I"},
+        "problem": {
+            "simulator": "x = theta + N(0, I_2)",
+            "observed": [0.0, 0.0],
+            "prior": "U(-10, 10)^2",
+            "distance": "euclidean",
+            "thresholds": args.thresholds,
+            "exact_posterior": "N(0, I)",
+            "abc_limit_covariance": f"(1 + {args.thresholds[-1]}^2 / 4) I",
+        },
         "peers": {name: {**PEERS[name], **envs.get(name, {})} for name in PEERS},
         "abcpy": "not run: ABCpy 0.6.3's glmnet dependency does not build here",
         "rows": rows,
         "pmc_vs_apmc_host_driver_per_simulation": per_sim.get("output", per_sim),
         "benchmark_wall_s": time.perf_counter() - t_start,
         "note": args.note,
-        "targets": {"jaxabc_fused_vs_peers_end_to_end_cold": ">= 10x",
-                    "pmc_over_apmc_per_simulation_at_N5000": "<= 2"},
+        "targets": {"jaxabc_fused_vs_peers_end_to_end_cold": ">= 10x", "pmc_over_apmc_per_simulation_at_N5000": "<= 2"},
     }
     path = write_result(args.output or "abc_overhead", payload)
     print(f"wrote {path}")

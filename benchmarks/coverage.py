@@ -67,8 +67,9 @@ def main(argv: list[str] | None = None) -> dict:
     parser.add_argument("--rejection-quantile", type=float, default=0.001)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--output", type=Path, default=None, help="default: results/coverage.json")
-    parser.add_argument("--quick", action="store_true",
-                        help="reproduction check: 40 data sets, N = 100 only, written to results/quick/")
+    parser.add_argument(
+        "--quick", action="store_true", help="reproduction check: 40 data sets, N = 100 only, written to results/quick/"
+    )
     args = parser.parse_args(argv)
     if args.quick:
         args.datasets, args.particles = 40, [100]
@@ -76,31 +77,50 @@ def main(argv: list[str] | None = None) -> dict:
         args.output = RESULTS / ("quick" if args.quick else "") / "coverage.json"
 
     prior = jaxabc.Uniform([-10.0, -10.0], [10.0, 10.0], names=("a", "b"))
-    out = {"problem": "x = theta + L z, Cov = [[1, 0.8], [0.8, 1]], prior U[-10, 10]^2, euclidean distance; "
-                      "data uniform in [-6, 6]^2, truth from the exact posterior N(x, Sigma)",
-           "levels": list(LEVELS), "cases": []}
+    out = {
+        "problem": "x = theta + L z, Cov = [[1, 0.8], [0.8, 1]], prior U[-10, 10]^2, euclidean distance; "
+        "data uniform in [-6, 6]^2, truth from the exact posterior N(x, Sigma)",
+        "levels": list(LEVELS),
+        "cases": [],
+    }
     for n in args.particles:
         kept = int(np.ceil(args.alpha * n))
         for name, kwargs in (
-            ("apmcabc", dict(num_particles=n, num_steps=args.steps, alpha=args.alpha,
-                             acceptance_cutoff=args.acceptance_cutoff)),
+            (
+                "apmcabc",
+                dict(num_particles=n, num_steps=args.steps, alpha=args.alpha, acceptance_cutoff=args.acceptance_cutoff),
+            ),
             ("rejection", dict(num_particles=kept, num_steps=1, quantile=args.rejection_quantile)),
         ):
             t0 = time.perf_counter()
-            study = jaxabc.coverage_study(name, correlated_simulate, prior, num_datasets=args.datasets,
-                                          seed=args.seed, sample_data=correlated_truth_and_data, **kwargs)
-            entry = {"algorithm": name, **study.to_dict(), "seconds": time.perf_counter() - t0,
-                     "abc_posterior_hpd_coverage": abc_prediction(study.thresholds, args.seed)}
+            study = jaxabc.coverage_study(
+                name,
+                correlated_simulate,
+                prior,
+                num_datasets=args.datasets,
+                seed=args.seed,
+                sample_data=correlated_truth_and_data,
+                **kwargs,
+            )
+            entry = {
+                "algorithm": name,
+                **study.to_dict(),
+                "seconds": time.perf_counter() - t0,
+                "abc_posterior_hpd_coverage": abc_prediction(study.thresholds, args.seed),
+            }
             entry["hpd_coverage"] = {str(q): study.hpd_coverage(q) for q in LEVELS}
             out["cases"].append(entry)
             hpd = entry["hpd_coverage"]
-            print(f"{name:9s} N={kwargs['num_particles']:5d} posterior {entry['median_posterior_size']:.0f} "
-                  f"(ESS {entry['median_ess']:.1f}), eps {entry['median_threshold']:.3f}: HPD 50/90/95 "
-                  f"{hpd['0.5'][0]:.3f}/{hpd['0.9'][0]:.3f}/{hpd['0.95'][0]:.3f} "
-                  f"(ABC posterior {entry['abc_posterior_hpd_coverage']['0.5']:.3f}/"
-                  f"{entry['abc_posterior_hpd_coverage']['0.9']:.3f}/"
-                  f"{entry['abc_posterior_hpd_coverage']['0.95']:.3f}), 95 % intervals "
-                  f"{np.round(entry['interval_coverage']['0.95'][0], 3).tolist()}", flush=True)
+            print(
+                f"{name:9s} N={kwargs['num_particles']:5d} posterior {entry['median_posterior_size']:.0f} "
+                f"(ESS {entry['median_ess']:.1f}), eps {entry['median_threshold']:.3f}: HPD 50/90/95 "
+                f"{hpd['0.5'][0]:.3f}/{hpd['0.9'][0]:.3f}/{hpd['0.95'][0]:.3f} "
+                f"(ABC posterior {entry['abc_posterior_hpd_coverage']['0.5']:.3f}/"
+                f"{entry['abc_posterior_hpd_coverage']['0.9']:.3f}/"
+                f"{entry['abc_posterior_hpd_coverage']['0.95']:.3f}), 95 % intervals "
+                f"{np.round(entry['interval_coverage']['0.95'][0], 3).tolist()}",
+                flush=True,
+            )
     write_result(args.output, out, command=None if argv is None else command_line([__file__, *argv]))
     print(f"wrote {args.output}")
     return out

@@ -67,19 +67,31 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--num-draws", type=int, default=100)
     p.add_argument("--num-replicates", type=int, default=64)
     p.add_argument("--num-gradient-replicates", type=int, default=16)
-    p.add_argument("--base-result", type=Path, default=None,
-                   help="reuse a saved base calibration (.npz); give --held-out to match what it fitted")
-    p.add_argument("--held-out", choices=("diffusion+density", "density"), default="diffusion+density",
-                   help="summaries never fitted (density: for a base fit that used S9, such as "
-                        "water_calibration.py's robust runs)")
+    p.add_argument(
+        "--base-result",
+        type=Path,
+        default=None,
+        help="reuse a saved base calibration (.npz); give --held-out to match what it fitted",
+    )
+    p.add_argument(
+        "--held-out",
+        choices=("diffusion+density", "density"),
+        default="diffusion+density",
+        help="summaries never fitted (density: for a base fit that used S9, such as "
+        "water_calibration.py's robust runs)",
+    )
     p.add_argument("--num-refit-iterations", type=int, default=3, help="Gauss-Newton steps before testing")
-    p.add_argument("--refit-particles", type=int, default=None,
-                   help="particles of the two refits (default --num-particles)")
+    p.add_argument(
+        "--refit-particles", type=int, default=None, help="particles of the two refits (default --num-particles)"
+    )
     p.add_argument("--refit-steps", type=int, default=None, help="APMCABC step cap of the refits")
     p.add_argument("--refit-alpha", type=float, default=None, help="APMCABC alpha of the refits (default 0.1)")
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--tiny", action="store_true",
-                   help="smoke run: tiny budgets and 5 ps GROMACS runs, written to results/quick/ (the quick mode)")
+    p.add_argument(
+        "--tiny",
+        action="store_true",
+        help="smoke run: tiny budgets and 5 ps GROMACS runs, written to results/quick/ (the quick mode)",
+    )
     return p.parse_args(argv)
 
 
@@ -103,8 +115,13 @@ def main(argv=None) -> dict:
     held_out[[8, 9] if args.held_out == "diffusion+density" else [9]] = True
     measured = observed != 0.0  # X-ray: S1..S3 unmeasured (0.0 in both vectors)
     fitted = measured & ~held_out
-    groups = {"g_OH (S1-S3)": [0, 1, 2], "g_OO first shell (S5-S8)": [4, 5, 6, 7], "g_OO overall (S4)": [3],
-              "self-diffusion": [8], "density": [9]}
+    groups = {
+        "g_OH (S1-S3)": [0, 1, 2],
+        "g_OO first shell (S5-S8)": [4, 5, 6, 7],
+        "g_OO overall (S4)": [3],
+        "self-diffusion": [8],
+        "density": [9],
+    }
     executor = jaxabc.ProcessPoolExecutor(args.workers) if args.workers else "process_pool"
     prior = jaxabc.Uniform(PRIOR_LOW, PRIOR_HIGH, names=("sigma_ow_nm", "epsilon_ow_kj_mol"), units=("nm", "kJ/mol"))
     t0 = time.perf_counter()
@@ -112,18 +129,38 @@ def main(argv=None) -> dict:
         base = jaxabc.load(args.base_result)
     else:
         scale = np.where(fitted, np.abs(observed) + 1e-12, 1.0)[fitted]
-        base = jaxabc.run("apmcabc", BaseWater(simulate, len(catalogue), fitted), prior, observed[fitted] / 1.0,
-                          num_particles=args.num_particles, num_steps=args.num_steps,
-                          distance=jaxabc.distances.standardized_euclidean(scale), seed=args.seed,
-                          executor=executor, max_failure_fraction=0.95)
+        base = jaxabc.run(
+            "apmcabc",
+            BaseWater(simulate, len(catalogue), fitted),
+            prior,
+            observed[fitted] / 1.0,
+            num_particles=args.num_particles,
+            num_steps=args.num_steps,
+            distance=jaxabc.distances.standardized_euclidean(scale),
+            seed=args.seed,
+            executor=executor,
+            max_failure_fraction=0.95,
+        )
     report = critique(
-        base, simulate, observed, catalogue, held_out=held_out, seed=args.seed, summary_names=names, groups=groups,
-        num_draws=args.num_draws, num_replicates=args.num_replicates,
+        base,
+        simulate,
+        observed,
+        catalogue,
+        held_out=held_out,
+        seed=args.seed,
+        summary_names=names,
+        groups=groups,
+        num_draws=args.num_draws,
+        num_replicates=args.num_replicates,
         num_gradient_replicates=args.num_gradient_replicates,
-        num_refit_iterations=1 if args.tiny else args.num_refit_iterations, executor=executor,
-        extend_options=dict(num_particles=args.refit_particles or args.num_particles,
-                            num_steps=args.refit_steps or args.num_steps, max_failure_fraction=0.95,
-                            **({"alpha": args.refit_alpha} if args.refit_alpha else {})),
+        num_refit_iterations=1 if args.tiny else args.num_refit_iterations,
+        executor=executor,
+        extend_options=dict(
+            num_particles=args.refit_particles or args.num_particles,
+            num_steps=args.refit_steps or args.num_steps,
+            max_failure_fraction=0.95,
+            **({"alpha": args.refit_alpha} if args.refit_alpha else {}),
+        ),
     )
     tag = "" if args.data == "xray" else f"_{args.data}"
     folder = QUICK_RESULTS if args.tiny else RESULTS
@@ -137,16 +174,31 @@ def main(argv=None) -> dict:
         "observed": observed.tolist(),
         "held_out": [n for n, h in zip(names, held_out, strict=True) if h],
         "base_result": str(args.base_result) if args.base_result else "fitted here (APMCABC, standardised |S|)",
-        "budget": {k: getattr(args, k) for k in ("num_particles", "num_steps", "num_draws", "num_replicates",
-                                                  "num_gradient_replicates", "num_refit_iterations",
-                                                  "refit_particles", "refit_steps", "refit_alpha", "workers")},
+        "budget": {
+            k: getattr(args, k)
+            for k in (
+                "num_particles",
+                "num_steps",
+                "num_draws",
+                "num_replicates",
+                "num_gradient_replicates",
+                "num_refit_iterations",
+                "refit_particles",
+                "refit_steps",
+                "refit_alpha",
+                "workers",
+            )
+        },
         "wall_time_s": time.perf_counter() - t0,
         **report.to_dict(),
     }
     declare_input(datasets.DATA_DIR)
-    write_result(folder / f"criticism_water{tag}.json", payload,
-                 inputs=[args.base_result] if args.base_result else [],
-                 command=command_line([__file__, *(argv if argv is not None else sys.argv[1:])]))
+    write_result(
+        folder / f"criticism_water{tag}.json",
+        payload,
+        inputs=[args.base_result] if args.base_result else [],
+        command=command_line([__file__, *(argv if argv is not None else sys.argv[1:])]),
+    )
     print(report.verdict)
     return payload
 

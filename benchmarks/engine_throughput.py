@@ -48,8 +48,9 @@ SINGLE_CORE = "--single-core" in sys.argv or SMALL_SYSTEM
 USER_ENV = dict(os.environ)  # the main job runs as a user runs it, without the flags below
 if SINGLE_CORE:
     # Before JAX is imported: one XLA thread, and this process plus its children on core 0.
-    os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "")
-                               + " --xla_cpu_multi_thread_eigen=false intra_op_parallelism_threads=1")
+    os.environ["XLA_FLAGS"] = (
+        os.environ.get("XLA_FLAGS", "") + " --xla_cpu_multi_thread_eigen=false intra_op_parallelism_threads=1"
+    )
     if not SMALL_SYSTEM:
         os.sched_setaffinity(0, {0})
 
@@ -62,9 +63,17 @@ from md import helium, lammps_reference  # noqa: E402
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import write_result  # noqa: E402
 
-RESULTS = Path(__file__).resolve().parent / "results" / (
-    "engine_throughput_small_system.json" if SMALL_SYSTEM
-    else "engine_throughput_single_core.json" if SINGLE_CORE else "engine_throughput.json")
+RESULTS = (
+    Path(__file__).resolve().parent
+    / "results"
+    / (
+        "engine_throughput_small_system.json"
+        if SMALL_SYSTEM
+        else "engine_throughput_single_core.json"
+        if SINGLE_CORE
+        else "engine_throughput.json"
+    )
+)
 
 
 def versions() -> dict:
@@ -86,13 +95,21 @@ def versions() -> dict:
 def neighbour_strategy(preset: helium.HeliumPreset) -> dict:
     """How the jax-md engine of a preset finds pairs (recorded with every timing)."""
     engine = helium.make_engine(preset)
-    out = {"use_neighbor_list": preset.use_neighbor_list, "rebuild_every": preset.rebuild_every,
-           "rebuild": preset.rebuild}
+    out = {
+        "use_neighbor_list": preset.use_neighbor_list,
+        "rebuild_every": preset.rebuild_every,
+        "rebuild": preset.rebuild,
+    }
     if engine.neighbor_template is not None:
         spec = engine.neighbor_template.spec
-        out.update(skin_nm=preset.skin_nm, format=spec.format,
-                   cells_per_side=spec.cells_per_side, pair_capacity=spec.capacity,
-                   candidate_capacity=spec.candidate_capacity, cell_capacity=spec.cell_capacity)
+        out.update(
+            skin_nm=preset.skin_nm,
+            format=spec.format,
+            cells_per_side=spec.cells_per_side,
+            pair_capacity=spec.capacity,
+            candidate_capacity=spec.candidate_capacity,
+            cell_capacity=spec.cell_capacity,
+        )
     return out
 
 
@@ -106,9 +123,7 @@ def time_jax_md(preset: helium.HeliumPreset, batch: int, num_blocks: int) -> dic
 
     @jax.jit
     def segment(carry, thetas):
-        return helium.batched(
-            lambda c, t: engine.run(c, helium._params(t), num_blocks, 1)[0], width
-        )(carry, thetas)
+        return helium.batched(lambda c, t: engine.run(c, helium._params(t), num_blocks, 1)[0], width)(carry, thetas)
 
     carry = init(keys, thetas)
     t0 = time.perf_counter()
@@ -147,8 +162,10 @@ def time_lammps(preset: helium.HeliumPreset, steps: int) -> dict:
     """Wall time of one LAMMPS run of ``steps`` NPT steps (startup included, thermo sparse)."""
     every = steps // 10
     p = helium.get_preset(
-        preset, equilibration_ps=0.0, sample_every_ps=every * preset.dt_ps, production_ps=steps
-        * preset.dt_ps,
+        preset,
+        equilibration_ps=0.0,
+        sample_every_ps=every * preset.dt_ps,
+        production_ps=steps * preset.dt_ps,
     )
     run = lammps_reference.run_helium(jax.random.PRNGKey(0), helium.TRUE_THETA, p)
     # LAMMPS's own loop time: its start-up (reading, neighbour set-up) would otherwise be charged
@@ -210,8 +227,9 @@ def small_system_rates(batches: tuple[int, ...], num_blocks: int) -> list[dict]:
 def _in_tree(tree: Path, args: list[str], timeout: float = 3600) -> str:
     """Stdout of ``python args`` run with ``tree`` first on the path."""
     env = dict(os.environ, PYTHONPATH=str(tree))
-    return subprocess.run([sys.executable, *args], env=env, cwd=tree, capture_output=True,
-                          text=True, timeout=timeout, check=True).stdout
+    return subprocess.run(
+        [sys.executable, *args], env=env, cwd=tree, capture_output=True, text=True, timeout=timeout, check=True
+    ).stdout
 
 
 def main_job_seconds(trees: dict[str, Path]) -> Callable[[], dict]:
@@ -226,19 +244,28 @@ def main_job_seconds(trees: dict[str, Path]) -> Callable[[], dict]:
     folders, procs, starts, out = {}, {}, {}, {}
     for name, tree in trees.items():
         folders[name] = tempfile.TemporaryDirectory()
-        code = ("import sys; from jaxabc.cli import main; "
-                f"sys.exit(main(['example', 'helium', '--output', {folders[name].name!r}]))")
+        code = (
+            "import sys; from jaxabc.cli import main; "
+            f"sys.exit(main(['example', 'helium', '--output', {folders[name].name!r}]))"
+        )
         starts[name] = time.perf_counter()
-        procs[name] = subprocess.Popen([sys.executable, "-c", code], cwd=tree,
-                                       env=dict(USER_ENV, PYTHONPATH=str(tree)),
-                                       stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        procs[name] = subprocess.Popen(
+            [sys.executable, "-c", code],
+            cwd=tree,
+            env=dict(USER_ENV, PYTHONPATH=str(tree)),
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+        )
 
     def wait() -> dict:
         for name, proc in procs.items():
             _, status, usage = os.wait4(proc.pid, 0)
-            out[name] = {"tree": str(trees[name]), "exit_status": status,
-                         "wall_seconds": time.perf_counter() - starts[name],
-                         "cpu_seconds": usage.ru_utime + usage.ru_stime}
+            out[name] = {
+                "tree": str(trees[name]),
+                "exit_status": status,
+                "wall_seconds": time.perf_counter() - starts[name],
+                "cpu_seconds": usage.ru_utime + usage.ru_stime,
+            }
             folders[name].cleanup()
         return out
 
@@ -265,10 +292,14 @@ def small_system(args: argparse.Namespace) -> None:
         rates[name] = json.loads(out.strip().splitlines()[-1])
         for r in rates[name]:
             r["ratio_to_lammps_same_run"] = (
-                r["system_steps_per_second"] / lmp["system_steps_per_second"] if lmp else None)
-            print(f"{name:9s} b={r['batch']:<4d} {r['system_steps_per_second']:10.0f} "
-                  f"system-steps/CPU-s  ({r['ratio_to_lammps_same_run'] or float('nan'):.2f} x "
-                  "LAMMPS)", flush=True)
+                r["system_steps_per_second"] / lmp["system_steps_per_second"] if lmp else None
+            )
+            print(
+                f"{name:9s} b={r['batch']:<4d} {r['system_steps_per_second']:10.0f} "
+                f"system-steps/CPU-s  ({r['ratio_to_lammps_same_run'] or float('nan'):.2f} x "
+                "LAMMPS)",
+                flush=True,
+            )
     if wait_for_jobs is not None:
         jobs = wait_for_jobs()
         print(f"main job: {jobs}", flush=True)
@@ -276,46 +307,60 @@ def small_system(args: argparse.Namespace) -> None:
     if "baseline" in rates:
         ratios["engine_speedup_over_baseline"] = {
             str(a["batch"]): a["system_steps_per_second"] / b["system_steps_per_second"]
-            for a, b in zip(rates["this"], rates["baseline"], strict=True)}
+            for a, b in zip(rates["this"], rates["baseline"], strict=True)
+        }
     if "baseline" in jobs:
-        ratios["main_job_cpu_speedup_over_baseline"] = (
-            jobs["baseline"]["cpu_seconds"] / jobs["this"]["cpu_seconds"])
-        ratios["main_job_wall_speedup_over_baseline"] = (
-            jobs["baseline"]["wall_seconds"] / jobs["this"]["wall_seconds"])
+        ratios["main_job_cpu_speedup_over_baseline"] = jobs["baseline"]["cpu_seconds"] / jobs["this"]["cpu_seconds"]
+        ratios["main_job_wall_speedup_over_baseline"] = jobs["baseline"]["wall_seconds"] / jobs["this"]["wall_seconds"]
     if lmp:
-        ratios["best_ratio_to_lammps"] = max(
-            r["ratio_to_lammps_same_run"] for r in rates["this"])
+        ratios["best_ratio_to_lammps"] = max(r["ratio_to_lammps_same_run"] for r in rates["this"])
     args.output.parent.mkdir(parents=True, exist_ok=True)
-    args.output.write_text(json.dumps({
-        "description": __doc__,
-        "command": " ".join([os.path.basename(sys.executable), *sys.argv]),
-        "measure": "CPU seconds (process_time; LAMMPS loop time x % CPU): the machine is shared",
-        "versions": versions(),
-        "machine": {"cpus": os.cpu_count(), "platform": platform.platform(),
-                    "processor": platform.processor(), "jax": jax.__version__,
-                    "load_average_at_end": os.getloadavg()},
-        "lammps": lmp,
-        "jax_md": rates,
-        "main_job": jobs,
-        "ratios": ratios,
-    }, indent=1))
+    args.output.write_text(
+        json.dumps(
+            {
+                "description": __doc__,
+                "command": " ".join([os.path.basename(sys.executable), *sys.argv]),
+                "measure": "CPU seconds (process_time; LAMMPS loop time x % CPU): the machine is shared",
+                "versions": versions(),
+                "machine": {
+                    "cpus": os.cpu_count(),
+                    "platform": platform.platform(),
+                    "processor": platform.processor(),
+                    "jax": jax.__version__,
+                    "load_average_at_end": os.getloadavg(),
+                },
+                "lammps": lmp,
+                "jax_md": rates,
+                "main_job": jobs,
+                "ratios": ratios,
+            },
+            indent=1,
+        )
+    )
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="batch sizes 1 and 8 only")
     parser.add_argument("--output", type=Path, default=RESULTS)
-    parser.add_argument("--single-core", action="store_true",
-                        help="both engines on core 0, XLA single-threaded (see the module notes)")
-    parser.add_argument("--per-simulation-only", action="store_true",
-                        help="only (re)measure the per-simulation comparison, keep the rest")
-    parser.add_argument("--small-system", action="store_true",
-                        help="the 32-atom cpu preset against LAMMPS (see the module notes)")
+    parser.add_argument(
+        "--single-core", action="store_true", help="both engines on core 0, XLA single-threaded (see the module notes)"
+    )
+    parser.add_argument(
+        "--per-simulation-only",
+        action="store_true",
+        help="only (re)measure the per-simulation comparison, keep the rest",
+    )
+    parser.add_argument(
+        "--small-system", action="store_true", help="the 32-atom cpu preset against LAMMPS (see the module notes)"
+    )
     parser.add_argument("--rates-only", action="store_true", help=argparse.SUPPRESS)
-    parser.add_argument("--baseline-tree", type=Path, default=None,
-                        help="with --small-system: also time this checkout, same run")
-    parser.add_argument("--main-job", action="store_true",
-                        help="with --small-system: also time `jaxabc example helium`")
+    parser.add_argument(
+        "--baseline-tree", type=Path, default=None, help="with --small-system: also time this checkout, same run"
+    )
+    parser.add_argument(
+        "--main-job", action="store_true", help="with --small-system: also time `jaxabc example helium`"
+    )
     args = parser.parse_args()
     if SMALL_SYSTEM:
         small_system(args)
@@ -343,8 +388,7 @@ def main() -> None:
         if lmp:
             lmp["setup"] = name
             records.append(lmp)
-            print(f"{name:24s} lammps      {lmp['atom_steps_per_second_per_core']:12.3e} "
-                  "atom-steps/s/core", flush=True)
+            print(f"{name:24s} lammps      {lmp['atom_steps_per_second_per_core']:12.3e} atom-steps/s/core", flush=True)
         for b in batches:
             if preset.num_atoms * b > 64_000 and b > 32:
                 blocks_b = max(2, blocks // 4)
@@ -354,19 +398,24 @@ def main() -> None:
             r["setup"] = name
             r["num_atoms"] = preset.num_atoms
             r["neighbours"] = neighbour_strategy(preset)
-            ratio = (r["atom_steps_per_second_per_core"] / lmp["atom_steps_per_second_per_core"]
-                     if lmp else float("nan"))
+            ratio = r["atom_steps_per_second_per_core"] / lmp["atom_steps_per_second_per_core"] if lmp else float("nan")
             r["ratio_to_lammps_per_core_same_run"] = ratio if lmp else None
             records.append(r)
-            print(f"{name:24s} jax-md b={b:<4d}{r['atom_steps_per_second_per_core']:12.3e} "
-                  f"atom-steps/s/core  ({ratio:.2f} x LAMMPS per core)", flush=True)
-    write_result(args.output, {
-        "description": __doc__,
-        "versions": versions(),
-        "single_core": SINGLE_CORE,
-        "records": records,
-        "per_simulation": None if SINGLE_CORE else per_simulation(helium.get_preset("cpu")),
-    })
+            print(
+                f"{name:24s} jax-md b={b:<4d}{r['atom_steps_per_second_per_core']:12.3e} "
+                f"atom-steps/s/core  ({ratio:.2f} x LAMMPS per core)",
+                flush=True,
+            )
+    write_result(
+        args.output,
+        {
+            "description": __doc__,
+            "versions": versions(),
+            "single_core": SINGLE_CORE,
+            "records": records,
+            "per_simulation": None if SINGLE_CORE else per_simulation(helium.get_preset("cpu")),
+        },
+    )
 
 
 if __name__ == "__main__":

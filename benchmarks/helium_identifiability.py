@@ -35,6 +35,7 @@ from md import helium
 try:  # the core's definition; a local copy with the same definition until it exists
     from jaxabc.distances import kl_divergence
 except ImportError:  # pragma: no cover
+
     def kl_divergence(x, y, num_grid=100):  # type: ignore[no-redef]
         x, y = jnp.ravel(x), jnp.ravel(y)
         grid = jnp.linspace(jnp.minimum(x.min(), y.min()), jnp.maximum(x.max(), y.max()), num_grid)
@@ -70,9 +71,7 @@ EPSILONS = (0.05, 0.141, 0.3, 1.0)
 NEAR_TRUTH = ((0.23, 0.141), (0.28, 0.141), (0.2556, 0.08), (0.2556, 0.25))
 
 
-def evaluate(
-    name: str, overrides: dict, num_seeds: int, num_observed: int, key: jax.Array
-) -> dict:
+def evaluate(name: str, overrides: dict, num_seeds: int, num_observed: int, key: jax.Array) -> dict:
     """Run one candidate and return its record."""
     truth = np.asarray(helium.TRUE_THETA, np.float32)
     grid = [(s, e) for s in SIGMAS for e in EPSILONS] + list(NEAR_TRUTH)
@@ -100,23 +99,24 @@ def evaluate(
     near = ~clearly_wrong & (offsets.max(axis=1) > 0.0)
     per_observed = []
     for obs in observed:
-        kl = np.asarray(jax.vmap(lambda y, o=obs: kl_divergence(jnp.asarray(o), y))(
-            jnp.asarray(f_b)))
+        kl = np.asarray(jax.vmap(lambda y, o=obs: kl_divergence(jnp.asarray(o), y))(jnp.asarray(f_b)))
         kl = np.where(ok, kl, np.inf)
         seed_kl, grid_kl = kl[:num_seeds], kl[num_seeds:]
         q95 = float(np.percentile(seed_kl, 95))
         separated = grid_kl > q95
-        per_observed.append({
-            "observed_mean": float(np.mean(obs)),
-            "observed_std": float(np.std(obs)),
-            "seed_kl": seed_kl.tolist(),
-            "seed_kl_median": float(np.median(seed_kl)),
-            "seed_kl_q95": q95,
-            "grid_kl": grid_kl.tolist(),
-            "fraction_clearly_wrong_separated": float(np.mean(separated[clearly_wrong])),
-            "fraction_near_truth_separated": float(np.mean(separated[near])),
-            "min_kl_clearly_wrong": float(np.min(grid_kl[clearly_wrong])),
-        })
+        per_observed.append(
+            {
+                "observed_mean": float(np.mean(obs)),
+                "observed_std": float(np.std(obs)),
+                "seed_kl": seed_kl.tolist(),
+                "seed_kl_median": float(np.median(seed_kl)),
+                "seed_kl_q95": q95,
+                "grid_kl": grid_kl.tolist(),
+                "fraction_clearly_wrong_separated": float(np.mean(separated[clearly_wrong])),
+                "fraction_near_truth_separated": float(np.mean(separated[near])),
+                "min_kl_clearly_wrong": float(np.min(grid_kl[clearly_wrong])),
+            }
+        )
 
     def avg(field: str) -> float:
         return float(np.mean([r[field] for r in per_observed]))
@@ -126,18 +126,19 @@ def evaluate(
         "overrides": overrides,
         "preset": dict(vars(preset)),
         "num_samples": preset.num_samples,
-        "steps_per_simulation": round(
-            (preset.equilibration_ps + preset.production_ps) / preset.dt_ps
-        ),
+        "steps_per_simulation": round((preset.equilibration_ps + preset.production_ps) / preset.dt_ps),
         "seconds_per_simulation_batched": t_run / len(thetas),
         "compile_and_run_seconds": t_first,
         "observed_run_seconds": t_obs,
         "grid": [
-            {"sigma_nm": float(s), "epsilon_zj": float(e), "ok": bool(o),
-             "f_b_mean": float(np.nanmean(f)) if o else None,
-             "kl_mean_over_observed": float(np.mean([r["grid_kl"][i] for r in per_observed]))}
-            for i, ((s, e), o, f) in enumerate(
-                zip(grid, ok[num_seeds:], f_b[num_seeds:], strict=True))
+            {
+                "sigma_nm": float(s),
+                "epsilon_zj": float(e),
+                "ok": bool(o),
+                "f_b_mean": float(np.nanmean(f)) if o else None,
+                "kl_mean_over_observed": float(np.mean([r["grid_kl"][i] for r in per_observed])),
+            }
+            for i, ((s, e), o, f) in enumerate(zip(grid, ok[num_seeds:], f_b[num_seeds:], strict=True))
         ],
         "truth_f_b_mean": float(np.nanmean(f_b[:num_seeds])),
         "per_observed": per_observed,
@@ -155,10 +156,13 @@ def main() -> None:
     parser.add_argument("--seeds", type=int, default=24, help="simulations at the truth")
     parser.add_argument("--observed", type=int, default=3, help="independent observed series")
     parser.add_argument("--only", nargs="*", help="candidate names to run (default all)")
-    parser.add_argument("--quick", action="store_true",
-                        help="first two candidates, 6 seeds, written to results/quick/")
-    parser.add_argument("--output", type=Path, default=None,
-                        help="default: results/helium_identifiability.json (results/quick/ with --quick)")
+    parser.add_argument("--quick", action="store_true", help="first two candidates, 6 seeds, written to results/quick/")
+    parser.add_argument(
+        "--output",
+        type=Path,
+        default=None,
+        help="default: results/helium_identifiability.json (results/quick/ with --quick)",
+    )
     args = parser.parse_args()
     if args.output is None:
         args.output = QUICK_RESULTS / RESULTS.name if args.quick else RESULTS
@@ -172,8 +176,7 @@ def main() -> None:
     if args.output.exists():  # keep earlier candidates when re-running a subset
         existing = {r["name"]: r for r in json.loads(args.output.read_text())["candidates"]}
     for i, name in enumerate(names):
-        rec = evaluate(name, CANDIDATES[name], args.seeds, args.observed,
-                       jax.random.PRNGKey(100 + i))
+        rec = evaluate(name, CANDIDATES[name], args.seeds, args.observed, jax.random.PRNGKey(100 + i))
         print(
             f"{name:40s} seed KL median {rec['seed_kl_median']:.3f} q95 {rec['seed_kl_q95']:.3f} | "
             f"separated: clearly wrong {rec['fraction_clearly_wrong_separated']:.2f}, "
@@ -184,12 +187,17 @@ def main() -> None:
         )
         existing[name] = rec
         records = list(existing.values())
-        write_result(args.output, {
-            "description": __doc__,
-            "sigmas": SIGMAS, "epsilons": EPSILONS, "near_truth": NEAR_TRUTH,
-            "truth": helium.TRUE_THETA,
-            "candidates": records,
-        })
+        write_result(
+            args.output,
+            {
+                "description": __doc__,
+                "sigmas": SIGMAS,
+                "epsilons": EPSILONS,
+                "near_truth": NEAR_TRUTH,
+                "truth": helium.TRUE_THETA,
+                "candidates": records,
+            },
+        )
 
 
 if __name__ == "__main__":

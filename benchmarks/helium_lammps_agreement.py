@@ -41,15 +41,16 @@ def main() -> None:
     records = [r for r in old.get("records", []) if r["preset"]["name"] != args.preset]
     thetas = [helium.TRUE_THETA, (0.4, 0.5)] if args.preset == "cpu" else [helium.TRUE_THETA]
     for i, theta in enumerate(thetas):
-        r = lammps_reference.compare_with_jax_md(
-            jax.random.PRNGKey(20 + i), theta, args.preset, num_seeds=args.seeds
-        )
+        r = lammps_reference.compare_with_jax_md(jax.random.PRNGKey(20 + i), theta, args.preset, num_seeds=args.seeds)
         r["command"] = " ".join(["python", *sys.argv])
         records.append(r)
         zs = {k: round(v["z"], 2) for k, v in r["quantities"].items()}
-        print(f"theta={theta}: z = {zs}; KL cross median {np.median(r['kl_cross']):.3f}, "
-              f"seed-to-seed median {np.median(r['kl_jax_md_seed_to_seed']):.3f} "
-              f"max {np.max(r['kl_jax_md_seed_to_seed']):.3f}", flush=True)
+        print(
+            f"theta={theta}: z = {zs}; KL cross median {np.median(r['kl_cross']):.3f}, "
+            f"seed-to-seed median {np.median(r['kl_jax_md_seed_to_seed']):.3f} "
+            f"max {np.max(r['kl_jax_md_seed_to_seed']):.3f}",
+            flush=True,
+        )
     write_result(args.output, {"description": __doc__, "records": records}, part=args.preset)
 
 

@@ -38,8 +38,7 @@ import jaxabc
 from md import helium
 from md.helium_calibration import make_model
 
-PAPER = {"apmcabc": {"d_E": 0.00744, "gamma_final": 0.0138},
-         "abcsubsim": {"d_E": 0.03365, "gamma_final": 0.67}}
+PAPER = {"apmcabc": {"d_E": 0.00744, "gamma_final": 0.0138}, "abcsubsim": {"d_E": 0.03365, "gamma_final": 0.67}}
 
 
 def main() -> None:
@@ -47,12 +46,19 @@ def main() -> None:
     parser.add_argument("--num-particles", type=int, default=300)
     parser.add_argument("--num-steps", type=int, default=6)
     parser.add_argument("--preset", default="cpu")
-    parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2],
-                        help="independent repetitions (observed data and inference); the figure and the "
-                             "saved result files are the first seed's")
-    parser.add_argument("--quick", action="store_true",
-                        help="reproduction check: 50 particles, 3 steps, seed 0, written to results/quick/ "
-                             "(no figure or .npz)")
+    parser.add_argument(
+        "--seeds",
+        type=int,
+        nargs="+",
+        default=[0, 1, 2],
+        help="independent repetitions (observed data and inference); the figure and the "
+        "saved result files are the first seed's",
+    )
+    parser.add_argument(
+        "--quick",
+        action="store_true",
+        help="reproduction check: 50 particles, 3 steps, seed 0, written to results/quick/ (no figure or .npz)",
+    )
     args = parser.parse_args()
     if args.quick:
         args.num_particles, args.num_steps, args.seeds = 50, 3, [0]
@@ -77,8 +83,9 @@ def main() -> None:
             vals = np.array([p["algorithms"][name][key] for p in per_seed], dtype=float)
             summary[f"{name}_{key}_mean"] = float(vals.mean())
             summary[f"{name}_{key}_sd"] = float(vals.std(ddof=1)) if vals.size > 1 else None
-    ratios_gamma = [p["algorithms"]["apmcabc"]["gamma_final"] / p["algorithms"]["abcsubsim"]["gamma_final"]
-                    for p in per_seed]
+    ratios_gamma = [
+        p["algorithms"]["apmcabc"]["gamma_final"] / p["algorithms"]["abcsubsim"]["gamma_final"] for p in per_seed
+    ]
     ratios_de = [p["algorithms"]["apmcabc"]["d_E"] / p["algorithms"]["abcsubsim"]["d_E"] for p in per_seed]
     checks = {
         "gamma_ratio_apmc_over_subsim_per_seed": ratios_gamma,
@@ -88,21 +95,32 @@ def main() -> None:
         "gamma_target_met_all_seeds": bool(all(r <= 0.1 for r in ratios_gamma)),
         "dE_target_met_all_seeds": bool(all(r <= 0.5 for r in ratios_de)),
     }
-    path = write_result("helium_table1", {
-        "description": __doc__.split("\n\n")[0],
-        "setup": {"preset": args.preset, "preset_fields": helium.get_preset(args.preset).__dict__,
-                  "num_particles": args.num_particles, "num_steps": args.num_steps,
-                  "seeds": args.seeds, "distance": "kl", "truth": truth.tolist(),
-                  "prior_low": list(helium.PRIOR_LOW), "prior_high": list(helium.PRIOR_HIGH),
-                  "observed_length": observed_len},
-        "algorithms": first_rows,
-        "per_seed": per_seed,
-        "summary_over_seeds": summary,
-        "comparison": checks,
-        "paper": PAPER,
-        "figure": None if args.quick else "benchmarks/results/helium_table1.png",
-        "total_wall_time_s": time.perf_counter() - t_start,
-    }, quick=args.quick)
+    path = write_result(
+        "helium_table1",
+        {
+            "description": __doc__.split("\n\n")[0],
+            "setup": {
+                "preset": args.preset,
+                "preset_fields": helium.get_preset(args.preset).__dict__,
+                "num_particles": args.num_particles,
+                "num_steps": args.num_steps,
+                "seeds": args.seeds,
+                "distance": "kl",
+                "truth": truth.tolist(),
+                "prior_low": list(helium.PRIOR_LOW),
+                "prior_high": list(helium.PRIOR_HIGH),
+                "observed_length": observed_len,
+            },
+            "algorithms": first_rows,
+            "per_seed": per_seed,
+            "summary_over_seeds": summary,
+            "comparison": checks,
+            "paper": PAPER,
+            "figure": None if args.quick else "benchmarks/results/helium_table1.png",
+            "total_wall_time_s": time.perf_counter() - t_start,
+        },
+        quick=args.quick,
+    )
     del first_results
     print(f"wrote {path}")
 
@@ -111,11 +129,20 @@ def run_seed(simulate, prior, truth: np.ndarray, args, seed: int):
     """Both algorithms on one observed data set (its own key), with the same inference seed."""
     observed = helium.observed_series(jax.random.key(10_000 + seed), args.preset)
     rows, results = {}, {}
-    for algorithm, options in (("apmcabc", {"alpha": 0.1, "acceptance_cutoff": 0.03}),
-                               ("abcsubsim", {"p0": 0.2})):
-        result = jaxabc.run(algorithm, simulate, prior, observed, num_particles=args.num_particles,
-                            num_steps=args.num_steps, distance="kl", seed=seed,
-                            keep_summaries=False, progress=True, **options)
+    for algorithm, options in (("apmcabc", {"alpha": 0.1, "acceptance_cutoff": 0.03}), ("abcsubsim", {"p0": 0.2})):
+        result = jaxabc.run(
+            algorithm,
+            simulate,
+            prior,
+            observed,
+            num_particles=args.num_particles,
+            num_steps=args.num_steps,
+            distance="kl",
+            seed=seed,
+            keep_summaries=False,
+            progress=True,
+            **options,
+        )
         results[algorithm] = result
         est = result.bayes_estimate()
         rows[algorithm] = {
@@ -140,8 +167,12 @@ def run_seed(simulate, prior, truth: np.ndarray, args, seed: int):
             "log_evidence": result.log_evidence,
             "paper": PAPER[algorithm],
         }
-        print(seed, algorithm, {k: rows[algorithm][k] for k in ("d_E", "gamma_final", "simulations",
-                                                                "wall_time_s")}, flush=True)
+        print(
+            seed,
+            algorithm,
+            {k: rows[algorithm][k] for k in ("d_E", "gamma_final", "simulations", "wall_time_s")},
+            flush=True,
+        )
     return rows, results, int(observed.size)
 
 
@@ -154,8 +185,7 @@ def draw_figure(results: dict, truth: np.ndarray, path: Path) -> None:
     fig, axes = plt.subplots(1, len(results), figsize=(5 * len(results), 4))
     for ax, (name, result) in zip(np.atleast_1d(axes), results.items(), strict=True):
         result.plot_posterior(ax=ax, truth=truth)
-        ax.set_title(f"{name}: gamma_final {result.thresholds[-1]:.3g}, "
-                     f"corr {result.correlation()[0, 1]:+.2f}")
+        ax.set_title(f"{name}: gamma_final {result.thresholds[-1]:.3g}, corr {result.correlation()[0, 1]:+.2f}")
     fig.tight_layout()
     fig.savefig(path, dpi=120)
 

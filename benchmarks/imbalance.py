@@ -66,13 +66,19 @@ def describe(times: np.ndarray) -> dict:
         return {"count": 0}
     logs = np.log(times)
     return {
-        "count": int(times.size), "mean": float(times.mean()), "std": float(times.std(ddof=1)) if times.size > 1
-        else 0.0, "cv": float(times.std(ddof=1) / times.mean()) if times.size > 1 else 0.0,
-        "min": float(times.min()), "median": float(np.median(times)), "max": float(times.max()),
-        "q10": float(np.quantile(times, 0.1)), "q90": float(np.quantile(times, 0.9)),
+        "count": int(times.size),
+        "mean": float(times.mean()),
+        "std": float(times.std(ddof=1)) if times.size > 1 else 0.0,
+        "cv": float(times.std(ddof=1) / times.mean()) if times.size > 1 else 0.0,
+        "min": float(times.min()),
+        "median": float(np.median(times)),
+        "max": float(times.max()),
+        "q10": float(np.quantile(times, 0.1)),
+        "q90": float(np.quantile(times, 0.9)),
         "max_over_mean": float(times.max() / times.mean()),
         # Maximum-likelihood lognormal: log t ~ N(mu, s^2); speedup.py falls back to it.
-        "lognormal_mu": float(logs.mean()), "lognormal_sigma": float(logs.std(ddof=0)),
+        "lognormal_mu": float(logs.mean()),
+        "lognormal_sigma": float(logs.std(ddof=0)),
     }
 
 
@@ -97,14 +103,25 @@ def measure_water(num: int, workers: int, seed: int) -> dict:
     finally:
         executor.close()
     elapsed = time.perf_counter() - t0
-    return _record(thetas, batch.wall_time, batch.status, batch.reasons, {
-        "simulator": "md.water.make_simulator('quick'): GROMACS TIP4P, 216 molecules, 20 ps NPT, "
-                     "one single-threaded gmx mdrun per task, plus trajectory analysis",
-        "theta_names": ["sigma_ow_nm", "epsilon_ow_kj_mol"], "prior_low": WATER_PRIOR[0],
-        "prior_high": WATER_PRIOR[1], "how": f"jaxabc.ProcessPoolExecutor(max_workers={workers})",
-        "concurrent_workers": workers, "batch_wall_seconds": elapsed,
-        "load_average_before": load_before, "load_average_after": list(os.getloadavg()),
-        "worker": batch.worker.tolist()})
+    return _record(
+        thetas,
+        batch.wall_time,
+        batch.status,
+        batch.reasons,
+        {
+            "simulator": "md.water.make_simulator('quick'): GROMACS TIP4P, 216 molecules, 20 ps NPT, "
+            "one single-threaded gmx mdrun per task, plus trajectory analysis",
+            "theta_names": ["sigma_ow_nm", "epsilon_ow_kj_mol"],
+            "prior_low": WATER_PRIOR[0],
+            "prior_high": WATER_PRIOR[1],
+            "how": f"jaxabc.ProcessPoolExecutor(max_workers={workers})",
+            "concurrent_workers": workers,
+            "batch_wall_seconds": elapsed,
+            "load_average_before": load_before,
+            "load_average_after": list(os.getloadavg()),
+            "worker": batch.worker.tolist(),
+        },
+    )
 
 
 def measure_helium(num: int, seed: int, preset: str, overrides: dict) -> dict:
@@ -123,13 +140,26 @@ def measure_helium(num: int, seed: int, preset: str, overrides: dict) -> dict:
         times[i] = time.perf_counter() - t0
         if not np.all(np.isfinite(out)):
             status[i], reasons[i] = 2, "non-finite f_B (overflow, box below twice the cutoff or blow-up)"
-    return _record(thetas, times, status, reasons, {
-        "simulator": f"md.helium.make_simulator({preset!r}, **{overrides}) under jax.jit, one simulation "
-                     "per call on the CPU (first call, with compilation, excluded)",
-        "preset": preset, "overrides": overrides, "theta_names": ["sigma_nm", "epsilon_zj"],
-        "prior_low": list(helium.PRIOR_LOW), "prior_high": list(helium.PRIOR_HIGH),
-        "how": "serial, in process", "concurrent_workers": 1, "compile_seconds": compile_seconds,
-        "load_average_before": load_before, "load_average_after": list(os.getloadavg())})
+    return _record(
+        thetas,
+        times,
+        status,
+        reasons,
+        {
+            "simulator": f"md.helium.make_simulator({preset!r}, **{overrides}) under jax.jit, one simulation "
+            "per call on the CPU (first call, with compilation, excluded)",
+            "preset": preset,
+            "overrides": overrides,
+            "theta_names": ["sigma_nm", "epsilon_zj"],
+            "prior_low": list(helium.PRIOR_LOW),
+            "prior_high": list(helium.PRIOR_HIGH),
+            "how": "serial, in process",
+            "concurrent_workers": 1,
+            "compile_seconds": compile_seconds,
+            "load_average_before": load_before,
+            "load_average_after": list(os.getloadavg()),
+        },
+    )
 
 
 def _record(thetas: np.ndarray, times: np.ndarray, status: np.ndarray, reasons: list[str], extra: dict) -> dict:
@@ -137,10 +167,15 @@ def _record(thetas: np.ndarray, times: np.ndarray, status: np.ndarray, reasons: 
     ok = status == STATUS_OK
     return {
         **extra,
-        "theta": thetas.tolist(), "wall_time_s": np.asarray(times).tolist(), "status": status.tolist(),
-        "status_names": [STATUS_NAMES.get(int(s), str(s)) for s in status], "reasons": list(reasons),
-        "stats_all": describe(times), "stats_ok": describe(np.asarray(times)[ok]),
-        "stats_failed": describe(np.asarray(times)[~ok]), "failure_fraction": float(np.mean(~ok)),
+        "theta": thetas.tolist(),
+        "wall_time_s": np.asarray(times).tolist(),
+        "status": status.tolist(),
+        "status_names": [STATUS_NAMES.get(int(s), str(s)) for s in status],
+        "reasons": list(reasons),
+        "stats_all": describe(times),
+        "stats_ok": describe(np.asarray(times)[ok]),
+        "stats_failed": describe(np.asarray(times)[~ok]),
+        "failure_fraction": float(np.mean(~ok)),
     }
 
 
@@ -151,13 +186,21 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--workers", type=int, default=2, help="water simulations run at a time")
     parser.add_argument("--helium-num", type=int, default=32, help="helium prior draws")
     parser.add_argument("--helium-preset", default="cpu", help="md.helium preset: cpu or paper")
-    parser.add_argument("--helium-override", action="append", default=[], metavar="FIELD=VALUE",
-                        help="HeliumPreset field override, e.g. production_ps=20 (repeatable)")
+    parser.add_argument(
+        "--helium-override",
+        action="append",
+        default=[],
+        metavar="FIELD=VALUE",
+        help="HeliumPreset field override, e.g. production_ps=20 (repeatable)",
+    )
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--output", type=Path, default=RESULTS / "imbalance.json")
     parser.add_argument("--figure", type=Path, default=RESULTS / "imbalance.png")
-    parser.add_argument("--quick", action="store_true",
-                        help="reproduction check: 4 helium draws, written to results/quick/imbalance.{json,png}")
+    parser.add_argument(
+        "--quick",
+        action="store_true",
+        help="reproduction check: 4 helium draws, written to results/quick/imbalance.{json,png}",
+    )
     args = parser.parse_args(argv)
     if args.quick:
         args.systems, args.helium_num = "helium", 4
@@ -174,8 +217,9 @@ def main(argv: list[str] | None = None) -> None:
     # paper_figures/figure3_imbalance.py prints the machine next to the figure.
     out["machine"] = machine()
     out["command"] = command_line(None if argv is None else [__file__, *argv])
-    out["description"] = ("wall seconds of single simulations at prior draws (paper Figure 3); failures "
-                          "included with their status")
+    out["description"] = (
+        "wall seconds of single simulations at prior draws (paper Figure 3); failures included with their status"
+    )
     if "water" in systems:
         out["systems"]["water"] = measure_water(args.num, args.workers, args.seed)
         out["systems"]["water"]["command"] = out["command"]

@@ -442,28 +442,47 @@ def page_abc_overhead() -> str:
     d = load("abc_overhead")
     if d is None:
         return "# Whole-run cost against ELFI and pyABC\n\nNot saved yet.\n"
-    runs = [("fused_cold", "jaxabc fused, cold"), ("fused_cold_persistent_cache", "jaxabc fused, cache"),
-            ("fused_warm", "jaxabc fused, warm"), ("host_driver_cold", "jaxabc host driver, cold")]
+    runs = [
+        ("fused_cold", "jaxabc fused, cold"),
+        ("fused_cold_persistent_cache", "jaxabc fused, cache"),
+        ("fused_warm", "jaxabc fused, warm"),
+        ("host_driver_cold", "jaxabc host driver, cold"),
+    ]
     rows = []
     for r in d["rows"]:
         n = r["num_particles"]
         for key, label in runs:
             x = r.get("jaxabc", {}).get(key)
             if x:
-                rows.append([n, label, x.get("num_simulations"), f(x.get("process_wall_s"), 1),
-                             f(x.get("us_per_simulation_whole_process"), 1), f(x.get("mean_error")),
-                             f(x.get("cov_error_vs_exact"))])
+                rows.append(
+                    [
+                        n,
+                        label,
+                        x.get("num_simulations"),
+                        f(x.get("process_wall_s"), 1),
+                        f(x.get("us_per_simulation_whole_process"), 1),
+                        f(x.get("mean_error")),
+                        f(x.get("cov_error_vs_exact")),
+                    ]
+                )
         for key, label in (("elfi_smc", "ELFI SMC"), ("pyabc_abcsmc", "pyABC ABC-SMC")):
             x = r.get(key) or {}
             if "process_wall_s" in x:
-                rows.append([n, f"{label} {x.get('version', '')}", x.get("num_simulations"),
-                             f(x.get("process_wall_s"), 1), f(x.get("us_per_simulation_whole_process"), 1),
-                             f(x.get("mean_error")), f(x.get("cov_error_vs_exact"))])
+                rows.append(
+                    [
+                        n,
+                        f"{label} {x.get('version', '')}",
+                        x.get("num_simulations"),
+                        f(x.get("process_wall_s"), 1),
+                        f(x.get("us_per_simulation_whole_process"), 1),
+                        f(x.get("mean_error")),
+                        f(x.get("cov_error_vs_exact")),
+                    ]
+                )
             elif x:
                 rows.append([n, label, "-", x.get("error", "did not finish"), "-", "-", "-"])
     pmc = d.get("pmc_vs_apmc_host_driver_per_simulation", {})
-    header = ["N", "run", "simulations", "whole process (s)", "us / simulation", "mean error",
-              "covariance error"]
+    header = ["N", "run", "simulations", "whole process (s)", "us / simulation", "mean error", "covariance error"]
     return f"""# Whole-run cost against ELFI and pyABC
 
 {d.get("description", "")}
@@ -478,6 +497,7 @@ run in their own virtual environments.  Note recorded with the run: {d.get("note
 PMC-ABC against APMCABC per simulation (host driver, warm):
 {f(pmc.get("pmc_over_apmc"), 2)}x.
 """
+
 
 WATER_LABELS = {
     "simulated": "simulated at TIP4P",

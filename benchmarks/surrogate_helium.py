@@ -82,8 +82,7 @@ def main() -> None:
     def simulate(key, theta):
         return jnp.quantile(series_simulate(key, theta), levels)
 
-    observed = np.asarray(jnp.quantile(helium.observed_series(jax.random.key(10_000 + args.seed), args.preset),
-                                       levels))
+    observed = np.asarray(jnp.quantile(helium.observed_series(jax.random.key(10_000 + args.seed), args.preset), levels))
     reference = jaxabc.load(RESULTS / "helium_table1_apmcabc.npz")
     ref_draws = reference.resample(2000, seed=0)
     truth = np.asarray(helium.TRUE_THETA)
@@ -91,28 +90,47 @@ def main() -> None:
     rows = []
     for budget in args.budgets:
         t0 = time.perf_counter()
-        algorithm = build(prior, 2000, observed=observed, max_simulations=budget,
-                          num_initial=min(20, budget // 3), num_holdout=max(5, budget // 10))
+        algorithm = build(
+            prior,
+            2000,
+            observed=observed,
+            max_simulations=budget,
+            num_initial=min(20, budget // 3),
+            num_holdout=max(5, budget // 10),
+        )
         state, info, num_sims = run_surrogate(algorithm, simulate, observed, args.seed)
         draws, _ = algorithm.posterior(state)
         diag = algorithm.finalize(state)["diagnostics"]
-        rows.append({
-            "budget": budget, "simulations": num_sims, "wall_time_s": time.perf_counter() - t0,
-            "stop_reason": algorithm.stop_reason(algorithm.settings, info), "validated": diag["validated"],
-            "bayes_estimate": draws.mean(axis=0).tolist(),
-            "d_E": float(np.linalg.norm(draws.mean(axis=0) - truth)),
-            "energy_distance_to_apmcabc": energy_distance(draws, ref_draws, scale),
-            "correlation": float(np.corrcoef(draws.T)[0, 1]),
-        })
+        rows.append(
+            {
+                "budget": budget,
+                "simulations": num_sims,
+                "wall_time_s": time.perf_counter() - t0,
+                "stop_reason": algorithm.stop_reason(algorithm.settings, info),
+                "validated": diag["validated"],
+                "bayes_estimate": draws.mean(axis=0).tolist(),
+                "d_E": float(np.linalg.norm(draws.mean(axis=0) - truth)),
+                "energy_distance_to_apmcabc": energy_distance(draws, ref_draws, scale),
+                "correlation": float(np.corrcoef(draws.T)[0, 1]),
+            }
+        )
         print(rows[-1], flush=True)
-    path = write_result("surrogate_helium", {
-        "description": __doc__.split("\n\n")[0], "status": "sketch",
-        "setup": {"preset": args.preset, "seed": args.seed, "budgets": args.budgets,
-                  "reference": "benchmarks/results/helium_table1_apmcabc.npz",
-                  "reference_simulations": int(reference.num_simulations)},
-        "reference_d_E": float(np.linalg.norm(reference.bayes_estimate() - truth)),
-        "rows": rows,
-    })
+    path = write_result(
+        "surrogate_helium",
+        {
+            "description": __doc__.split("\n\n")[0],
+            "status": "sketch",
+            "setup": {
+                "preset": args.preset,
+                "seed": args.seed,
+                "budgets": args.budgets,
+                "reference": "benchmarks/results/helium_table1_apmcabc.npz",
+                "reference_simulations": int(reference.num_simulations),
+            },
+            "reference_d_E": float(np.linalg.norm(reference.bayes_estimate() - truth)),
+            "rows": rows,
+        },
+    )
     print(f"wrote {path}")
 
 

@@ -72,8 +72,12 @@ PAPER = {  # Bayes estimate (sigma nm, epsilon kJ/mol) and posterior correlation
     "xray": {"bayes_estimate": [0.326, 0.607], "correlation": -0.99},
 }
 # Experimental values at 298 K and 1 bar, as in the paper's Table 2 (Vega & Abascal 2011).
-EXPERIMENT_298K = {"density_kg_m3": 997.0, "heat_capacity_j_mol_k": 75.3,
-                   "compressibility_per_bar": 45.3e-6, "dielectric_constant": 78.5}
+EXPERIMENT_298K = {
+    "density_kg_m3": 997.0,
+    "heat_capacity_j_mol_k": 75.3,
+    "compressibility_per_bar": 45.3e-6,
+    "dielectric_constant": 78.5,
+}
 OBSERVED_KEY = 2**31 - 7  # the "simulated observed" data use a key no particle gets
 
 
@@ -87,38 +91,68 @@ def parse_arguments(argv=None) -> argparse.Namespace:
     parser.add_argument("--alpha", type=float, default=0.1)
     parser.add_argument("--acceptance-cutoff", type=float, default=0.03)
     parser.add_argument("--workers", type=int, default=os.cpu_count())
-    parser.add_argument("--order", choices=("fifo", "longest_first"), default="longest_first",
-                        help="task order of the process pool (jaxabc.scheduling); never changes results")
+    parser.add_argument(
+        "--order",
+        choices=("fifo", "longest_first"),
+        default="longest_first",
+        help="task order of the process pool (jaxabc.scheduling); never changes results",
+    )
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--diffusion", default="experiment",
-                        choices=("experiment", "paper_text", "paper_stored"),
-                        help="observed S9 for measured data (md.water.datasets)")
-    parser.add_argument("--scale", choices=("pilot", "none"), default=None,
-                        help="distance scaling (default: pilot for robust, none for paper)")
-    parser.add_argument("--pilot", type=int, default=100,
-                        help="prior-predictive simulations for the robust scales; only liquid "
-                             "runs count (about 1 in 10 of the prior here, see below)")
-    parser.add_argument("--max-failure-fraction", type=float, default=0.95,
-                        help="most of the paper's prior box vaporises or collapses (measured: "
-                             "11 of 12 prior draws), so failures are expected, not an error")
-    parser.add_argument("--predictive", type=int, default=0,
-                        help="posterior draws for predictive g_OO bands (0: skip)")
-    parser.add_argument("--validation-ps", type=float, default=0.0,
-                        help="length of the Table-2 validation runs in ps (0: skip)")
-    parser.add_argument("--validation-preset", choices=("quick", "paper"), default="paper",
-                        help="GROMACS preset of the validation runs (default: the paper's 515 molecules)")
-    parser.add_argument("--validation-only", type=Path, default=None, metavar="RESULT_NPZ",
-                        help="skip the calibration: add the Table-2 properties at this saved "
-                             "result's Bayes estimate (and TIP4P) to its JSON entry")
-    parser.add_argument("--md-steps", type=int, default=None,
-                        help="override the preset's NPT steps (smoke tests only)")
+    parser.add_argument(
+        "--diffusion",
+        default="experiment",
+        choices=("experiment", "paper_text", "paper_stored"),
+        help="observed S9 for measured data (md.water.datasets)",
+    )
+    parser.add_argument(
+        "--scale",
+        choices=("pilot", "none"),
+        default=None,
+        help="distance scaling (default: pilot for robust, none for paper)",
+    )
+    parser.add_argument(
+        "--pilot",
+        type=int,
+        default=100,
+        help="prior-predictive simulations for the robust scales; only liquid "
+        "runs count (about 1 in 10 of the prior here, see below)",
+    )
+    parser.add_argument(
+        "--max-failure-fraction",
+        type=float,
+        default=0.95,
+        help="most of the paper's prior box vaporises or collapses (measured: "
+        "11 of 12 prior draws), so failures are expected, not an error",
+    )
+    parser.add_argument("--predictive", type=int, default=0, help="posterior draws for predictive g_OO bands (0: skip)")
+    parser.add_argument(
+        "--validation-ps", type=float, default=0.0, help="length of the Table-2 validation runs in ps (0: skip)"
+    )
+    parser.add_argument(
+        "--validation-preset",
+        choices=("quick", "paper"),
+        default="paper",
+        help="GROMACS preset of the validation runs (default: the paper's 515 molecules)",
+    )
+    parser.add_argument(
+        "--validation-only",
+        type=Path,
+        default=None,
+        metavar="RESULT_NPZ",
+        help="skip the calibration: add the Table-2 properties at this saved "
+        "result's Bayes estimate (and TIP4P) to its JSON entry",
+    )
+    parser.add_argument("--md-steps", type=int, default=None, help="override the preset's NPT steps (smoke tests only)")
     parser.add_argument("--out-dir", type=Path, default=ROOT / "benchmarks" / "results")
     parser.add_argument("--checkpoint-dir", type=Path, default=None)
     parser.add_argument("--resume", action="store_true")
-    parser.add_argument("--quick", action="store_true",
-                        help="reproduction check: 30 particles, 2 steps, 5 ps MD runs, unscaled distance (a pilot "
-                             "of prior draws, mostly vapour, would need ~100 runs), no predictive or validation "
-                             "runs, written to benchmarks/results/quick/")
+    parser.add_argument(
+        "--quick",
+        action="store_true",
+        help="reproduction check: 30 particles, 2 steps, 5 ps MD runs, unscaled distance (a pilot "
+        "of prior draws, mostly vapour, would need ~100 runs), no predictive or validation "
+        "runs, written to benchmarks/results/quick/",
+    )
     args = parser.parse_args(argv)
     if args.quick:
         # 30 particles keep 3 (APMCABC needs 2) although ~90 % of prior draws vaporise.
@@ -143,16 +177,12 @@ def pilot_scales(args, simulate, prior, executor) -> np.ndarray:
     """Median absolute deviation of each statistic over prior-predictive simulations."""
     key = jax.random.key(args.seed + 1_000_003)
     thetas = np.asarray(prior.sample(key, args.pilot), dtype=np.float64)
-    keys = np.asarray(jax.random.key_data(jax.random.split(jax.random.key(args.seed + 7),
-                                                             args.pilot)))
+    keys = np.asarray(jax.random.key_data(jax.random.split(jax.random.key(args.seed + 7), args.pilot)))
     batch = executor.map(simulate, keys, thetas)
     good = batch.summaries[batch.status == 0]
     if good.shape[0] < 5:
         reasons = "\n  ".join(sorted(set(batch.reasons)))
-        raise RuntimeError(
-            f"only {good.shape[0]} of {args.pilot} pilot simulations succeeded; reasons:\n  "
-            f"{reasons}"
-        )
+        raise RuntimeError(f"only {good.shape[0]} of {args.pilot} pilot simulations succeeded; reasons:\n  {reasons}")
     mad = np.median(np.abs(good - np.median(good, axis=0)), axis=0)
     # Unobserved (zeroed) statistics have MAD 0; they contribute 0 whatever the scale.
     return np.where(mad > 0, mad, 1.0)
@@ -197,11 +227,13 @@ def truth_credibility(result, truth: np.ndarray) -> dict:
     in_sample = float(result.weights[kde(result.particles.T) > kde(truth[:, None])[0]].sum())
     x = truth - result.bayes_estimate()
     mahalanobis2 = float(x @ np.linalg.solve(result.covariance(), x))
-    return {"hpd_level": result.credible_level(truth),
-            "gaussian_level": float(chi2.cdf(mahalanobis2, truth.size)),
-            "in_sample_kde_level": in_sample,
-            "posterior_particles": int(result.particles.shape[0]),
-            "effective_sample_size": float(result.effective_sample_size())}
+    return {
+        "hpd_level": result.credible_level(truth),
+        "gaussian_level": float(chi2.cdf(mahalanobis2, truth.size)),
+        "in_sample_kde_level": in_sample,
+        "posterior_particles": int(result.particles.shape[0]),
+        "effective_sample_size": float(result.effective_sample_size()),
+    }
 
 
 # ---------------------------------------------------------------------------- predictive bands
@@ -229,9 +261,11 @@ def predictive_bands(args, result) -> dict:
         curves = [c for c in pool.map(_predictive_goo, tasks) if c is not None]
     curves = np.array(curves)
     quantiles = np.quantile(curves, [0.0, 0.25, 0.5, 0.75, 1.0], axis=0)
-    return {"r_nm": ROBUST_GRID_NM.tolist(), "num_curves": len(curves),
-            **{name: q.tolist() for name, q in zip(("min", "q25", "median", "q75", "max"),
-                                                     quantiles, strict=True)}}
+    return {
+        "r_nm": ROBUST_GRID_NM.tolist(),
+        "num_curves": len(curves),
+        **{name: q.tolist() for name, q in zip(("min", "q25", "median", "q75", "max"), quantiles, strict=True)},
+    }
 
 
 def plot_bands(bands: dict, data: str, path: Path) -> None:
@@ -261,8 +295,11 @@ def plot_bands(bands: dict, data: str, path: Path) -> None:
 def _xvg_columns(path: Path) -> dict[str, np.ndarray]:
     """Columns of an ``.xvg`` by legend; ``gmx energy`` orders them as the energy file does,
     not as they were asked for."""
-    legends = [line.split('legend "')[1].rstrip('"\n') for line in path.read_text().splitlines()
-               if line.startswith("@ s") and 'legend "' in line]
+    legends = [
+        line.split('legend "')[1].rstrip('"\n')
+        for line in path.read_text().splitlines()
+        if line.startswith("@ s") and 'legend "' in line
+    ]
     table = np.loadtxt(path, comments=["#", "@"], ndmin=2)
     return {name: table[:, i + 1] for i, name in enumerate(legends)}
 
@@ -280,8 +317,7 @@ def validation_properties(preset: str, run_ps: float, theta: np.ndarray) -> dict
 
     num_steps = round(run_ps / 0.002)
     default_start = make_simulator(preset, "robust").protocol.analysis_start_ps
-    simulate = make_simulator(preset, "robust", num_steps=num_steps,
-                              analysis_start_ps=min(default_start, 0.2 * run_ps))
+    simulate = make_simulator(preset, "robust", num_steps=num_steps, analysis_start_ps=min(default_start, 0.2 * run_ps))
     gmx = find_gmx()
     start = str(simulate.protocol.analysis_start_ps)
     env = dict(os.environ, GMX_MAXBACKUP="-1")
@@ -290,9 +326,15 @@ def validation_properties(preset: str, run_ps: float, theta: np.ndarray) -> dict
     with tempfile.TemporaryDirectory(prefix="jaxabc-validation-") as tmp:
         workdir = Path(tmp)
         output = simulate.run(np.array([2, 0], np.uint32), theta, keep_directory=workdir)
-        subprocess.run([gmx, "energy", "-f", "npt.edr", "-o", "energy.xvg", "-b", start],
-                       input="Density\nVolume\nEnthalpy\n\n", text=True, cwd=workdir, check=True,
-                       capture_output=True, env=env)
+        subprocess.run(
+            [gmx, "energy", "-f", "npt.edr", "-o", "energy.xvg", "-b", start],
+            input="Density\nVolume\nEnthalpy\n\n",
+            text=True,
+            cwd=workdir,
+            check=True,
+            capture_output=True,
+            env=env,
+        )
         columns = _xvg_columns(workdir / "energy.xvg")
         blocks = []
         edges = np.linspace(float(start), run_ps, 6)
@@ -301,8 +343,7 @@ def validation_properties(preset: str, run_ps: float, theta: np.ndarray) -> dict
             cmd = [gmx, "dipoles", "-f", "npt.xtc", "-s", "npt.tpr", "-temp", str(temperature), "-b", str(b0)]
             if b1 is not None:
                 cmd += ["-e", str(b1)]
-            done = subprocess.run(cmd, input="0\n", text=True, cwd=workdir, check=True,
-                                  capture_output=True, env=env)
+            done = subprocess.run(cmd, input="0\n", text=True, cwd=workdir, check=True, capture_output=True, env=env)
             text = done.stdout + done.stderr
             blocks.append(float(text.split("Epsilon =")[1].split()[0]) if "Epsilon =" in text else np.nan)
         num_molecules = output.run.num_molecules
@@ -311,13 +352,24 @@ def validation_properties(preset: str, run_ps: float, theta: np.ndarray) -> dict
     kt_bar_nm3 = 1.380649e-23 * temperature / 1e-22  # 1 bar nm^3 = 1e-22 J
 
     def props(v, h, d):
-        return (float(d.mean()), float(v.var() / (kt_bar_nm3 * v.mean())),
-                float(h.var() / (8.314462618e-3 * temperature**2) / num_molecules * 1e3))
+        return (
+            float(d.mean()),
+            float(v.var() / (kt_bar_nm3 * v.mean())),
+            float(h.var() / (8.314462618e-3 * temperature**2) / num_molecules * 1e3),
+        )
 
     whole = props(volume_nm3, enthalpy_kj_mol, density)
-    per_block = np.array([props(v, h, d) for v, h, d in zip(np.array_split(volume_nm3, 5),
-                                                            np.array_split(enthalpy_kj_mol, 5),
-                                                            np.array_split(density, 5), strict=True)])
+    per_block = np.array(
+        [
+            props(v, h, d)
+            for v, h, d in zip(
+                np.array_split(volume_nm3, 5),
+                np.array_split(enthalpy_kj_mol, 5),
+                np.array_split(density, 5),
+                strict=True,
+            )
+        ]
+    )
     se = per_block.std(axis=0, ddof=1) / np.sqrt(5)
     eps_blocks = np.array(blocks[1:])
     return {
@@ -326,16 +378,20 @@ def validation_properties(preset: str, run_ps: float, theta: np.ndarray) -> dict
         "run_ps": run_ps,
         "analysed_from_ps": float(start),
         "num_molecules": int(num_molecules),
-        "density_kg_m3": whole[0], "density_se": float(se[0]),
-        "compressibility_per_bar": whole[1], "compressibility_se": float(se[1]),
-        "heat_capacity_j_mol_k": whole[2], "heat_capacity_se": float(se[2]),
+        "density_kg_m3": whole[0],
+        "density_se": float(se[0]),
+        "compressibility_per_bar": whole[1],
+        "compressibility_se": float(se[1]),
+        "heat_capacity_j_mol_k": whole[2],
+        "heat_capacity_se": float(se[2]),
         # the total-dipole fluctuation converges over nanoseconds (a 4 ps run gives 7.4 for
         # TIP4P, whose literature value is ~50); the paper used 5 ns runs.  The block SE
         # (fluctuations within 1/5 of the run) understates the error of a long-tailed quantity,
         # so it is labelled a lower bound.
         "dielectric_constant": blocks[0],
-        "dielectric_constant_block_se_lower_bound": float(np.nanstd(eps_blocks, ddof=1)
-                                                          / np.sqrt(np.isfinite(eps_blocks).sum())),
+        "dielectric_constant_block_se_lower_bound": float(
+            np.nanstd(eps_blocks, ddof=1) / np.sqrt(np.isfinite(eps_blocks).sum())
+        ),
         "block_se": "standard error from 5 consecutive blocks of the analysed frames",
         "wall_time_s": time.perf_counter() - t0,
     }
@@ -355,8 +411,10 @@ def validation_table(args, estimate: np.ndarray) -> dict:
     cache_path = args.out_dir / VALIDATION_CACHE
     cache = json.loads(cache_path.read_text()) if cache_path.exists() else {}
     points = {"bayes_estimate": np.asarray(estimate, np.float64), "tip4p": TIP4P_THETA}
-    keys = {name: f"{args.validation_preset}|{args.validation_ps:g}|{theta[0]:.6f}|{theta[1]:.6f}"
-            for name, theta in points.items()}
+    keys = {
+        name: f"{args.validation_preset}|{args.validation_ps:g}|{theta[0]:.6f}|{theta[1]:.6f}"
+        for name, theta in points.items()
+    }
     todo = [name for name in points if keys[name] not in cache]
     if todo:
         context = multiprocessing.get_context("spawn")
@@ -386,8 +444,7 @@ def validation_only(args, argv: list[str] | None = None) -> dict:
     if args.statistics not in everything:
         raise SystemExit(f"{path} has no {args.statistics!r} entry: run the calibration first")
     everything[args.statistics]["validation"] = validation_table(args, result.bayes_estimate())
-    write_result(path, everything, part=args.statistics, inputs=[args.validation_only],
-                 command=_command(argv))
+    write_result(path, everything, part=args.statistics, inputs=[args.validation_only], command=_command(argv))
     print(json.dumps(everything[args.statistics]["validation"], indent=1))
     return everything[args.statistics]
 
@@ -399,12 +456,11 @@ def main(argv=None) -> dict:
         return validation_only(args, argv)
     scale_mode = args.scale or ("pilot" if args.statistics == "robust" else "none")
     kind = "simulated" if args.data == "simulated" else args.data
-    simulate = make_simulator(args.preset, args.statistics, observed_kind=kind,
-                              **protocol_overrides(args))
-    prior = jaxabc.Uniform(PRIOR_LOW, PRIOR_HIGH, names=("sigma_OW", "epsilon_OW"),
-                           units=("nm", "kJ/mol"))
-    executor = jaxabc.ProcessPoolExecutor(max_workers=args.workers, order=args.order,
-                                          timeout=simulate.protocol.timeout_s + 60)
+    simulate = make_simulator(args.preset, args.statistics, observed_kind=kind, **protocol_overrides(args))
+    prior = jaxabc.Uniform(PRIOR_LOW, PRIOR_HIGH, names=("sigma_OW", "epsilon_OW"), units=("nm", "kJ/mol"))
+    executor = jaxabc.ProcessPoolExecutor(
+        max_workers=args.workers, order=args.order, timeout=simulate.protocol.timeout_s + 60
+    )
     started = time.perf_counter()
     observed = observed_vector(args, simulate)
     if scale_mode == "pilot":
@@ -414,11 +470,21 @@ def main(argv=None) -> dict:
         scale, distance = np.ones(9), "mean_abs"
     try:
         result = jaxabc.run(
-            "apmcabc", simulate, prior, observed, num_particles=args.particles,
-            num_steps=args.steps, distance=distance, seed=args.seed, executor=executor,
-            alpha=args.alpha, acceptance_cutoff=args.acceptance_cutoff,
+            "apmcabc",
+            simulate,
+            prior,
+            observed,
+            num_particles=args.particles,
+            num_steps=args.steps,
+            distance=distance,
+            seed=args.seed,
+            executor=executor,
+            alpha=args.alpha,
+            acceptance_cutoff=args.acceptance_cutoff,
             max_failure_fraction=args.max_failure_fraction,
-            checkpoint_dir=args.checkpoint_dir, resume=args.resume, progress=True,
+            checkpoint_dir=args.checkpoint_dir,
+            resume=args.resume,
+            progress=True,
             metadata={"data": args.data, "statistics": args.statistics, "preset": args.preset},
         )
     finally:
@@ -440,17 +506,22 @@ def main(argv=None) -> dict:
         "diffusion": args.diffusion if args.data != "simulated" else "simulated",
         "distance": "mean_abs" if scale_mode == "none" else "mean_abs / pilot MAD",
         "scale": np.asarray(scale).tolist(),
-        "settings": {"particles": args.particles, "steps": args.steps, "alpha": args.alpha,
-                     "acceptance_cutoff": args.acceptance_cutoff, "seed": args.seed,
-                     "workers": args.workers, "order": args.order},
+        "settings": {
+            "particles": args.particles,
+            "steps": args.steps,
+            "alpha": args.alpha,
+            "acceptance_cutoff": args.acceptance_cutoff,
+            "seed": args.seed,
+            "workers": args.workers,
+            "order": args.order,
+        },
         "bayes_estimate": result.bayes_estimate().tolist(),
         "correlation": float(result.correlation()[0, 1]),
         "credible_interval_95": result.credible_interval(0.95).tolist(),
         "final_threshold": float(result.thresholds[-1]),
         "num_simulations": int(result.num_simulations),
         "num_failures": int(failures.sum()),
-        "failure_reasons": sorted({r for r, f in zip(result.records["reasons"], failures,
-                                                     strict=True) if f})[:20],
+        "failure_reasons": sorted({r for r, f in zip(result.records["reasons"], failures, strict=True) if f})[:20],
         "wall_time_s": time.perf_counter() - started,
         "stop_reason": result.stop_reason,
         "paper": PAPER[args.data],

@@ -71,8 +71,11 @@ def parse_arguments(argv: list[str] | None = None) -> argparse.Namespace:
     """Command-line options."""
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--seed", type=int, default=0, help="second word of the raw JAX key [0, seed]")
-    parser.add_argument("--quick", action="store_true",
-                        help="write benchmarks/results/quick/water_example_curves.json (the run is already quick)")
+    parser.add_argument(
+        "--quick",
+        action="store_true",
+        help="write benchmarks/results/quick/water_example_curves.json (the run is already quick)",
+    )
     return parser.parse_args(argv)
 
 
@@ -98,29 +101,40 @@ def main(argv: list[str] | None = None) -> Path:
     lag = np.asarray(output.curves.lag_ps)
     window = [MSD_WINDOW_FRACTION[0] * float(lag[-1]), MSD_WINDOW_FRACTION[1] * float(lag[-1])]
     protocol = simulator.protocol
-    path = write_result("water_example_curves", {
-        "description": __doc__.split("\n\n")[0],
-        "setup": {
-            "preset": protocol.name,
-            "protocol": {k: v for k, v in protocol.__dict__.items() if isinstance(v, int | float | str | None)},
-            "theta": TIP4P_THETA.tolist(),
-            "theta_names": ["sigma_ow_nm", "epsilon_ow_kj_mol"],
-            "key": key.tolist(),
-            "gen_seed": int(output.run.gen_seed),
-            "ld_seed": int(output.run.ld_seed),
-            "num_molecules": int(output.run.num_molecules),
-            "gromacs_wall_time_s": float(output.run.wall_time_s),
-            "total_wall_time_s": t_sim,
+    path = write_result(
+        "water_example_curves",
+        {
+            "description": __doc__.split("\n\n")[0],
+            "setup": {
+                "preset": protocol.name,
+                "protocol": {k: v for k, v in protocol.__dict__.items() if isinstance(v, int | float | str | None)},
+                "theta": TIP4P_THETA.tolist(),
+                "theta_names": ["sigma_ow_nm", "epsilon_ow_kj_mol"],
+                "key": key.tolist(),
+                "gen_seed": int(output.run.gen_seed),
+                "ld_seed": int(output.run.ld_seed),
+                "num_molecules": int(output.run.num_molecules),
+                "gromacs_wall_time_s": float(output.run.wall_time_s),
+                "total_wall_time_s": t_sim,
+            },
+            "statistic_names": list(STATISTIC_NAMES),
+            "statistics": {
+                "robust": {
+                    "values": robust_statistics.tolist(),
+                    "units": list(STATISTIC_UNITS["robust"]),
+                    "msd_fit_window_ps": window,
+                },
+                "paper": {
+                    "values": paper_statistics.tolist(),
+                    "units": list(STATISTIC_UNITS["paper"]),
+                    "msd_fit_window_ps": [float(lag[2]), float(lag[-1])] if lag.size > 2 else None,
+                },
+            },
+            "curves": {"robust": curves_to_json(output.curves), "paper": curves_to_json(paper_curves)},
         },
-        "statistic_names": list(STATISTIC_NAMES),
-        "statistics": {
-            "robust": {"values": robust_statistics.tolist(), "units": list(STATISTIC_UNITS["robust"]),
-                       "msd_fit_window_ps": window},
-            "paper": {"values": paper_statistics.tolist(), "units": list(STATISTIC_UNITS["paper"]),
-                      "msd_fit_window_ps": [float(lag[2]), float(lag[-1])] if lag.size > 2 else None},
-        },
-        "curves": {"robust": curves_to_json(output.curves), "paper": curves_to_json(paper_curves)},
-    }, quick=args.quick, command=None if argv is None else command_line([__file__, *argv]))
+        quick=args.quick,
+        command=None if argv is None else command_line([__file__, *argv]),
+    )
     for variant, values in (("robust", robust_statistics), ("paper", paper_statistics)):
         print(f"{variant:>6}: " + ", ".join(f"S{i + 1} {v:.4g}" for i, v in enumerate(values)))
     print(f"GROMACS {output.run.wall_time_s:.1f} s, density {output.curves.density_kg_m3:.1f} kg/m3")

@@ -57,21 +57,26 @@ def _freeze(value: Any) -> Any:
     if isinstance(value, list | tuple):
         return tuple(_freeze(v) for v in value)
     if isinstance(value, np.ndarray | jax.Array):
-        return ("array", np.asarray(value).dtype.str, np.asarray(value).shape,
-                np.asarray(value).tobytes())
+        return ("array", np.asarray(value).dtype.str, np.asarray(value).shape, np.asarray(value).tobytes())
     hash(value)  # raises TypeError for an unhashable option: then the call is not cached
     return value
 
 
 def _prior_key(prior: Any) -> Any:
-    return (type(prior), np.asarray(prior.low).tobytes(), np.asarray(prior.high).tobytes(),
-            np.asarray(prior.low).dtype.str, tuple(getattr(prior, "names", ())))
+    return (
+        type(prior),
+        np.asarray(prior.low).tobytes(),
+        np.asarray(prior.high).tobytes(),
+        np.asarray(prior.low).dtype.str,
+        tuple(getattr(prior, "names", ())),
+    )
 
 
 def _wrap(algo: ABCAlgorithm) -> Compiled:
     jit = (lambda f: f) if algo.host else jax.jit
-    return Compiled(algo, jit(algo.initial_proposal), jit(algo.init), jit(algo.propose),
-                    jit(algo.update), jit(algo.posterior))
+    return Compiled(
+        algo, jit(algo.initial_proposal), jit(algo.init), jit(algo.propose), jit(algo.update), jit(algo.posterior)
+    )
 
 
 def _remember(cache: collections.OrderedDict, key: Any, value: Any) -> Any:
@@ -82,15 +87,12 @@ def _remember(cache: collections.OrderedDict, key: Any, value: Any) -> Any:
     return value
 
 
-def build_by_name(name: str, prior: Any, num_particles: int | None,
-                  options: dict) -> ABCAlgorithm:
+def build_by_name(name: str, prior: Any, num_particles: int | None, options: dict) -> ABCAlgorithm:
     """``BUILDERS[name](prior, num_particles, **options)`` with clear errors."""
     try:
         builder = _algorithms.BUILDERS[name]
     except KeyError:
-        raise ValueError(
-            f"unknown algorithm {name!r}: use one of {sorted(_algorithms.BUILDERS)}"
-        ) from None
+        raise ValueError(f"unknown algorithm {name!r}: use one of {sorted(_algorithms.BUILDERS)}") from None
     params = inspect.signature(builder).parameters
     if num_particles is None:
         slot = params.get("num_particles")
@@ -109,8 +111,9 @@ def builder_accepts(name: str, option: str) -> bool:
     return builder is not None and option in inspect.signature(builder).parameters
 
 
-def compile_algorithm(algorithm: str | ABCAlgorithm, prior: Any, num_particles: int | None,
-                      options: dict, dtype: str) -> Compiled:
+def compile_algorithm(
+    algorithm: str | ABCAlgorithm, prior: Any, num_particles: int | None, options: dict, dtype: str
+) -> Compiled:
     """The algorithm and its jitted functions, reused across calls with the same configuration.
 
     A name is built from :data:`jaxabc.algorithms.BUILDERS` and cached on (name, options, prior
@@ -143,8 +146,7 @@ def compile_algorithm(algorithm: str | ABCAlgorithm, prior: Any, num_particles: 
     if hit is not None:
         _compiled_cache.move_to_end(key)
         return hit
-    return _remember(_compiled_cache, key, _wrap(build_by_name(algorithm, prior, num_particles,
-                                                               options)))
+    return _remember(_compiled_cache, key, _wrap(build_by_name(algorithm, prior, num_particles, options)))
 
 
 def make_distance_fn(distance: Any, observed: np.ndarray, dtype: Any) -> Callable:
@@ -210,29 +212,40 @@ class Recorder:
         self.keep_summaries = keep_summaries
         self.chunks: list[dict[str, Any]] = []
 
-    def add(self, iteration: int, thetas: np.ndarray, batch: Any, distances: np.ndarray,
-            status: np.ndarray, reasons: list[str]) -> None:
+    def add(
+        self,
+        iteration: int,
+        thetas: np.ndarray,
+        batch: Any,
+        distances: np.ndarray,
+        status: np.ndarray,
+        reasons: list[str],
+    ) -> None:
         """Record one batch; ``status`` and ``reasons`` override the executor's."""
-        self.chunks.append({
-            "theta": np.asarray(thetas, np.float64),
-            "summaries": np.asarray(batch.summaries) if self.keep_summaries else None,
-            "distance": np.asarray(distances, np.float64),
-            "status": np.asarray(status, np.int32),
-            "wall_time": np.asarray(batch.wall_time, np.float64),
-            "cpu_time": (np.full(len(distances), np.nan) if batch.cpu_time is None
-                         else np.asarray(batch.cpu_time, np.float64)),
-            "worker": np.asarray(batch.worker, np.int32),
-            "iteration": np.full(len(distances), iteration, np.int32),
-            "reasons": list(reasons),
-        })
+        self.chunks.append(
+            {
+                "theta": np.asarray(thetas, np.float64),
+                "summaries": np.asarray(batch.summaries) if self.keep_summaries else None,
+                "distance": np.asarray(distances, np.float64),
+                "status": np.asarray(status, np.int32),
+                "wall_time": np.asarray(batch.wall_time, np.float64),
+                "cpu_time": (
+                    np.full(len(distances), np.nan)
+                    if batch.cpu_time is None
+                    else np.asarray(batch.cpu_time, np.float64)
+                ),
+                "worker": np.asarray(batch.worker, np.int32),
+                "iteration": np.full(len(distances), iteration, np.int32),
+                "reasons": list(reasons),
+            }
+        )
 
     def arrays(self) -> dict[str, Any]:
         """The record as concatenated arrays (``summaries`` only when all shapes agree)."""
         if not self.chunks:
             return {}
         out: dict[str, Any] = {}
-        for key in ("theta", "distance", "status", "wall_time", "cpu_time", "worker",
-                    "iteration"):
+        for key in ("theta", "distance", "status", "wall_time", "cpu_time", "worker", "iteration"):
             out[key] = np.concatenate([c[key] for c in self.chunks])
         if self.keep_summaries:
             shapes = {c["summaries"].shape[1:] for c in self.chunks}
@@ -249,23 +262,25 @@ class Recorder:
         for c in self.chunks:
             for i in np.flatnonzero(c["status"] != STATUS_OK)[: 5 - len(examples)]:
                 status = STATUS_NAMES.get(int(c["status"][i]), int(c["status"][i]))
-                examples.append(f"theta={np.array2string(c['theta'][i], precision=4)}: {status}: "
-                                f"{c['reasons'][i]}")
+                examples.append(f"theta={np.array2string(c['theta'][i], precision=4)}: {status}: {c['reasons'][i]}")
             if len(examples) >= 5:
                 break
         return total, failed, examples
 
 
-def mark_bad_distances(status: np.ndarray, reasons: list[str], bad: np.ndarray,
-                       distances: np.ndarray) -> tuple[np.ndarray, list[str]]:
+def mark_bad_distances(
+    status: np.ndarray, reasons: list[str], bad: np.ndarray, distances: np.ndarray
+) -> tuple[np.ndarray, list[str]]:
     """Status and reasons with successful simulations of NaN / ``-inf`` distance marked failed."""
     if not np.any(bad):
         return status, reasons
     status = np.where(bad, STATUS_BAD_DISTANCE, status)
     reasons = list(reasons)
     for i in np.flatnonzero(bad):
-        reasons[i] = ("the distance to the observed data was NaN or -inf for finite summaries "
-                      "(e.g. a KL distance of samples with no spread)")
+        reasons[i] = (
+            "the distance to the observed data was NaN or -inf for finite summaries "
+            "(e.g. a KL distance of samples with no spread)"
+        )
     return status, reasons
 
 
@@ -280,8 +295,9 @@ class Progress:
     sims_this_generation: int = 0
     last_posterior: tuple | None = None
     stop_reason: str = ""
-    history: dict[str, list] = field(default_factory=lambda: {
-        "threshold": [], "sims": [], "acceptance": [], "ess": [], "wall": []})
+    history: dict[str, list] = field(
+        default_factory=lambda: {"threshold": [], "sims": [], "acceptance": [], "ess": [], "wall": []}
+    )
 
 
 @dataclass

@@ -42,12 +42,12 @@ def validate_observed(observed: Any) -> np.ndarray:
     return obs
 
 
-def validate_arguments(dtype: str, num_particles: Any, num_steps: int | None,
-                        max_failure_fraction: float, simulate: Any, prior: Any) -> None:
+def validate_arguments(
+    dtype: str, num_particles: Any, num_steps: int | None, max_failure_fraction: float, simulate: Any, prior: Any
+) -> None:
     if dtype not in ("float32", "float64"):
         raise ValueError(f"dtype must be 'float32' or 'float64', got {dtype!r}")
-    if num_particles is not None and (not isinstance(num_particles, int | np.integer)
-                                      or num_particles < 1):
+    if num_particles is not None and (not isinstance(num_particles, int | np.integer) or num_particles < 1):
         raise ValueError(f"num_particles must be a positive integer, got {num_particles!r}")
     if num_steps is not None and num_steps < 1:
         raise ValueError(f"num_steps must be at least 1, got {num_steps}")
@@ -74,8 +74,7 @@ def shapes_compatible(simulated: tuple, observed: tuple, distance: Any) -> bool:
     return tuple(simulated) == tuple(observed)
 
 
-def check_shape(executor: Executor, simulate: Callable, prior: Uniform,
-                 observed: np.ndarray, distance: Any) -> None:
+def check_shape(executor: Executor, simulate: Callable, prior: Uniform, observed: np.ndarray, distance: Any) -> None:
     """Fail early, with a clear message, when a JAX simulator's output shape is wrong."""
     if executor.name != "vmap" or hasattr(simulate, "simulate_batch"):
         return

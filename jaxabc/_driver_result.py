@@ -23,29 +23,31 @@ def final_posterior(ctx: Context, prog: Progress) -> tuple[tuple, bool]:
         particles, log_w = ctx.compiled.posterior(prog.state)
         log_w = np.asarray(log_w)
         if np.any(np.isfinite(log_w)):
-            return (np.asarray(particles), log_w,
-                    posterior_distances(prog.state, len(log_w))), True
+            return (np.asarray(particles), log_w, posterior_distances(prog.state, len(log_w))), True
     raise NoPosterior(
         f"the run stopped ({prog.stop_reason}) after {prog.num_sims} simulations without "
         "accepting any particle: raise max_simulations / max_wall_time or loosen the threshold"
     )
 
 
-def assemble(ctx: Context, prog: Progress, dtype: str, metadata: dict | None,
-              seed: int, prior: Any) -> ABCResult:
+def assemble(ctx: Context, prog: Progress, dtype: str, metadata: dict | None, seed: int, prior: Any) -> ABCResult:
     (particles, log_w, dist), incomplete = final_posterior(ctx, prog)
     algo = ctx.compiled.algorithm
     stop_reason = prog.stop_reason
     keep = np.isfinite(log_w)
     if incomplete:
-        stop_reason += (f"; incomplete: the first generation was not completed, the posterior "
-                        f"holds the {int(keep.sum())} particles accepted so far")
+        stop_reason += (
+            f"; incomplete: the first generation was not completed, the posterior "
+            f"holds the {int(keep.sum())} particles accepted so far"
+        )
     w = np.exp(log_w[keep] - np.max(log_w[keep]))
     distance = ctx.distance
     meta: dict[str, Any] = {
-        "versions": versions(), "executor": ctx.executor.name,
+        "versions": versions(),
+        "executor": ctx.executor.name,
         "distance": distance if isinstance(distance, str) else getattr(distance, "__name__", "custom"),
-        "dtype": dtype, "observed": ctx.observed.tolist() if ctx.observed.size <= 10_000 else None,
+        "dtype": dtype,
+        "observed": ctx.observed.tolist() if ctx.observed.size <= 10_000 else None,
         # Seconds since this process started the run, at the end of each generation (after a
         # resume, counted from the resume).
         "generation_wall_times": prog.history["wall"],
@@ -64,12 +66,22 @@ def assemble(ctx: Context, prog: Progress, dtype: str, metadata: dict | None,
         # The algorithm's own end-of-run estimate (e.g. ABCsubsim's chain ESS) bounds the last.
         ess[-1] = min(ess[-1], float(final_ess))
     return ABCResult(
-        particles=particles[keep].astype(np.float64), weights=w / w.sum(),
+        particles=particles[keep].astype(np.float64),
+        weights=w / w.sum(),
         distances=dist[keep] if dist is not None else np.full(int(keep.sum()), np.nan),
-        thresholds=np.asarray(h["threshold"]), simulations_per_step=np.asarray(h["sims"]),
-        acceptance_rates=np.asarray(h["acceptance"]), ess=ess,
-        num_simulations=prog.num_sims, algorithm=algo.name, settings=algo.settings, prior=prior,
-        seed=seed, stop_reason=stop_reason, wall_time=time.perf_counter() - ctx.t_start,
-        log_evidence=None if log_ev is None else float(log_ev), records=prog.recorder.arrays(),
-        metadata=meta, diagnostics=diagnostics,
+        thresholds=np.asarray(h["threshold"]),
+        simulations_per_step=np.asarray(h["sims"]),
+        acceptance_rates=np.asarray(h["acceptance"]),
+        ess=ess,
+        num_simulations=prog.num_sims,
+        algorithm=algo.name,
+        settings=algo.settings,
+        prior=prior,
+        seed=seed,
+        stop_reason=stop_reason,
+        wall_time=time.perf_counter() - ctx.t_start,
+        log_evidence=None if log_ev is None else float(log_ev),
+        records=prog.recorder.arrays(),
+        metadata=meta,
+        diagnostics=diagnostics,
     )

@@ -55,10 +55,12 @@ def to_arviz(result: Any, num_draws: int | None = None, seed: int = 0) -> Any:
         distances = np.asarray(result.distances)[idx][None]
         how = f"{n} draws resampled by weight (seed {seed})"
     posterior = {name: draws[..., j] for j, name in enumerate(result.names)}
-    constant = {"threshold": np.asarray(result.thresholds, np.float64),
-                "simulations": np.asarray(result.simulations_per_step),
-                "acceptance_rate": np.asarray(result.acceptance_rates, np.float64),
-                "ess": np.asarray(result.ess, np.float64)}
+    constant = {
+        "threshold": np.asarray(result.thresholds, np.float64),
+        "simulations": np.asarray(result.simulations_per_step),
+        "acceptance_rate": np.asarray(result.acceptance_rates, np.float64),
+        "ess": np.asarray(result.ess, np.float64),
+    }
     dims = {k: ["step"] for k in constant}
     observed = result.metadata.get("observed")
     kwargs = {}
@@ -72,15 +74,24 @@ def to_arviz(result: Any, num_draws: int | None = None, seed: int = 0) -> Any:
             sample_stats={"distance": np.asarray(distances, np.float64)},
             constant_data=constant,
             dims=dims,
-            attrs={"algorithm": result.algorithm, "draws": how,
-                   "effective_sample_size": result.effective_sample_size(),
-                   "stop_reason": result.stop_reason, "inference_library": "jaxabc"},
+            attrs={
+                "algorithm": result.algorithm,
+                "draws": how,
+                "effective_sample_size": result.effective_sample_size(),
+                "stop_reason": result.stop_reason,
+                "inference_library": "jaxabc",
+            },
             **kwargs,
         )
 
 
-def plot_posterior(result: Any, path: str | Path | None = None, truth: np.ndarray | None = None,
-                   params: tuple[int, int] = (0, 1), ax: Any = None) -> Any:
+def plot_posterior(
+    result: Any,
+    path: str | Path | None = None,
+    truth: np.ndarray | None = None,
+    params: tuple[int, int] = (0, 1),
+    ax: Any = None,
+) -> Any:
     """Weighted Gaussian-KDE contours of two parameters, the Bayes estimate and the truth.
 
     Returns the matplotlib figure; saves it when ``path`` is given.
@@ -104,8 +115,9 @@ def plot_posterior(result: Any, path: str | Path | None = None, truth: np.ndarra
     try:
         kde = gaussian_kde(np.vstack([x, y]), weights=result.weights)
         pad_x, pad_y = 0.25 * np.ptp(x) + 1e-12, 0.25 * np.ptp(y) + 1e-12
-        gx, gy = np.meshgrid(np.linspace(x.min() - pad_x, x.max() + pad_x, 120),
-                             np.linspace(y.min() - pad_y, y.max() + pad_y, 120))
+        gx, gy = np.meshgrid(
+            np.linspace(x.min() - pad_x, x.max() + pad_x, 120), np.linspace(y.min() - pad_y, y.max() + pad_y, 120)
+        )
         z = kde(np.vstack([gx.ravel(), gy.ravel()])).reshape(gx.shape)
         cs = ax.contourf(gx, gy, z, levels=12, cmap="Blues")
         fig.colorbar(cs, ax=ax, label="posterior density")

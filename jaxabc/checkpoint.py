@@ -121,22 +121,24 @@ def fingerprint(
     its class, bounds and names; the distance and the simulator by name (``module:qualname``).
     """
     obs = np.ascontiguousarray(observed, dtype=np.float64)
-    return _jsonable({
-        "algorithm": algorithm,
-        "settings": settings,
-        "prior": {
-            "class": _callable_id(type(prior)),
-            "low": np.asarray(prior.low, np.float64).tolist(),
-            "high": np.asarray(prior.high, np.float64).tolist(),
-            "names": list(getattr(prior, "names", ())),
-        },
-        "observed": {"shape": list(obs.shape), "sha256": hashlib.sha256(obs.tobytes()).hexdigest()},
-        "distance": _callable_id(distance),
-        "simulator": simulator_id,
-        "seed": int(seed),
-        "num_particles": None if num_particles is None else int(num_particles),
-        "dtype": dtype,
-    })
+    return _jsonable(
+        {
+            "algorithm": algorithm,
+            "settings": settings,
+            "prior": {
+                "class": _callable_id(type(prior)),
+                "low": np.asarray(prior.low, np.float64).tolist(),
+                "high": np.asarray(prior.high, np.float64).tolist(),
+                "names": list(getattr(prior, "names", ())),
+            },
+            "observed": {"shape": list(obs.shape), "sha256": hashlib.sha256(obs.tobytes()).hexdigest()},
+            "distance": _callable_id(distance),
+            "simulator": simulator_id,
+            "seed": int(seed),
+            "num_particles": None if num_particles is None else int(num_particles),
+            "dtype": dtype,
+        }
+    )
 
 
 def simulator_identity(simulate: Callable, simulator_id: str | None) -> str:
@@ -164,8 +166,7 @@ def save(path: Path, ckpt: Checkpoint) -> None:
     """Write ``ckpt`` to ``path`` atomically (temporary file, fsync, rename)."""
     arrays: dict[str, np.ndarray] = {f"state/{k}": np.asarray(v) for k, v in ckpt.state_leaves.items()}
     if ckpt.last_posterior is not None:
-        for name, value in zip(("particles", "log_weights", "distances"), ckpt.last_posterior,
-                               strict=True):
+        for name, value in zip(("particles", "log_weights", "distances"), ckpt.last_posterior, strict=True):
             arrays[f"posterior/{name}"] = np.asarray(value)
     chunks = ckpt.records
     reasons: list[str] = []
@@ -221,8 +222,15 @@ def load(path: Path) -> Checkpoint:
             arrays = {k: data[k] for k in data.files if k != "header"}
     except FileNotFoundError:
         raise
-    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile, json.JSONDecodeError,
-            UnicodeDecodeError) as exc:
+    except (
+        OSError,
+        ValueError,
+        KeyError,
+        EOFError,
+        zipfile.BadZipFile,
+        json.JSONDecodeError,
+        UnicodeDecodeError,
+    ) as exc:
         raise CheckpointError(
             f"the checkpoint {path} is corrupt or truncated ({type(exc).__name__}: {exc}); "
             "delete it and start over with overwrite=True"
@@ -247,20 +255,16 @@ def _unpack(header: dict, arrays: dict[str, np.ndarray]) -> Checkpoint:
     state = {k: arrays[f"state/{k}"] for k in header["state_keys"]}
     post = None
     if "posterior/particles" in arrays:
-        post = (arrays["posterior/particles"], arrays["posterior/log_weights"],
-                arrays["posterior/distances"])
+        post = (arrays["posterior/particles"], arrays["posterior/log_weights"], arrays["posterior/distances"])
     chunks: list[dict[str, Any]] = []
     start = 0
     for i, size in enumerate(header["chunk_sizes"]):
-        chunk: dict[str, Any] = {
-            k: arrays[f"records/{k}"][start:start + size] for k in _RECORD_KEYS
-        }
+        chunk: dict[str, Any] = {k: arrays[f"records/{k}"][start : start + size] for k in _RECORD_KEYS}
         chunk["summaries"] = arrays.get(f"records/summaries/{i}")
-        chunk["reasons"] = header["reasons"][start:start + size]
+        chunk["reasons"] = header["reasons"][start : start + size]
         chunks.append(chunk)
         start += size
-    return Checkpoint(header["fingerprint"], state, header["counters"], header["history"],
-                      chunks, post)
+    return Checkpoint(header["fingerprint"], state, header["counters"], header["history"], chunks, post)
 
 
 def load_records(path: Path) -> dict[str, np.ndarray]:
@@ -314,9 +318,7 @@ def prepare_folder(folder: str | Path | None, resume: bool, overwrite: bool) -> 
         if not path.exists():
             if legacy.exists():
                 load(legacy)  # raises the clear refusal of old pickles
-            raise FileNotFoundError(
-                f"no checkpoint at {path}: run without resume=True to start afresh"
-            )
+            raise FileNotFoundError(f"no checkpoint at {path}: run without resume=True to start afresh")
     else:
         existing = path if path.exists() else legacy if legacy.exists() else None
         if existing is not None:

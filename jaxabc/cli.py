@@ -170,10 +170,20 @@ def run_config(cfg: dict, resume: bool = False, progress: bool = True, overwrite
     executor = jaxabc.executors.get_executor(ex.get("name", "vmap"), **ex.get("options", {}))
     folder = Path(cfg["output"]["folder"])
     try:
-        result = jaxabc.run(name, simulate, prior, observed, executor=executor,
-                            checkpoint_dir=folder, resume=resume, overwrite=overwrite,
-                            progress=progress,
-                            metadata={"config": cfg}, **a, **options)
+        result = jaxabc.run(
+            name,
+            simulate,
+            prior,
+            observed,
+            executor=executor,
+            checkpoint_dir=folder,
+            resume=resume,
+            overwrite=overwrite,
+            progress=progress,
+            metadata={"config": cfg},
+            **a,
+            **options,
+        )
     finally:
         executor.close()
     write_outputs(result, folder, truth=cfg.get("truth", {}).get("values"))
@@ -187,8 +197,15 @@ def _load_result(path: str | Path):
     path = _existing_file(Path(path), "result file")
     try:
         return jaxabc.load(path)
-    except (zipfile.BadZipFile, EOFError, pickle.UnpicklingError, UnicodeDecodeError, TypeError,
-            AttributeError, OSError) as exc:
+    except (
+        zipfile.BadZipFile,
+        EOFError,
+        pickle.UnpicklingError,
+        UnicodeDecodeError,
+        TypeError,
+        AttributeError,
+        OSError,
+    ) as exc:
         # TypeError/AttributeError: np.load returned a plain array (an .npy), not an archive.
         raise ValueError(f"{path} is not a jaxabc result file: it is not a readable .npz archive ({exc})") from None
     except KeyError as exc:
@@ -209,14 +226,23 @@ def _example(name: str, folder: Path, quick: bool) -> None:
 
     if name == "gaussian":
         prior = jaxabc.Uniform([-10.0, -10.0], [10.0, 10.0], names=("a", "b"))
-        result = jaxabc.run("apmcabc", examples.correlated_simulate, prior, jnp.zeros(2),
-                            num_particles=2000, num_steps=8, distance="euclidean", seed=0,
-                            progress=True, checkpoint_dir=folder, overwrite=True)
+        result = jaxabc.run(
+            "apmcabc",
+            examples.correlated_simulate,
+            prior,
+            jnp.zeros(2),
+            num_particles=2000,
+            num_steps=8,
+            distance="euclidean",
+            seed=0,
+            progress=True,
+            checkpoint_dir=folder,
+            overwrite=True,
+        )
         write_outputs(result, folder, truth=np.zeros(2))
         print(result.summary())
         eps = float(result.thresholds[-1])
-        print(f"exact ABC posterior correlation at eps={eps:.3f}: "
-              f"{examples.correlated_abc_correlation(eps):.3f}")
+        print(f"exact ABC posterior correlation at eps={eps:.3f}: {examples.correlated_abc_correlation(eps):.3f}")
         return
     if name == "helium":
         # Looked up at call time: jaxabc (inference) never imports md (simulators) at module level.
@@ -232,13 +258,15 @@ def _example(name: str, folder: Path, quick: bool) -> None:
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``jaxabc`` command; returns the exit code (2 for a user error)."""
     parser = argparse.ArgumentParser(
-        prog="jaxabc", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+        prog="jaxabc", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     sub = parser.add_subparsers(dest="command", required=True)
     p_run = sub.add_parser("run", help="run a calibration described by a TOML file")
     p_run.add_argument("config")
     p_run.add_argument("--resume", action="store_true", help="continue from the checkpoint")
-    p_run.add_argument("--overwrite", action="store_true",
-                       help="start over, replacing a checkpoint left in the output folder")
+    p_run.add_argument(
+        "--overwrite", action="store_true", help="start over, replacing a checkpoint left in the output folder"
+    )
     p_run.add_argument("--no-progress", action="store_true")
     p_ex = sub.add_parser("example", help="run a built-in example: " + ", ".join(EXAMPLES))
     p_ex.add_argument("name", choices=sorted(EXAMPLES))
@@ -249,8 +277,9 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     try:
         if args.command == "run":
-            result = run_config(load_config(args.config), resume=args.resume,
-                                progress=not args.no_progress, overwrite=args.overwrite)
+            result = run_config(
+                load_config(args.config), resume=args.resume, progress=not args.no_progress, overwrite=args.overwrite
+            )
             print(result.summary())
         elif args.command == "example":
             _example(args.name, Path(args.output or f"runs/{args.name}"), args.quick)

@@ -90,8 +90,9 @@ class CoverageStudy:
             "settings": self.settings,
             "num_datasets": int(self.levels.size),
             "hpd_coverage": {str(q): self.hpd_coverage(q) for q in (0.5, 0.8, 0.9, 0.95)},
-            "interval_coverage": {str(q): [v.tolist() for v in self.interval_coverage(q)]
-                                  for q in sorted(self.inside_intervals)},
+            "interval_coverage": {
+                str(q): [v.tolist() for v in self.interval_coverage(q)] for q in sorted(self.inside_intervals)
+            },
             "mean_level": float(self.levels.mean()),
             "median_threshold": float(np.median(self.thresholds)),
             "median_ess": float(np.median(self.ess)),
@@ -184,9 +185,11 @@ def coverage_study(
     keys = jax.random.split(jax.random.key(seed), num_datasets)
     truths, observed, particles, log_w, thresholds, gens, stuck = jax.device_get(jax.jit(jax.vmap(one))(keys))
     if np.any(stuck):
-        raise RuntimeError(f"{int(np.sum(stuck))} of {num_datasets} runs had not completed {num_steps} generations "
-                           f"after {max_calls} steps (e.g. a rejection threshold that almost nothing meets); "
-                           "loosen the tolerance or use a quantile")
+        raise RuntimeError(
+            f"{int(np.sum(stuck))} of {num_datasets} runs had not completed {num_steps} generations "
+            f"after {max_calls} steps (e.g. a rejection threshold that almost nothing meets); "
+            "loosen the tolerance or use a quantile"
+        )
 
     levels = np.empty(num_datasets)
     inside = {q: np.zeros((num_datasets, prior.dim), bool) for q in interval_levels}
@@ -195,8 +198,10 @@ def coverage_study(
         lw = np.asarray(log_w[r], np.float64)
         keep = np.isfinite(lw)
         if not keep.any():
-            raise RuntimeError(f"data set {r}: the run ended with an empty posterior after {int(gens[r])} "
-                               f"generations; raise num_steps or loosen the algorithm's options")
+            raise RuntimeError(
+                f"data set {r}: the run ended with an empty posterior after {int(gens[r])} "
+                f"generations; raise num_steps or loosen the algorithm's options"
+            )
         w = np.exp(lw[keep] - lw[keep].max())
         post = ABCResult.from_sample(np.asarray(particles[r])[keep], w, prior, algorithm)
         levels[r] = post.credible_level(truths[r])
@@ -204,10 +209,23 @@ def coverage_study(
             ci = post.credible_interval(q)
             inside[q][r] = (ci[:, 0] <= truths[r]) & (truths[r] <= ci[:, 1])
         ess[r], size[r] = post.effective_sample_size(), keep.sum()
-    settings = {"algorithm": algorithm, "num_particles": num_particles, "num_steps": num_steps, "seed": seed,
-                "distance": distance if isinstance(distance, str) else getattr(distance, "__name__", "custom"),
-                "data": "custom sample_data" if sample_data else "truth from the prior, data from simulate",
-                **{k: v for k, v in algo.settings.items() if k not in ("num_particles",)}}
-    return CoverageStudy(truths=np.asarray(truths), observed=np.asarray(observed), levels=levels,
-                         inside_intervals=inside, thresholds=np.asarray(thresholds, np.float64),
-                         generations=np.asarray(gens), ess=ess, posterior_size=size, settings=settings)
+    settings = {
+        "algorithm": algorithm,
+        "num_particles": num_particles,
+        "num_steps": num_steps,
+        "seed": seed,
+        "distance": distance if isinstance(distance, str) else getattr(distance, "__name__", "custom"),
+        "data": "custom sample_data" if sample_data else "truth from the prior, data from simulate",
+        **{k: v for k, v in algo.settings.items() if k not in ("num_particles",)},
+    }
+    return CoverageStudy(
+        truths=np.asarray(truths),
+        observed=np.asarray(observed),
+        levels=levels,
+        inside_intervals=inside,
+        thresholds=np.asarray(thresholds, np.float64),
+        generations=np.asarray(gens),
+        ess=ess,
+        posterior_size=size,
+        settings=settings,
+    )

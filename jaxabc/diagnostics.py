@@ -95,8 +95,7 @@ def chain_ess(chains: np.ndarray) -> float:
             # ArviZ 0.x announces its 1.0 refactor with a FutureWarning on import.
             warnings.simplefilter("ignore", FutureWarning)
             import arviz as az
-        per_param = [float(az.ess(x[:, :, j], method="identity")) for j in range(d)
-                     if np.ptp(x[:, :, j]) > 0]
+        per_param = [float(az.ess(x[:, :, j], method="identity")) for j in range(d) if np.ptp(x[:, :, j]) > 0]
         per_param = [e for e in per_param if np.isfinite(e)]
         ess = min(per_param) if per_param else float(c * length)
     return float(np.clip(ess, 1.0, distinct))

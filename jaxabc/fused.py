@@ -102,8 +102,9 @@ class _Limits(NamedTuple):
     max_simulations: jax.Array  # () int
 
 
-def _compile(algo: ABCAlgorithm, simulate: Callable, distance: Callable, chunk_size: int,
-             keep_summaries: bool) -> tuple[Callable, Callable]:
+def _compile(
+    algo: ABCAlgorithm, simulate: Callable, distance: Callable, chunk_size: int, keep_summaries: bool
+) -> tuple[Callable, Callable]:
     """Jitted ``start(root, observed, limits)`` and ``chunk(root, observed, limits, carry)``."""
 
     def simulate_distances(key, thetas, active, observed):
@@ -120,40 +121,67 @@ def _compile(algo: ABCAlgorithm, simulate: Callable, distance: Callable, chunk_s
         done = info.generation_done
         particles, log_w = algo.posterior(state)
         generations = carry.generations + done.astype(jnp.int32)
-        code = jnp.where(info.stop, _STOP_ALGORITHM,
-                         jnp.where(generations >= limits.num_steps, _STOP_STEPS,
-                                   jnp.where(info.threshold <= limits.final_threshold,
-                                             _STOP_THRESHOLD, _NONE)))
+        code = jnp.where(
+            info.stop,
+            _STOP_ALGORITHM,
+            jnp.where(
+                generations >= limits.num_steps,
+                _STOP_STEPS,
+                jnp.where(info.threshold <= limits.final_threshold, _STOP_THRESHOLD, _NONE),
+            ),
+        )
         level = jnp.asarray(getattr(state, "level", 0), jnp.int32)
         new = _Carry(
-            state=state, iteration=carry.iteration + 1, num_sims=carry.num_sims + n_active,
-            generations=generations, generation_sims=jnp.where(done, 0, gen_sims),
+            state=state,
+            iteration=carry.iteration + 1,
+            num_sims=carry.num_sims + n_active,
+            generations=generations,
+            generation_sims=jnp.where(done, 0, gen_sims),
             stop_code=jnp.where(done, code, _NONE).astype(jnp.int32),
             post_particles=jnp.where(done, particles, carry.post_particles),
             post_log_weights=jnp.where(done, log_w, carry.post_log_weights),
             post_distances=jnp.where(done, state.distances, carry.post_distances),
             level=jnp.where(done, level, carry.level),
         )
-        record = {"done": done, "threshold": info.threshold, "acceptance": info.acceptance_rate,
-                  "ess": info.ess, "generation_sims": gen_sims}
+        record = {
+            "done": done,
+            "threshold": info.threshold,
+            "acceptance": info.acceptance_rate,
+            "ess": info.ess,
+            "generation_sims": gen_sims,
+        }
         return new, record
 
     def start(root, observed, limits):
         key = jax.random.fold_in(root, 0)
         k_prop, k_sim, k_upd = jax.random.split(key, 3)
         proposal = algo.initial_proposal(k_prop)
-        summaries, finite, dist = simulate_distances(k_sim, proposal.thetas, proposal.active,
-                                                     observed)
+        summaries, finite, dist = simulate_distances(k_sim, proposal.thetas, proposal.active, observed)
         state, info = algo.init(k_upd, proposal, dist)
         particles, log_w = algo.posterior(state)
         zero = jnp.int32(0)
-        empty = _Carry(state, zero, zero, zero, zero, zero, jnp.zeros_like(particles),
-                       jnp.full_like(log_w, -jnp.inf), jnp.full_like(state.distances, jnp.inf),
-                       zero)
+        empty = _Carry(
+            state,
+            zero,
+            zero,
+            zero,
+            zero,
+            zero,
+            jnp.zeros_like(particles),
+            jnp.full_like(log_w, -jnp.inf),
+            jnp.full_like(state.distances, jnp.inf),
+            zero,
+        )
         n_active = jnp.sum(proposal.active).astype(jnp.int32)
         carry, record = after_update(empty, state, info, n_active, limits)
-        record.update(thetas=proposal.thetas, active=proposal.active, distances=dist,
-                      finite=finite, ok=proposal.ok, ran=jnp.bool_(True))
+        record.update(
+            thetas=proposal.thetas,
+            active=proposal.active,
+            distances=dist,
+            finite=finite,
+            ok=proposal.ok,
+            ran=jnp.bool_(True),
+        )
         if keep_summaries:
             record["summaries"] = summaries
         return carry, record
@@ -166,8 +194,7 @@ def _compile(algo: ABCAlgorithm, simulate: Callable, distance: Callable, chunk_s
         over_budget = carry.num_sims + n_active > limits.max_simulations
 
         def run(_):
-            summaries, finite, dist = simulate_distances(k_sim, proposal.thetas, proposal.active,
-                                                         observed)
+            summaries, finite, dist = simulate_distances(k_sim, proposal.thetas, proposal.active, observed)
             state, info = algo.update(k_upd, carry.state, proposal, dist)
             new, record = after_update(carry, state, info, n_active, limits)
             record.update(distances=dist, finite=finite, ran=jnp.bool_(True))
@@ -182,8 +209,7 @@ def _compile(algo: ABCAlgorithm, simulate: Callable, distance: Callable, chunk_s
             return carry._replace(stop_code=jnp.int32(_STOP_BUDGET)), record
 
         new, record = jax.lax.cond(over_budget, stop, run, None)
-        record.update(thetas=proposal.thetas, active=proposal.active & ~over_budget,
-                      ok=proposal.ok | over_budget)
+        record.update(thetas=proposal.thetas, active=proposal.active & ~over_budget, ok=proposal.ok | over_budget)
         return new, record
 
     def chunk(root, observed, limits, carry):
@@ -193,16 +219,16 @@ def _compile(algo: ABCAlgorithm, simulate: Callable, distance: Callable, chunk_s
                 record = jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), record)
                 return c, record
 
-            return jax.lax.cond(c.stop_code != _NONE, skip,
-                                lambda c: one_iteration(root, observed, limits, c), c)
+            return jax.lax.cond(c.stop_code != _NONE, skip, lambda c: one_iteration(root, observed, limits, c), c)
 
         return jax.lax.scan(body, carry, None, length=chunk_size)
 
     return jax.jit(start), jax.jit(chunk)
 
 
-def _compile_both(start: Callable, chunk: Callable, root: jax.Array, observed: jax.Array,
-                  limits: _Limits, fast_compile: bool) -> tuple[Callable, Callable]:
+def _compile_both(
+    start: Callable, chunk: Callable, root: jax.Array, observed: jax.Array, limits: _Limits, fast_compile: bool
+) -> tuple[Callable, Callable]:
     """Compile the two programs side by side: XLA releases the GIL while it compiles, and a
     cold run spends most of its time here."""
     carry = jax.eval_shape(start, root, observed, limits)[0]
@@ -213,13 +239,32 @@ def _compile_both(start: Callable, chunk: Callable, root: jax.Array, observed: j
     return compiled[0], compiled[1]
 
 
-def _cache_key(algo: ABCAlgorithm, options: dict, prior: Uniform, simulate: Callable,
-               distance: Callable, obs_shape: tuple, dtype: Any, chunk_size: int,
-               keep_summaries: bool, fast_compile: bool) -> Any:
-    return (algo.name, repr(sorted(algo.settings.items())), repr(sorted(options.items())),
-            simulate, distance, obs_shape,
-            np.dtype(dtype).str, chunk_size, keep_summaries, fast_compile,
-            np.asarray(prior.low).tobytes(), np.asarray(prior.high).tobytes())
+def _cache_key(
+    algo: ABCAlgorithm,
+    options: dict,
+    prior: Uniform,
+    simulate: Callable,
+    distance: Callable,
+    obs_shape: tuple,
+    dtype: Any,
+    chunk_size: int,
+    keep_summaries: bool,
+    fast_compile: bool,
+) -> Any:
+    return (
+        algo.name,
+        repr(sorted(algo.settings.items())),
+        repr(sorted(options.items())),
+        simulate,
+        distance,
+        obs_shape,
+        np.dtype(dtype).str,
+        chunk_size,
+        keep_summaries,
+        fast_compile,
+        np.asarray(prior.low).tobytes(),
+        np.asarray(prior.high).tobytes(),
+    )
 
 
 def _run_fused_body(
@@ -318,31 +363,41 @@ def _run_fused_body(
             "executor='serial' or 'process_pool' for other code"
         ) from exc
     if not shapes_compatible(tuple(out.shape), obs.shape, distance):
-        raise ValueError(f"the simulator returns summaries of shape {tuple(out.shape)} but the "
-                         f"observed data has shape {obs.shape}: they must match")
+        raise ValueError(
+            f"the simulator returns summaries of shape {tuple(out.shape)} but the "
+            f"observed data has shape {obs.shape}: they must match"
+        )
     dist_fn = get_distance(distance)
     root = jax.random.key(seed)
     obs_j = jnp.asarray(obs, jdtype)
     limits = _Limits(
         num_steps=jnp.int32(_INT_MAX if num_steps is None else num_steps),
-        final_threshold=jnp.asarray(-jnp.inf if final_threshold is None else final_threshold,
-                                    jdtype),
-        max_simulations=jnp.int32(_INT_MAX if max_simulations is None
-                                  else min(max_simulations, _INT_MAX)),
+        final_threshold=jnp.asarray(-jnp.inf if final_threshold is None else final_threshold, jdtype),
+        max_simulations=jnp.int32(_INT_MAX if max_simulations is None else min(max_simulations, _INT_MAX)),
     )
-    key = _cache_key(algo, algorithm_options, prior, simulate, dist_fn, obs.shape, jdtype,
-                     int(chunk_size), keep_summaries, fast_compile)
+    key = _cache_key(
+        algo,
+        algorithm_options,
+        prior,
+        simulate,
+        dist_fn,
+        obs.shape,
+        jdtype,
+        int(chunk_size),
+        keep_summaries,
+        fast_compile,
+    )
     if key not in _COMPILED:
         if len(_COMPILED) >= _MAX_COMPILED:
             _COMPILED.pop(next(iter(_COMPILED)))
         start, chunk = _compile(algo, simulate, dist_fn, int(chunk_size), keep_summaries)
-        _COMPILED[key] = _compile_both(start, chunk, root, obs_j, limits,
-                                       fast_compile and jax.default_backend() == "cpu")
+        _COMPILED[key] = _compile_both(
+            start, chunk, root, obs_j, limits, fast_compile and jax.default_backend() == "cpu"
+        )
     start, chunk = _COMPILED[key]
 
     records: list[dict[str, np.ndarray]] = []
-    history: dict[str, list] = {"threshold": [], "sims": [], "acceptance": [], "ess": [],
-                                "wall": []}
+    history: dict[str, list] = {"threshold": [], "sims": [], "acceptance": [], "ess": [], "wall": []}
     bar = None
     if progress:
         from tqdm.auto import tqdm
@@ -360,12 +415,12 @@ def _run_fused_body(
             total = sum(int(r["active"].sum()) for r in records)
             failed = sum(int(np.sum(r["active"] & ~r["finite"])) for r in records)
             if total >= _MIN_FOR_FAILURE_CHECK and failed > max_failure_fraction * total:
-                raise TooManyFailures(f"{failed} of {total} simulations returned non-finite "
-                                      f"summaries (limit {max_failure_fraction:.0%})")
+                raise TooManyFailures(
+                    f"{failed} of {total} simulations returned non-finite summaries (limit {max_failure_fraction:.0%})"
+                )
             code = int(carry.stop_code)
             if code != _NONE:
-                stop_reason = _stop_reason(code, algorithm, algo, history, num_steps,
-                                           final_threshold, max_simulations)
+                stop_reason = _stop_reason(code, algorithm, algo, history, num_steps, final_threshold, max_simulations)
                 break
             if max_wall_time is not None and time.perf_counter() - t_start > max_wall_time:
                 stop_reason = f"wall time {max_wall_time} s reached"
@@ -383,13 +438,17 @@ def _run_fused_body(
     dist = np.asarray(carry.post_distances)
     keep = np.isfinite(log_w)
     w = np.exp(log_w[keep] - np.max(log_w[keep]))
-    meta = {"versions": versions(), "executor": "fused",
-            "distance": distance if isinstance(distance, str)
-            else getattr(distance, "__name__", "custom"),
-            "dtype": dtype, "observed": obs.tolist() if obs.size <= 10_000 else None,
-            # Seconds since the run started, at the end of the chunk that completed each
-            # generation (the host does not see generations inside a chunk).
-            "generation_wall_times": history["wall"], "chunk_size": int(chunk_size)}
+    meta = {
+        "versions": versions(),
+        "executor": "fused",
+        "distance": distance if isinstance(distance, str) else getattr(distance, "__name__", "custom"),
+        "dtype": dtype,
+        "observed": obs.tolist() if obs.size <= 10_000 else None,
+        # Seconds since the run started, at the end of the chunk that completed each
+        # generation (the host does not see generations inside a chunk).
+        "generation_wall_times": history["wall"],
+        "chunk_size": int(chunk_size),
+    }
     meta.update(metadata or {})
     extras = dict(algo.finalize(carry.state))
     log_ev = extras.pop("log_evidence", None)
@@ -400,14 +459,24 @@ def _run_fused_body(
     if final_ess is not None and ess.size:
         ess[-1] = min(ess[-1], float(final_ess))
     return ABCResult(
-        particles=particles[keep].astype(np.float64), weights=w / w.sum(),
-        distances=dist[keep].astype(np.float64), thresholds=np.asarray(history["threshold"]),
+        particles=particles[keep].astype(np.float64),
+        weights=w / w.sum(),
+        distances=dist[keep].astype(np.float64),
+        thresholds=np.asarray(history["threshold"]),
         simulations_per_step=np.asarray(history["sims"]),
-        acceptance_rates=np.asarray(history["acceptance"]), ess=ess,
-        num_simulations=int(carry.num_sims), algorithm=algo.name, settings=algo.settings,
-        prior=prior, seed=seed, stop_reason=stop_reason,
-        wall_time=time.perf_counter() - t_start, log_evidence=log_ev,
-        records=_record_arrays(records, keep_summaries), metadata=meta, diagnostics=diagnostics,
+        acceptance_rates=np.asarray(history["acceptance"]),
+        ess=ess,
+        num_simulations=int(carry.num_sims),
+        algorithm=algo.name,
+        settings=algo.settings,
+        prior=prior,
+        seed=seed,
+        stop_reason=stop_reason,
+        wall_time=time.perf_counter() - t_start,
+        log_evidence=log_ev,
+        records=_record_arrays(records, keep_summaries),
+        metadata=meta,
+        diagnostics=diagnostics,
     )
 
 
@@ -418,24 +487,30 @@ def run_fused(*args: Any, dtype: str = "float32", **kwargs: Any) -> ABCResult:
         return _run_fused_body(*args, dtype=dtype, **kwargs)
 
 
-def _absorb(block: dict, first_iteration: int, records: list, history: dict, t_start: float,
-            algorithm: str, bar: Any) -> None:
+def _absorb(
+    block: dict, first_iteration: int, records: list, history: dict, t_start: float, algorithm: str, bar: Any
+) -> None:
     """Move one chunk's per-iteration outputs (leading axis: iteration) into the host record."""
     ran = np.flatnonzero(block["ran"])
     if not np.all(block["ok"][ran]):
         raise RuntimeError(
             f"{algorithm}: the truncated perturbation kernel could not reach the prior's "
             "support from some particles (no draw inside the box in 10,000 tries). The "
-            "posterior is piled against a prior bound: widen the prior there")
+            "posterior is piled against a prior bound: widen the prior there"
+        )
     now = time.perf_counter() - t_start
     for j, i in enumerate(ran):
         active = block["active"][i]
-        records.append({
-            "theta": block["thetas"][i][active], "distance": block["distances"][i][active],
-            "finite": block["finite"][i][active], "active": active[active],
-            "iteration": np.full(int(active.sum()), first_iteration + j, np.int32),
-            **({"summaries": block["summaries"][i][active]} if "summaries" in block else {}),
-        })
+        records.append(
+            {
+                "theta": block["thetas"][i][active],
+                "distance": block["distances"][i][active],
+                "finite": block["finite"][i][active],
+                "active": active[active],
+                "iteration": np.full(int(active.sum()), first_iteration + j, np.int32),
+                **({"summaries": block["summaries"][i][active]} if "summaries" in block else {}),
+            }
+        )
         if block["done"][i]:
             history["threshold"].append(float(block["threshold"][i]))
             history["sims"].append(int(block["generation_sims"][i]))
@@ -444,8 +519,9 @@ def _absorb(block: dict, first_iteration: int, records: list, history: dict, t_s
             history["wall"].append(now)
             if bar is not None:
                 bar.update(1)
-                bar.set_postfix(threshold=f"{float(block['threshold'][i]):.4g}",
-                                acceptance=f"{float(block['acceptance'][i]):.3f}")
+                bar.set_postfix(
+                    threshold=f"{float(block['threshold'][i]):.4g}", acceptance=f"{float(block['acceptance'][i]):.3f}"
+                )
 
 
 def _record_arrays(records: list[dict], keep_summaries: bool) -> dict[str, Any]:
@@ -457,7 +533,8 @@ def _record_arrays(records: list[dict], keep_summaries: bool) -> dict[str, Any]:
         "theta": np.concatenate([r["theta"] for r in records]).astype(np.float64),
         "distance": np.concatenate([r["distance"] for r in records]).astype(np.float64),
         "status": np.where(finite, STATUS_OK, STATUS_NONFINITE).astype(np.int32),
-        "wall_time": np.full(size, np.nan), "cpu_time": np.full(size, np.nan),
+        "wall_time": np.full(size, np.nan),
+        "cpu_time": np.full(size, np.nan),
         "worker": np.zeros(size, np.int32),
         "iteration": np.concatenate([r["iteration"] for r in records]),
         "reasons": ["" if f else "simulator returned non-finite summaries" for f in finite],
@@ -467,13 +544,24 @@ def _record_arrays(records: list[dict], keep_summaries: bool) -> dict[str, Any]:
     return out
 
 
-def _stop_reason(code: int, algorithm: str, algo: ABCAlgorithm, history: dict,
-                 num_steps: int | None, final_threshold: float | None,
-                 max_simulations: int | None) -> str:
+def _stop_reason(
+    code: int,
+    algorithm: str,
+    algo: ABCAlgorithm,
+    history: dict,
+    num_steps: int | None,
+    final_threshold: float | None,
+    max_simulations: int | None,
+) -> str:
     if code == _STOP_ALGORITHM:
         done = jnp.asarray(True)
-        info = Info(generation_done=done, stop=done, threshold=history["threshold"][-1],
-                    acceptance_rate=history["acceptance"][-1], ess=history["ess"][-1])
+        info = Info(
+            generation_done=done,
+            stop=done,
+            threshold=history["threshold"][-1],
+            acceptance_rate=history["acceptance"][-1],
+            ess=history["ess"][-1],
+        )
         return algo.stop_reason(algo.settings, info)
     if code == _STOP_STEPS:
         return f"{num_steps} steps done"

@@ -84,9 +84,7 @@ class Uniform:
             if not (np.isfinite(lo) and np.isfinite(hi)):
                 raise ValueError(f"prior bounds for {name!r} must be finite, got [{lo}, {hi}]")
             if lo > hi:
-                raise ValueError(
-                    f"prior bounds for {name!r} are reversed: low={lo} > high={hi}; swap them"
-                )
+                raise ValueError(f"prior bounds for {name!r} are reversed: low={lo} > high={hi}; swap them")
             if lo == hi:
                 raise ValueError(
                     f"prior bounds for {name!r} are degenerate: low == high == {lo}; fix the "

@@ -59,25 +59,34 @@ class Independent:
     (4, 2)
     """
 
-    def __init__(self, bounds: Mapping[str, tuple[float, float]] | None = None,
-                 units: Mapping[str, str] | None = None, **distributions: Any) -> None:
+    def __init__(
+        self,
+        bounds: Mapping[str, tuple[float, float]] | None = None,
+        units: Mapping[str, str] | None = None,
+        **distributions: Any,
+    ) -> None:
         dist = _numpyro_distributions()
         if not distributions:
-            raise ValueError("give one numpyro distribution per parameter, e.g. "
-                             "Independent(sigma=dist.Normal(0.3, 0.05), bounds={'sigma': (0.1, 0.5)})")
+            raise ValueError(
+                "give one numpyro distribution per parameter, e.g. "
+                "Independent(sigma=dist.Normal(0.3, 0.05), bounds={'sigma': (0.1, 0.5)})"
+            )
         bounds = dict(bounds or {})
         units = dict(units or {})
         unknown = (set(bounds) | set(units)) - set(distributions)
         if unknown:
-            raise ValueError(f"bounds/units name unknown parameters {sorted(unknown)}; "
-                             f"the parameters are {list(distributions)}")
+            raise ValueError(
+                f"bounds/units name unknown parameters {sorted(unknown)}; the parameters are {list(distributions)}"
+            )
         low, high, log_mass = [], [], []
         for name, d in distributions.items():
             if not isinstance(d, dist.Distribution):
                 raise TypeError(f"prior for {name!r} must be a numpyro distribution, got {type(d).__name__}")
             if d.batch_shape != () or d.event_shape != ():
-                raise ValueError(f"prior for {name!r} must be univariate (scalar parameters), got "
-                                 f"batch shape {d.batch_shape} and event shape {d.event_shape}")
+                raise ValueError(
+                    f"prior for {name!r} must be univariate (scalar parameters), got "
+                    f"batch shape {d.batch_shape} and event shape {d.event_shape}"
+                )
             s_lo = float(getattr(d.support, "lower_bound", -np.inf))
             s_hi = float(getattr(d.support, "upper_bound", np.inf))
             lo, hi = bounds.get(name, (s_lo, s_hi))
@@ -88,14 +97,14 @@ class Independent:
                     f"give bounds={{'{name}': (low, high)}}; the kernels truncate to a finite box"
                 )
             if not lo < hi:
-                raise ValueError(f"prior box for {name!r} is empty: [{lo}, {hi}] (within the "
-                                 f"support [{s_lo}, {s_hi}])")
+                raise ValueError(f"prior box for {name!r} is empty: [{lo}, {hi}] (within the support [{s_lo}, {s_hi}])")
             try:
                 mass = float(d.cdf(jnp.asarray(hi))) - float(d.cdf(jnp.asarray(lo)))
                 d.icdf(jnp.asarray(0.5))
             except (NotImplementedError, ImportError, AttributeError) as exc:
-                raise TypeError(f"prior for {name!r}: {type(d).__name__} needs cdf and icdf for "
-                                f"truncation ({exc})") from None
+                raise TypeError(
+                    f"prior for {name!r}: {type(d).__name__} needs cdf and icdf for truncation ({exc})"
+                ) from None
             if not mass > 0:
                 raise ValueError(f"prior for {name!r} has no probability mass in [{lo}, {hi}]")
             low.append(lo)
@@ -147,9 +156,14 @@ class Independent:
         for name, d in self.distributions.items():
             params = {k: np.asarray(getattr(d, k)).tolist() for k in d.arg_constraints}
             dists[name] = {"class": type(d).__name__, "params": params}
-        return {"type": "Independent", "distributions": dists, "names": list(self.names),
-                "units": list(self.units), "low": np.asarray(self.low).tolist(),
-                "high": np.asarray(self.high).tolist()}
+        return {
+            "type": "Independent",
+            "distributions": dists,
+            "names": list(self.names),
+            "units": list(self.units),
+            "low": np.asarray(self.low).tolist(),
+            "high": np.asarray(self.high).tolist(),
+        }
 
     @classmethod
     def from_dict(cls, data: dict) -> Independent:
@@ -164,9 +178,10 @@ class Independent:
         return cls(bounds=bounds, units=units, **distributions)
 
     def __repr__(self) -> str:
-        parts = ", ".join(f"{n}~{type(d).__name__}[{float(lo):g}, {float(hi):g}]"
-                          for (n, d), lo, hi in zip(self.distributions.items(), self.low, self.high,
-                                                    strict=True))
+        parts = ", ".join(
+            f"{n}~{type(d).__name__}[{float(lo):g}, {float(hi):g}]"
+            for (n, d), lo, hi in zip(self.distributions.items(), self.low, self.high, strict=True)
+        )
         return f"Independent({parts})"
 
 

@@ -30,8 +30,15 @@ from jaxabc.priors import Uniform
 __all__ = ["ABCResult", "load", "versions", "write_outputs"]
 
 RESULT_FORMAT = "jaxabc-result-1"
-_REQUIRED_ARRAYS = ("particles", "weights", "distances", "thresholds", "simulations_per_step",
-                    "acceptance_rates", "ess")
+_REQUIRED_ARRAYS = (
+    "particles",
+    "weights",
+    "distances",
+    "thresholds",
+    "simulations_per_step",
+    "acceptance_rates",
+    "ess",
+)
 
 
 def versions() -> dict[str, str]:
@@ -127,9 +134,10 @@ class ABCResult:
         acceptance = float(self.acceptance_rates[-1]) if len(self.acceptance_rates) else 1.0
         # The driver's per-level ESS (ABCsubsim's jittable lineage bound) caps the chain estimate.
         bound = float(ess[-1]) if ess.size else None
-        self.diagnostics = {**self.diagnostics,
-                            **chain_diagnostics(self.particles, self.settings, level, acceptance,
-                                                bound)}
+        self.diagnostics = {
+            **self.diagnostics,
+            **chain_diagnostics(self.particles, self.settings, level, acceptance, bound),
+        }
         if ess.size:
             ess[-1] = self.diagnostics["ess"]
             self.ess = ess
@@ -142,13 +150,15 @@ class ABCResult:
             return False
         num_chains = self.settings.get("num_chains")
         chain_length = self.settings.get("chain_length")
-        return (num_chains is not None and chain_length is not None
-                and np.ndim(self.particles) == 2
-                and self.particles.shape[0] == int(num_chains) * int(chain_length))
+        return (
+            num_chains is not None
+            and chain_length is not None
+            and np.ndim(self.particles) == 2
+            and self.particles.shape[0] == int(num_chains) * int(chain_length)
+        )
 
     @classmethod
-    def from_sample(cls, particles: np.ndarray, weights: np.ndarray, prior: Uniform,
-                    algorithm: str = "") -> ABCResult:
+    def from_sample(cls, particles: np.ndarray, weights: np.ndarray, prior: Uniform, algorithm: str = "") -> ABCResult:
         """A result holding only a weighted sample (no run history), for its summaries.
 
         Parameters
@@ -166,10 +176,20 @@ class ABCResult:
         if not (np.all(w >= 0) and w.sum() > 0):
             raise ValueError("weights must be non-negative with a positive sum")
         n = p.shape[0]
-        return cls(particles=p, weights=w / w.sum(), distances=np.zeros(n), thresholds=np.array([np.nan]),
-                   simulations_per_step=np.array([n]), acceptance_rates=np.array([np.nan]),
-                   ess=np.array([1.0 / np.sum((w / w.sum()) ** 2)]), num_simulations=0,
-                   algorithm=algorithm, settings={}, prior=prior, seed=0)
+        return cls(
+            particles=p,
+            weights=w / w.sum(),
+            distances=np.zeros(n),
+            thresholds=np.array([np.nan]),
+            simulations_per_step=np.array([n]),
+            acceptance_rates=np.array([np.nan]),
+            ess=np.array([1.0 / np.sum((w / w.sum()) ** 2)]),
+            num_simulations=0,
+            algorithm=algorithm,
+            settings={},
+            prior=prior,
+            seed=0,
+        )
 
     @property
     def names(self) -> tuple[str, ...]:
@@ -248,8 +268,7 @@ class ABCResult:
             order = np.argsort(self.particles[:, j])
             cdf = np.cumsum(self.weights[order])
             x = self.particles[order, j]
-            out[j] = [x[np.searchsorted(cdf, lo_q * cdf[-1])],
-                      x[min(np.searchsorted(cdf, hi_q * cdf[-1]), x.size - 1)]]
+            out[j] = [x[np.searchsorted(cdf, lo_q * cdf[-1])], x[min(np.searchsorted(cdf, hi_q * cdf[-1]), x.size - 1)]]
         return out
 
     def credible_level(self, point: np.ndarray) -> float:
@@ -318,8 +337,9 @@ class ABCResult:
             lines.append(f"  warning: {self.diagnostics['warning']}")
         for j, name in enumerate(self.names):
             unit = self.prior.units[j] if self.prior.units[j] else ""
-            lines.append(f"  {name:>12s} = {est[j]:.5g} +- {err[j]:.2g} (MCSE) {unit}  "
-                         f"95% CI [{ci[j, 0]:.5g}, {ci[j, 1]:.5g}]")
+            lines.append(
+                f"  {name:>12s} = {est[j]:.5g} +- {err[j]:.2g} (MCSE) {unit}  95% CI [{ci[j, 0]:.5g}, {ci[j, 1]:.5g}]"
+            )
         if len(self.names) > 1:
             lines.append("  correlation:\n" + np.array2string(self.correlation(), precision=3))
         return "\n".join(lines)
@@ -368,9 +388,7 @@ class ABCResult:
         if path.is_dir():
             raise IsADirectoryError(f"cannot save the result to {path}: it is a directory")
         if path.exists() and not overwrite:
-            raise FileExistsError(
-                f"{path} exists: pass overwrite=True to replace it, or choose another name"
-            )
+            raise FileExistsError(f"{path} exists: pass overwrite=True to replace it, or choose another name")
         path.parent.mkdir(parents=True, exist_ok=True)
         arrays = {
             "particles": self.particles,
@@ -403,8 +421,13 @@ class ABCResult:
 
         return to_arviz(self, num_draws=num_draws, seed=seed)
 
-    def plot_posterior(self, path: str | Path | None = None, truth: np.ndarray | None = None,
-                       params: tuple[int, int] = (0, 1), ax: Any = None) -> Any:
+    def plot_posterior(
+        self,
+        path: str | Path | None = None,
+        truth: np.ndarray | None = None,
+        params: tuple[int, int] = (0, 1),
+        ax: Any = None,
+    ) -> Any:
         """Weighted KDE contours of two parameters (:func:`jaxabc._result_views.plot_posterior`)."""
         from jaxabc._result_views import plot_posterior
 
@@ -443,8 +466,7 @@ def load(path: str | Path) -> ABCResult:
             return _from_npz(path, data)
     except (zipfile.BadZipFile, zlib.error, EOFError, OSError, KeyError) as exc:
         raise ValueError(
-            f"{path} cannot be read as a jaxabc result file (corrupt or truncated .npz?): "
-            f"{type(exc).__name__}: {exc}"
+            f"{path} cannot be read as a jaxabc result file (corrupt or truncated .npz?): {type(exc).__name__}: {exc}"
         ) from None
     except ValueError as exc:
         if str(path) in str(exc):
@@ -456,8 +478,7 @@ def load(path: str | Path) -> ABCResult:
 def _from_npz(path: Path, data: Any) -> ABCResult:
     if "metadata" not in data.files:
         raise ValueError(
-            f"{path} is an .npz without jaxabc metadata (arrays: {', '.join(data.files[:8])}): "
-            "not a jaxabc result file"
+            f"{path} is an .npz without jaxabc metadata (arrays: {', '.join(data.files[:8])}): not a jaxabc result file"
         )
     try:
         meta = json.loads(str(data["metadata"]))
@@ -465,26 +486,34 @@ def _from_npz(path: Path, data: Any) -> ABCResult:
         raise ValueError(f"{path}: the result metadata is not valid JSON ({exc})") from None
     if not isinstance(meta, dict) or meta.get("format") != RESULT_FORMAT:
         found = meta.get("format") if isinstance(meta, dict) else type(meta).__name__
-        raise ValueError(f"{path} is not a jaxabc result file (format {found!r}, "
-                         f"expected {RESULT_FORMAT!r})")
+        raise ValueError(f"{path} is not a jaxabc result file (format {found!r}, expected {RESULT_FORMAT!r})")
     missing = [k for k in _REQUIRED_ARRAYS if k not in data.files]
-    missing += [k for k in ("num_simulations", "algorithm", "settings", "prior", "seed")
-                if k not in meta]
+    missing += [k for k in ("num_simulations", "algorithm", "settings", "prior", "seed") if k not in meta]
     if missing:
         raise ValueError(f"{path} is an incomplete jaxabc result file: missing {', '.join(missing)}")
     from jaxabc.priors_numpyro import prior_from_dict
 
-    records = {k[len("record_"):]: data[k] for k in data.files if k.startswith("record_")}
+    records = {k[len("record_") :]: data[k] for k in data.files if k.startswith("record_")}
     records["reasons"] = meta.get("reasons", [])
     return ABCResult(
-        particles=data["particles"], weights=data["weights"], distances=data["distances"],
-        thresholds=data["thresholds"], simulations_per_step=data["simulations_per_step"],
-        acceptance_rates=data["acceptance_rates"], ess=data["ess"],
-        num_simulations=int(meta["num_simulations"]), algorithm=meta["algorithm"],
-        settings=meta["settings"], prior=prior_from_dict(meta["prior"]), seed=meta["seed"],
-        stop_reason=meta.get("stop_reason", ""), wall_time=meta.get("wall_time", 0.0),
-        log_evidence=meta.get("log_evidence"), records=records,
-        metadata=meta.get("metadata", {}), diagnostics=meta.get("diagnostics") or {},
+        particles=data["particles"],
+        weights=data["weights"],
+        distances=data["distances"],
+        thresholds=data["thresholds"],
+        simulations_per_step=data["simulations_per_step"],
+        acceptance_rates=data["acceptance_rates"],
+        ess=data["ess"],
+        num_simulations=int(meta["num_simulations"]),
+        algorithm=meta["algorithm"],
+        settings=meta["settings"],
+        prior=prior_from_dict(meta["prior"]),
+        seed=meta["seed"],
+        stop_reason=meta.get("stop_reason", ""),
+        wall_time=meta.get("wall_time", 0.0),
+        log_evidence=meta.get("log_evidence"),
+        records=records,
+        metadata=meta.get("metadata", {}),
+        diagnostics=meta.get("diagnostics") or {},
         check=False,
     )
 

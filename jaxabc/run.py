@@ -60,8 +60,9 @@ _MIN_FOR_FAILURE_CHECK = 20
 # ----------------------------------------------------------------------------- the loop
 
 
-def _simulate_batch(ctx: Context, prog: Progress, k_sim: jax.Array, thetas: np.ndarray,
-                    active: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+def _simulate_batch(
+    ctx: Context, prog: Progress, k_sim: jax.Array, thetas: np.ndarray, active: np.ndarray
+) -> tuple[np.ndarray, np.ndarray | None]:
     """Simulate the active slots; distances (m,) and, if the algorithm wants them, summaries."""
     m = thetas.shape[0]
     distances = np.full(m, np.inf)
@@ -73,8 +74,7 @@ def _simulate_batch(ctx: Context, prog: Progress, k_sim: jax.Array, thetas: np.n
     sim_keys = np.asarray(jax.random.key_data(jax.random.split(k_sim, m)))
     batch = ctx.executor.map(ctx.simulate, sim_keys[active], thetas[active])
     ok = np.asarray(batch.status) == STATUS_OK
-    if ok.any() and not shapes_compatible(batch.summaries.shape[1:], ctx.observed.shape,
-                                           ctx.distance):
+    if ok.any() and not shapes_compatible(batch.summaries.shape[1:], ctx.observed.shape, ctx.distance):
         raise ValueError(
             f"the simulator returned summaries of shape {batch.summaries.shape[1:]} "
             f"but the observed data has shape {ctx.observed.shape}: they must match"
@@ -123,8 +123,11 @@ def _step(ctx: Context, prog: Progress) -> Any:
         )
     active = np.asarray(proposal.active, bool)
     thetas = np.asarray(proposal.thetas)
-    if ctx.max_simulations is not None and prog.state is not None \
-            and prog.num_sims + int(active.sum()) > ctx.max_simulations:
+    if (
+        ctx.max_simulations is not None
+        and prog.state is not None
+        and prog.num_sims + int(active.sum()) > ctx.max_simulations
+    ):
         prog.stop_reason = f"simulation budget {ctx.max_simulations} reached"
         return None
     distances, summaries = _simulate_batch(ctx, prog, k_sim, thetas, active)
@@ -140,8 +143,7 @@ def _step(ctx: Context, prog: Progress) -> Any:
 
 def _end_generation(ctx: Context, prog: Progress, info: Any) -> None:
     particles, log_w = ctx.compiled.posterior(prog.state)
-    prog.last_posterior = (np.asarray(particles), np.asarray(log_w),
-                           posterior_distances(prog.state, len(log_w)))
+    prog.last_posterior = (np.asarray(particles), np.asarray(log_w), posterior_distances(prog.state, len(log_w)))
     h = prog.history
     h["threshold"].append(float(info.threshold))
     h["sims"].append(prog.sims_this_generation)
@@ -151,8 +153,11 @@ def _end_generation(ctx: Context, prog: Progress, info: Any) -> None:
     prog.sims_this_generation = 0
     if ctx.bar is not None:
         ctx.bar.update(1)
-        ctx.bar.set_postfix(threshold=f"{float(info.threshold):.4g}",
-                            acceptance=f"{float(info.acceptance_rate):.3f}", sims=prog.num_sims)
+        ctx.bar.set_postfix(
+            threshold=f"{float(info.threshold):.4g}",
+            acceptance=f"{float(info.acceptance_rate):.3f}",
+            sims=prog.num_sims,
+        )
     algo = ctx.compiled.algorithm
     if bool(info.stop):
         prog.stop_reason = algo.stop_reason(algo.settings, info)
@@ -169,13 +174,19 @@ def _loop(ctx: Context, prog: Progress) -> None:
             break
         if bool(info.generation_done):
             _end_generation(ctx, prog, info)
-        if not prog.stop_reason and ctx.max_wall_time is not None \
-                and time.perf_counter() - ctx.t_start > ctx.max_wall_time:
+        if (
+            not prog.stop_reason
+            and ctx.max_wall_time is not None
+            and time.perf_counter() - ctx.t_start > ctx.max_wall_time
+        ):
             prog.stop_reason = f"wall time {ctx.max_wall_time} s reached"
         if ctx.ckpt_path is not None:
             _save(ctx, prog)
-        if ctx.stop_after_iterations is not None and prog.iteration >= ctx.stop_after_iterations \
-                and not prog.stop_reason:
+        if (
+            ctx.stop_after_iterations is not None
+            and prog.iteration >= ctx.stop_after_iterations
+            and not prog.stop_reason
+        ):
             prog.stop_reason = f"stopped after {prog.iteration} iterations (resumable)"
 
 
@@ -184,14 +195,22 @@ def _loop(ctx: Context, prog: Progress) -> None:
 
 def _save(ctx: Context, prog: Progress) -> None:
     assert ctx.ckpt_path is not None, "only called when checkpointing"
-    _ckpt.save(ctx.ckpt_path, _ckpt.Checkpoint(
-        fingerprint=ctx.fingerprint,
-        state_leaves=_ckpt.flatten_state(prog.state),
-        counters={"iteration": prog.iteration, "num_sims": prog.num_sims,
-                  "sims_this_generation": prog.sims_this_generation,
-                  "stop_reason": prog.stop_reason},
-        history=prog.history, records=prog.recorder.chunks, last_posterior=prog.last_posterior,
-    ))
+    _ckpt.save(
+        ctx.ckpt_path,
+        _ckpt.Checkpoint(
+            fingerprint=ctx.fingerprint,
+            state_leaves=_ckpt.flatten_state(prog.state),
+            counters={
+                "iteration": prog.iteration,
+                "num_sims": prog.num_sims,
+                "sims_this_generation": prog.sims_this_generation,
+                "stop_reason": prog.stop_reason,
+            },
+            history=prog.history,
+            records=prog.recorder.chunks,
+            last_posterior=prog.last_posterior,
+        ),
+    )
 
 
 def _state_template(ctx: Context) -> Any:
@@ -335,41 +354,62 @@ def run(
         prior = cast_prior(prior, jdtype)
         if isinstance(algorithm, str):
             # Run-level settings that some builders need to see (the surrogate's budget and data).
-            for option, value in (("final_threshold", final_threshold), ("observed", obs),
-                                  ("max_simulations", max_simulations)):
+            for option, value in (
+                ("final_threshold", final_threshold),
+                ("observed", obs),
+                ("max_simulations", max_simulations),
+            ):
                 if value is not None and builder_accepts(algorithm, option):
                     algorithm_options.setdefault(option, value)
-        compiled = compile_algorithm(algorithm, prior, num_particles, algorithm_options,
-                                     dtype)
+        compiled = compile_algorithm(algorithm, prior, num_particles, algorithm_options, dtype)
         algo = compiled.algorithm
         check_stopping_rule(algo, num_steps, final_threshold, max_simulations, max_wall_time)
         own_executor = not hasattr(executor, "map")
         ex = SharedVmapExecutor() if executor in (None, "vmap") else get_executor(executor)
         try:
             check_shape(ex, simulate, prior, obs, distance)
-            if hasattr(ex, "summary_shape") and not getattr(get_distance(distance),
-                                                           "compares_samples", False):
+            if hasattr(ex, "summary_shape") and not getattr(get_distance(distance), "compares_samples", False):
                 # A batch where every task fails keeps it (not on the Executor protocol).
                 cast(Any, ex).summary_shape = tuple(obs.shape)
             # Only now, with every input checked, may overwrite=True delete an old checkpoint.
             ckpt_path = _ckpt.prepare_folder(checkpoint_dir, resume, overwrite)
             fp = _ckpt.fingerprint(
-                algorithm=algo.name, settings=algo.settings, prior=prior, observed=obs,
-                distance=distance, simulator_id=_ckpt.simulator_identity(simulate, simulator_id),
-                seed=seed, num_particles=None if num_particles is None else int(num_particles),
-                dtype=dtype)
-            ctx = Context(compiled, simulate, ex, obs, distance,
-                           make_distance_fn(distance, obs, jdtype), jdtype, jax.random.key(seed),
-                           t_start, num_steps, final_threshold, max_simulations, max_wall_time,
-                           max_failure_fraction, stop_after_iterations, ckpt_path, fp)
+                algorithm=algo.name,
+                settings=algo.settings,
+                prior=prior,
+                observed=obs,
+                distance=distance,
+                simulator_id=_ckpt.simulator_identity(simulate, simulator_id),
+                seed=seed,
+                num_particles=None if num_particles is None else int(num_particles),
+                dtype=dtype,
+            )
+            ctx = Context(
+                compiled,
+                simulate,
+                ex,
+                obs,
+                distance,
+                make_distance_fn(distance, obs, jdtype),
+                jdtype,
+                jax.random.key(seed),
+                t_start,
+                num_steps,
+                final_threshold,
+                max_simulations,
+                max_wall_time,
+                max_failure_fraction,
+                stop_after_iterations,
+                ckpt_path,
+                fp,
+            )
             prog = Progress(Recorder(keep_summaries))
             if resume:
                 _restore(ctx, prog)
             if progress:
                 from tqdm.auto import tqdm
 
-                ctx.bar = tqdm(total=num_steps, desc=algo.name, unit="step",
-                               initial=len(prog.history["threshold"]))
+                ctx.bar = tqdm(total=num_steps, desc=algo.name, unit="step", initial=len(prog.history["threshold"]))
             try:
                 _loop(ctx, prog)
             finally:

@@ -99,8 +99,8 @@ class NearestNeighbourCost:
         x, y = x[keep], y[keep]
         if self._y.size and self._x.shape[1] != x.shape[1]:
             self._x, self._y = np.zeros((0, x.shape[1])), np.zeros(0)  # a different model: start over
-        self._x = np.concatenate([self._x.reshape(-1, x.shape[1]), x])[-self.max_history:]
-        self._y = np.concatenate([self._y, y])[-self.max_history:]
+        self._x = np.concatenate([self._x.reshape(-1, x.shape[1]), x])[-self.max_history :]
+        self._y = np.concatenate([self._y, y])[-self.max_history :]
 
     def predict(self, thetas: np.ndarray) -> np.ndarray | None:
         if self._y.size < self.min_history:

@@ -88,40 +88,101 @@ def lj_catalogue() -> Catalogue:
     """The Lennard-Jones fluid catalogue (order = ``theta_full`` order after sigma, epsilon)."""
     return Catalogue(
         [
-            Effect("temperature_offset", -0.1, 0.1, 0.0, "relative",
-                   "The real temperature differs from the thermostat set point: T -> T (1 + eta).",
-                   "physical", "pressure or potential energy, or state points at several temperatures "
-                   "(in g(r) alone T and epsilon enter only as T/epsilon)", ("epsilon_kj_mol",)),
-            Effect("axilrod_teller", 0.0, 0.5, 0.0, "nu* = C9/(eps sigma^9)",
-                   "Three-body triple-dipole dispersion missing from the pair potential.",
-                   "physical", "pressure and energy at two densities (the three-body term grows as rho^2)"),
-            Effect("feynman_hibbs", 0.0, 1.0, 0.0, "s / 0.01, s = hbar^2 / (24 mu k_B T sigma^2)",
-                   "Quantum swelling of the repulsive core of light atoms (quadratic Feynman-Hibbs).",
-                   "physical", "several temperatures (the correction scales as 1/T, sigma does not)",
-                   ("sigma_nm",)),
-            Effect("qmax_ripple", 0.0, 0.1, 0.0, "g(r) units",
-                   "Termination ripples of the Fourier transform of S(Q) measured up to a finite Q_max.",
-                   "measurement", "g(r) inside the core, or data with a larger Q_max"),
-            Effect("rdf_normalisation", -0.1, 0.1, 0.0, "relative",
-                   "Scale/background error in the normalisation of the measured g(r).",
-                   "measurement", "the large-r limit g -> 1 (a longer r range)"),
-            Effect("density_error", -0.05, 0.05, 0.0, "relative",
-                   "The measured sample's density differs from the simulated one: rho -> rho (1 + eta).",
-                   "physical", "pressure (strongly), or a g(r) at a second density", ("sigma_nm",)),
-            Effect("yeh_hummer", 0.0, 1.0, 0.0, "1/eta_viscosity*",
-                   "Finite-box hydrodynamic self-diffusion bias, D_inf = D_pbc + xi kT/(6 pi eta L).",
-                   "measurement", "two box sizes (the correction scales as 1/L)", ("thermostat_damping",)),
-            Effect("thermostat_damping", 0.0, 5.0, 0.0, "1/tau",
-                   "A stochastic thermostat's friction slows the dynamics: 1/D -> 1/D + gamma m/kT.",
-                   "physical", "an NVE run or two friction values (thermostat friction does not depend "
-                   "on L)", ("yeh_hummer",)),
+            Effect(
+                "temperature_offset",
+                -0.1,
+                0.1,
+                0.0,
+                "relative",
+                "The real temperature differs from the thermostat set point: T -> T (1 + eta).",
+                "physical",
+                "pressure or potential energy, or state points at several temperatures "
+                "(in g(r) alone T and epsilon enter only as T/epsilon)",
+                ("epsilon_kj_mol",),
+            ),
+            Effect(
+                "axilrod_teller",
+                0.0,
+                0.5,
+                0.0,
+                "nu* = C9/(eps sigma^9)",
+                "Three-body triple-dipole dispersion missing from the pair potential.",
+                "physical",
+                "pressure and energy at two densities (the three-body term grows as rho^2)",
+            ),
+            Effect(
+                "feynman_hibbs",
+                0.0,
+                1.0,
+                0.0,
+                "s / 0.01, s = hbar^2 / (24 mu k_B T sigma^2)",
+                "Quantum swelling of the repulsive core of light atoms (quadratic Feynman-Hibbs).",
+                "physical",
+                "several temperatures (the correction scales as 1/T, sigma does not)",
+                ("sigma_nm",),
+            ),
+            Effect(
+                "qmax_ripple",
+                0.0,
+                0.1,
+                0.0,
+                "g(r) units",
+                "Termination ripples of the Fourier transform of S(Q) measured up to a finite Q_max.",
+                "measurement",
+                "g(r) inside the core, or data with a larger Q_max",
+            ),
+            Effect(
+                "rdf_normalisation",
+                -0.1,
+                0.1,
+                0.0,
+                "relative",
+                "Scale/background error in the normalisation of the measured g(r).",
+                "measurement",
+                "the large-r limit g -> 1 (a longer r range)",
+            ),
+            Effect(
+                "density_error",
+                -0.05,
+                0.05,
+                0.0,
+                "relative",
+                "The measured sample's density differs from the simulated one: rho -> rho (1 + eta).",
+                "physical",
+                "pressure (strongly), or a g(r) at a second density",
+                ("sigma_nm",),
+            ),
+            Effect(
+                "yeh_hummer",
+                0.0,
+                1.0,
+                0.0,
+                "1/eta_viscosity*",
+                "Finite-box hydrodynamic self-diffusion bias, D_inf = D_pbc + xi kT/(6 pi eta L).",
+                "measurement",
+                "two box sizes (the correction scales as 1/L)",
+                ("thermostat_damping",),
+            ),
+            Effect(
+                "thermostat_damping",
+                0.0,
+                5.0,
+                0.0,
+                "1/tau",
+                "A stochastic thermostat's friction slows the dynamics: 1/D -> 1/D + gamma m/kT.",
+                "physical",
+                "an NVE run or two friction values (thermostat friction does not depend on L)",
+                ("yeh_hummer",),
+            ),
         ],
         name="lennard-jones fluid",
-        notes=("Temperature and epsilon are exactly confusable in g(r) at one state point (only T/epsilon "
-               "enters); pressure or energy or a second temperature separates them.  Yeh-Hummer and "
-               "thermostat damping both act on D alone: one box and one thermostat cannot tell them apart.  "
-               "Density error and sigma are nearly confusable in g(r) (rho sigma^3); pressure separates them.  "
-               "Feynman-Hibbs looks like a larger sigma at one temperature."),
+        notes=(
+            "Temperature and epsilon are exactly confusable in g(r) at one state point (only T/epsilon "
+            "enters); pressure or energy or a second temperature separates them.  Yeh-Hummer and "
+            "thermostat damping both act on D alone: one box and one thermostat cannot tell them apart.  "
+            "Density error and sigma are nearly confusable in g(r) (rho sigma^3); pressure separates them.  "
+            "Feynman-Hibbs looks like a larger sigma at one temperature."
+        ),
     )
 
 
@@ -168,8 +229,14 @@ def lj_groups(r_over_sigma: np.ndarray) -> dict[str, np.ndarray]:
 
 
 def apply_lj_measurement_effects(
-    g: jax.Array, d: jax.Array, r_nm: jax.Array, sigma_ref_nm: float, eta: dict[str, jax.Array],
-    kt_kj_mol: float, box_nm: float, mass_amu: float,
+    g: jax.Array,
+    d: jax.Array,
+    r_nm: jax.Array,
+    sigma_ref_nm: float,
+    eta: dict[str, jax.Array],
+    kt_kj_mol: float,
+    box_nm: float,
+    mass_amu: float,
 ) -> tuple[jax.Array, jax.Array]:
     """Effects that act on simulated summaries without re-running MD.
 
@@ -209,7 +276,9 @@ def _effect_dict(theta_full: jax.Array, catalogue: Catalogue, num_base: int = 2)
 
 
 def make_lj_surrogate(
-    preset: str = "reduced_liquid", noise_scale: float = 1.0, catalogue: Catalogue | None = None,
+    preset: str = "reduced_liquid",
+    noise_scale: float = 1.0,
+    catalogue: Catalogue | None = None,
 ) -> LJSetup:
     """A cheap analytic stand-in for an LJ liquid with the engine's summary layout.
 
@@ -281,7 +350,9 @@ def make_lj_surrogate(
 
 
 def make_lj_simulator_with_effects(
-    preset: str = "reduced_liquid", three_body: bool = False, catalogue: Catalogue | None = None,
+    preset: str = "reduced_liquid",
+    three_body: bool = False,
+    catalogue: Catalogue | None = None,
     **overrides: Any,
 ) -> LJSetup:
     """The jax-md engine of :mod:`md.lj_fluid` with the LJ catalogue's effects.
@@ -339,8 +410,12 @@ def make_lj_simulator_with_effects(
 
     def observe(carry: Carry, params: LJParams) -> dict:
         t = engine.thermo(carry, params)
-        return {"potential": t.potential, "pressure": t.pressure, "rdf": g_fn(carry.md.position, engine.box(carry.md)),
-                "unwrapped": carry.unwrapped}
+        return {
+            "potential": t.potential,
+            "pressure": t.pressure,
+            "rdf": g_fn(carry.md.position, engine.box(carry.md)),
+            "unwrapped": carry.unwrapped,
+        }
 
     def simulate(key: jax.Array, theta: jax.Array) -> jax.Array:
         theta = jnp.asarray(theta, jnp.float32)
@@ -381,23 +456,46 @@ def water_catalogue() -> Catalogue:
     """The water catalogue: q_H scaling, M-site shift, O-H contamination of X-ray g_OO."""
     return Catalogue(
         [
-            Effect("charge_scale", -0.05, 0.1, 0.0, "relative",
-                   "Hydrogen charge q_H -> q_H (1 + eta), q_M = -2 q_H: the molecular dipole "
-                   "(TIP4P 0.52 e -> TIP4P/2005 0.5564 e is eta = +0.07).",
-                   "physical", "the dielectric constant or enthalpy of vaporisation; density maximum",
-                   ("msite_shift",)),
-            Effect("msite_shift", -0.005, 0.005, 0.0, "nm",
-                   "M-site distance d_OM -> d_OM + eta (TIP4P 0.015 nm, TIP4P/2005 0.01546 nm): the quadrupole.",
-                   "physical", "g_OH/g_HH (neutron) besides g_OO; the temperature of maximum density",
-                   ("charge_scale",)),
-            Effect("oh_contamination", 0.0, 0.1, 0.0, "weight",
-                   "X-ray g_OO contaminated by O-H correlations: g_meas = (1 - w) g_OO + w g_OH.",
-                   "measurement", "neutron g_OO from isotope substitution (no H weighting issue)"),
+            Effect(
+                "charge_scale",
+                -0.05,
+                0.1,
+                0.0,
+                "relative",
+                "Hydrogen charge q_H -> q_H (1 + eta), q_M = -2 q_H: the molecular dipole "
+                "(TIP4P 0.52 e -> TIP4P/2005 0.5564 e is eta = +0.07).",
+                "physical",
+                "the dielectric constant or enthalpy of vaporisation; density maximum",
+                ("msite_shift",),
+            ),
+            Effect(
+                "msite_shift",
+                -0.005,
+                0.005,
+                0.0,
+                "nm",
+                "M-site distance d_OM -> d_OM + eta (TIP4P 0.015 nm, TIP4P/2005 0.01546 nm): the quadrupole.",
+                "physical",
+                "g_OH/g_HH (neutron) besides g_OO; the temperature of maximum density",
+                ("charge_scale",),
+            ),
+            Effect(
+                "oh_contamination",
+                0.0,
+                0.1,
+                0.0,
+                "weight",
+                "X-ray g_OO contaminated by O-H correlations: g_meas = (1 - w) g_OO + w g_OH.",
+                "measurement",
+                "neutron g_OO from isotope substitution (no H weighting issue)",
+            ),
         ],
         name="water (TIP4P)",
-        notes=("Charge scaling and M-site distance both change the electrostatics and largely move the "
-               "same g_OO features; neutron g_OH/g_HH and thermodynamic data (density, heat of vaporisation) "
-               "separate them.  O-H contamination is a measurement effect on the X-ray g_OO only."),
+        notes=(
+            "Charge scaling and M-site distance both change the electrostatics and largely move the "
+            "same g_OO features; neutron g_OH/g_HH and thermodynamic data (density, heat of vaporisation) "
+            "separate them.  O-H contamination is a measurement effect on the X-ray g_OO only."
+        ),
     )
 
 
@@ -411,8 +509,14 @@ class WaterSimulatorWithEffects:
     Run it with ``executor="process_pool"`` (GROMACS is a host program).
     """
 
-    def __init__(self, preset: str = "quick", statistics: str = "robust", observed_kind: str = "xray",
-                 with_density: bool = True, **options: Any):
+    def __init__(
+        self,
+        preset: str = "quick",
+        statistics: str = "robust",
+        observed_kind: str = "xray",
+        with_density: bool = True,
+        **options: Any,
+    ):
         from md.water import make_simulator
 
         self.inner = make_simulator(preset, statistics, observed_kind, **options)
@@ -421,9 +525,18 @@ class WaterSimulatorWithEffects:
         self.with_density = with_density
 
     #: Names of the returned summaries (the density, kg/m^3, is appended when ``with_density``).
-    NAMES = ("S1 mean g_OH", "S2 g_OH first minimum r", "S3 g_OH area", "S4 mean g_OO",
-             "S5 g_OO first minimum r", "S6 g_OO area", "S7 g_OO first peak height",
-             "S8 g_OO first peak r", "S9 self-diffusion D", "density kg/m3")
+    NAMES = (
+        "S1 mean g_OH",
+        "S2 g_OH first minimum r",
+        "S3 g_OH area",
+        "S4 mean g_OO",
+        "S5 g_OO first minimum r",
+        "S6 g_OO area",
+        "S7 g_OO first peak height",
+        "S8 g_OO first peak r",
+        "S9 self-diffusion D",
+        "density kg/m3",
+    )
 
     def __call__(self, key, theta_full) -> np.ndarray:
         from md.water.analysis import WaterCurves
@@ -432,8 +545,12 @@ class WaterSimulatorWithEffects:
 
         theta_full = np.asarray(theta_full, np.float64)
         base = self.inner.base_parameters
-        theta = [theta_full[0], theta_full[1], base.charge_h_e * (1.0 + theta_full[2]),
-                 base.om_distance_nm + theta_full[3]]
+        theta = [
+            theta_full[0],
+            theta_full[1],
+            base.charge_h_e * (1.0 + theta_full[2]),
+            base.om_distance_nm + theta_full[3],
+        ]
         out = self.inner.run(key, theta)
         w = float(theta_full[4])
         stats = out.statistics
@@ -447,7 +564,8 @@ class WaterSimulatorWithEffects:
         return stats
 
 
-def make_water_simulator_with_effects(preset: str = "quick", statistics: str = "robust",
-                                      observed_kind: str = "xray", **options: Any) -> WaterSimulatorWithEffects:
+def make_water_simulator_with_effects(
+    preset: str = "quick", statistics: str = "robust", observed_kind: str = "xray", **options: Any
+) -> WaterSimulatorWithEffects:
     """Build :class:`WaterSimulatorWithEffects` (needs GROMACS ``gmx``)."""
     return WaterSimulatorWithEffects(preset, statistics, observed_kind, **options)

@@ -146,10 +146,7 @@ class HeliumPreset:
         """Initial box side, nm (ideal-gas volume N k_B T / P when ``box_nm`` is None)."""
         if self.box_nm is not None:
             return self.box_nm
-        volume = (
-            self.num_atoms * BOLTZMANN_KJ_MOL_K * self.temperature_k
-            / atm_to_kj_mol_nm3(self.pressure_atm)
-        )
+        volume = self.num_atoms * BOLTZMANN_KJ_MOL_K * self.temperature_k / atm_to_kj_mol_nm3(self.pressure_atm)
         return float(volume ** (1.0 / 3.0))
 
     def _steps(self, ps: float, what: str, multiple: int) -> int:
@@ -164,16 +161,12 @@ class HeliumPreset:
     @property
     def blocks_per_sample(self) -> int:
         """Blocks of ``rebuild_every`` steps between samples."""
-        return self._steps(self.sample_every_ps, "sample_every_ps", self.rebuild_every) // (
-            self.rebuild_every
-        )
+        return self._steps(self.sample_every_ps, "sample_every_ps", self.rebuild_every) // (self.rebuild_every)
 
     @property
     def equilibration_blocks(self) -> int:
         """Blocks of equilibration."""
-        return self._steps(self.equilibration_ps, "equilibration_ps", self.rebuild_every) // (
-            self.rebuild_every
-        )
+        return self._steps(self.equilibration_ps, "equilibration_ps", self.rebuild_every) // (self.rebuild_every)
 
     @property
     def num_samples(self) -> int:
@@ -282,9 +275,7 @@ def _trajectory(
     params = _params(theta)
     carry = engine.init(key, params)
     carry, _ = engine.run(carry, params, preset.equilibration_blocks, 1)
-    carry, f_b = engine.run(
-        carry, params, num_samples, preset.blocks_per_sample, _f_b_observer(engine)
-    )
+    carry, f_b = engine.run(carry, params, num_samples, preset.blocks_per_sample, _f_b_observer(engine))
     return f_b, carry
 
 
@@ -423,7 +414,9 @@ def make_batch_simulator(
 
 
 def observed_series(
-    key: jax.Array, preset: str | HeliumPreset = "cpu", theta: tuple[float, float] = TRUE_THETA,
+    key: jax.Array,
+    preset: str | HeliumPreset = "cpu",
+    theta: tuple[float, float] = TRUE_THETA,
     **overrides: Any,
 ) -> np.ndarray:
     """The 'observed' f_B series: one run ``observed_factor`` times longer than a simulation.

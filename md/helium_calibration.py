@@ -32,26 +32,44 @@ def make_model(preset: str = "cpu"):
     carries the host-side batched runner (neighbour-list re-allocation) as ``simulate_batch``."""
     simulate = helium.make_simulator(preset)
     simulate.simulate_batch = helium.make_batch_simulator(preset)  # type: ignore[attr-defined]
-    prior = jaxabc.Uniform(helium.PRIOR_LOW, helium.PRIOR_HIGH, names=("sigma", "epsilon"),
-                           units=("nm", "zJ"))
+    prior = jaxabc.Uniform(helium.PRIOR_LOW, helium.PRIOR_HIGH, names=("sigma", "epsilon"), units=("nm", "zJ"))
     return simulate, prior
 
 
-def calibrate(algorithm: str = "apmcabc", preset: str = "cpu", num_particles: int = 500,
-              num_steps: int = 6, seed: int = 0, output: str | Path | None = None,
-              resume: bool = False, progress: bool = True, **options) -> jaxabc.ABCResult:
+def calibrate(
+    algorithm: str = "apmcabc",
+    preset: str = "cpu",
+    num_particles: int = 500,
+    num_steps: int = 6,
+    seed: int = 0,
+    output: str | Path | None = None,
+    resume: bool = False,
+    progress: bool = True,
+    **options,
+) -> jaxabc.ABCResult:
     """Run one helium calibration; returns the result (and writes it when ``output`` is set)."""
     simulate, prior = make_model(preset)
     # The observed data get their own key, disjoint from the inference's.
     observed = helium.observed_series(jax.random.key(10_000 + seed), preset)
     if algorithm == "apmcabc":
         options = {"alpha": 0.1, "acceptance_cutoff": 0.03, **options}
-    result = jaxabc.run(algorithm, simulate, prior, observed, num_particles=num_particles,
-                        num_steps=num_steps, distance="kl", seed=seed, progress=progress,
-                        # An example starts over unless asked to resume (its folder is its own).
-                        checkpoint_dir=output, resume=resume, overwrite=not resume,
-                        metadata={"model": "helium", "preset": preset,
-                                  "true_theta": list(helium.TRUE_THETA)}, **options)
+    result = jaxabc.run(
+        algorithm,
+        simulate,
+        prior,
+        observed,
+        num_particles=num_particles,
+        num_steps=num_steps,
+        distance="kl",
+        seed=seed,
+        progress=progress,
+        # An example starts over unless asked to resume (its folder is its own).
+        checkpoint_dir=output,
+        resume=resume,
+        overwrite=not resume,
+        metadata={"model": "helium", "preset": preset, "true_theta": list(helium.TRUE_THETA)},
+        **options,
+    )
     if output is not None:
         write_outputs(result, Path(output), truth=np.asarray(helium.TRUE_THETA))
     return result
@@ -75,10 +93,11 @@ def main(argv: list[str] | None = None) -> int:
     truth = np.asarray(helium.TRUE_THETA)
     rel = np.linalg.norm((est - truth) / (np.asarray(helium.PRIOR_HIGH) - np.asarray(helium.PRIOR_LOW)))
     print(result.summary())
-    print(f"truth sigma={truth[0]} nm, epsilon={truth[1]} zJ; distance of the Bayes estimate from "
-          f"the truth in prior-range units: {rel:.4f}")
-    print(f"wrote {args.output}/result.npz, posterior.png, summary.txt "
-          f"({time.perf_counter() - t0:.0f} s)")
+    print(
+        f"truth sigma={truth[0]} nm, epsilon={truth[1]} zJ; distance of the Bayes estimate from "
+        f"the truth in prior-range units: {rel:.4f}"
+    )
+    print(f"wrote {args.output}/result.npz, posterior.png, summary.txt ({time.perf_counter() - t0:.0f} s)")
     return 0
 
 

@@ -184,9 +184,11 @@ run {prod}
         t0 = time.perf_counter()
         try:
             proc = subprocess.run(
-                [executable, "-in", "in.helium", "-log", "log.lammps", "-screen", "none",
-                 "-nocite"],
-                cwd=tmp, capture_output=True, text=True, timeout=timeout_s,
+                [executable, "-in", "in.helium", "-log", "log.lammps", "-screen", "none", "-nocite"],
+                cwd=tmp,
+                capture_output=True,
+                text=True,
+                timeout=timeout_s,
             )
         except subprocess.TimeoutExpired as exc:
             raise SimulationFailure(f"LAMMPS timed out after {timeout_s} s") from exc
@@ -304,8 +306,11 @@ def compare_with_jax_md(
         se = float(np.sqrt(a.var(ddof=1) / len(a) + b.var(ddof=1) / len(b)))
         diff = float(a.mean() - b.mean())
         quantities[name] = {
-            "jax_md": float(a.mean()), "lammps": float(b.mean()), "difference": diff,
-            "standard_error": se, "z": diff / se if se > 0 else float("inf"),
+            "jax_md": float(a.mean()),
+            "lammps": float(b.mean()),
+            "difference": diff,
+            "standard_error": se,
+            "z": diff / se if se > 0 else float("inf"),
         }
     kl = jax.jit(jax.vmap(kl_divergence))
     fj = jnp.asarray(fb_jax, jnp.float32)
@@ -377,8 +382,13 @@ run {production_steps}
         (Path(tmp) / "in.lj").write_text(script)
         t0 = time.perf_counter()
         try:
-            proc = subprocess.run([executable, "-in", "in.lj", "-log", "log.lammps", "-screen", "none", "-nocite"],
-                                  cwd=tmp, capture_output=True, text=True, timeout=timeout_s)
+            proc = subprocess.run(
+                [executable, "-in", "in.lj", "-log", "log.lammps", "-screen", "none", "-nocite"],
+                cwd=tmp,
+                capture_output=True,
+                text=True,
+                timeout=timeout_s,
+            )
         except subprocess.TimeoutExpired as exc:
             raise SimulationFailure(f"LAMMPS timed out after {timeout_s} s") from exc
         wall = time.perf_counter() - t0
@@ -386,5 +396,10 @@ run {production_steps}
         if proc.returncode != 0:
             raise SimulationFailure(f"LAMMPS exited with {proc.returncode}: {(log or proc.stderr)[-800:]}")
     rows = np.asarray(_thermo_blocks(log)[-1], float)[1:]
-    return {"temperature": rows[:, 1], "pressure": rows[:, 2], "potential": rows[:, 3], "num_atoms": n,
-            "wall_seconds": wall}
+    return {
+        "temperature": rows[:, 1],
+        "pressure": rows[:, 2],
+        "potential": rows[:, 3],
+        "num_atoms": n,
+        "wall_seconds": wall,
+    }

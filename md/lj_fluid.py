@@ -55,14 +55,38 @@ __all__ = [
 
 # Johnson, Zollweg & Gubbins (1993), Table 10: x_1 .. x_32 and gamma.
 _JZG_X = (
-    0.8623085097507421, 2.976218765822098, -8.402230115796038, 0.1054136629203555,
-    -0.8564583828174598, 1.582759470107601, 0.7639421948305453, 1.753173414312048,
-    2.798291772190376e3, -4.8394220260857657e-2, 0.9963265197721935, -3.698000291272493e1,
-    2.084012299434647e1, 8.305402124717285e1, -9.574799715203068e2, -1.477746229234994e2,
-    6.398607852471505e1, 1.603993673294834e1, 6.805916615864377e1, -2.791293578795945e3,
-    -6.245128304568454, -8.116836104958410e3, 1.488735559561229e1, -1.059346754655084e4,
-    -1.131607632802822e2, -8.867771540418822e3, -3.986982844450543e1, -4.689270299917261e3,
-    2.593535277438717e2, -2.694523589434903e3, -7.218487631550215e2, 1.721802063863269e2,
+    0.8623085097507421,
+    2.976218765822098,
+    -8.402230115796038,
+    0.1054136629203555,
+    -0.8564583828174598,
+    1.582759470107601,
+    0.7639421948305453,
+    1.753173414312048,
+    2.798291772190376e3,
+    -4.8394220260857657e-2,
+    0.9963265197721935,
+    -3.698000291272493e1,
+    2.084012299434647e1,
+    8.305402124717285e1,
+    -9.574799715203068e2,
+    -1.477746229234994e2,
+    6.398607852471505e1,
+    1.603993673294834e1,
+    6.805916615864377e1,
+    -2.791293578795945e3,
+    -6.245128304568454,
+    -8.116836104958410e3,
+    1.488735559561229e1,
+    -1.059346754655084e4,
+    -1.131607632802822e2,
+    -8.867771540418822e3,
+    -3.986982844450543e1,
+    -4.689270299917261e3,
+    2.593535277438717e2,
+    -2.694523589434903e3,
+    -7.218487631550215e2,
+    1.721802063863269e2,
 )
 _JZG_GAMMA = 3.0
 
@@ -192,9 +216,7 @@ def rdf(r_max_nm: float, num_bins: int) -> Callable[[jax.Array, jax.Array], jax.
         off_diagonal = ~jnp.eye(n, dtype=bool)
         index = jnp.floor(r / width).astype(jnp.int32)
         keep = off_diagonal & (index < num_bins)
-        counts = jnp.zeros(num_bins, jnp.float32).at[jnp.where(keep, index, 0)].add(
-            keep.astype(jnp.float32)
-        )
+        counts = jnp.zeros(num_bins, jnp.float32).at[jnp.where(keep, index, 0)].add(keep.astype(jnp.float32))
         volume = jnp.abs(jnp.linalg.det(box))
         return counts / (n * (n - 1) / volume * shell)
 
@@ -331,9 +353,7 @@ PRESETS: dict[str, LJFluidPreset] = {
     # A supercritical dense fluid (the JZG check state points use the same settings).
     "reduced_dense_fluid": LJFluidPreset("reduced_dense_fluid", _REDUCED, 108, 2.0, 0.7),
     # Liquid argon at 94.4 K, 1.374 g/cm^3 (Rahman 1964): T* = 0.788, rho* = 0.83.
-    "argon_liquid": LJFluidPreset(
-        "argon_liquid", ReducedLJUnits.argon(), 108, 94.4 / 119.8, 0.83
-    ),
+    "argon_liquid": LJFluidPreset("argon_liquid", ReducedLJUnits.argon(), 108, 94.4 / 119.8, 0.83),
 }
 
 
@@ -355,9 +375,7 @@ def summary_names(preset: str | LJFluidPreset) -> list[str]:
     return [f"g(r={r:.3f} nm)" for r in centres] + ["D_nm2_per_ps", "P_kj_mol_nm3", "U_per_atom"]
 
 
-def run_details(
-    preset: str | LJFluidPreset, key: jax.Array, theta: jax.Array
-) -> dict[str, jax.Array]:
+def run_details(preset: str | LJFluidPreset, key: jax.Array, theta: jax.Array) -> dict[str, jax.Array]:
     """Run one trajectory and return every per-sample observable (pure JAX, vmappable).
 
     Returns
@@ -420,12 +438,14 @@ def make_simulator(
 
     def simulate(key: jax.Array, theta: jax.Array) -> jax.Array:
         obs = run_details(p, key, theta)
-        out = jnp.concatenate([
-            jnp.mean(obs["rdf"], axis=0),
-            self_diffusion(obs["msd"], obs["times_ps"])[None],
-            jnp.mean(obs["pressure"])[None],
-            (jnp.mean(obs["potential"]) / p.num_atoms)[None],
-        ])
+        out = jnp.concatenate(
+            [
+                jnp.mean(obs["rdf"], axis=0),
+                self_diffusion(obs["msd"], obs["times_ps"])[None],
+                jnp.mean(obs["pressure"])[None],
+                (jnp.mean(obs["potential"]) / p.num_atoms)[None],
+            ]
+        )
         return jnp.where(obs["failed"], jnp.nan, out)
 
     simulate.preset = p  # type: ignore[attr-defined]

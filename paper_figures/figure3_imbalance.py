@@ -38,18 +38,40 @@ def draw(json_path: str | Path, png_path: str | Path) -> None:
         theta = np.asarray(rec["theta"])
         st = rec["stats_all"]
         bins = np.linspace(t.min(), t.max(), 16) if t.max() > t.min() else 8
-        row[0].hist([t[ok], t[~ok]], bins=bins, stacked=True, color=["tab:blue", "tab:red"],
-                    label=[f"finished ({ok.sum()})", f"failed ({(~ok).sum()})"])
+        row[0].hist(
+            [t[ok], t[~ok]],
+            bins=bins,
+            stacked=True,
+            color=["tab:blue", "tab:red"],
+            label=[f"finished ({ok.sum()})", f"failed ({(~ok).sum()})"],
+        )
         row[0].axvline(st["mean"], color="k", ls="--", lw=1, label=f"mean {st['mean']:.3g} s")
         row[0].set_xlabel("wall time of one simulation (s)")
         row[0].set_ylabel("prior draws")
-        row[0].set_title(f"{TITLES[name]}\nCV {st['cv']:.2f}, max/mean {st['max_over_mean']:.2f}, "
-                         f"{rec['how']}", fontsize=9)
+        row[0].set_title(
+            f"{TITLES[name]}\nCV {st['cv']:.2f}, max/mean {st['max_over_mean']:.2f}, {rec['how']}", fontsize=9
+        )
         row[0].legend(fontsize=8)
-        sc = row[1].scatter(theta[ok, 0], theta[ok, 1], c=t[ok], cmap="viridis", marker="o",
-                            vmin=t.min(), vmax=t.max(), label="finished")
-        row[1].scatter(theta[~ok, 0], theta[~ok, 1], c=t[~ok], cmap="viridis", marker="x",
-                       vmin=t.min(), vmax=t.max(), label="failed")
+        sc = row[1].scatter(
+            theta[ok, 0],
+            theta[ok, 1],
+            c=t[ok],
+            cmap="viridis",
+            marker="o",
+            vmin=t.min(),
+            vmax=t.max(),
+            label="finished",
+        )
+        row[1].scatter(
+            theta[~ok, 0],
+            theta[~ok, 1],
+            c=t[~ok],
+            cmap="viridis",
+            marker="x",
+            vmin=t.min(),
+            vmax=t.max(),
+            label="failed",
+        )
         fig.colorbar(sc, ax=row[1], label="wall time (s)")
         names = rec["theta_names"]
         row[1].set_xlabel(names[0])
@@ -59,8 +81,10 @@ def draw(json_path: str | Path, png_path: str | Path) -> None:
         row[1].legend(fontsize=8)
         row[1].set_title("prior draws coloured by wall time", fontsize=9)
     machine = data["machine"]
-    fig.suptitle(f"Imbalance of simulation time (measured; {machine['cpu_count']} cores, "
-                 f"load {machine['load_average'][0]:.1f})", fontsize=10)
+    fig.suptitle(
+        f"Imbalance of simulation time (measured; {machine['cpu_count']} cores, load {machine['load_average'][0]:.1f})",
+        fontsize=10,
+    )
     fig.tight_layout()
     fig.savefig(png_path, dpi=120)
     plt.close(fig)

@@ -33,21 +33,35 @@ RESULTS = ROOT / "benchmarks" / "results"
 COLORS = {"apmcabc": "tab:blue", "abcsubsim": "tab:orange"}
 NAMES = {"apmcabc": "APMCABC", "abcsubsim": "ABCsubsim"}
 #: dynamic_longest_first: queued longest predicted first; dynamic_lpt_oracle: by true duration (a bound).
-ALLOC_COLORS = {"dynamic": "tab:blue", "dynamic_longest_first": "tab:green", "dynamic_lpt_oracle": "tab:gray",
-                "static": "tab:red"}
+ALLOC_COLORS = {
+    "dynamic": "tab:blue",
+    "dynamic_longest_first": "tab:green",
+    "dynamic_lpt_oracle": "tab:gray",
+    "static": "tab:red",
+}
 
 
 def _panel_model(ax: plt.Axes, model: dict) -> None:
     for name, rec in model["algorithms"].items():
         n = np.asarray(rec["n"])
         for alloc, style in (("dynamic", "-"), ("static", "--")):
-            ax.plot(n, rec[alloc]["speedup_mean"], style, color=COLORS[name],
-                    marker="o" if alloc == "dynamic" else None, ms=3, label=f"{NAMES[name]}, {alloc} (model)")
+            ax.plot(
+                n,
+                rec[alloc]["speedup_mean"],
+                style,
+                color=COLORS[name],
+                marker="o" if alloc == "dynamic" else None,
+                ms=3,
+                label=f"{NAMES[name]}, {alloc} (model)",
+            )
     n = np.asarray(model["algorithms"]["apmcabc"]["n"])
     ax.plot(n, n, ":", color="gray", label="ideal S(n) = n")
     s = model["settings"]
-    ax.set_title(f"(a) model: N = {s['num_particles']}, alpha = {s['alpha']}, P0 = {s['p0']}, "
-                 f"{s['steps']} steps, {s['reps']} reps", fontsize=9)
+    ax.set_title(
+        f"(a) model: N = {s['num_particles']}, alpha = {s['alpha']}, P0 = {s['p0']}, "
+        f"{s['steps']} steps, {s['reps']} reps",
+        fontsize=9,
+    )
     ax.set_xscale("log", base=2)
     ax.set_yscale("log", base=2)
     ax.set_xlabel("workers n")
@@ -66,14 +80,28 @@ def _panel_ranks(ax: plt.Axes, data: dict) -> None:
             for alloc, marker, style in (("dynamic", "o", "-"), ("static", "s", "--")):
                 row = val[name][alloc]
                 if row["measured_speedup"] is not None:
-                    ax.plot(n, row["measured_speedup"], marker, color=COLORS[name], mfc="none" if alloc == "static"
-                            else COLORS[name], label=f"{NAMES[name]}, {alloc}: measured, real MPI ranks, sleep tasks")
-                ax.plot(n, row["model_speedup"], style, color=COLORS[name], lw=1,
-                        label=f"{NAMES[name]}, {alloc}: model, same durations")
+                    ax.plot(
+                        n,
+                        row["measured_speedup"],
+                        marker,
+                        color=COLORS[name],
+                        mfc="none" if alloc == "static" else COLORS[name],
+                        label=f"{NAMES[name]}, {alloc}: measured, real MPI ranks, sleep tasks",
+                    )
+                ax.plot(
+                    n,
+                    row["model_speedup"],
+                    style,
+                    color=COLORS[name],
+                    lw=1,
+                    label=f"{NAMES[name]}, {alloc}: model, same durations",
+                )
         s = ranks["settings"]
-        ax.set_title(f"(b) real ranks (oversubscribed), N = {s['num_particles']}, {s['steps']} steps, mean sleep "
-                     f"{ranks['sleep_mean_s'] * 1e3:.0f} ms; overhead {val['overhead_per_task_s'] * 1e3:.2f} ms/task",
-                     fontsize=9)
+        ax.set_title(
+            f"(b) real ranks (oversubscribed), N = {s['num_particles']}, {s['steps']} steps, mean sleep "
+            f"{ranks['sleep_mean_s'] * 1e3:.0f} ms; overhead {val['overhead_per_task_s'] * 1e3:.2f} ms/task",
+            fontsize=9,
+        )
         top = max(n)
     else:
         top = 2
@@ -81,8 +109,14 @@ def _panel_ranks(ax: plt.Axes, data: dict) -> None:
     real = data.get("real")
     if real and "speedup" in real:
         for alloc, marker in (("dynamic", "*"), ("static", "P")):
-            ax.plot([1, 2], [1.0, real["speedup"][alloc]], marker, color="tab:green", ms=11,
-                    label=f"water GROMACS, {alloc}: measured, real simulations ({real['num_tasks']} tasks)")
+            ax.plot(
+                [1, 2],
+                [1.0, real["speedup"][alloc]],
+                marker,
+                color="tab:green",
+                ms=11,
+                label=f"water GROMACS, {alloc}: measured, real simulations ({real['num_tasks']} tasks)",
+            )
     ax.plot([1, top], [1, top], ":", color="gray", label="ideal")
     ax.set_xscale("log", base=2)
     ax.set_yscale("log", base=2)
@@ -95,14 +129,30 @@ def _panel_efficiency(ax: plt.Axes, model: dict) -> None:
     s = model["settings"]
     for name, rec in model["algorithms"].items():
         n = np.asarray(rec["n"])
-        ax.plot(n, rec["dynamic"]["efficiency_mean"], "-o", ms=3, color=COLORS[name],
-                label=f"{NAMES[name]}, dynamic (model)")
+        ax.plot(
+            n,
+            rec["dynamic"]["efficiency_mean"],
+            "-o",
+            ms=3,
+            color=COLORS[name],
+            label=f"{NAMES[name]}, dynamic (model)",
+        )
         ax.plot(n, rec["static"]["efficiency_mean"], "--", color=COLORS[name], label=f"{NAMES[name]}, static (model)")
         if "dynamic_longest_first" in rec:
-            ax.plot(n, rec["dynamic_longest_first"]["efficiency_mean"], "-.", color=COLORS[name],
-                    label=f"{NAMES[name]}, dynamic longest-predicted-first (model)")
-        ax.axvline(rec["max_parallel_tasks"], color=COLORS[name], lw=0.8, ls=":",
-                   label=f"{NAMES[name]}: {rec['max_parallel_tasks']} parallel tasks per barrier")
+            ax.plot(
+                n,
+                rec["dynamic_longest_first"]["efficiency_mean"],
+                "-.",
+                color=COLORS[name],
+                label=f"{NAMES[name]}, dynamic longest-predicted-first (model)",
+            )
+        ax.axvline(
+            rec["max_parallel_tasks"],
+            color=COLORS[name],
+            lw=0.8,
+            ls=":",
+            label=f"{NAMES[name]}: {rec['max_parallel_tasks']} parallel tasks per barrier",
+        )
     ax.axhline(0.8, color="k", lw=0.8, label="target 0.8")
     m = s["num_particles"] - math.ceil(s["alpha"] * s["num_particles"])
     ax.set_title(f"(c) parallel efficiency S(n)/n; APMCABC target up to n = N - ceil(alpha N) = {m}", fontsize=9)
@@ -125,14 +175,21 @@ def _panel_makespan(ax: plt.Axes, model: dict, data: dict) -> None:
         val = ranks["validation"]["apmcabc"]
         for alloc, color in ALLOC_COLORS.items():
             if alloc in val:
-                ax.plot(val["n"], val[alloc]["measured_over_lower_bound"], "o", color=color, mfc="none",
-                        label=f"{alloc}, APMCABC run (measured, real ranks, sleep)")
+                ax.plot(
+                    val["n"],
+                    val[alloc]["measured_over_lower_bound"],
+                    "o",
+                    color=color,
+                    mfc="none",
+                    label=f"{alloc}, APMCABC run (measured, real ranks, sleep)",
+                )
     ax.axhline(1.1, color="k", lw=0.8, label="target 1.1")
     ax.set_xscale("log", base=2)
     ax.set_xlabel("workers n")
     ax.set_ylabel("makespan / max(total/n, longest)")
-    ax.set_title("(d) makespan relative to the lower bound, " + data["distribution"]["system"]
-                 + " time distribution", fontsize=9)
+    ax.set_title(
+        "(d) makespan relative to the lower bound, " + data["distribution"]["system"] + " time distribution", fontsize=9
+    )
     ax.legend(fontsize=6)
 
 
@@ -146,8 +203,9 @@ def draw(json_path: str | Path, png_path: str | Path) -> None:
         _panel_makespan(axes[1, 1], data["model"], data)
     _panel_ranks(axes[0, 1], data)
     dist = data["distribution"]
-    fig.suptitle(f"Speedup with dynamic MPI allocation; task durations: {dist['kind']} from {dist['source']}",
-                 fontsize=9)
+    fig.suptitle(
+        f"Speedup with dynamic MPI allocation; task durations: {dist['kind']} from {dist['source']}", fontsize=9
+    )
     fig.tight_layout()
     fig.savefig(png_path, dpi=110)
     plt.close(fig)

@@ -42,8 +42,10 @@ def main(out_dir: str | Path | None = None) -> Path:
     print(f"{'algorithm':<10} {'d_E':>9} {'(paper)':>9} {'gamma_final':>12} {'(paper)':>9} {'sims':>7}")
     for name in names:
         row = table["algorithms"][name]
-        print(f"{name:<10} {row['d_E']:9.5f} {row['paper']['d_E']:9.5f} {row['gamma_final']:12.4g} "
-              f"{row['paper']['gamma_final']:9.4g} {row['simulations']:7d}")
+        print(
+            f"{name:<10} {row['d_E']:9.5f} {row['paper']['d_E']:9.5f} {row['gamma_final']:12.4g} "
+            f"{row['paper']['gamma_final']:9.4g} {row['simulations']:7d}"
+        )
     return path
 
 

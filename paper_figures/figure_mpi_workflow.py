@@ -121,9 +121,11 @@ def _model_summary() -> str:
     if not single or NUM_WORKERS not in single["n"]:
         return ""
     i = single["n"].index(NUM_WORKERS)
-    return (f"model over many {NUM_TASKS}-task batches at n = {NUM_WORKERS}: makespan / lower bound mean (worst) "
-            f"static {single['static']['mean'][i]:.2f} ({single['static']['max'][i]:.2f}), "
-            f"dynamic {single['dynamic']['mean'][i]:.2f} ({single['dynamic']['max'][i]:.2f})")
+    return (
+        f"model over many {NUM_TASKS}-task batches at n = {NUM_WORKERS}: makespan / lower bound mean (worst) "
+        f"static {single['static']['mean'][i]:.2f} ({single['static']['max'][i]:.2f}), "
+        f"dynamic {single['dynamic']['mean'][i]:.2f} ({single['dynamic']['max'][i]:.2f})"
+    )
 
 
 def _gantt(ax: plt.Axes, schedule: list, cmap, norm, makespan: float, bound: float, title: str) -> None:
@@ -155,11 +157,12 @@ def main(out_dir: str | Path | None = None) -> Path:
     """
     speedup = _speedup_module()
     durations, source = _durations(speedup)
-    schedules = {"static": static_schedule(durations, NUM_WORKERS),
-                 "dynamic": dynamic_schedule(durations, NUM_WORKERS)}
+    schedules = {"static": static_schedule(durations, NUM_WORKERS), "dynamic": dynamic_schedule(durations, NUM_WORKERS)}
     spans = {name: max(start + d for _, _, start, d in s) for name, s in schedules.items()}
-    check = {"static": speedup.static_makespan(durations, NUM_WORKERS),
-             "dynamic": speedup.dynamic_makespan(durations, NUM_WORKERS)}
+    check = {
+        "static": speedup.static_makespan(durations, NUM_WORKERS),
+        "dynamic": speedup.dynamic_makespan(durations, NUM_WORKERS),
+    }
     for name in spans:
         if not np.isclose(spans[name], check[name]):
             raise RuntimeError(f"{name} schedule makespan {spans[name]} != speedup.py's {check[name]}")
@@ -170,30 +173,44 @@ def main(out_dir: str | Path | None = None) -> Path:
     cmap = plt.get_cmap("viridis")
     norm = matplotlib.colors.LogNorm(vmin=max(durations.min(), 0.05), vmax=durations.max())
     fig, axes = plt.subplots(2, 1, figsize=(12, 7.5), sharex=True)
-    how = {"static": "static: equal contiguous chunks of tasks, fixed up front (MPI backend)",
-           "dynamic": "dynamic: a free worker pulls the next task (dynamic-MPI backend)"}
+    how = {
+        "static": "static: equal contiguous chunks of tasks, fixed up front (MPI backend)",
+        "dynamic": "dynamic: a free worker pulls the next task (dynamic-MPI backend)",
+    }
     for ax, name in zip(axes, ("static", "dynamic"), strict=True):
-        _gantt(ax, schedules[name], cmap, norm, spans[name], bound,
-               f"({'ab'[name == 'dynamic']}) {how[name]}: makespan {spans[name]:.1f} s = "
-               f"{spans[name] / bound:.2f} x lower bound")
+        _gantt(
+            ax,
+            schedules[name],
+            cmap,
+            norm,
+            spans[name],
+            bound,
+            f"({'ab'[name == 'dynamic']}) {how[name]}: makespan {spans[name]:.1f} s = "
+            f"{spans[name] / bound:.2f} x lower bound",
+        )
     axes[1].set_xlim(0.0, 1.3 * max(spans.values()))  # room on the right for the legends
     axes[1].set_xlabel("time (s)")
-    fig.colorbar(matplotlib.cm.ScalarMappable(norm=norm, cmap=cmap), ax=axes, label="task duration (s)",
-                 fraction=0.03, pad=0.01)
-    fig.suptitle(f"Discrete-event model (benchmarks/speedup.py) over measured water task durations: {NUM_TASKS} tasks "
-                 f"on {NUM_WORKERS} workers\nstatic {spans['static']:.1f} s, dynamic {spans['dynamic']:.1f} s, "
-                 f"lower bound {bound:.1f} s (total {durations.sum():.0f} s, longest {durations.max():.1f} s); "
-                 f"durations: {source}"
-                 + (f"\nthis is one draw; {many}" if many else ""), fontsize=8)
+    fig.colorbar(
+        matplotlib.cm.ScalarMappable(norm=norm, cmap=cmap), ax=axes, label="task duration (s)", fraction=0.03, pad=0.01
+    )
+    fig.suptitle(
+        f"Discrete-event model (benchmarks/speedup.py) over measured water task durations: {NUM_TASKS} tasks "
+        f"on {NUM_WORKERS} workers\nstatic {spans['static']:.1f} s, dynamic {spans['dynamic']:.1f} s, "
+        f"lower bound {bound:.1f} s (total {durations.sum():.0f} s, longest {durations.max():.1f} s); "
+        f"durations: {source}" + (f"\nthis is one draw; {many}" if many else ""),
+        fontsize=8,
+    )
     out = Path(out_dir) if out_dir is not None else OUT
     out.mkdir(parents=True, exist_ok=True)
     path = out / "figure_mpi_workflow.png"
     fig.savefig(path, dpi=120, bbox_inches="tight")
     plt.close(fig)
 
-    print(f"{NUM_TASKS} tasks on {NUM_WORKERS} workers (seed {SEED}): static {spans['static']:.1f} s, "
-          f"dynamic {spans['dynamic']:.1f} s, lower bound {bound:.1f} s (pigeonhole bound {tight:.1f} s); "
-          f"ratio to the bound: static {spans['static'] / bound:.2f}, dynamic {spans['dynamic'] / bound:.2f}")
+    print(
+        f"{NUM_TASKS} tasks on {NUM_WORKERS} workers (seed {SEED}): static {spans['static']:.1f} s, "
+        f"dynamic {spans['dynamic']:.1f} s, lower bound {bound:.1f} s (pigeonhole bound {tight:.1f} s); "
+        f"ratio to the bound: static {spans['static'] / bound:.2f}, dynamic {spans['dynamic'] / bound:.2f}"
+    )
     if many:
         print(f"speedup.json, {many}")
     print("The paper shows this comparison as a cartoon (no numbers).")

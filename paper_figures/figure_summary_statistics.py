@@ -59,8 +59,13 @@ def _panel_oh(ax: plt.Axes, curves: dict, s: np.ndarray) -> None:
     ax.plot(measured.r_nm, measured.g, "--", color="tab:gray", lw=1.2, label="neutron (Soper 2013)")
     ax.plot(r, g, color="tab:blue", lw=1.4, label="TIP4P simulation (quick preset)")
     ax.axvspan(*OH_WINDOW_NM, color="tab:green", alpha=0.06)
-    ax.hlines(s[0], *OH_WINDOW_NM, color="tab:green", lw=1.5,
-              label=f"S1 = {s[0]:.4f}: mean over [{OH_WINDOW_NM[0]}, {OH_WINDOW_NM[1]}] nm")
+    ax.hlines(
+        s[0],
+        *OH_WINDOW_NM,
+        color="tab:green",
+        lw=1.5,
+        label=f"S1 = {s[0]:.4f}: mean over [{OH_WINDOW_NM[0]}, {OH_WINDOW_NM[1]}] nm",
+    )
     ax.axvline(s[1], color="tab:red", ls=":", lw=1.3, label=f"S2 = {s[1]:.4f} nm: first minimum")
     _area(ax, r, g, OH_WINDOW_NM[0], s[1], "tab:orange", f"S3 = {s[2]:.4f} nm: integral {OH_WINDOW_NM[0]} nm..S2")
     ax.set_xlim(0.0, 0.85)
@@ -79,8 +84,13 @@ def _panel_oo(ax: plt.Axes, curves: dict, s: np.ndarray) -> None:
     ax.plot(xray.r_nm, xray.g, ":", color="k", lw=1.0, label="X-ray (Skinner 2013)")
     ax.plot(r, g, color="tab:blue", lw=1.4, label="TIP4P simulation (quick preset)")
     ax.axvspan(*OO_WINDOW_NM, color="tab:green", alpha=0.06)
-    ax.hlines(s[3], *OO_WINDOW_NM, color="tab:green", lw=1.5,
-              label=f"S4 = {s[3]:.4f}: mean over [{OO_WINDOW_NM[0]}, {OO_WINDOW_NM[1]}] nm")
+    ax.hlines(
+        s[3],
+        *OO_WINDOW_NM,
+        color="tab:green",
+        lw=1.5,
+        label=f"S4 = {s[3]:.4f}: mean over [{OO_WINDOW_NM[0]}, {OO_WINDOW_NM[1]}] nm",
+    )
     ax.axvline(s[4], color="tab:red", ls=":", lw=1.3, label=f"S5 = {s[4]:.4f} nm: first minimum")
     _area(ax, r, g, OO_WINDOW_NM[0], s[4], "tab:orange", f"S6 = {s[5]:.4f} nm: integral {OO_WINDOW_NM[0]} nm..S5")
     ax.plot([s[7]], [s[6]], "o", color="tab:purple", ms=6, zorder=5)
@@ -100,14 +110,29 @@ def _panel_msd(ax: plt.Axes, curves: dict, s: np.ndarray, window_ps: list[float]
     slope, intercept = np.polyfit(lag[mask], msd[mask], 1)
     d_refit = slope / 6.0 * NM2_PER_PS_IN_1E5_CM2_PER_S
     ax.plot(lag, msd, "o-", color="tab:blue", ms=2.5, lw=1.0, label="TIP4P simulation: oxygen MSD")
-    ax.axvspan(*window_ps, color="tab:green", alpha=0.08,
-               label=f"fit window {window_ps[0]:.1f}-{window_ps[1]:.1f} ps (10-50 % of the longest lag)")
-    ax.plot(lag, intercept + slope * lag, color="tab:red", lw=1.3,
-            label=f"slope {slope:.4f} nm^2/ps: S9 = D = slope/6 = {s[8]:.3f}e-5 cm^2/s")
+    ax.axvspan(
+        *window_ps,
+        color="tab:green",
+        alpha=0.08,
+        label=f"fit window {window_ps[0]:.1f}-{window_ps[1]:.1f} ps (10-50 % of the longest lag)",
+    )
+    ax.plot(
+        lag,
+        intercept + slope * lag,
+        color="tab:red",
+        lw=1.3,
+        label=f"slope {slope:.4f} nm^2/ps: S9 = D = slope/6 = {s[8]:.3f}e-5 cm^2/s",
+    )
     slope_exp = 6.0 * datasets.DIFFUSION_298K_CM2_S * 1e2
     mid = 0.5 * (window_ps[0] + window_ps[1])
-    ax.plot(lag, intercept + slope * mid + slope_exp * (lag - mid), ":", color="k", lw=1.0,
-            label=f"measured D = {datasets.DIFFUSION_298K_CM2_S * 1e5:.2f}e-5 cm^2/s (298 K): slope {slope_exp:.4f}")
+    ax.plot(
+        lag,
+        intercept + slope * mid + slope_exp * (lag - mid),
+        ":",
+        color="k",
+        lw=1.0,
+        label=f"measured D = {datasets.DIFFUSION_298K_CM2_S * 1e5:.2f}e-5 cm^2/s (298 K): slope {slope_exp:.4f}",
+    )
     ax.set_xlabel("lag (ps)")
     ax.set_ylabel("MSD (nm^2)")
     ax.set_xlim(0.0, float(lag[-1]))
@@ -139,10 +164,13 @@ def main(out_dir: str | Path | None = None) -> Path:
     _panel_oh(axes[0], curves, robust)
     _panel_oo(axes[1], curves, robust)
     d_refit = _panel_msd(axes[2], curves, robust, window)
-    fig.suptitle(f"Summary statistics S1..S9 (robust variant) of one TIP4P run: GROMACS {setup['preset']} preset, "
-                 f"{setup['num_molecules']} molecules, sigma {setup['theta'][0]} nm, epsilon {setup['theta'][1]} "
-                 f"kJ/mol, analysed from {setup['protocol']['analysis_start_ps']} ps, density "
-                 f"{curves['density_kg_m3']:.1f} kg/m3", fontsize=9)
+    fig.suptitle(
+        f"Summary statistics S1..S9 (robust variant) of one TIP4P run: GROMACS {setup['preset']} preset, "
+        f"{setup['num_molecules']} molecules, sigma {setup['theta'][0]} nm, epsilon {setup['theta'][1]} "
+        f"kJ/mol, analysed from {setup['protocol']['analysis_start_ps']} ps, density "
+        f"{curves['density_kg_m3']:.1f} kg/m3",
+        fontsize=9,
+    )
     fig.tight_layout()
     out = Path(out_dir) if out_dir is not None else OUT
     out.mkdir(parents=True, exist_ok=True)

@@ -42,9 +42,11 @@ RESULTS = ROOT / "benchmarks" / "results"
 OUT = Path(__file__).resolve().parent / "out"
 DATASETS = ("simulated", "neutron", "xray")
 VARIANTS = ("robust", "paper")
-TITLES = {"simulated": "simulated data (TIP4P, quick preset)",
-          "neutron": "neutron data (Soper 2013 g_OH, g_OO; D 2.30e-5 cm^2/s)",
-          "xray": "X-ray data (Skinner 2013 g_OO; D 2.30e-5 cm^2/s)"}
+TITLES = {
+    "simulated": "simulated data (TIP4P, quick preset)",
+    "neutron": "neutron data (Soper 2013 g_OH, g_OO; D 2.30e-5 cm^2/s)",
+    "xray": "X-ray data (Skinner 2013 g_OO; D 2.30e-5 cm^2/s)",
+}
 PAPER_FIGURE = {"simulated": "fig:md_apmcabc_sim", "neutron": "fig:neutron_data", "xray": "fig:xray_data"}
 #: TIP4P's own (sigma_OW nm, epsilon_OW kJ/mol), GROMACS oplsaa.ff/tip4p.itp.
 TIP4P_THETA = (0.315365, 0.64852)
@@ -64,8 +66,10 @@ def available(data: str) -> tuple[dict, list[str]]:
     """
     path = RESULTS / f"water_{data}.json"
     if not path.exists():
-        print(f"skipping {data}: {path.relative_to(ROOT)} not found "
-              f"(run: python benchmarks/water_calibration.py --data {data} --statistics robust --predictive 20)")
+        print(
+            f"skipping {data}: {path.relative_to(ROOT)} not found "
+            f"(run: python benchmarks/water_calibration.py --data {data} --statistics robust --predictive 20)"
+        )
         return {}, []
     table = json.loads(path.read_text())
     variants = []
@@ -86,8 +90,9 @@ def _curve_panel(ax: plt.Axes, pair: str, data: str) -> None:
     else:
         curve, label = datasets.neutron_curves()[pair], "neutron/EPSR, Soper 2013 (298 K)"
     ax.plot(curve.r_nm, curve.g, color="k", lw=1.2, label=label)
-    ax.fill_between(curve.r_nm, curve.g - curve.error, curve.g + curve.error, color="tab:gray", alpha=0.4,
-                    label="quoted error")
+    ax.fill_between(
+        curve.r_nm, curve.g - curve.error, curve.g + curve.error, color="tab:gray", alpha=0.4, label="quoted error"
+    )
     ax.set_xlim(0.0, 1.0)
     ax.set_ylim(-0.1, 1.1 * float(np.max(curve.g)))
     ax.set_xlabel("r (nm)")
@@ -122,13 +127,34 @@ def _posterior_panel(ax: plt.Axes, data: str, variant: str, entry: dict) -> None
     pad = 0.08 * (hi - lo)
     xlim, ylim = (lo[0] - pad[0], hi[0] + pad[0]), (lo[1] - pad[1], hi[1] + pad[1])
     _kde_contours(ax, particles, weights, xlim, ylim)
-    ax.scatter(particles[:, 0], particles[:, 1], s=6 + 60 * weights / weights.max(), c="k", alpha=0.5, lw=0,
-               label=f"posterior particles ({particles.shape[0]}, size ~ weight)")
-    ax.scatter(published[:, 0], published[:, 1], s=5, color="tab:orange", alpha=0.6,
-               label=f"paper's final generation ({published.shape[0]}, published)")
+    ax.scatter(
+        particles[:, 0],
+        particles[:, 1],
+        s=6 + 60 * weights / weights.max(),
+        c="k",
+        alpha=0.5,
+        lw=0,
+        label=f"posterior particles ({particles.shape[0]}, size ~ weight)",
+    )
+    ax.scatter(
+        published[:, 0],
+        published[:, 1],
+        s=5,
+        color="tab:orange",
+        alpha=0.6,
+        label=f"paper's final generation ({published.shape[0]}, published)",
+    )
     ax.plot(est[0], est[1], "*", color="k", mfc="yellow", ms=15, label="Bayes estimate (here)")
-    ax.plot(paper[0], paper[1], "D", color="tab:blue", ms=7, mfc="none", mew=1.5,
-            label=f"paper's estimate ({paper[0]}, {paper[1]})")
+    ax.plot(
+        paper[0],
+        paper[1],
+        "D",
+        color="tab:blue",
+        ms=7,
+        mfc="none",
+        mew=1.5,
+        label=f"paper's estimate ({paper[0]}, {paper[1]})",
+    )
     if entry.get("truth") is not None:
         ax.plot(*entry["truth"], "X", color="tab:green", ms=10, label="true value")
     else:
@@ -137,9 +163,12 @@ def _posterior_panel(ax: plt.Axes, data: str, variant: str, entry: dict) -> None
     ax.set_ylim(*ylim)
     ax.set_xlabel("sigma_OW (nm)")
     ax.set_ylabel("epsilon_OW (kJ/mol)")
-    ax.set_title(f"{variant} statistics: estimate ({est[0]:.4f}, {est[1]:.3f}), corr {entry['correlation']:+.3f} "
-                 f"(paper {entry['paper']['correlation']:+.3f})\n{entry['num_simulations']} simulations "
-                 f"({entry['num_failures']} failed), final threshold {entry['final_threshold']:.3g}", fontsize=8)
+    ax.set_title(
+        f"{variant} statistics: estimate ({est[0]:.4f}, {est[1]:.3f}), corr {entry['correlation']:+.3f} "
+        f"(paper {entry['paper']['correlation']:+.3f})\n{entry['num_simulations']} simulations "
+        f"({entry['num_failures']} failed), final threshold {entry['final_threshold']:.3g}",
+        fontsize=8,
+    )
     ax.legend(fontsize=6, loc="upper right")
 
 
@@ -180,9 +209,11 @@ def main(out_dir: str | Path | None = None) -> Path:
             _posterior_panel(row_axes[col], data, variant, table[variant])
             col += 1
             entry = table[variant]
-            lines.append(f"{data:<9} {variant:<6} {entry['bayes_estimate'][0]:8.4f} {entry['bayes_estimate'][1]:8.3f} "
-                         f"{entry['correlation']:+7.3f}   {entry['paper']['bayes_estimate'][0]:8.4f} "
-                         f"{entry['paper']['bayes_estimate'][1]:8.3f} {entry['paper']['correlation']:+7.3f}")
+            lines.append(
+                f"{data:<9} {variant:<6} {entry['bayes_estimate'][0]:8.4f} {entry['bayes_estimate'][1]:8.3f} "
+                f"{entry['correlation']:+7.3f}   {entry['paper']['bayes_estimate'][0]:8.4f} "
+                f"{entry['paper']['bayes_estimate'][1]:8.3f} {entry['paper']['correlation']:+7.3f}"
+            )
         for ax in row_axes[col:]:
             ax.axis("off")
         subfig.suptitle(f"{TITLES[data]}   [{PAPER_FIGURE[data]}]", fontsize=10, fontweight="bold")

@@ -58,8 +58,10 @@ def entries() -> list[tuple[str, str, dict, dict]]:
     for data in DATASETS:
         path = RESULTS / f"water_{data}.json"
         if not path.exists():
-            print(f"skipping {data}: {path.relative_to(ROOT)} not found "
-                  f"(run: python benchmarks/water_calibration.py --data {data} --statistics robust --predictive 20)")
+            print(
+                f"skipping {data}: {path.relative_to(ROOT)} not found "
+                f"(run: python benchmarks/water_calibration.py --data {data} --statistics robust --predictive 20)"
+            )
             continue
         table = json.loads(path.read_text())
         for variant in VARIANTS:
@@ -67,8 +69,10 @@ def entries() -> list[tuple[str, str, dict, dict]]:
                 continue
             predictive = table[variant].get("predictive_goo")
             if not predictive:
-                print(f"skipping {data} / {variant}: no predictive_goo in {path.relative_to(ROOT)} "
-                      "(run with --predictive N)")
+                print(
+                    f"skipping {data} / {variant}: no predictive_goo in {path.relative_to(ROOT)} "
+                    "(run with --predictive N)"
+                )
                 continue
             out.append((data, variant, predictive, table[variant]))
     return out
@@ -127,18 +131,27 @@ def main(out_dir: str | Path | None = None) -> Path:
         ax.fill_between(r, p["min"], p["max"], color="tab:blue", alpha=0.2, lw=0, label="posterior predictive: min-max")
         ax.fill_between(r, p["q25"], p["q75"], color="tab:blue", alpha=0.45, lw=0, label="1/4 to 3/4 quantile")
         ax.plot(r, p["median"], color="tab:blue", lw=1.4, label="median")
-        ax.plot(curve.r_nm, curve.g, "--", color="k", lw=1.2,
-                label="measured: " + ("X-ray, Skinner 2013" if data == "xray" else "neutron/EPSR, Soper 2013"))
+        ax.plot(
+            curve.r_nm,
+            curve.g,
+            "--",
+            color="k",
+            lw=1.2,
+            label="measured: " + ("X-ray, Skinner 2013" if data == "xray" else "neutron/EPSR, Soper 2013"),
+        )
         cov = coverage(p, curve)
         est = entry["bayes_estimate"]
         ax.set_xlim(0.2, float(r[-1]))
         ax.set_ylim(-0.05, 1.1 * max(float(np.max(p["max"])), float(np.max(curve.g))))
         ax.set_xlabel("r (nm)")
         ax.set_ylabel("g_OO(r)")
-        ax.set_title(f"{data}, {variant} statistics [{PAPER_FIGURE[data]}]: {p['num_curves']} simulations at posterior "
-                     f"draws\nBayes estimate ({est[0]:.4f} nm, {est[1]:.3f} kJ/mol)\nmeasured curve inside min-max "
-                     f"{cov['min-max']:.0%}, inside quartiles {cov['quartiles']:.0%} of r in "
-                     f"[{WINDOW_NM[0]}, {WINDOW_NM[1]}] nm", fontsize=8)
+        ax.set_title(
+            f"{data}, {variant} statistics [{PAPER_FIGURE[data]}]: {p['num_curves']} simulations at posterior "
+            f"draws\nBayes estimate ({est[0]:.4f} nm, {est[1]:.3f} kJ/mol)\nmeasured curve inside min-max "
+            f"{cov['min-max']:.0%}, inside quartiles {cov['quartiles']:.0%} of r in "
+            f"[{WINDOW_NM[0]}, {WINDOW_NM[1]}] nm",
+            fontsize=8,
+        )
         ax.legend(fontsize=7, loc="upper right")
         lines.append(f"{data:<8} {variant:<7} {p['num_curves']:>6} {cov['min-max']:>8.0%} {cov['quartiles']:>10.0%}")
     fig.tight_layout()
@@ -147,8 +160,10 @@ def main(out_dir: str | Path | None = None) -> Path:
     path = out / "figure_water_predictive.png"
     fig.savefig(path, dpi=120)
     plt.close(fig)
-    print(f"measured g_OO inside the posterior-predictive bands over r in [{WINDOW_NM[0]}, {WINDOW_NM[1]}] nm "
-          "(paper: mostly inside, except near the second maximum):")
+    print(
+        f"measured g_OO inside the posterior-predictive bands over r in [{WINDOW_NM[0]}, {WINDOW_NM[1]}] nm "
+        "(paper: mostly inside, except near the second maximum):"
+    )
     print(f"{'data':<8} {'stats':<7} {'curves':>6} {'min-max':>8} {'quartiles':>10}")
     print("\n".join(lines))
     return path

@@ -31,13 +31,17 @@ FLAKY_TIMEOUT = 2.0
 def _calibrate(executor: str | object) -> dict:
     t0 = time.perf_counter()
     prior = jaxabc.Uniform([-10.0], [10.0], names=("mu",))
-    result = jaxabc.run("apmcabc", host_gaussian_simulate, prior, np.array([0.0]), executor=executor,
-                        **SETTINGS)
+    result = jaxabc.run("apmcabc", host_gaussian_simulate, prior, np.array([0.0]), executor=executor, **SETTINGS)
     rec = result.records
-    return {"particles": result.particles.tolist(), "weights": result.weights.tolist(),
-            "executor": result.metadata["executor"], "worker": rec["worker"].tolist(),
-            "iteration": rec["iteration"].tolist(), "status": rec["status"].tolist(),
-            "seconds": time.perf_counter() - t0}
+    return {
+        "particles": result.particles.tolist(),
+        "weights": result.weights.tolist(),
+        "executor": result.metadata["executor"],
+        "worker": rec["worker"].tolist(),
+        "iteration": rec["iteration"].tolist(),
+        "status": rec["status"].tolist(),
+        "seconds": time.perf_counter() - t0,
+    }
 
 
 def _flaky() -> dict:
@@ -55,16 +59,21 @@ def _flaky() -> dict:
     prior = jaxabc.Uniform([0.0], [1.0], names=("a",))
     ex_run = MPIExecutor("dynamic", timeout=FLAKY_TIMEOUT)
     try:
-        run_result = jaxabc.run("rejection", flaky_simulate, prior, np.array([0.6]), num_particles=15,
-                                executor=ex_run, seed=1, quantile=0.5)
+        run_result = jaxabc.run(
+            "rejection", flaky_simulate, prior, np.array([0.6]), num_particles=15, executor=ex_run, seed=1, quantile=0.5
+        )
     finally:
         ex_run.close()
-    return {"status": batch.status.tolist(), "reasons": list(batch.reasons),
-            "summaries": np.where(np.isfinite(batch.summaries), batch.summaries, None).tolist(),
-            "worker": batch.worker.tolist(), "again_status": again.status.tolist(),
-            "again_summaries": again.summaries.tolist(),
-            "run_status": run_result.records["status"].tolist(),
-            "run_reasons": run_result.records["reasons"]}
+    return {
+        "status": batch.status.tolist(),
+        "reasons": list(batch.reasons),
+        "summaries": np.where(np.isfinite(batch.summaries), batch.summaries, None).tolist(),
+        "worker": batch.worker.tolist(),
+        "again_status": again.status.tolist(),
+        "again_summaries": again.summaries.tolist(),
+        "run_status": run_result.records["status"].tolist(),
+        "run_reasons": run_result.records["reasons"],
+    }
 
 
 def main() -> None:

@@ -17,10 +17,19 @@ def slow_simulate(key, theta):
 def main() -> None:
     folder, mode = sys.argv[1], sys.argv[2]
     prior = jaxabc.Uniform([-10.0], [10.0], names=("mu",))
-    result = jaxabc.run("apmcabc", slow_simulate, prior, np.array([0.0]), num_particles=300,
-                        num_steps=7, acceptance_cutoff=0.0, executor="serial", seed=7,
-                        checkpoint_dir=None if mode == "plain" else folder,
-                        resume=mode == "resume")
+    result = jaxabc.run(
+        "apmcabc",
+        slow_simulate,
+        prior,
+        np.array([0.0]),
+        num_particles=300,
+        num_steps=7,
+        acceptance_cutoff=0.0,
+        executor="serial",
+        seed=7,
+        checkpoint_dir=None if mode == "plain" else folder,
+        resume=mode == "resume",
+    )
     result.save(f"{folder}/result-{mode}.npz")
 
 

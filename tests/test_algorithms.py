@@ -41,8 +41,7 @@ def test_gaussian_mean_posterior(algorithm, gaussian_problem):
     prior, simulate, observed = gaussian_problem
     opts = dict(GAUSS_CASES[algorithm])
     n = opts.pop("num_particles")
-    result = jaxabc.run(algorithm, simulate, prior, observed, num_particles=n,
-                        distance="euclidean", seed=11, **opts)
+    result = jaxabc.run(algorithm, simulate, prior, observed, num_particles=n, distance="euclidean", seed=11, **opts)
     assert np.isclose(result.weights.sum(), 1.0)
     ess = result.effective_sample_size()
     if algorithm == "abcsubsim":
@@ -53,17 +52,16 @@ def test_gaussian_mean_posterior(algorithm, gaussian_problem):
 @pytest.mark.parametrize("algorithm", ["rejection", "pmcabc", "apmcabc"])
 def test_correlated_gaussian_posterior(algorithm, correlated_problem):
     prior, simulate, observed = correlated_problem
-    opts = {"rejection": dict(quantile=0.01), "pmcabc": dict(num_steps=4),
-            "apmcabc": dict(num_steps=8, alpha=0.1)}[algorithm]
+    opts = {"rejection": dict(quantile=0.01), "pmcabc": dict(num_steps=4), "apmcabc": dict(num_steps=8, alpha=0.1)}[
+        algorithm
+    ]
     n = 5000 if algorithm == "apmcabc" else 2000
-    result = jaxabc.run(algorithm, simulate, prior, observed, num_particles=n,
-                        distance="euclidean", seed=5, **opts)
+    result = jaxabc.run(algorithm, simulate, prior, observed, num_particles=n, distance="euclidean", seed=5, **opts)
     eps = float(result.thresholds[-1])
     ess = result.effective_sample_size()
     rho_exact = examples.correlated_abc_correlation(eps)
     cov_exact = np.array([[1, examples.RHO], [examples.RHO, 1]]) + eps**2 / 4 * np.eye(2)
-    np.testing.assert_array_less(np.abs(result.bayes_estimate()),
-                                 Z * np.sqrt(np.diag(cov_exact) / ess))
+    np.testing.assert_array_less(np.abs(result.bayes_estimate()), Z * np.sqrt(np.diag(cov_exact) / ess))
     rho = result.correlation()[0, 1]
     assert abs(rho - rho_exact) < Z * (1 - rho_exact**2) / math.sqrt(ess), (rho, rho_exact, ess)
 
@@ -72,8 +70,9 @@ def test_abc_posterior_converges_as_threshold_shrinks(gaussian_problem):
     prior, simulate, observed = gaussian_problem
     variances = []
     for q in (0.5, 0.01):
-        r = jaxabc.run("rejection", simulate, prior, observed, num_particles=3000, quantile=q,
-                       distance="euclidean", seed=2)
+        r = jaxabc.run(
+            "rejection", simulate, prior, observed, num_particles=3000, quantile=q, distance="euclidean", seed=2
+        )
         eps, var = _check_gaussian(r, r.effective_sample_size())
         variances.append((eps, var))
     (eps_big, var_big), (eps_small, var_small) = variances
@@ -86,8 +85,9 @@ def test_abc_posterior_converges_as_threshold_shrinks(gaussian_problem):
 def test_apmcabc_simulation_count(gaussian_problem):
     prior, simulate, observed = gaussian_problem
     n, alpha = 1000, 0.15
-    r = jaxabc.run("apmcabc", simulate, prior, observed, num_particles=n, num_steps=5,
-                   alpha=alpha, acceptance_cutoff=0.0, seed=0)
+    r = jaxabc.run(
+        "apmcabc", simulate, prior, observed, num_particles=n, num_steps=5, alpha=alpha, acceptance_cutoff=0.0, seed=0
+    )
     k = len(r.thresholds) - 1
     assert k == 4
     assert r.num_simulations == n + k * (n - math.ceil(alpha * n))
@@ -97,8 +97,7 @@ def test_apmcabc_simulation_count(gaussian_problem):
 
 def test_apmcabc_stops_on_acceptance_cutoff(gaussian_problem):
     prior, simulate, observed = gaussian_problem
-    r = jaxabc.run("apmcabc", simulate, prior, observed, num_particles=1000, alpha=0.1,
-                   acceptance_cutoff=0.03, seed=0)
+    r = jaxabc.run("apmcabc", simulate, prior, observed, num_particles=1000, alpha=0.1, acceptance_cutoff=0.03, seed=0)
     assert "cutoff" in r.stop_reason
     assert r.acceptance_rates[-1] < 0.03 <= r.acceptance_rates[-2]
 
@@ -111,9 +110,19 @@ def test_abcpy_weight_mode_misestimates_posterior_variance(gaussian_problem):
     prior, simulate, observed = gaussian_problem
     out = {}
     for mode in ("lenormand", "abcpy"):
-        r = jaxabc.run("apmcabc", simulate, prior, observed, num_particles=2000, num_steps=8,
-                       alpha=0.1, acceptance_cutoff=0.03, weights=mode, distance="euclidean",
-                       seed=3)
+        r = jaxabc.run(
+            "apmcabc",
+            simulate,
+            prior,
+            observed,
+            num_particles=2000,
+            num_steps=8,
+            alpha=0.1,
+            acceptance_cutoff=0.03,
+            weights=mode,
+            distance="euclidean",
+            seed=3,
+        )
         out[mode] = (r.covariance()[0, 0], r.effective_sample_size(), float(r.thresholds[-1]))
     var, ess, eps = out["lenormand"]
     assert abs(var - examples.gaussian_abc_variance(eps)) < Z * math.sqrt(2 / ess)
@@ -132,8 +141,18 @@ def test_abcsubsim_evidence_matches_acceptance_probability(gaussian_problem):
     from scipy.stats import norm
 
     prior, simulate, observed = gaussian_problem
-    r = jaxabc.run("abcsubsim", simulate, prior, observed, num_particles=2000, p0=0.2,
-                   final_threshold=0.15, num_steps=10, distance="euclidean", seed=4)
+    r = jaxabc.run(
+        "abcsubsim",
+        simulate,
+        prior,
+        observed,
+        num_particles=2000,
+        p0=0.2,
+        final_threshold=0.15,
+        num_steps=10,
+        distance="euclidean",
+        seed=4,
+    )
     eps = float(r.thresholds[-1])
     levels = len(r.thresholds) - 1
     exact = quad(lambda t: (norm.cdf(eps - t) - norm.cdf(-eps - t)) / 20.0, -10, 10)[0]
@@ -177,23 +196,37 @@ def test_apmcabc_credible_regions_cover_the_truth(correlated_problem):
     from scipy.stats import chi2
 
     prior, simulate, _ = correlated_problem
-    study = jaxabc.coverage_study("apmcabc", simulate, prior, num_datasets=400, num_particles=1000,
-                                  num_steps=10, seed=0, sample_data=examples.correlated_truth_and_data,
-                                  alpha=0.1, acceptance_cutoff=0.03)
+    study = jaxabc.coverage_study(
+        "apmcabc",
+        simulate,
+        prior,
+        num_datasets=400,
+        num_particles=1000,
+        num_steps=10,
+        seed=0,
+        sample_data=examples.correlated_truth_and_data,
+        alpha=0.1,
+        acceptance_cutoff=0.03,
+    )
     assert np.all(study.posterior_size == 100) and np.all(study.generations >= 3)
     sigma = np.array([[1.0, examples.RHO], [examples.RHO, 1.0]])
     z = np.random.default_rng(0).multivariate_normal(np.zeros(2), sigma, 100_000)
     for q in (0.5, 0.9):
         covered, se = study.hpd_coverage(q)
-        ideal = np.mean([np.mean(chi2.cdf(np.einsum("ij,jk,ik->i", z, np.linalg.inv(
-            sigma + e**2 / 4 * np.eye(2)), z), 2) < q) for e in study.thresholds[:50]])
+        ideal = np.mean(
+            [
+                np.mean(chi2.cdf(np.einsum("ij,jk,ik->i", z, np.linalg.inv(sigma + e**2 / 4 * np.eye(2)), z), 2) < q)
+                for e in study.thresholds[:50]
+            ]
+        )
         assert math.ceil(100 * q) / 101 - Z * se < covered < ideal + Z * se, (q, covered, se, ideal)
 
 
 def test_coverage_study_draws_truths_from_the_prior_and_rejects_bad_input(gaussian_problem):
     prior, simulate, _ = gaussian_problem
-    study = jaxabc.coverage_study("rejection", simulate, prior, num_datasets=50, num_particles=50,
-                                  num_steps=1, seed=1, quantile=0.05)
+    study = jaxabc.coverage_study(
+        "rejection", simulate, prior, num_datasets=50, num_particles=50, num_steps=1, seed=1, quantile=0.05
+    )
     assert study.truths.shape == (50, 1) and np.all((study.levels >= 0) & (study.levels <= 1))
     assert np.all(np.abs(study.truths) <= 10) and np.std(study.truths) > 3  # spread over U[-10, 10]
     assert 0.3 < study.hpd_coverage(0.5)[0] < 0.8
@@ -218,14 +251,14 @@ def _subsim_final_states(num_particles, levels, num_seeds):
 
     prior = jaxabc.Uniform(low=[-10.0, -10.0], high=[10.0, 10.0], names=("a", "b"))
     algo = subsim.build(prior, num_particles, p0=0.2)
-    init, step = make_jax_step(algo, examples.correlated_simulate, euclidean,
-                               jnp.asarray(SUBSIM_OBSERVED))
+    init, step = make_jax_step(algo, examples.correlated_simulate, euclidean, jnp.asarray(SUBSIM_OBSERVED))
     chain_length = algo.settings["chain_length"]
 
     def one(key):
         state, _ = init(jax.random.fold_in(key, 0))
-        return jax.lax.fori_loop(0, levels * chain_length,
-                                 lambda i, s: step(jax.random.fold_in(key, i + 1), s)[0], state)
+        return jax.lax.fori_loop(
+            0, levels * chain_length, lambda i, s: step(jax.random.fold_in(key, i + 1), s)[0], state
+        )
 
     states = jax.jit(jax.vmap(one))(jax.random.split(jax.random.key(0), num_seeds))
     return prior, algo, [jax.tree.map(lambda x, s=s: x[s], states) for s in range(num_seeds)]
@@ -249,11 +282,20 @@ def test_abcsubsim_mcse_bounds_the_error_of_the_bayes_estimate():
             warnings.simplefilter("ignore", UserWarning)
             extras = subsim.finalize(state, algo.settings)
         result = jaxabc.ABCResult(
-            particles=np.asarray(state.particles, np.float64), weights=np.full(n, 1.0 / n),
-            distances=np.asarray(state.distances, np.float64), thresholds=np.full(5, np.nan),
-            simulations_per_step=np.zeros(5), acceptance_rates=np.full(5, np.nan),
-            ess=np.array([extras["ess"]]), num_simulations=0, algorithm="abcsubsim",
-            settings=algo.settings, prior=prior, seed=seed, diagnostics=extras["diagnostics"])
+            particles=np.asarray(state.particles, np.float64),
+            weights=np.full(n, 1.0 / n),
+            distances=np.asarray(state.distances, np.float64),
+            thresholds=np.full(5, np.nan),
+            simulations_per_step=np.zeros(5),
+            acceptance_rates=np.full(5, np.nan),
+            ess=np.array([extras["ess"]]),
+            num_simulations=0,
+            algorithm="abcsubsim",
+            settings=algo.settings,
+            prior=prior,
+            seed=seed,
+            diagnostics=extras["diagnostics"],
+        )
         distinct = extras["diagnostics"]["num_distinct"]
         assert 1 <= result.effective_sample_size() <= distinct < n
         err = result.bayes_estimate() - np.asarray(SUBSIM_OBSERVED)
@@ -294,9 +336,18 @@ def test_abcsubsim_warns_and_stops_when_the_chains_stop_moving(correlated_proble
     algorithm's own rule ends the run there and says why; the result's ESS is honest."""
     prior, simulate, _ = correlated_problem
     with pytest.warns(UserWarning, match=r"ABCsubsim level \d+: .* (\d+) distinct particles of 500"):
-        r = jaxabc.run("abcsubsim", simulate, prior, np.array(SUBSIM_OBSERVED), num_particles=500,
-                       p0=0.2, num_steps=9, min_distinct_fraction=0.2, distance="euclidean",
-                       seed=1)
+        r = jaxabc.run(
+            "abcsubsim",
+            simulate,
+            prior,
+            np.array(SUBSIM_OBSERVED),
+            num_particles=500,
+            p0=0.2,
+            num_steps=9,
+            min_distinct_fraction=0.2,
+            distance="euclidean",
+            seed=1,
+        )
     diag = r.diagnostics
     assert diag["chains_stuck"] and diag["num_distinct"] < 100
     assert diag["level"] == len(r.thresholds) - 1 < 8
@@ -306,5 +357,12 @@ def test_abcsubsim_warns_and_stops_when_the_chains_stop_moving(correlated_proble
     assert r.effective_sample_size() <= diag["num_distinct"]
     assert "MCSE" in r.summary() and "stopped moving" in r.summary()
     with pytest.raises(ValueError, match="min_distinct_fraction"):
-        jaxabc.run("abcsubsim", simulate, prior, np.array(SUBSIM_OBSERVED), num_particles=500,
-                   num_steps=3, min_distinct_fraction=1.5)
+        jaxabc.run(
+            "abcsubsim",
+            simulate,
+            prior,
+            np.array(SUBSIM_OBSERVED),
+            num_particles=500,
+            num_steps=3,
+            min_distinct_fraction=1.5,
+        )

@@ -22,16 +22,20 @@ KW = dict(num_particles=100, num_steps=3, distance="euclidean", seed=1)
 
 def _partial(tmp_path, problem, algorithm="apmcabc", iterations=2, **kw):
     prior, simulate, observed = problem
-    return jaxabc.run(algorithm, simulate, prior, observed, checkpoint_dir=tmp_path,
-                      stop_after_iterations=iterations, **{**KW, **kw})
+    return jaxabc.run(
+        algorithm, simulate, prior, observed, checkpoint_dir=tmp_path, stop_after_iterations=iterations, **{**KW, **kw}
+    )
 
 
 def test_checkpoint_is_arrays_and_json_and_resumes_every_algorithm(tmp_path, gaussian_problem):
     """A run stopped mid-generation (PMC refill rounds, subsim chain steps, rejection rounds)
     resumes from a file that loads without pickle to the uninterrupted run's result."""
     prior, simulate, observed = gaussian_problem
-    cases = {"pmcabc": dict(num_steps=3), "abcsubsim": dict(num_steps=3),
-             "rejection": dict(num_steps=None, threshold=1.0, max_simulations=5000)}
+    cases = {
+        "pmcabc": dict(num_steps=3),
+        "abcsubsim": dict(num_steps=3),
+        "rejection": dict(num_steps=None, threshold=1.0, max_simulations=5000),
+    }
     for name, opts in cases.items():
         folder = tmp_path / name
         kw = {**KW, **opts}
@@ -40,26 +44,27 @@ def test_checkpoint_is_arrays_and_json_and_resumes_every_algorithm(tmp_path, gau
         with np.load(folder / "checkpoint.npz", allow_pickle=False) as data:
             header = json.loads(str(data["header"]))
             assert header["version"] == checkpoint.FORMAT_VERSION
-            assert all(k.startswith(("state/", "posterior/", "records/", "header"))
-                       for k in data.files)
+            assert all(k.startswith(("state/", "posterior/", "records/", "header")) for k in data.files)
         assert header["fingerprint"]["algorithm"] == name
-        rest = jaxabc.run(name, simulate, prior, observed, checkpoint_dir=folder, resume=True,
-                          **kw)
+        rest = jaxabc.run(name, simulate, prior, observed, checkpoint_dir=folder, resume=True, **kw)
         np.testing.assert_array_equal(full.particles, rest.particles)
         np.testing.assert_array_equal(full.records["theta"], rest.records["theta"])
         assert full.num_simulations == rest.num_simulations
 
 
-@pytest.mark.parametrize("change, field", [
-    (dict(observed=jnp.array([0.5])), "observed"),
-    (dict(prior=jaxabc.Uniform([-10.0], [12.0], names=("mu",))), "prior"),
-    (dict(prior=jaxabc.Uniform([-10.0], [10.0], names=("nu",))), "prior"),
-    (dict(distance="mean_abs"), "distance"),
-    (dict(simulate=lambda key, theta: theta + jax.random.normal(key, theta.shape)), "simulator"),
-    (dict(seed=2), "seed"),
-    (dict(alpha=0.2), "settings"),
-    (dict(dtype="float64"), "dtype"),
-])
+@pytest.mark.parametrize(
+    "change, field",
+    [
+        (dict(observed=jnp.array([0.5])), "observed"),
+        (dict(prior=jaxabc.Uniform([-10.0], [12.0], names=("mu",))), "prior"),
+        (dict(prior=jaxabc.Uniform([-10.0], [10.0], names=("nu",))), "prior"),
+        (dict(distance="mean_abs"), "distance"),
+        (dict(simulate=lambda key, theta: theta + jax.random.normal(key, theta.shape)), "simulator"),
+        (dict(seed=2), "seed"),
+        (dict(alpha=0.2), "settings"),
+        (dict(dtype="float64"), "dtype"),
+    ],
+)
 def test_resume_refuses_a_changed_problem(tmp_path, gaussian_problem, change, field):
     prior, simulate, observed = gaussian_problem
     _partial(tmp_path, gaussian_problem)
@@ -78,10 +83,8 @@ def test_simulator_id_keeps_the_identity_of_a_closure(tmp_path, gaussian_problem
 
     kw = dict(KW, simulator_id="gaussian-noise-v1")
     full = jaxabc.run("apmcabc", make(1.0), prior, observed, **kw)
-    jaxabc.run("apmcabc", make(1.0), prior, observed, checkpoint_dir=tmp_path,
-               stop_after_iterations=2, **kw)
-    rest = jaxabc.run("apmcabc", make(1.0), prior, observed, checkpoint_dir=tmp_path,
-                      resume=True, **kw)
+    jaxabc.run("apmcabc", make(1.0), prior, observed, checkpoint_dir=tmp_path, stop_after_iterations=2, **kw)
+    rest = jaxabc.run("apmcabc", make(1.0), prior, observed, checkpoint_dir=tmp_path, resume=True, **kw)
     np.testing.assert_array_equal(full.particles, rest.particles)
     assert rest.metadata["simulator"] == "gaussian-noise-v1"
 
@@ -93,8 +96,9 @@ def test_fresh_run_into_a_checkpoint_folder_is_refused(tmp_path, gaussian_proble
     with pytest.raises(FileExistsError, match=r"resume=True \(CLI: --resume\).*overwrite=True"):
         jaxabc.run("apmcabc", simulate, prior, observed, checkpoint_dir=tmp_path, **KW)
     assert (tmp_path / "checkpoint.npz").read_bytes() == before
-    fresh = jaxabc.run("apmcabc", simulate, prior, observed, checkpoint_dir=tmp_path,
-                       overwrite=True, **{**KW, "seed": 5})
+    fresh = jaxabc.run(
+        "apmcabc", simulate, prior, observed, checkpoint_dir=tmp_path, overwrite=True, **{**KW, "seed": 5}
+    )
     plain = jaxabc.run("apmcabc", simulate, prior, observed, **{**KW, "seed": 5})
     np.testing.assert_array_equal(fresh.particles, plain.particles)
 
@@ -164,8 +168,7 @@ def _host_best_of(prior, n: int, rounds: int) -> ABCAlgorithm:
 
     def init(key, proposal, distances, summaries):
         order = np.argsort(distances, kind="stable")
-        state = _HostState(proposal.thetas[order], distances[order],
-                           np.array([np.nanmean(summaries)]))
+        state = _HostState(proposal.thetas[order], distances[order], np.array([np.nanmean(summaries)]))
         return state, info(state)
 
     def update(key, state, proposal, distances, summaries):
@@ -180,10 +183,18 @@ def _host_best_of(prior, n: int, rounds: int) -> ABCAlgorithm:
         return _HostState(flat[".particles"], flat[".distances"], flat[".summary_means"])
 
     return ABCAlgorithm(
-        "host_best_of", first, init, lambda key, state: first(key), update,
-        lambda state: (state.particles, np.zeros(n)), {"rounds": rounds}, host=True,
-        uses_summaries=True, restore_state=restore,
-        finalize=lambda state: {"summary_means": state.summary_means.tolist()})
+        "host_best_of",
+        first,
+        init,
+        lambda key, state: first(key),
+        update,
+        lambda state: (state.particles, np.zeros(n)),
+        {"rounds": rounds},
+        host=True,
+        uses_summaries=True,
+        restore_state=restore,
+        finalize=lambda state: {"summary_means": state.summary_means.tolist()},
+    )
 
 
 def test_host_algorithm_with_summaries_resumes_through_restore_state(tmp_path, gaussian_problem):
@@ -193,9 +204,11 @@ def test_host_algorithm_with_summaries_resumes_through_restore_state(tmp_path, g
     # Each batch's mean summary is the mean of its simulated x = theta + noise.
     per_batch = full.records["summaries"][:, 0].reshape(6, 50).mean(axis=1)
     np.testing.assert_allclose(full.metadata["summary_means"], per_batch, rtol=1e-5)
-    jaxabc.run(_host_best_of(prior, 50, 6), simulate, prior, observed, checkpoint_dir=tmp_path,
-               stop_after_iterations=3, **kw)
-    rest = jaxabc.run(_host_best_of(prior, 50, 6), simulate, prior, observed,
-                      checkpoint_dir=tmp_path, resume=True, **kw)
+    jaxabc.run(
+        _host_best_of(prior, 50, 6), simulate, prior, observed, checkpoint_dir=tmp_path, stop_after_iterations=3, **kw
+    )
+    rest = jaxabc.run(
+        _host_best_of(prior, 50, 6), simulate, prior, observed, checkpoint_dir=tmp_path, resume=True, **kw
+    )
     np.testing.assert_array_equal(full.particles, rest.particles)
     assert rest.metadata["summary_means"] == full.metadata["summary_means"]

@@ -63,7 +63,7 @@ def test_missing_key_names_the_key_and_the_table(tmp_path: Path, capsys: pytest.
 
 def test_missing_table_and_wrong_types(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
     text = CONFIG.format(low=0.0, high=1.0)
-    no_algorithm = text[: text.index("[algorithm]")] + text[text.index("[executor]"):]
+    no_algorithm = text[: text.index("[algorithm]")] + text[text.index("[executor]") :]
     assert "[algorithm]" in _error(capsys, ["run", str(_config(tmp_path, no_algorithm))])
     bad_options = text.replace("seed = 1", "seed = 1\noptions = 3")
     assert "options" in _error(capsys, ["run", str(_config(tmp_path, bad_options))])

@@ -53,13 +53,22 @@ def _surrogate_setup():
     HELD_OUT = np.zeros(S, bool)
     HELD_OUT[np.arange(10, 25, 3)] = True
     HELD_OUT[[25, 27]] = True
-    reps = np.asarray(jax.vmap(SETUP.simulate, (0, None))(
-        jax.random.split(jax.random.key(9), 200), jnp.asarray([1.0, 1.0] + [0.0] * K)))
+    reps = np.asarray(
+        jax.vmap(SETUP.simulate, (0, None))(
+            jax.random.split(jax.random.key(9), 200), jnp.asarray([1.0, 1.0] + [0.0] * K)
+        )
+    )
     sd = reps.std(0)
     FIT_INDEX = np.flatnonzero(~HELD_OUT & (sd > 0))
     FIT_DISTANCE = jaxabc.distances.standardized_euclidean(jnp.asarray(sd[FIT_INDEX], jnp.float32))
-    CRITIQUE_OPTIONS = dict(summary_names=SETUP.names, groups=SETUP.groups, num_draws=100, num_replicates=100,
-                            executor=EXECUTOR, extend_options=dict(num_particles=400, acceptance_cutoff=0.03))
+    CRITIQUE_OPTIONS = dict(
+        summary_names=SETUP.names,
+        groups=SETUP.groups,
+        num_draws=100,
+        num_replicates=100,
+        executor=EXECUTOR,
+        extend_options=dict(num_particles=400, acceptance_cutoff=0.03),
+    )
 
 
 def base_simulate(key, theta):
@@ -69,13 +78,23 @@ def base_simulate(key, theta):
 
 def fit_base(observed: np.ndarray, seed: int, algorithm: str = "rejection") -> jaxabc.ABCResult:
     options = dict(quantile=0.05) if algorithm == "rejection" else dict(acceptance_cutoff=0.05)
-    return jaxabc.run(algorithm, base_simulate, PRIOR, observed[FIT_INDEX], num_particles=200,
-                      distance=FIT_DISTANCE, seed=seed, executor=EXECUTOR, **options)
+    return jaxabc.run(
+        algorithm,
+        base_simulate,
+        PRIOR,
+        observed[FIT_INDEX],
+        num_particles=200,
+        distance=FIT_DISTANCE,
+        seed=seed,
+        executor=EXECUTOR,
+        **options,
+    )
 
 
 def observe(theta_full: np.ndarray, seed: int) -> np.ndarray:
-    return np.asarray(jax.jit(SETUP.simulate)(jax.random.key(10_000 + seed), jnp.asarray(theta_full, jnp.float32)),
-                      np.float64)
+    return np.asarray(
+        jax.jit(SETUP.simulate)(jax.random.key(10_000 + seed), jnp.asarray(theta_full, jnp.float32)), np.float64
+    )
 
 
 def absorbed_signal(theta_full: np.ndarray, effect: str, num: int = 400) -> tuple[float, dict[str, float]]:
@@ -90,8 +109,11 @@ def absorbed_signal(theta_full: np.ndarray, effect: str, num: int = 400) -> tupl
     cov = shrunk_covariance(reps[:, act])
     eff = CATALOGUE[effect]
     k = CATALOGUE.index(effect)
-    pts = [(0, theta_full[0] - 0.005, theta_full[0] + 0.005), (1, theta_full[1] - 0.02, theta_full[1] + 0.02),
-           (2 + k, *eff.finite_difference_points())]
+    pts = [
+        (0, theta_full[0] - 0.005, theta_full[0] + 0.005),
+        (1, theta_full[1] - 0.02, theta_full[1] + 0.02),
+        (2 + k, *eff.finite_difference_points()),
+    ]
     sens = sensitivities(SETUP.simulate, theta_full, keys[:128], pts, EXECUTOR)[act]
     a = refit_operator(sens[:, :2], cov, ~HELD_OUT[act])
     c = a @ cov @ a.T
@@ -126,8 +148,9 @@ def flagged_groups(report, groups: dict | None = None) -> set[str]:
     return {g for g, ii in (SETUP.groups if groups is None else groups).items() if idx & set(ii.tolist())}
 
 
-def assert_found_named_recovered_and_gains(report, effect: str, eta: float, groups: dict, where: list[str],
-                                           out_dir) -> None:
+def assert_found_named_recovered_and_gains(
+    report, effect: str, eta: float, groups: dict, where: list[str], out_dir
+) -> None:
     """The issue's four checks on one hidden-effect report, then its Markdown report."""
     # 1. the base-only model misses, in a group where the effect shows
     assert report.misfits, "the base-only fit must be flagged"
@@ -222,8 +245,7 @@ def _basis(seed: int = 0) -> np.ndarray:
 def _rank(effects: list[Effect], directions: np.ndarray, r: np.ndarray):
     from jaxabc.criticism.causes import rank_causes
 
-    return rank_causes(Catalogue(effects), directions.T, np.eye(_S), r, np.eye(_S),
-                       {"all": np.arange(_S)}, alpha=0.05)
+    return rank_causes(Catalogue(effects), directions.T, np.eye(_S), r, np.eye(_S), {"all": np.arange(_S)}, alpha=0.05)
 
 
 def _two_sided(name: str) -> Effect:
@@ -252,8 +274,16 @@ def test_absent_cause_is_reported_unexplained_not_named():
     assert unexplained >= 19 and false_alarm <= 3, (unexplained, false_alarm)
     noise = np.random.default_rng(0).normal(size=_S)
     ca = _rank(effects, dirs, 8.0 * q[0] + noise)
-    rep = CritiqueReport(misfits=[Misfit("s0", 5.0, 1e-6)], all_misfits=[], causes=ca.causes, extension=None,
-                         base_refit=None, gain={}, ambiguities=[], cause_analysis=ca)
+    rep = CritiqueReport(
+        misfits=[Misfit("s0", 5.0, 1e-6)],
+        all_misfits=[],
+        causes=ca.causes,
+        extension=None,
+        base_refit=None,
+        gain={},
+        ambiguities=[],
+        cause_analysis=ca,
+    )
     assert "no catalogue effect accounts" in rep.verdict
     assert rep.to_dict()["unexplained"] is True
 
@@ -284,8 +314,11 @@ def test_ambiguity_uses_prior_sign_and_gap_noise():
     q = _basis(2)
     # A one-sided effect pointing exactly against the true one: its best fit has the wrong sign.
     dirs = 20.0 * np.stack([q[0], -q[0], q[5]])
-    effects = [Effect("true", -1.0, 1.0, 0.0, separated_by="two box sizes"),
-               Effect("raise_only", 0.0, 1.0, 0.0, separated_by="an NVE run"), _two_sided("c")]
+    effects = [
+        Effect("true", -1.0, 1.0, 0.0, separated_by="two box sizes"),
+        Effect("raise_only", 0.0, 1.0, 0.0, separated_by="an NVE run"),
+        _two_sided("c"),
+    ]
     top = _rank(effects, dirs, 10.0 * q[0] + 0.3 * q[4]).causes[0]
     assert top.name == "true" and not top.ambiguous, top.note
     # ... but when the data ask for the sign its prior allows, the two are confusable.
@@ -352,8 +385,9 @@ def test_finite_box_and_thermostat_are_told_apart_by_their_priors():
     assert snr >= 5.0
     obs = observe(theta, seed)
     res = fit_base(obs, seed)
-    report = critique(res, SETUP.simulate, obs, CATALOGUE, held_out=HELD_OUT, seed=seed, extend=False,
-                      **CRITIQUE_OPTIONS)
+    report = critique(
+        res, SETUP.simulate, obs, CATALOGUE, held_out=HELD_OUT, seed=seed, extend=False, **CRITIQUE_OPTIONS
+    )
     assert report.misfits and report.misfits[0].name == "D_nm2_per_ps"
     top = report.causes[0]
     assert top.name == "yeh_hummer" and top.significant
@@ -370,8 +404,16 @@ def test_null_flags_nothing_in_95_percent_of_seeds():
         rng = np.random.default_rng(1000 + seed)
         theta = np.array([rng.uniform(0.97, 1.03), rng.uniform(0.9, 1.1)] + [0.0] * K)
         obs = observe(theta, seed)
-        report = critique(fit_base(obs, seed), SETUP.simulate, obs, CATALOGUE, held_out=HELD_OUT, seed=seed,
-                          extend=False, **CRITIQUE_OPTIONS)
+        report = critique(
+            fit_base(obs, seed),
+            SETUP.simulate,
+            obs,
+            CATALOGUE,
+            held_out=HELD_OUT,
+            seed=seed,
+            extend=False,
+            **CRITIQUE_OPTIONS,
+        )
         if report.misfits:
             flagged.append((seed, [m.name for m in report.misfits]))
     assert len(flagged) <= 2, flagged
@@ -432,12 +474,19 @@ def test_command_line_writes_a_report(tmp_path):
 # longer and are tested on the surrogate only (measured on 32 atoms, 500 steps: 1.2, 1.5, 5.4, 3.8
 # sd).
 
-ENGINE_EFFECTS = ("temperature_offset", "feynman_hibbs", "qmax_ripple", "rdf_normalisation", "density_error",
-                  "yeh_hummer", "thermostat_damping")
-ENGINE_RUN = dict(num_atoms=64, cutoff_reduced=2.0, equilibration_steps=100, production_steps=400,
-                  sample_every=10, num_bins=20)
-ENGINE_PRIOR = jaxabc.Uniform([0.95, 0.85], [1.05, 1.15], names=("sigma_nm", "epsilon_kj_mol"),
-                              units=("nm", "kJ/mol"))
+ENGINE_EFFECTS = (
+    "temperature_offset",
+    "feynman_hibbs",
+    "qmax_ripple",
+    "rdf_normalisation",
+    "density_error",
+    "yeh_hummer",
+    "thermostat_damping",
+)
+ENGINE_RUN = dict(
+    num_atoms=64, cutoff_reduced=2.0, equilibration_steps=100, production_steps=400, sample_every=10, num_bins=20
+)
+ENGINE_PRIOR = jaxabc.Uniform([0.95, 0.85], [1.05, 1.15], names=("sigma_nm", "epsilon_kj_mol"), units=("nm", "kJ/mol"))
 ENGINE_TABLE_SIZE, ENGINE_TABLE_KEEP = 256, 32
 ENGINE_EXECUTOR = jaxabc.VmapExecutor(chunk_size=16)
 
@@ -448,8 +497,9 @@ class _Engine:
     def __init__(self):
         from md.criticism_catalogue import make_lj_simulator_with_effects
 
-        self.setup = make_lj_simulator_with_effects("reduced_liquid", catalogue=lj_catalogue().subset(ENGINE_EFFECTS),
-                                                    **ENGINE_RUN)
+        self.setup = make_lj_simulator_with_effects(
+            "reduced_liquid", catalogue=lj_catalogue().subset(ENGINE_EFFECTS), **ENGINE_RUN
+        )
         self.catalogue = self.setup.catalogue
         self.k = len(self.catalogue)
         self.num_summaries = len(self.setup.names)
@@ -493,11 +543,19 @@ class _Engine:
         best = np.argsort(dist)[:ENGINE_TABLE_KEEP]
         n = best.size
         return jaxabc.ABCResult(
-            particles=self.table_theta[best], weights=np.full(n, 1.0 / n), distances=dist[best],
-            thresholds=np.array([dist[best[-1]]]), simulations_per_step=np.array([ENGINE_TABLE_SIZE]),
-            acceptance_rates=np.array([n / ENGINE_TABLE_SIZE]), ess=np.array([float(n)]),
-            num_simulations=ENGINE_TABLE_SIZE, algorithm="rejection",
-            settings={"reference_table": ENGINE_TABLE_SIZE, "keep": n}, prior=ENGINE_PRIOR, seed=0)
+            particles=self.table_theta[best],
+            weights=np.full(n, 1.0 / n),
+            distances=dist[best],
+            thresholds=np.array([dist[best[-1]]]),
+            simulations_per_step=np.array([ENGINE_TABLE_SIZE]),
+            acceptance_rates=np.array([n / ENGINE_TABLE_SIZE]),
+            ess=np.array([float(n)]),
+            num_simulations=ENGINE_TABLE_SIZE,
+            algorithm="rejection",
+            settings={"reference_table": ENGINE_TABLE_SIZE, "keep": n},
+            prior=ENGINE_PRIOR,
+            seed=0,
+        )
 
     @functools.cached_property
     def oracle(self) -> dict[str, float]:
@@ -512,7 +570,8 @@ class _Engine:
         act = reps.std(0) > 1e-6
         cov = shrunk_covariance(reps[:, act])
         pts = [(0, 0.99, 1.01), (1, 0.96, 1.04)] + [
-            (2 + self.catalogue.index(e), *self.catalogue[e].finite_difference_points()) for e in ENGINE_HIDDEN]
+            (2 + self.catalogue.index(e), *self.catalogue[e].finite_difference_points()) for e in ENGINE_HIDDEN
+        ]
         sens = sensitivities(self.setup.simulate, theta, keys[:32], pts, ENGINE_EXECUTOR)[act]
         a = refit_operator(sens[:, :2], cov, ~self.held_out[act])
         sd = np.sqrt(np.maximum(np.diag(a @ cov @ a.T), 1e-300))
@@ -532,16 +591,34 @@ class _Engine:
         sign = eff.one_sided or rng.choice([-1.0, 1.0])
         per_unit, where = self.oracle[effect]
         bound = eff.high if sign > 0 else eff.low
-        eta = float(np.clip(eff.null + sign * rng.uniform(6.0, 9.0) / per_unit,
-                            min(eff.null, 0.9 * bound), max(eff.null, 0.9 * bound)))
+        eta = float(
+            np.clip(
+                eff.null + sign * rng.uniform(6.0, 9.0) / per_unit,
+                min(eff.null, 0.9 * bound),
+                max(eff.null, 0.9 * bound),
+            )
+        )
         return self.theta_full(base, effect, eta), eta, abs(eta - eff.null) * per_unit, where
 
     def critique(self, observed: np.ndarray, seed: int, **options):
-        return critique(self.fit_base(observed), self.setup.simulate, observed, self.catalogue,
-                        held_out=self.held_out, seed=seed, summary_names=self.setup.names,
-                        groups=self.setup.groups, num_draws=32, num_replicates=64, num_gradient_replicates=16,
-                        num_refit_iterations=2, executor=ENGINE_EXECUTOR, refit_base=False,
-                        extend_options=dict(num_particles=128, acceptance_cutoff=0.2), **options)
+        return critique(
+            self.fit_base(observed),
+            self.setup.simulate,
+            observed,
+            self.catalogue,
+            held_out=self.held_out,
+            seed=seed,
+            summary_names=self.setup.names,
+            groups=self.setup.groups,
+            num_draws=32,
+            num_replicates=64,
+            num_gradient_replicates=16,
+            num_refit_iterations=2,
+            executor=ENGINE_EXECUTOR,
+            refit_base=False,
+            extend_options=dict(num_particles=128, acceptance_cutoff=0.2),
+            **options,
+        )
 
 
 def simulate_many_keys(simulate, keys, theta_full) -> np.ndarray:
@@ -569,6 +646,7 @@ def test_engine_hidden_effect_is_found_named_recovered_and_gains(effect, lj_engi
     obs = eng.observe(theta, seed)
     report = eng.critique(obs, seed)
     assert_found_named_recovered_and_gains(report, effect, eta, eng.setup.groups, where, tmp_path / "report")
+
 
 def _engine_null_flags(eng, seeds) -> list:
     flagged = []
@@ -613,15 +691,24 @@ def test_engine_hidden_measurement_effect(tmp_path):
     """
     from md.criticism_catalogue import make_lj_simulator_with_effects
 
-    setup = make_lj_simulator_with_effects("reduced_liquid", num_atoms=64, cutoff_reduced=2.0,
-                                           equilibration_steps=200, production_steps=600, sample_every=20)
+    setup = make_lj_simulator_with_effects(
+        "reduced_liquid",
+        num_atoms=64,
+        cutoff_reduced=2.0,
+        equilibration_steps=200,
+        production_steps=600,
+        sample_every=20,
+    )
     cat = setup.catalogue
     k = len(cat)
     theta = np.array([1.0, 1.0] + [0.0] * k)
     theta[2 + cat.index("qmax_ripple")] = 0.1
     obs = np.asarray(jax.jit(setup.simulate)(jax.random.key(5), jnp.asarray(theta, jnp.float32)), float)
-    reps = np.asarray(jax.vmap(setup.simulate, (0, None))(jax.random.split(jax.random.key(6), 32),
-                                                          jnp.asarray([1.0, 1.0] + [0.0] * k, jnp.float32)))
+    reps = np.asarray(
+        jax.vmap(setup.simulate, (0, None))(
+            jax.random.split(jax.random.key(6), 32), jnp.asarray([1.0, 1.0] + [0.0] * k, jnp.float32)
+        )
+    )
     sd = reps.std(0)
     held = np.zeros(obs.size, bool)
     held[[obs.size - 3, obs.size - 1]] = True  # D and U held out
@@ -630,11 +717,33 @@ def test_engine_hidden_measurement_effect(tmp_path):
     def base(key, th):
         return setup.simulate(key, jnp.concatenate([th, jnp.zeros(k, th.dtype)]))[fit]
 
-    res = jaxabc.run("rejection", base, PRIOR, obs[fit], num_particles=60, seed=0, executor=EXECUTOR, quantile=0.1,
-                     distance=jaxabc.distances.standardized_euclidean(jnp.asarray(sd[fit], jnp.float32)))
-    report = critique(res, setup.simulate, obs, cat, held_out=held, seed=0, summary_names=setup.names,
-                      groups=setup.groups, num_draws=64, num_replicates=64, num_gradient_replicates=32,
-                      num_refit_iterations=2, executor=EXECUTOR, extend=False)
+    res = jaxabc.run(
+        "rejection",
+        base,
+        PRIOR,
+        obs[fit],
+        num_particles=60,
+        seed=0,
+        executor=EXECUTOR,
+        quantile=0.1,
+        distance=jaxabc.distances.standardized_euclidean(jnp.asarray(sd[fit], jnp.float32)),
+    )
+    report = critique(
+        res,
+        setup.simulate,
+        obs,
+        cat,
+        held_out=held,
+        seed=0,
+        summary_names=setup.names,
+        groups=setup.groups,
+        num_draws=64,
+        num_replicates=64,
+        num_gradient_replicates=32,
+        num_refit_iterations=2,
+        executor=EXECUTOR,
+        extend=False,
+    )
     top = report.causes[0]
     assert top.name == "qmax_ripple" and top.significant, report.causes
     report.write(tmp_path / "engine_report")

@@ -31,8 +31,7 @@ def client() -> Iterator[object]:
     # Isolation starts a process from each worker, which daemonic workers may not do; the
     # nannies read the setting at every (re)start of a worker, so it holds for the whole module.
     with dask.config.set({"distributed.worker.daemon": False}):
-        cluster = distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
-                                           dashboard_address=None)
+        cluster = distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None)
         client = distributed.Client(cluster)
         yield client
         client.close()
@@ -67,10 +66,15 @@ def test_failures_become_statuses(client) -> None:
 def test_a_run_equals_the_serial_run(client) -> None:
     prior = jaxabc.Uniform([-5.0], [5.0], names=("mu",))
     kwargs = dict(num_particles=30, num_steps=2, seed=5)
-    serial = jaxabc.run("apmcabc", examples.host_gaussian_simulate, prior, np.array([0.3]), executor="serial",
-                        **kwargs)
-    dask_run = jaxabc.run("apmcabc", examples.host_gaussian_simulate, prior, np.array([0.3]),
-                          executor=DaskExecutor(client, order="longest_first"), **kwargs)
+    serial = jaxabc.run("apmcabc", examples.host_gaussian_simulate, prior, np.array([0.3]), executor="serial", **kwargs)
+    dask_run = jaxabc.run(
+        "apmcabc",
+        examples.host_gaussian_simulate,
+        prior,
+        np.array([0.3]),
+        executor=DaskExecutor(client, order="longest_first"),
+        **kwargs,
+    )
     np.testing.assert_array_equal(dask_run.particles, serial.particles)
     np.testing.assert_array_equal(dask_run.weights, serial.weights)
     assert dask_run.metadata["executor"] == "dask"

@@ -58,8 +58,12 @@ def test_same_keys_give_the_same_summaries_on_every_executor(executor) -> None:
     keys, thetas = _keys(9, seed=4), np.linspace(-2.0, 2.0, 18, dtype=np.float32).reshape(9, 2)
     batch = executor.map(examples.gaussian_simulate, keys, thetas)
     # The reference: each task in this process, task i with key i.
-    expected = np.stack([np.asarray(examples.gaussian_simulate(jax.random.wrap_key_data(k), t))
-                         for k, t in zip(keys, thetas, strict=True)])
+    expected = np.stack(
+        [
+            np.asarray(examples.gaussian_simulate(jax.random.wrap_key_data(k), t))
+            for k, t in zip(keys, thetas, strict=True)
+        ]
+    )
     assert batch.summaries.shape == (9, 2)
     assert np.all(batch.status == STATUS_OK) and batch.reasons == [""] * 9
     # Vectorised and scalar XLA code may round the last bit differently.
@@ -133,14 +137,23 @@ def test_the_driver_tells_the_executor_the_summary_shape() -> None:
     prior = jaxabc.Uniform([0.0, 0.0, 0.0], [0.09, 0.09, 0.09])
     # Every simulation raises, so only the driver can have told the executor the shape.
     with pytest.raises(jaxabc.TooManyFailures):
-        jaxabc.run("rejection", examples.flaky_simulate, prior, np.zeros(3), num_particles=30,
-                   quantile=0.5, executor=ex, seed=0)
+        jaxabc.run(
+            "rejection",
+            examples.flaky_simulate,
+            prior,
+            np.zeros(3),
+            num_particles=30,
+            quantile=0.5,
+            executor=ex,
+            seed=0,
+        )
     assert ex.summary_shape == (3,)
 
 
 def test_a_script_without_the_main_guard_is_told_so(tmp_path: Path) -> None:
     script = tmp_path / "unguarded.py"
-    script.write_text(textwrap.dedent("""
+    script.write_text(
+        textwrap.dedent("""
         import numpy as np
         import jaxabc
         from jaxabc.examples import sleep_simulate
@@ -148,7 +161,8 @@ def test_a_script_without_the_main_guard_is_told_so(tmp_path: Path) -> None:
         ex = jaxabc.ProcessPoolExecutor(max_workers=1)
         ex.map(sleep_simulate, np.zeros((2, 2), np.uint32), np.zeros((2, 1)))
         print("finished")
-    """))
+    """)
+    )
     env = {**os.environ, "PYTHONPATH": str(ROOT), "JAX_PLATFORMS": "cpu"}
     proc = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, env=env, timeout=300)
     assert proc.returncode != 0 and "finished" not in proc.stdout
@@ -169,6 +183,14 @@ def test_get_executor_names_and_objects() -> None:
 
 
 def test_public_names_are_importable_from_the_package_and_from_executors() -> None:
-    for name in ("ProcessPoolExecutor", "SerialExecutor", "VmapExecutor", "SimulationBatch", "MPIExecutor",
-                 "get_executor", "task_durations", "mark_nonfinite"):
+    for name in (
+        "ProcessPoolExecutor",
+        "SerialExecutor",
+        "VmapExecutor",
+        "SimulationBatch",
+        "MPIExecutor",
+        "get_executor",
+        "task_durations",
+        "mark_nonfinite",
+    ):
         assert getattr(jaxabc, name) is getattr(jaxabc.executors, name)

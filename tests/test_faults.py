@@ -49,14 +49,22 @@ def always_nan_distance(observed, simulated):
 
 def test_crashing_and_nan_simulators_are_recorded_and_the_posterior_is_right():
     prior = jaxabc.Uniform([-10.0], [10.0])
-    r = jaxabc.run("apmcabc", crashing_simulate, prior, np.zeros(1), num_particles=200,
-                   num_steps=3, executor="serial", distance="euclidean", seed=0)
+    r = jaxabc.run(
+        "apmcabc",
+        crashing_simulate,
+        prior,
+        np.zeros(1),
+        num_particles=200,
+        num_steps=3,
+        executor="serial",
+        distance="euclidean",
+        seed=0,
+    )
     theta, status = r.records["theta"][:, 0], r.records["status"]
     assert len(theta) == r.num_simulations == 200 + 2 * 180  # every simulation recorded
     np.testing.assert_array_equal(status == STATUS_FAILED, theta < -6)
     np.testing.assert_array_equal(status == STATUS_NONFINITE, theta > 6)
-    assert all("vaporised" in why for why, s in zip(r.records["reasons"], status, strict=True)
-               if s == STATUS_FAILED)
+    assert all("vaporised" in why for why, s in zip(r.records["reasons"], status, strict=True) if s == STATUS_FAILED)
     assert np.all(np.abs(r.particles) <= 6)
     var_exact = examples.gaussian_abc_variance(float(r.thresholds[-1]))
     assert abs(r.bayes_estimate()[0]) < 4 * np.sqrt(var_exact / r.effective_sample_size())
@@ -64,23 +72,41 @@ def test_crashing_and_nan_simulators_are_recorded_and_the_posterior_is_right():
 
 def test_nan_distances_are_failures_with_a_reason(gaussian_problem):
     prior, simulate, observed = gaussian_problem
-    r = jaxabc.run("apmcabc", simulate, prior, observed, num_particles=200, num_steps=3,
-                   distance=nan_beyond_three, seed=0)
+    r = jaxabc.run(
+        "apmcabc", simulate, prior, observed, num_particles=200, num_steps=3, distance=nan_beyond_three, seed=0
+    )
     bad = r.records["status"] == STATUS_BAD_DISTANCE
     assert bad.sum() > 0 and np.all(np.isinf(r.records["distance"][bad]))
     np.testing.assert_array_equal(bad, r.records["summaries"][:, 0] > 3.0)
     assert "NaN" in r.records["reasons"][int(np.flatnonzero(bad)[0])]
     assert np.sum(r.records["status"] != STATUS_OK) == bad.sum()  # the only failures here
     with pytest.raises(jaxabc.TooManyFailures, match="all 200 simulations failed"):
-        jaxabc.run("apmcabc", simulate, prior, observed, num_particles=200, num_steps=3,
-                   distance=always_nan_distance, max_failure_fraction=1.0, seed=0)
+        jaxabc.run(
+            "apmcabc",
+            simulate,
+            prior,
+            observed,
+            num_particles=200,
+            num_steps=3,
+            distance=always_nan_distance,
+            max_failure_fraction=1.0,
+            seed=0,
+        )
 
 
 def test_every_simulation_failing_is_an_error_even_at_failure_fraction_one(gaussian_problem):
     prior, _, observed = gaussian_problem
     with pytest.raises(jaxabc.TooManyFailures, match="all 100 simulations failed"):
-        jaxabc.run("apmcabc", lambda key, theta: jnp.full((1,), jnp.nan), prior, observed,
-                   num_particles=100, num_steps=3, max_failure_fraction=1.0, seed=0)
+        jaxabc.run(
+            "apmcabc",
+            lambda key, theta: jnp.full((1,), jnp.nan),
+            prior,
+            observed,
+            num_particles=100,
+            num_steps=3,
+            max_failure_fraction=1.0,
+            seed=0,
+        )
 
 
 def test_hanging_simulator_is_stopped_by_the_pool_timeout():
@@ -89,17 +115,27 @@ def test_hanging_simulator_is_stopped_by_the_pool_timeout():
     t0 = time.perf_counter()
     try:
         with pytest.raises(jaxabc.TooManyFailures, match="all 2 simulations failed") as err:
-            jaxabc.run("rejection", examples.flaky_simulate, jaxabc.Uniform([0.2], [0.25]),
-                       np.array([0.22]), num_particles=2, quantile=1.0, executor=ex,
-                       max_failure_fraction=1.0, seed=0)
+            jaxabc.run(
+                "rejection",
+                examples.flaky_simulate,
+                jaxabc.Uniform([0.2], [0.25]),
+                np.array([0.22]),
+                num_particles=2,
+                quantile=1.0,
+                executor=ex,
+                max_failure_fraction=1.0,
+                seed=0,
+            )
     finally:
         ex.close()
     assert "timeout" in str(err.value) and time.perf_counter() - t0 < 50
 
 
 def _job(folder, mode):
-    return subprocess.Popen([sys.executable, str(HERE / "_resume_job.py"), str(folder), mode],
-                            env={**os.environ, "PYTHONPATH": str(HERE.parent)})
+    return subprocess.Popen(
+        [sys.executable, str(HERE / "_resume_job.py"), str(folder), mode],
+        env={**os.environ, "PYTHONPATH": str(HERE.parent)},
+    )
 
 
 def test_resume_after_sigkill_equals_uninterrupted_run(tmp_path):
@@ -137,11 +173,9 @@ def test_write_interrupted_half_way_leaves_the_previous_checkpoint(tmp_path, gau
     prior, simulate, observed = gaussian_problem
     kw = dict(num_particles=100, num_steps=4, distance="euclidean", seed=3)
     full = jaxabc.run("pmcabc", simulate, prior, observed, **kw)
-    jaxabc.run("pmcabc", simulate, prior, observed, checkpoint_dir=tmp_path,
-               stop_after_iterations=3, **kw)
+    jaxabc.run("pmcabc", simulate, prior, observed, checkpoint_dir=tmp_path, stop_after_iterations=3, **kw)
     good = (tmp_path / checkpoint.CHECKPOINT_NAME).read_bytes()
     (tmp_path / (checkpoint.CHECKPOINT_NAME + ".tmp")).write_bytes(good[: len(good) // 3])
-    rest = jaxabc.run("pmcabc", simulate, prior, observed, checkpoint_dir=tmp_path, resume=True,
-                      **kw)
+    rest = jaxabc.run("pmcabc", simulate, prior, observed, checkpoint_dir=tmp_path, resume=True, **kw)
     np.testing.assert_array_equal(full.particles, rest.particles)
     np.testing.assert_array_equal(full.records["theta"], rest.records["theta"])

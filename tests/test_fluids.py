@@ -28,8 +28,12 @@ def test_feynman_hibbs_b2_matches_first_order_wigner_kirkwood(temperature):
         du = 4.0 * (-12.0 * r**-13 + 6.0 * r**-7)
         return np.exp(-u / temperature) * du * du * r * r
 
-    wk = 2 * np.pi / temperature**2 * sum(integrate.quad(integrand, a, b, limit=200)[0]
-                                          for a, b in ((0.5, 1.0), (1.0, 2.0), (2.0, 20.0)))
+    wk = (
+        2
+        * np.pi
+        / temperature**2
+        * sum(integrate.quad(integrand, a, b, limit=200)[0] for a, b in ((0.5, 1.0), (1.0, 2.0), (2.0, 20.0)))
+    )
     # Richardson extrapolation of the forward difference removes the O(D*) second-order term.
     d, b0 = 1e-5, b2_reduced(temperature, 0.0)
     s1, s2 = (b2_reduced(temperature, d) - b0) / d, (b2_reduced(temperature, 2 * d) - b0) / (2 * d)

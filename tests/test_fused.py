@@ -44,10 +44,13 @@ def _same_run(host, fast):
     assert set(host.records) == set(fast.records)
 
 
-@pytest.mark.parametrize("algorithm, options", [
-    ("apmcabc", dict(num_steps=4)),
-    ("pmcabc", dict(num_steps=3)),
-])
+@pytest.mark.parametrize(
+    "algorithm, options",
+    [
+        ("apmcabc", dict(num_steps=4)),
+        ("pmcabc", dict(num_steps=3)),
+    ],
+)
 def test_fused_equals_host_driver(problem, algorithm, options):
     prior, observed = problem
     kw = dict(num_particles=N, distance="euclidean", seed=3, **options)
@@ -60,8 +63,7 @@ def test_fused_equals_host_driver(problem, algorithm, options):
 def test_fused_simulation_budget_as_host(problem):
     """Stops before the iteration that would exceed the budget, with the last full generation."""
     prior, observed = problem
-    kw = dict(num_particles=N, distance="euclidean", seed=4, max_simulations=1000,
-              acceptance_cutoff=0.0)
+    kw = dict(num_particles=N, distance="euclidean", seed=4, max_simulations=1000, acceptance_cutoff=0.0)
     host = jaxabc.run("apmcabc", _simulate, prior, observed, **kw)
     fast = jaxabc.run_fused("apmcabc", _simulate, prior, observed, chunk_size=2, **kw)
     assert host.stop_reason.startswith("simulation budget")
@@ -93,8 +95,7 @@ def test_fused_non_finite_summaries_are_failures(problem):
         x = theta + jax.random.normal(key, theta.shape)
         return jnp.where(theta > 5.0, jnp.nan, x)
 
-    r = jaxabc.run_fused("apmcabc", simulate, prior, observed, num_particles=200, num_steps=2,
-                         distance="euclidean")
+    r = jaxabc.run_fused("apmcabc", simulate, prior, observed, num_particles=200, num_steps=2, distance="euclidean")
     bad = r.records["theta"][:, 0] > 5.0
     assert np.all(r.records["status"][bad] == jaxabc.errors.STATUS_NONFINITE)
     assert np.all(np.isinf(r.records["distance"][bad]))
@@ -121,6 +122,10 @@ def test_enable_compilation_cache(tmp_path):
         f"jaxabc.enable_compilation_cache({str(tmp_path / 'xla')!r}); "
         "jax.jit(lambda x: jnp.sin(x) * 2)(jnp.ones(3)).block_until_ready()"
     )
-    subprocess.run([sys.executable, "-c", code], check=True, timeout=300,
-                   env={**os.environ, "JAX_PLATFORMS": "cpu", "PYTHONPATH": str(ROOT)})
+    subprocess.run(
+        [sys.executable, "-c", code],
+        check=True,
+        timeout=300,
+        env={**os.environ, "JAX_PLATFORMS": "cpu", "PYTHONPATH": str(ROOT)},
+    )
     assert any((tmp_path / "xla").iterdir())

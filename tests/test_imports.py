@@ -64,7 +64,7 @@ def _cycles(graph: dict[str, set[str]]) -> list[list[str]]:
         stack.append(node)
         for nxt in sorted(graph[node]):
             if state.get(nxt) == "open":
-                cycles.append([*stack[stack.index(nxt):], nxt])
+                cycles.append([*stack[stack.index(nxt) :], nxt])
             elif nxt not in state:
                 visit(nxt, stack)
         stack.pop()
@@ -77,14 +77,17 @@ def _cycles(graph: dict[str, set[str]]) -> list[list[str]]:
 
 
 def test_jaxabc_never_imports_md() -> None:
-    offenders = {name: sorted(t for t in _imports(name, path) if t.split(".")[0] == "md")
-                 for name, path in _modules("jaxabc").items()}
+    offenders = {
+        name: sorted(t for t in _imports(name, path) if t.split(".")[0] == "md")
+        for name, path in _modules("jaxabc").items()
+    }
     assert not {k: v for k, v in offenders.items() if v}, "jaxabc (inference) must not import md (simulators)"
 
 
 def test_md_never_imports_the_command_line() -> None:
-    offenders = [name for name, path in _modules("md").items()
-                 if any(t.startswith("jaxabc.cli") for t in _imports(name, path))]
+    offenders = [
+        name for name, path in _modules("md").items() if any(t.startswith("jaxabc.cli") for t in _imports(name, path))
+    ]
     assert not offenders
 
 
@@ -108,4 +111,6 @@ def test_executors_and_mpi_share_one_worker_module() -> None:
     assert "jaxabc.executors.workers" in graph["jaxabc.executors.mpi"]
     # MPI reaches the rest of the executors only through the base and worker modules.
     assert graph["jaxabc.executors.mpi"] & {m for m in graph if m.startswith("jaxabc.executors")} <= {
-        "jaxabc.executors.base", "jaxabc.executors.workers"}
+        "jaxabc.executors.base",
+        "jaxabc.executors.workers",
+    }

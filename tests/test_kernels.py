@@ -29,8 +29,8 @@ def test_truncated_sample_is_exact_truncated_normal():
     # 1-D truncated normal N(0.9, 0.5^2) on [0, 1]: a Kolmogorov-Smirnov test against scipy.
     mean, sd = 0.9, 0.5
     draw = kernels.truncated_gaussian_sample(
-        jax.random.key(0), jnp.full((5000, 1), mean), jnp.array([[sd]]), jnp.array([0.0]),
-        jnp.array([1.0]))
+        jax.random.key(0), jnp.full((5000, 1), mean), jnp.array([[sd]]), jnp.array([0.0]), jnp.array([1.0])
+    )
     x = np.asarray(draw.samples[:, 0], np.float64)
     assert bool(jnp.all(draw.ok))
     assert x.min() >= 0.0 and x.max() <= 1.0
@@ -42,8 +42,8 @@ def test_truncated_sample_is_exact_truncated_normal():
 
 def test_truncated_sample_reports_unreachable_support():
     draw = kernels.truncated_gaussian_sample(
-        jax.random.key(1), jnp.array([[50.0]]), jnp.array([[0.01]]), jnp.array([0.0]),
-        jnp.array([1.0]), max_tries=100)
+        jax.random.key(1), jnp.array([[50.0]]), jnp.array([[0.01]]), jnp.array([0.0]), jnp.array([1.0]), max_tries=100
+    )
     assert not bool(draw.ok[0])
 
 
@@ -74,11 +74,21 @@ def test_mixture_log_weights_match_direct_sum():
     chol = np.linalg.cholesky(cov)
     log_prior = np.full(5, -np.log(4.0))
     log_norm = np.log(rng.uniform(0.5, 1.0, size=7))
-    ours = kernels.mixture_log_weights(jnp.asarray(theta), jnp.asarray(log_prior), jnp.asarray(centers),
-                                       jnp.asarray(lw), jnp.asarray(chol), jnp.asarray(log_norm))
+    ours = kernels.mixture_log_weights(
+        jnp.asarray(theta),
+        jnp.asarray(log_prior),
+        jnp.asarray(centers),
+        jnp.asarray(lw),
+        jnp.asarray(chol),
+        jnp.asarray(log_norm),
+    )
     w = np.exp(lw) / np.exp(lw).sum()
-    dens = np.array([[stats.multivariate_normal(c, cov).pdf(t) / np.exp(ln)
-                      for c, ln in zip(centers, log_norm, strict=True)] for t in theta])
+    dens = np.array(
+        [
+            [stats.multivariate_normal(c, cov).pdf(t) / np.exp(ln) for c, ln in zip(centers, log_norm, strict=True)]
+            for t in theta
+        ]
+    )
     want = log_prior - np.log(dens @ w)
     np.testing.assert_allclose(ours, want, rtol=1e-4)
 
@@ -86,5 +96,6 @@ def test_mixture_log_weights_match_direct_sum():
 def test_jit_and_nojit_agree():
     x = jax.random.normal(jax.random.key(4), (100, 3))
     lw = jax.random.normal(jax.random.key(5), (100,))
-    np.testing.assert_allclose(jax.jit(kernels.weighted_covariance)(x, lw),
-                               kernels.weighted_covariance(x, lw), rtol=1e-5, atol=1e-6)
+    np.testing.assert_allclose(
+        jax.jit(kernels.weighted_covariance)(x, lw), kernels.weighted_covariance(x, lw), rtol=1e-5, atol=1e-6
+    )

@@ -29,10 +29,8 @@ def block_mean_error(x, num_blocks: int = 10):
 
 def test_presets_match_the_paper_and_validate():
     paper = helium.get_preset("paper")
-    assert (paper.num_atoms, paper.box_nm, paper.temperature_k, paper.pressure_atm) == (
-        1000, 27.3, 300.0, 1.0)
-    assert (paper.cutoff_nm, paper.dt_ps, paper.tau_t_ps, paper.tau_p_ps) == (
-        0.639, 0.002, 2.0, 20.0)
+    assert (paper.num_atoms, paper.box_nm, paper.temperature_k, paper.pressure_atm) == (1000, 27.3, 300.0, 1.0)
+    assert (paper.cutoff_nm, paper.dt_ps, paper.tau_t_ps, paper.tau_p_ps) == (0.639, 0.002, 2.0, 20.0)
     assert paper.num_samples == 1000 and paper.blocks_per_sample * paper.rebuild_every == 1000
     assert paper.equilibration_ps == 200.0
     cpu = helium.get_preset("cpu")
@@ -122,8 +120,7 @@ def test_prior_corner_stays_finite():
     ],
 )
 def test_neighbor_list_overflow_is_reallocated_not_dropped(atoms, tighten):
-    preset = helium.get_preset("cpu", num_atoms=atoms, use_neighbor_list=True, batch_size=2,
-                               **TINY)
+    preset = helium.get_preset("cpu", num_atoms=atoms, use_neighbor_list=True, batch_size=2, **TINY)
     engine = helium.make_engine(preset)
     keys = jax.random.split(jax.random.PRNGKey(4), 2)
     thetas = jnp.asarray([helium.TRUE_THETA, (0.3, 0.5)], jnp.float32)
@@ -156,9 +153,8 @@ def test_agrees_with_lammps():
     """Same helium system in LAMMPS: T, P, V and f_B means agree within statistical error and
     the jax-md/LAMMPS KL is within the jax-md seed-to-seed KL spread."""
     from md import lammps_reference
-    result = lammps_reference.compare_with_jax_md(
-        jax.random.PRNGKey(7), helium.TRUE_THETA, "cpu", num_seeds=8
-    )
+
+    result = lammps_reference.compare_with_jax_md(jax.random.PRNGKey(7), helium.TRUE_THETA, "cpu", num_seeds=8)
     assert not result["jax_md_failed"]
     for name, q in result["quantities"].items():
         # 4 standard errors; four quantities tested, so a false alarm is ~1e-3.

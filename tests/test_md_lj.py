@@ -43,9 +43,18 @@ def run_thermo(engine: lj.LJEngine, key, num_samples: int, every_blocks: int, eq
 def liquid_config(**kw) -> lj.EngineConfig:
     rho, n = kw.pop("density", 0.8), kw.pop("num_atoms", 108)
     base = dict(
-        num_atoms=n, box_nm=(n / rho) ** (1 / 3), mass_amu=1.0, cutoff_nm=2.5, dt_ps=0.005,
-        temperature_k=1.5 / KB, ensemble="nvt_nose_hoover", tau_t_ps=0.5, truncation="shifted",
-        use_neighbor_list=False, rebuild_every=10, allocation_box_fraction=1.0,
+        num_atoms=n,
+        box_nm=(n / rho) ** (1 / 3),
+        mass_amu=1.0,
+        cutoff_nm=2.5,
+        dt_ps=0.005,
+        temperature_k=1.5 / KB,
+        ensemble="nvt_nose_hoover",
+        tau_t_ps=0.5,
+        truncation="shifted",
+        use_neighbor_list=False,
+        rebuild_every=10,
+        allocation_box_fraction=1.0,
     )
     base.update(kw)
     return lj.EngineConfig(**base)
@@ -74,8 +83,7 @@ def _numpy_reference(pos_frac, box, sigma, eps, rc, c9, mass, kt, shifted):
                     e2 -= 4 * eps * ((sigma / rc) ** 12 - (sigma / rc) ** 6)
                 # r . F = -r u'(r)
                 virial += 4 * eps * (12 * sr6 * sr6 - 6 * sr6)
-                e_fh += HBAR_KJ_MOL_PS**2 / (24 * mass / 2 * kt) * 4 * eps * (
-                    132 * sr6 * sr6 - 30 * sr6) / r**2
+                e_fh += HBAR_KJ_MOL_PS**2 / (24 * mass / 2 * kt) * 4 * eps * (132 * sr6 * sr6 - 30 * sr6) / r**2
             for k in range(j + 1, n):
                 a, b = mi(real[j] - real[i]), mi(real[k] - real[i])
                 c = b - a
@@ -97,23 +105,23 @@ def test_energy_terms_match_direct_sum(shifted):
     boxm = jnp.eye(3) * box
     trunc = "shifted" if shifted else "plain"
     plain = lj.make_energy_fn(rc, trunc)
-    both = lj.make_energy_fn(rc, trunc, three_body=True, feynman_hibbs=True, mass_amu=mass,
-                             kt_kj_mol=kt)
+    both = lj.make_energy_fn(rc, trunc, three_body=True, feynman_hibbs=True, mass_amu=mass, kt_kj_mol=kt)
     u2 = float(plain(jnp.asarray(pos), boxm, params=params))
     u_all = float(both(jnp.asarray(pos), boxm, params=params))
     assert u2 == pytest.approx(e2, rel=1e-4, abs=1e-4)
     assert u_all == pytest.approx(e2 + e3 + e_fh, rel=1e-4, abs=1e-4)
     # The virial from the isotropic-strain derivative equals sum over pairs of r . F.
-    dudeps = jax.grad(lambda x: plain(jnp.asarray(pos), boxm, perturbation=1 + x,
-                                      params=params))(0.0)
+    dudeps = jax.grad(lambda x: plain(jnp.asarray(pos), boxm, perturbation=1 + x, params=params))(0.0)
     assert float(-dudeps) == pytest.approx(virial, rel=1e-4, abs=1e-3)
     # Forces: gradient with respect to fractional positions comes out in real space.
     forces = -jax.grad(plain)(jnp.asarray(pos), boxm, params=params)
     h = 1e-3
     dpos = np.zeros_like(pos)
     dpos[3, 1] = h / box
-    num = -(float(plain(jnp.asarray(pos + dpos), boxm, params=params))
-            - float(plain(jnp.asarray(pos - dpos), boxm, params=params))) / (2 * h)
+    num = -(
+        float(plain(jnp.asarray(pos + dpos), boxm, params=params))
+        - float(plain(jnp.asarray(pos - dpos), boxm, params=params))
+    ) / (2 * h)
     assert float(forces[3, 1]) == pytest.approx(num, rel=2e-2, abs=2e-2)
 
 
@@ -129,11 +137,9 @@ def test_neighbor_list_matches_all_pairs(fmt):
     e_all = engine.energy_fn(carry.md.position, engine.box0, idx=None, params=PARAMS)
     assert float(e_list) == pytest.approx(float(e_all), rel=1e-5)
     # Analytic forces and virial of the list equal autodiff over all pairs.
-    f_list, s_list = engine.energy_fn.force_and_strain(
-        carry.md.position, engine.box0, idx=idx, params=PARAMS)
+    f_list, s_list = engine.energy_fn.force_and_strain(carry.md.position, engine.box0, idx=idx, params=PARAMS)
     f_all = -jax.grad(engine.energy_fn)(carry.md.position, engine.box0, params=PARAMS)
-    s_all = jax.grad(lambda x: engine.energy_fn(carry.md.position, engine.box0,
-                                                perturbation=1 + x, params=PARAMS))(0.0)
+    s_all = jax.grad(lambda x: engine.energy_fn(carry.md.position, engine.box0, perturbation=1 + x, params=PARAMS))(0.0)
     np.testing.assert_allclose(f_list, f_all, rtol=2e-4, atol=2e-3)
     assert float(s_list) == pytest.approx(float(s_all), rel=1e-4)
 
@@ -159,8 +165,8 @@ def test_engine_reallocates_its_lists_after_overflow():
     engine = lj.LJEngine(cfg)
     roomy = engine.neighbor_template.spec
     tiny = lj.build_neighbor_list(
-        dataclasses.replace(roomy, capacity=1), jnp.asarray(lj.lattice_positions(256)),
-        engine.box0)
+        dataclasses.replace(roomy, capacity=1), jnp.asarray(lj.lattice_positions(256)), engine.box0
+    )
     keys = jax.random.split(jax.random.PRNGKey(1), 2)
     params = jax.tree.map(lambda x: jnp.full(2, x, jnp.float32), PARAMS)
     # Compile with the roomy list first, then shrink it: a compiled init that captured its list
@@ -196,15 +202,17 @@ def test_small_box_all_pairs_kernel_matches_neighbor_list(fmt):
     spec = lj.NeighborSpec(fmt, n, cutoff, 0, n * n, capacity, n)
     nbrs = lj.build_neighbor_list(spec, position, box)
     assert not bool(nbrs.did_buffer_overflow)
-    params = lj.LJParams(jnp.asarray([0.2556, 0.3, 0.5], jnp.float32),
-                         jnp.asarray([0.085, 0.3, 0.01], jnp.float32),
-                         jnp.zeros(3, jnp.float32), jnp.ones(3, jnp.float32))
+    params = lj.LJParams(
+        jnp.asarray([0.2556, 0.3, 0.5], jnp.float32),
+        jnp.asarray([0.085, 0.3, 0.01], jnp.float32),
+        jnp.zeros(3, jnp.float32),
+        jnp.ones(3, jnp.float32),
+    )
 
     def both(p):
         dense = energy_fn.force_and_strain(position, box, idx=None, params=p)
         listed = energy_fn.force_and_strain(position, box, idx=nbrs.idx, params=p)
-        energies = (energy_fn(position, box, idx=None, params=p),
-                    energy_fn(position, box, idx=nbrs.idx, params=p))
+        energies = (energy_fn(position, box, idx=None, params=p), energy_fn(position, box, idx=nbrs.idx, params=p))
         gradient = jax.grad(energy_fn)(position, box, params=p)
         return dense, listed, energies, gradient
 
@@ -231,8 +239,9 @@ def test_feynman_hibbs_strength_is_traced():
         return quantum(pos, boxm, params=lj.LJParams(jnp.float32(0.3), jnp.float32(0.5), jnp.float32(0.0), scale))
 
     e0, e1, e2 = (float(energy(jnp.float32(x))) for x in (0.0, 1.0, 2.0))
-    assert e0 == pytest.approx(float(classical(pos, boxm, params=lj.LJParams(jnp.float32(0.3), jnp.float32(0.5)))),
-                               rel=1e-6)
+    assert e0 == pytest.approx(
+        float(classical(pos, boxm, params=lj.LJParams(jnp.float32(0.3), jnp.float32(0.5)))), rel=1e-6
+    )
     assert abs(e1 - e0) > 1e-3 * abs(e0)  # a real correction at this mass and temperature
     assert e2 - e0 == pytest.approx(2.0 * (e1 - e0), rel=1e-4)
     batch = jax.jit(jax.vmap(energy))(jnp.asarray([0.0, 1.0, 2.0], jnp.float32))
@@ -243,18 +252,21 @@ def test_rebuild_when_needed_keeps_every_pair_and_rebuilds_less():
     """A dilute LJ gas: the conditional rebuild skips most rebuilds, yet at every sample the
     (possibly stale) list gives exactly the all-pairs forces, and the trajectory is the
     every-block one up to rounding; under vmap (cond -> select) it is the same again."""
-    kw = dict(use_neighbor_list=True, skin_nm=1.0, num_atoms=256, density=0.05, rebuild_every=5,
-              neighbor_format="sparse")
+    kw = dict(
+        use_neighbor_list=True, skin_nm=1.0, num_atoms=256, density=0.05, rebuild_every=5, neighbor_format="sparse"
+    )
     every = lj.LJEngine(liquid_config(rebuild="every_block", **kw))
     needed = lj.LJEngine(liquid_config(rebuild="when_needed", **kw))
 
     def force_error(engine):
         def observe(carry, params):
             box = engine.box(carry.md)
-            f_list, _ = engine.energy_fn.force_and_strain(carry.md.position, box, idx=carry.neighbors.idx,
-                                                          params=params)
+            f_list, _ = engine.energy_fn.force_and_strain(
+                carry.md.position, box, idx=carry.neighbors.idx, params=params
+            )
             f_all = -jax.grad(engine.energy_fn)(carry.md.position, box, params=params)
             return jnp.max(jnp.abs(f_list - f_all)) / (jnp.max(jnp.abs(f_all)) + 1e-6)
+
         return observe
 
     def go(engine, key):
@@ -299,8 +311,7 @@ def test_cell_list_finds_exactly_the_pairs_within_reach(fmt):
         if fmt == "sparse":
             i, j = np.asarray(nbrs.idx.i), np.asarray(nbrs.idx.j)
             # Each pair once, in either order (i < j only within a cell).
-            got = [(min(a, b), max(a, b)) for a, b in zip(i.tolist(), j.tolist(), strict=True)
-                   if a < n]
+            got = [(min(a, b), max(a, b)) for a, b in zip(i.tolist(), j.tolist(), strict=True) if a < n]
         else:
             idx = np.asarray(nbrs.idx)
             got = [(a, b) for a in range(n) for b in idx[a].tolist() if b < n and a < b]
@@ -348,8 +359,15 @@ def test_thermostat_holds_temperature(ensemble):
 
 def test_barostat_holds_pressure_and_temperature():
     p_target = 1.0  # reduced pressure at T* = 2 (a dense supercritical fluid)
-    cfg = liquid_config(ensemble="npt", density=0.6, temperature_k=2.0 / KB,
-                        pressure_kj_mol_nm3=p_target, tau_t_ps=0.2, tau_p_ps=1.0, dt_ps=0.004)
+    cfg = liquid_config(
+        ensemble="npt",
+        density=0.6,
+        temperature_k=2.0 / KB,
+        pressure_kj_mol_nm3=p_target,
+        tau_t_ps=0.2,
+        tau_p_ps=1.0,
+        dt_ps=0.004,
+    )
     engine = lj.LJEngine(cfg)
     t = run_thermo(engine, jax.random.PRNGKey(3), 300, 2, 200)
     p_mean, p_err = block_mean_error(t.pressure)
@@ -398,12 +416,16 @@ def test_lj_fluid_matches_jzg_equation_of_state(temperature, density):
     # Plain truncation: the forces are those of the shifted potential, but the energy inside r_c
     # is the unshifted LJ, which is what the tail correction completes.
     preset = lj_fluid.get_preset(
-        "reduced_dense_fluid", temperature_reduced=temperature, density_reduced=density,
-        equilibration_steps=1000, production_steps=6000, sample_every=20, dt_reduced=0.004,
+        "reduced_dense_fluid",
+        temperature_reduced=temperature,
+        density_reduced=density,
+        equilibration_steps=1000,
+        production_steps=6000,
+        sample_every=20,
+        dt_reduced=0.004,
         truncation="plain",
     )
-    obs = jax.jit(lambda k: lj_fluid.run_details(preset, k, preset.default_theta))(
-        jax.random.PRNGKey(6))
+    obs = jax.jit(lambda k: lj_fluid.run_details(preset, k, preset.default_theta))(jax.random.PRNGKey(6))
     assert not bool(obs["failed"])
     u_tail, p_tail = lj_fluid.tail_corrections(density, preset.cutoff_reduced)
     p_jzg, u_jzg = lj_fluid.jzg_equation_of_state(density, temperature)
@@ -421,13 +443,10 @@ def test_lj_fluid_matches_jzg_equation_of_state(temperature, density):
 
 
 def test_lj_fluid_simulator_summaries():
-    simulate = lj_fluid.make_simulator(
-        "reduced_liquid", equilibration_steps=200, production_steps=400, sample_every=20
-    )
+    simulate = lj_fluid.make_simulator("reduced_liquid", equilibration_steps=200, production_steps=400, sample_every=20)
     preset = simulate.preset
     thetas = jnp.asarray([preset.default_theta, (1.05, 1.0)], jnp.float32)
-    out = np.asarray(jax.jit(jax.vmap(simulate))(jax.random.split(jax.random.PRNGKey(8), 2),
-                                                   thetas))
+    out = np.asarray(jax.jit(jax.vmap(simulate))(jax.random.split(jax.random.PRNGKey(8), 2), thetas))
     names = lj_fluid.summary_names(preset)
     assert out.shape == (2, len(names)) and np.all(np.isfinite(out))
     g = out[0, : preset.num_bins]

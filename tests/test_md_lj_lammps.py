@@ -34,16 +34,25 @@ def engine_run(name: str, dt: float) -> tuple[dict, dict]:
     state = {"temperature": base.temperature_reduced, "density": base.density_reduced}
     if name == "reduced_dense_fluid":
         state = dict(STATE)
-    preset = lj_fluid.get_preset(name, temperature_reduced=state["temperature"], density_reduced=state["density"],
-                                 equilibration_steps=1000, production_steps=20_000, sample_every=20, dt_reduced=dt,
-                                 truncation="plain")
+    preset = lj_fluid.get_preset(
+        name,
+        temperature_reduced=state["temperature"],
+        density_reduced=state["density"],
+        equilibration_steps=1000,
+        production_steps=20_000,
+        sample_every=20,
+        dt_reduced=dt,
+        truncation="plain",
+    )
     obs = jax.jit(lambda k: lj_fluid.run_details(preset, k, preset.default_theta))(jax.random.PRNGKey(6))
     assert not bool(obs["failed"])
     u = preset.units  # physical units (argon) -> reduced: P* = P sigma^3 / epsilon, U* = U / epsilon
     u_tail, p_tail = lj_fluid.tail_corrections(state["density"], preset.cutoff_reduced)
-    out = {"pressure": np.asarray(obs["pressure"]) * u.sigma_nm**3 / u.epsilon_kj_mol + p_tail,
-           "potential": np.asarray(obs["potential"]) / preset.num_atoms / u.epsilon_kj_mol + u_tail,
-           "num_atoms": preset.num_atoms}
+    out = {
+        "pressure": np.asarray(obs["pressure"]) * u.sigma_nm**3 / u.epsilon_kj_mol + p_tail,
+        "potential": np.asarray(obs["potential"]) / preset.num_atoms / u.epsilon_kj_mol + u_tail,
+        "num_atoms": preset.num_atoms,
+    }
     return out, state
 
 

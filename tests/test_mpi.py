@@ -22,16 +22,30 @@ from jaxabc.errors import STATUS_FAILED, STATUS_NONFINITE, STATUS_OK, STATUS_TIM
 from jaxabc.executors.mpi import chunk_indices
 
 HERE = Path(__file__).parent
-ROOT_FLAGS = {"OMPI_ALLOW_RUN_AS_ROOT": "1", "OMPI_ALLOW_RUN_AS_ROOT_CONFIRM": "1",
-              "OMPI_MCA_rmaps_base_oversubscribe": "1"}
+ROOT_FLAGS = {
+    "OMPI_ALLOW_RUN_AS_ROOT": "1",
+    "OMPI_ALLOW_RUN_AS_ROOT_CONFIRM": "1",
+    "OMPI_MCA_rmaps_base_oversubscribe": "1",
+}
 
 
 def _launch(num_ranks: int, out: Path, cache: Path, *extra: str) -> dict:
     # The jaxabc under test, not whichever copy is installed.
     path = os.pathsep.join(p for p in (str(HERE.parent), os.environ.get("PYTHONPATH")) if p)
     env = {**os.environ, **ROOT_FLAGS, "JAX_PLATFORMS": "cpu", "JAXABC_TEST_JAX_CACHE": str(cache), "PYTHONPATH": path}
-    cmd = ["mpiexec", "--allow-run-as-root", "--oversubscribe", "-n", str(num_ranks), sys.executable, "-m",
-           "mpi4py.futures", str(HERE / "_mpi_job.py"), str(out), *extra]
+    cmd = [
+        "mpiexec",
+        "--allow-run-as-root",
+        "--oversubscribe",
+        "-n",
+        str(num_ranks),
+        sys.executable,
+        "-m",
+        "mpi4py.futures",
+        str(HERE / "_mpi_job.py"),
+        str(out),
+        *extra,
+    ]
     proc = subprocess.run(cmd, capture_output=True, text=True, env=env, timeout=240, cwd=HERE.parent)
     assert proc.returncode == 0, f"mpiexec failed ({proc.returncode}):\n{proc.stdout[-3000:]}\n{proc.stderr[-3000:]}"
     with open(out) as fh:
@@ -43,8 +57,10 @@ def launches(tmp_path_factory: pytest.TempPathFactory) -> dict[int, dict]:
     tmp = tmp_path_factory.mktemp("mpi")
     # One after the other: the second reuses the first's compiled programs, and two concurrent
     # jobs would only compete for the same cores.
-    return {2: _launch(3, tmp / "two.json", tmp / "jax-cache", "--flaky"),
-            3: _launch(4, tmp / "three.json", tmp / "jax-cache", "--longest-first")}
+    return {
+        2: _launch(3, tmp / "two.json", tmp / "jax-cache", "--flaky"),
+        3: _launch(4, tmp / "three.json", tmp / "jax-cache", "--longest-first"),
+    }
 
 
 def test_chunk_indices_are_equal_contiguous_chunks() -> None:
@@ -126,8 +142,14 @@ def test_static_allocation_is_contiguous_equal_chunks(launches: dict[int, dict],
 def test_failures_become_statuses(launches: dict[int, dict]) -> None:
     flaky = launches[2]["flaky"]
     # theta = 0.05 raises, 0.15 returns NaN, 0.27 kills its process, 0.22 hangs, 0.5 and 0.7 succeed.
-    assert flaky["status"] == [STATUS_FAILED, STATUS_NONFINITE, STATUS_WORKER_DIED, STATUS_TIMEOUT,
-                               STATUS_OK, STATUS_OK]
+    assert flaky["status"] == [
+        STATUS_FAILED,
+        STATUS_NONFINITE,
+        STATUS_WORKER_DIED,
+        STATUS_TIMEOUT,
+        STATUS_OK,
+        STATUS_OK,
+    ]
     reasons = flaky["reasons"]
     assert "vaporised" in reasons[0]
     assert "non-finite" in reasons[1]

@@ -28,8 +28,9 @@ INPUTS: dict[str, list[list[str]]] = {
     "figure_mpi_workflow": [["speedup.json"], ["water_simulated_robust.npz"]],
     "figure4_speedup": [["speedup.json"]],
     "figure5_helium_posterior": [["helium_table1.json", "helium_table1_apmcabc.npz", "helium_table1_abcsubsim.npz"]],
-    "figure_water_posteriors": [[f"water_{d}.json", f"water_{d}_{v}.npz"]
-                                for d in ("simulated", "neutron", "xray") for v in ("robust", "paper")],
+    "figure_water_posteriors": [
+        [f"water_{d}.json", f"water_{d}_{v}.npz"] for d in ("simulated", "neutron", "xray") for v in ("robust", "paper")
+    ],
     "figure_water_predictive": [[f"water_{d}.json"] for d in ("neutron", "xray")],
 }
 
@@ -66,8 +67,9 @@ def test_make_all_lists_every_script() -> None:
 
 
 @pytest.mark.parametrize("name", ["figure_water_posteriors", "figure_water_predictive"])
-def test_water_figures_skip_a_missing_dataset(name: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
-                                              capsys: pytest.CaptureFixture) -> None:
+def test_water_figures_skip_a_missing_dataset(
+    name: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture
+) -> None:
     """With only the X-ray results present, neutron (and simulated) are skipped with a message."""
     needed = ["water_xray.json", "water_xray_robust.npz"]
     if not all((RESULTS / f).exists() for f in needed):

@@ -14,9 +14,13 @@ dist = pytest.importorskip("numpyro.distributions")
 
 
 def test_truncated_densities_are_normalised_and_sampled_by_them():
-    prior = jaxabc.Independent(a=dist.Normal(1.0, 2.0), b=dist.LogNormal(0.0, 0.5),
-                               c=dist.LogUniform(0.01, 1.0),
-                               bounds={"a": (-1.0, 4.0), "b": (0.5, 3.0)}, units={"a": "nm"})
+    prior = jaxabc.Independent(
+        a=dist.Normal(1.0, 2.0),
+        b=dist.LogNormal(0.0, 0.5),
+        c=dist.LogUniform(0.01, 1.0),
+        bounds={"a": (-1.0, 4.0), "b": (0.5, 3.0)},
+        units={"a": "nm"},
+    )
     np.testing.assert_allclose(prior.low, [-1.0, 0.5, 0.01])
     np.testing.assert_allclose(prior.high, [4.0, 3.0, 1.0], rtol=1e-6)
     assert prior.names == ("a", "b", "c") and prior.units == ("nm", "", "")
@@ -61,8 +65,9 @@ def test_bad_priors_get_clear_errors():
 
 
 def test_result_with_a_numpyro_prior_saves_and_loads(tmp_path):
-    prior = jaxabc.Independent(a=dist.Normal(0.0, 1.0), b=dist.LogUniform(0.1, 10.0),
-                               bounds={"a": (-5.0, 5.0)}, units={"b": "zJ"})
+    prior = jaxabc.Independent(
+        a=dist.Normal(0.0, 1.0), b=dist.LogUniform(0.1, 10.0), bounds={"a": (-5.0, 5.0)}, units={"b": "zJ"}
+    )
     x = np.asarray(prior.sample(jax.random.key(1), 50), np.float64)
     result = jaxabc.ABCResult.from_sample(x, np.ones(50), prior, algorithm="apmcabc")
     back = jaxabc.load(result.save(tmp_path / "r"))
@@ -82,10 +87,13 @@ def _normal_prior_abc_moments(observed: float, eps: float) -> tuple[float, float
     return x.mean() / 2.0, 0.5 + x.var() / 4.0
 
 
-@pytest.mark.parametrize("algorithm, z, options", [
-    ("apmcabc", 4.0, dict(num_particles=2000, num_steps=6, alpha=0.1, acceptance_cutoff=0.03)),
-    ("abcsubsim", 3.0, dict(num_particles=2000, p0=0.1, num_steps=2)),
-])
+@pytest.mark.parametrize(
+    "algorithm, z, options",
+    [
+        ("apmcabc", 4.0, dict(num_particles=2000, num_steps=6, alpha=0.1, acceptance_cutoff=0.03)),
+        ("abcsubsim", 3.0, dict(num_particles=2000, p0=0.1, num_steps=2)),
+    ],
+)
 def test_normal_prior_gives_the_analytic_posterior(algorithm, z, options):
     """With a N(0, 1) prior and observation 2 the posterior is N(1, 1/2) (a flat prior would give
     N(2, 1)): the importance weights (APMCABC) and the Metropolis ratio (ABCsubsim) must use the
@@ -96,8 +104,9 @@ def test_normal_prior_gives_the_analytic_posterior(algorithm, z, options):
 
     prior = jaxabc.Independent(mu=dist.Normal(0.0, 1.0), bounds={"mu": (-8.0, 8.0)})
     observed = 2.0
-    result = jaxabc.run(algorithm, examples.gaussian_simulate, prior, np.array([observed]),
-                        distance="euclidean", seed=3, **options)
+    result = jaxabc.run(
+        algorithm, examples.gaussian_simulate, prior, np.array([observed]), distance="euclidean", seed=3, **options
+    )
     mean, var = _normal_prior_abc_moments(observed, float(result.thresholds[-1]))
     ess = result.effective_sample_size()
     assert abs(result.bayes_estimate()[0] - mean) < z * math.sqrt(var / ess), (result.bayes_estimate(), mean, ess)

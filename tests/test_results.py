@@ -22,13 +22,16 @@ def _result(seed: int = 0, n: int = 200) -> ABCResult:
     result = ABCResult.from_sample(particles, rng.uniform(0.5, 1.5, n), PRIOR, algorithm="apmcabc")
     result.distances = rng.uniform(0.0, 1.0, n)
     result.metadata = {"observed": [0.1, 0.2, 0.3]}
-    result.records = {"theta": particles, "distance": result.distances,
-                      "status": np.zeros(n, np.int32), "reasons": [""] * n}
+    result.records = {
+        "theta": particles,
+        "distance": result.distances,
+        "status": np.zeros(n, np.int32),
+        "reasons": [""] * n,
+    }
     return result
 
 
-def _chain_result(num_chains: int = 40, chain_length: int = 5, distinct_chains: int = 40,
-                  seed: int = 0) -> ABCResult:
+def _chain_result(num_chains: int = 40, chain_length: int = 5, distinct_chains: int = 40, seed: int = 0) -> ABCResult:
     """An ABCsubsim-like population: ``num_chains`` AR(0.5) chains, step-major like the state."""
     rng = np.random.default_rng(seed)
     x = np.zeros((num_chains, chain_length, 2))
@@ -38,16 +41,31 @@ def _chain_result(num_chains: int = 40, chain_length: int = 5, distinct_chains: 
     x = x[np.arange(num_chains) % distinct_chains]
     n = num_chains * chain_length
     return ABCResult(
-        particles=x.swapaxes(0, 1).reshape(n, 2), weights=np.full(n, 1.0 / n),
-        distances=np.arange(n, dtype=float), thresholds=np.array([np.inf, 1.0, 0.5]),
-        simulations_per_step=np.array([n, n, n]), acceptance_rates=np.array([1.0, 0.4, 0.3]),
-        ess=np.array([n, n, n], float), num_simulations=3 * n, algorithm="abcsubsim",
-        settings={"num_particles": n, "p0": 1.0 / chain_length, "chain_length": chain_length,
-                  "num_chains": num_chains, "final_threshold": 0.0, "acceptance_floor": 0.0},
-        prior=PRIOR, seed=seed, check=False)
+        particles=x.swapaxes(0, 1).reshape(n, 2),
+        weights=np.full(n, 1.0 / n),
+        distances=np.arange(n, dtype=float),
+        thresholds=np.array([np.inf, 1.0, 0.5]),
+        simulations_per_step=np.array([n, n, n]),
+        acceptance_rates=np.array([1.0, 0.4, 0.3]),
+        ess=np.array([n, n, n], float),
+        num_simulations=3 * n,
+        algorithm="abcsubsim",
+        settings={
+            "num_particles": n,
+            "p0": 1.0 / chain_length,
+            "chain_length": chain_length,
+            "num_chains": num_chains,
+            "final_threshold": 0.0,
+            "acceptance_floor": 0.0,
+        },
+        prior=PRIOR,
+        seed=seed,
+        check=False,
+    )
 
 
 # -- save ---------------------------------------------------------------------------------------
+
 
 def test_save_appends_npz_to_dotted_names(tmp_path):
     """'run_alpha0.1' and 'run_alpha0.2' are two files (main wrote both to run_alpha0.npz)."""
@@ -58,8 +76,7 @@ def test_save_appends_npz_to_dotted_names(tmp_path):
     np.testing.assert_array_equal(jaxabc.load(path_a).particles, a.particles)
     np.testing.assert_array_equal(jaxabc.load(path_b).particles, b.particles)
     assert a.save(tmp_path / "named.npz").name == "named.npz"
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["named.npz", "run_alpha0.1.npz",
-                                                          "run_alpha0.2.npz"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["named.npz", "run_alpha0.1.npz", "run_alpha0.2.npz"]
 
 
 def test_save_never_overwrites_unless_asked(tmp_path):
@@ -89,6 +106,7 @@ def test_save_is_atomic(tmp_path, monkeypatch):
 
 
 # -- load ---------------------------------------------------------------------------------------
+
 
 def _truncated(path):
     data = _result().save(path.with_name("whole")).read_bytes()
@@ -138,17 +156,20 @@ def _bad_member(path):
             dst.writestr(info, data[:10] if info.filename == "particles.npy" else data)
 
 
-@pytest.mark.parametrize("make, message", [
-    (_truncated, "corrupt or truncated"),
-    (_garbage, "not a jaxabc result file"),
-    (_foreign, "without jaxabc metadata"),
-    (_npy, "single .npy array"),
-    (_pickled, "not a jaxabc result file"),
-    (_bad_json, "not valid JSON"),
-    (_other_format, "pyabc-7"),
-    (_missing_arrays, "missing weights, distances"),
-    (_bad_member, "corrupt or truncated|not a jaxabc result file"),
-])
+@pytest.mark.parametrize(
+    "make, message",
+    [
+        (_truncated, "corrupt or truncated"),
+        (_garbage, "not a jaxabc result file"),
+        (_foreign, "without jaxabc metadata"),
+        (_npy, "single .npy array"),
+        (_pickled, "not a jaxabc result file"),
+        (_bad_json, "not valid JSON"),
+        (_other_format, "pyabc-7"),
+        (_missing_arrays, "missing weights, distances"),
+        (_bad_member, "corrupt or truncated|not a jaxabc result file"),
+    ],
+)
 def test_load_explains_what_is_wrong_with_a_file(tmp_path, make, message):
     path = tmp_path / "bad.npz"
     make(path)
@@ -168,8 +189,10 @@ def _write_like_main(result: ABCResult, path) -> None:
     """A result file exactly as the code before this change wrote it (no diagnostics)."""
     meta = result.to_metadata()
     del meta["diagnostics"]
-    arrays = {k: getattr(result, k) for k in ("particles", "weights", "distances", "thresholds",
-                                              "simulations_per_step", "acceptance_rates", "ess")}
+    arrays = {
+        k: getattr(result, k)
+        for k in ("particles", "weights", "distances", "thresholds", "simulations_per_step", "acceptance_rates", "ess")
+    }
     arrays.update({f"record_{k}": np.asarray(v) for k, v in result.records.items() if k != "reasons"})
     np.savez_compressed(path, metadata=json.dumps(meta), **arrays)
 
@@ -189,6 +212,7 @@ def test_old_result_files_still_load_and_get_an_honest_ess(tmp_path):
 
 
 # -- Monte Carlo errors ---------------------------------------------------------------------------
+
 
 def test_mcse_of_weighted_independent_draws():
     """sd / sqrt(Kish ESS): over independent data sets the estimate's spread matches it."""
@@ -231,11 +255,11 @@ def test_ess_adjusted_credible_intervals_cover_closer_to_nominal():
     assert abs(plain / reps - 9 / 11) < 4 * se
     assert adjusted / reps > plain / reps + 4 * se
     big = ABCResult.from_sample(rng.normal(size=(20000, 1)), np.ones(20000), prior)
-    np.testing.assert_allclose(big.credible_interval(0.9, adjust_for_ess=True),
-                               big.credible_interval(0.9), rtol=0.01)
+    np.testing.assert_allclose(big.credible_interval(0.9, adjust_for_ess=True), big.credible_interval(0.9), rtol=0.01)
 
 
 # -- ArviZ ----------------------------------------------------------------------------------------
+
 
 def test_to_arviz_resamples_weighted_particles():
     import arviz as az
@@ -251,8 +275,7 @@ def test_to_arviz_resamples_weighted_particles():
     summary = az.summary(idata, kind="stats")
     # Resampling adds its own error: within 4 MCSE of the weighted mean plus 4 resampling errors.
     tol = 4 * (r.mcse() + np.sqrt(np.diag(r.covariance()) / 4000))
-    np.testing.assert_array_less(
-        np.abs(summary.loc[["sigma", "epsilon"], "mean"].to_numpy() - r.bayes_estimate()), tol)
+    np.testing.assert_array_less(np.abs(summary.loc[["sigma", "epsilon"], "mean"].to_numpy() - r.bayes_estimate()), tol)
 
 
 def test_to_arviz_keeps_abcsubsim_chains():

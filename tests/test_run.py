@@ -31,16 +31,13 @@ def test_stop_after_iterations_then_resume_in_process(tmp_path, gaussian_problem
     prior, simulate, observed = gaussian_problem
     kw = dict(num_particles=400, num_steps=5, seed=1, distance="euclidean")
     full = jaxabc.run("abcsubsim", simulate, prior, observed, **kw)
-    part = jaxabc.run("abcsubsim", simulate, prior, observed, checkpoint_dir=tmp_path,
-                      stop_after_iterations=6, **kw)
+    part = jaxabc.run("abcsubsim", simulate, prior, observed, checkpoint_dir=tmp_path, stop_after_iterations=6, **kw)
     assert "resumable" in part.stop_reason
-    rest = jaxabc.run("abcsubsim", simulate, prior, observed, checkpoint_dir=tmp_path,
-                      resume=True, **kw)
+    rest = jaxabc.run("abcsubsim", simulate, prior, observed, checkpoint_dir=tmp_path, resume=True, **kw)
     np.testing.assert_array_equal(full.particles, rest.particles)
     assert full.log_evidence == rest.log_evidence
     with pytest.raises(jaxabc.checkpoint.CheckpointError, match="seed: checkpoint 1, this run 2"):
-        jaxabc.run("abcsubsim", simulate, prior, observed, checkpoint_dir=tmp_path, resume=True,
-                   **{**kw, "seed": 2})
+        jaxabc.run("abcsubsim", simulate, prior, observed, checkpoint_dir=tmp_path, resume=True, **{**kw, "seed": 2})
 
 
 def test_host_executors_identical_whatever_the_workers(gaussian_problem):
@@ -48,8 +45,11 @@ def test_host_executors_identical_whatever_the_workers(gaussian_problem):
     kw = dict(num_particles=200, num_steps=3, seed=4, distance="euclidean")
     results = [
         jaxabc.run("apmcabc", examples.host_gaussian_simulate, prior, observed, executor=ex, **kw)
-        for ex in (jaxabc.SerialExecutor(), jaxabc.ProcessPoolExecutor(max_workers=1),
-                   jaxabc.ProcessPoolExecutor(max_workers=3))
+        for ex in (
+            jaxabc.SerialExecutor(),
+            jaxabc.ProcessPoolExecutor(max_workers=1),
+            jaxabc.ProcessPoolExecutor(max_workers=3),
+        )
     ]
     for r in results[1:]:
         np.testing.assert_array_equal(results[0].particles, r.particles)
@@ -72,8 +72,14 @@ def test_failures_are_recorded_and_the_run_goes_on():
     keys = np.asarray(jax.random.key_data(jax.random.split(jax.random.key(0), 6)))
     thetas = np.array([[0.05], [0.15], [0.22], [0.27], [0.5], [0.9]])
     batch = ex.map(examples.flaky_simulate, keys, thetas)
-    assert list(batch.status) == [STATUS_FAILED, STATUS_NONFINITE, STATUS_TIMEOUT,
-                                  STATUS_WORKER_DIED, STATUS_OK, STATUS_OK]
+    assert list(batch.status) == [
+        STATUS_FAILED,
+        STATUS_NONFINITE,
+        STATUS_TIMEOUT,
+        STATUS_WORKER_DIED,
+        STATUS_OK,
+        STATUS_OK,
+    ]
     assert "vaporised" in batch.reasons[0]
     assert "non-finite" in batch.reasons[1]
     assert "timeout" in batch.reasons[2]
@@ -83,9 +89,16 @@ def test_failures_are_recorded_and_the_run_goes_on():
     again = ex.map(examples.flaky_simulate, keys[4:], thetas[4:])
     np.testing.assert_array_equal(again.summaries, batch.summaries[4:])
     # A whole run over the flaky prior: 30% fail, the run completes and records them.
-    result = jaxabc.run("rejection", examples.flaky_simulate, jaxabc.Uniform([0.0], [1.0]),
-                        np.array([0.6]), num_particles=20, quantile=0.5,
-                        executor=jaxabc.ProcessPoolExecutor(max_workers=2, timeout=2.0), seed=0)
+    result = jaxabc.run(
+        "rejection",
+        examples.flaky_simulate,
+        jaxabc.Uniform([0.0], [1.0]),
+        np.array([0.6]),
+        num_particles=20,
+        quantile=0.5,
+        executor=jaxabc.ProcessPoolExecutor(max_workers=2, timeout=2.0),
+        seed=0,
+    )
     status = result.records["status"]
     assert np.sum(status != STATUS_OK) > 0 and result.particles.min() >= 0.3
     assert len(result.records["reasons"]) == status.size
@@ -175,26 +188,36 @@ def test_bad_inputs_are_clear_errors(kwargs, error, match, gaussian_problem):
 def test_simulator_with_wrong_shape_is_caught(gaussian_problem):
     prior, _, observed = gaussian_problem
     with pytest.raises(ValueError, match=r"returns summaries of shape \(3,\)"):
-        jaxabc.run("apmcabc", lambda k, t: jnp.zeros(3), prior, observed, num_particles=100,
-                   num_steps=2)
+        jaxabc.run("apmcabc", lambda k, t: jnp.zeros(3), prior, observed, num_particles=100, num_steps=2)
     with pytest.raises(ValueError, match=r"returned summaries of shape \(3,\)"):
-        jaxabc.run("rejection", lambda k, t: np.zeros(3), prior, observed, num_particles=10,
-                   quantile=0.5, executor="serial")
+        jaxabc.run(
+            "rejection", lambda k, t: np.zeros(3), prior, observed, num_particles=10, quantile=0.5, executor="serial"
+        )
 
 
 def test_stopping_rule_required_and_budget(gaussian_problem):
     prior, simulate, observed = gaussian_problem
     with pytest.raises(ValueError, match="needs a stopping rule"):
         jaxabc.run("pmcabc", simulate, prior, observed, num_particles=100)
-    r = jaxabc.run("apmcabc", simulate, prior, observed, num_particles=500, alpha=0.1,
-                   acceptance_cutoff=0.0, max_simulations=2000, seed=0)
+    r = jaxabc.run(
+        "apmcabc",
+        simulate,
+        prior,
+        observed,
+        num_particles=500,
+        alpha=0.1,
+        acceptance_cutoff=0.0,
+        max_simulations=2000,
+        seed=0,
+    )
     assert r.num_simulations <= 2000 and "budget" in r.stop_reason
 
 
 def test_result_file_roundtrip_and_plot(tmp_path, correlated_problem):
     prior, simulate, observed = correlated_problem
-    r = jaxabc.run("apmcabc", simulate, prior, observed, num_particles=500, num_steps=3, seed=0,
-                   metadata={"note": "test"})
+    r = jaxabc.run(
+        "apmcabc", simulate, prior, observed, num_particles=500, num_steps=3, seed=0, metadata={"note": "test"}
+    )
     path = r.save(tmp_path / "run")
     back = jaxabc.load(path)
     np.testing.assert_array_equal(back.particles, r.particles)
@@ -239,8 +262,13 @@ folder = "out"
     assert again.returncode == 0 and "1120 simulations" in again.stdout
     fresh = subprocess.run(cmd, capture_output=True, text=True, env=env, timeout=300)
     assert fresh.returncode == 2 and "--resume" in fresh.stderr, fresh.stderr
-    bad = subprocess.run([sys.executable, "-m", "jaxabc.cli", "run", str(tmp_path / "nope.toml")],
-                         capture_output=True, text=True, env=env, timeout=120)
+    bad = subprocess.run(
+        [sys.executable, "-m", "jaxabc.cli", "run", str(tmp_path / "nope.toml")],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=120,
+    )
     assert bad.returncode == 2 and "no configuration file" in bad.stderr
 
 
@@ -280,8 +308,9 @@ def test_float64_works_for_every_algorithm_and_does_not_leak(algorithm, gaussian
 
 def _posterior(particles, weights):
     """An ABCResult around a given weighted sample (only the posterior summaries are used)."""
-    return jaxabc.ABCResult.from_sample(particles, weights, jaxabc.Uniform([-9.0] * particles.shape[1],
-                                                                           [9.0] * particles.shape[1]))
+    return jaxabc.ABCResult.from_sample(
+        particles, weights, jaxabc.Uniform([-9.0] * particles.shape[1], [9.0] * particles.shape[1])
+    )
 
 
 def _in_sample_kde_level(post, point):
@@ -354,8 +383,13 @@ def _best_of(prior, n: int, rounds: int) -> ABCAlgorithm:
         return Proposal(prior.sample(key, n), jnp.ones((n,), bool), jnp.bool_(True))
 
     def info(state):
-        return Info(jnp.bool_(True), state.rounds >= rounds, state.distances[-1],
-                    jnp.asarray(1.0 / rounds), jnp.asarray(float(n)))
+        return Info(
+            jnp.bool_(True),
+            state.rounds >= rounds,
+            state.distances[-1],
+            jnp.asarray(1.0 / rounds),
+            jnp.asarray(float(n)),
+        )
 
     def init(key, proposal, distances):
         order = jnp.argsort(distances)
@@ -377,7 +411,13 @@ def _best_of(prior, n: int, rounds: int) -> ABCAlgorithm:
         return state.particles, jnp.zeros((n,), state.particles.dtype)
 
     return ABCAlgorithm(
-        "best_of", first, init, propose, update, posterior, {"rounds": rounds},
+        "best_of",
+        first,
+        init,
+        propose,
+        update,
+        posterior,
+        {"rounds": rounds},
         stop_reason=lambda settings, info: f"best of {settings['rounds']} batches",
         finalize=lambda state: {"log_evidence": -np.log(rounds), "rounds_done": int(state.rounds)},
     )
@@ -442,8 +482,16 @@ def test_algorithm_object_rejects_builder_options(gaussian_problem):
 
 def test_scalar_simulator_with_scalar_observation(gaussian_problem):
     prior, _, _ = gaussian_problem
-    r = jaxabc.run("rejection", lambda key, theta: theta[0] + jax.random.normal(key), prior, 0.0,
-                   num_particles=500, quantile=0.05, distance="euclidean", seed=0)
+    r = jaxabc.run(
+        "rejection",
+        lambda key, theta: theta[0] + jax.random.normal(key),
+        prior,
+        0.0,
+        num_particles=500,
+        quantile=0.05,
+        distance="euclidean",
+        seed=0,
+    )
     var_exact = examples.gaussian_abc_variance(float(r.thresholds[-1]))
     assert abs(r.bayes_estimate()[0]) < 4 * np.sqrt(var_exact / 500)
     assert r.records["summaries"].shape == (10_000,)
@@ -454,13 +502,30 @@ def test_unbounded_rejection_is_refused_and_a_budget_ends_it_with_what_it_has(ga
     with pytest.raises(ValueError, match="needs a stopping rule"):
         jaxabc.run("rejection", simulate, prior, observed, num_particles=50, threshold=1e-4)
     # P(|x| < 0.01) is about 0.001 per draw: 20 rounds of 50 accept a few, not 50.
-    r = jaxabc.run("rejection", simulate, prior, observed, num_particles=50, threshold=0.01,
-                   max_simulations=1000, distance="euclidean", seed=0)
+    r = jaxabc.run(
+        "rejection",
+        simulate,
+        prior,
+        observed,
+        num_particles=50,
+        threshold=0.01,
+        max_simulations=1000,
+        distance="euclidean",
+        seed=0,
+    )
     accepted = r.records["distance"] <= 0.01
     assert r.metadata["incomplete"] and "incomplete" in r.stop_reason and "budget" in r.stop_reason
     assert 0 < len(r.particles) == accepted.sum() < 50 and r.num_simulations <= 1000
-    np.testing.assert_array_equal(np.sort(r.particles[:, 0]),
-                                  np.sort(r.records["theta"][accepted, 0]))
+    np.testing.assert_array_equal(np.sort(r.particles[:, 0]), np.sort(r.records["theta"][accepted, 0]))
     with pytest.raises(jaxabc.errors.NoPosterior, match="without accepting any particle"):
-        jaxabc.run("rejection", simulate, prior, observed, num_particles=50, threshold=1e-7,
-                   max_simulations=200, distance="euclidean", seed=0)
+        jaxabc.run(
+            "rejection",
+            simulate,
+            prior,
+            observed,
+            num_particles=50,
+            threshold=1e-7,
+            max_simulations=200,
+            distance="euclidean",
+            seed=0,
+        )

@@ -92,8 +92,11 @@ def test_order_never_changes_a_run():
     for order in ("fifo", "longest_first"):
         ex = jaxabc.ProcessPoolExecutor(max_workers=2, order=order)
         try:
-            runs.append(jaxabc.run("apmcabc", jaxabc.examples.host_gaussian_simulate, prior, np.array([0.5]),
-                                   executor=ex, **kwargs))
+            runs.append(
+                jaxabc.run(
+                    "apmcabc", jaxabc.examples.host_gaussian_simulate, prior, np.array([0.5]), executor=ex, **kwargs
+                )
+            )
         finally:
             ex.close()
     np.testing.assert_array_equal(runs[0].particles, runs[1].particles)
@@ -131,12 +134,16 @@ def test_lower_bounds_hold_and_the_tight_one_is_reached_on_small_cases():
     for _ in range(60):
         m, n = int(rng.integers(3, 9)), int(rng.integers(2, 4))
         d = rng.lognormal(0.0, 0.6, m)
-        optimum = min(max(np.bincount(a, weights=d, minlength=n))
-                      for a in map(np.array, itertools.product(range(n), repeat=m)))
+        optimum = min(
+            max(np.bincount(a, weights=d, minlength=n)) for a in map(np.array, itertools.product(range(n), repeat=m))
+        )
         plain, tight = lower_bound(d, n), tight_lower_bound(d, n)
         assert plain <= tight * (1 + 1e-12) and tight <= optimum * (1 + 1e-12)
-        for schedule in (dynamic_makespan(d, n), static_makespan(d, n),
-                         dynamic_makespan(longest_predicted_first(d, d), n)):
+        for schedule in (
+            dynamic_makespan(d, n),
+            static_makespan(d, n),
+            dynamic_makespan(longest_predicted_first(d, d), n),
+        ):
             assert schedule >= optimum * (1 - 1e-12)
         tight_is_optimal_where_plain_is_not += bool(np.isclose(tight, optimum) and plain < optimum - 1e-9)
     assert tight_is_optimal_where_plain_is_not >= 5
@@ -168,4 +175,3 @@ def test_makespan_inputs_are_checked():
         dynamic_makespan(np.ones(3), 0)
     with pytest.raises(ValueError, match="one prediction per duration"):
         longest_predicted_first(np.ones(3), np.ones(2))
-

@@ -19,9 +19,14 @@ HEAVY = ("jax_md", "mdtraj", "matplotlib", "tqdm", "mpi4py")
 
 
 def _fresh_python(code: str) -> str:
-    out = subprocess.run([sys.executable, "-c", code], check=True, capture_output=True,
-                         text=True, timeout=300,
-                         env={**os.environ, "JAX_PLATFORMS": "cpu", "PYTHONPATH": str(ROOT)})
+    out = subprocess.run(
+        [sys.executable, "-c", code],
+        check=True,
+        capture_output=True,
+        text=True,
+        timeout=300,
+        env={**os.environ, "JAX_PLATFORMS": "cpu", "PYTHONPATH": str(ROOT)},
+    )
     return out.stdout.strip().splitlines()[-1]
 
 
@@ -55,8 +60,17 @@ def test_pmc_refill_takes_few_rounds():
     order, so every generation still has exactly N distinct accepted particles."""
     prior = jaxabc.Uniform([-10.0], [10.0], names=("mu",))
     n = 2000
-    r = jaxabc.run("pmcabc", _gaussian, prior, np.zeros(1), num_particles=n, num_steps=4,
-                   distance="euclidean", seed=1, keep_summaries=False)
+    r = jaxabc.run(
+        "pmcabc",
+        _gaussian,
+        prior,
+        np.zeros(1),
+        num_particles=n,
+        num_steps=4,
+        distance="euclidean",
+        seed=1,
+        keep_summaries=False,
+    )
     iterations = int(r.records["iteration"].max()) + 1
     rounds = iterations - 1  # generation 0 is one batch of prior draws
     slow_rounds = sum(math.log(n) / a for a in r.acceptance_rates[1:])
@@ -75,6 +89,5 @@ def test_plain_run_is_silent():
     prior = jaxabc.Uniform([-10.0, -10.0], [10.0, 10.0], names=("a", "b"))
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        jaxabc.run("apmcabc", _gaussian, prior, np.zeros(2), num_particles=100, num_steps=2,
-                   distance="euclidean")
+        jaxabc.run("apmcabc", _gaussian, prior, np.zeros(2), num_particles=100, num_steps=2, distance="euclidean")
     assert [str(w.message) for w in caught] == []

@@ -54,8 +54,9 @@ def _drive(algorithm, simulate, executor, seed: int = 0, max_iterations: int = 1
         summaries = np.full((thetas.shape[0], *np.shape(observed)), np.nan)
         summaries[active] = batch.summaries
         flat = summaries.reshape(thetas.shape[0], -1)
-        distances = np.where(np.all(np.isfinite(flat), axis=1),
-                             np.linalg.norm(flat - np.ravel(observed), axis=1), np.inf)
+        distances = np.where(
+            np.all(np.isfinite(flat), axis=1), np.linalg.norm(flat - np.ravel(observed), axis=1), np.inf
+        )
         num_sims += int(active.sum())
         if state is None:
             state, info = algorithm.init(k_upd, proposal, distances, summaries)
@@ -152,8 +153,9 @@ def test_failed_simulations_inform_the_design():
     # Untruncated, P(theta0 > 1 | data) = 0.11; runs there fail, so the posterior must avoid it.
     observed = np.array([0.6, 0.0])
     algorithm = build(PRIOR, 1000, observed=observed, max_simulations=200)
-    state, _, _, proposals = _drive(algorithm, failing_for_large_theta0, VmapExecutor(), max_iterations=3,
-                                    observed=observed)
+    state, _, _, proposals = _drive(
+        algorithm, failing_for_large_theta0, VmapExecutor(), max_iterations=3, observed=observed
+    )
     c = int(state.count)
     failed = ~state.ok[:c]
     assert failed.any() and np.all(state.thetas[:c][failed, 0] > 1.0)
@@ -182,10 +184,13 @@ def test_lack_of_fit_accepts_a_smooth_simulator_and_rejects_an_inflated_nugget()
     assert diagnostics.lack_of_fit(nugget, rep_var, 0)[0] is None
 
 
-@pytest.mark.parametrize(("options", "match"), [
-    ({"max_simulations": 30}, "no room for validation"),
-    ({"max_simulations": 200, "on_failure": "ignore"}, "on_failure"),
-])
+@pytest.mark.parametrize(
+    ("options", "match"),
+    [
+        ({"max_simulations": 30}, "no room for validation"),
+        ({"max_simulations": 200, "on_failure": "ignore"}, "on_failure"),
+    ],
+)
 def test_bad_settings_are_refused(options, match):
     with pytest.raises(ValueError, match=match):
         build(PRIOR, 1000, observed=OBSERVED, **options)
@@ -250,11 +255,11 @@ def test_run_surrogate_through_the_driver_resumes_identically(tmp_path):
     full = jaxabc.run("surrogate", linear_gaussian, PRIOR, OBSERVED, **kw)
     assert full.num_simulations <= 80 and full.particles.shape == (1000, 2)
     assert any("design" in key for key in full.diagnostics)
-    first = jaxabc.run("surrogate", linear_gaussian, PRIOR, OBSERVED, checkpoint_dir=tmp_path,
-                       stop_after_iterations=2, **kw)
+    first = jaxabc.run(
+        "surrogate", linear_gaussian, PRIOR, OBSERVED, checkpoint_dir=tmp_path, stop_after_iterations=2, **kw
+    )
     assert "resumable" in first.stop_reason
-    resumed = jaxabc.run("surrogate", linear_gaussian, PRIOR, OBSERVED, checkpoint_dir=tmp_path,
-                         resume=True, **kw)
+    resumed = jaxabc.run("surrogate", linear_gaussian, PRIOR, OBSERVED, checkpoint_dir=tmp_path, resume=True, **kw)
     np.testing.assert_array_equal(resumed.particles, full.particles)
     assert resumed.num_simulations == full.num_simulations
     assert resumed.stop_reason == full.stop_reason

@@ -24,8 +24,7 @@ def test_ideal_gas_is_one_under_a_fluctuating_box():
     for block in np.array_split(g[tail], 6):  # no trend with r
         assert np.mean(block) == pytest.approx(1.0, abs=0.02)
     # gmx rdf's normalisation (N*M instead of N*(N-1)) is lower by (N-1)/N
-    _, g_gmx = analysis.radial_distribution(positions, positions, box, ids, ids, r_max_nm=0.9,
-                                            normalise_excluded=False)
+    _, g_gmx = analysis.radial_distribution(positions, positions, box, ids, ids, r_max_nm=0.9, normalise_excluded=False)
     np.testing.assert_allclose(g_gmx, g * (num_points - 1) / num_points, rtol=1e-6)
 
 
@@ -41,8 +40,7 @@ def test_simple_cubic_lattice_coordination_numbers():
     positions = np.stack(frames) + 0.01
     box = np.array([[1.80] * 3, [1.98] * 3])
     ids = np.arange(positions.shape[1])
-    r, g = analysis.radial_distribution(positions, positions, box, ids, ids, r_max_nm=0.9,
-                                        bin_width_nm=0.001)
+    r, g = analysis.radial_distribution(positions, positions, box, ids, ids, r_max_nm=0.9, bin_width_nm=0.001)
     edges = 0.001 * np.arange(r.size + 1)
     shell = 4 / 3 * np.pi * np.diff(edges**3)
     density = np.mean((ids.size - 1) / np.prod(box, axis=1))  # the estimator's mean density
@@ -67,20 +65,17 @@ def _water_like_molecules(num_frames: int = 3):
             other = np.cross(axis, rng.normal(size=3))
             other /= np.linalg.norm(other)
             for sign in (1, -1):
-                hydrogens.append(0.09572 * (np.cos(half_angle) * axis
-                                            + sign * np.sin(half_angle) * other))
+                hydrogens.append(0.09572 * (np.cos(half_angle) * axis + sign * np.sin(half_angle) * other))
         o_frames.append(oxygens)
         h_frames.append(np.repeat(oxygens, 2, axis=0) + np.array(hydrogens))
     box = np.full((num_frames, 3), 6 * 0.31)
-    return analysis.WaterTrajectory(np.arange(num_frames, dtype=float), np.stack(o_frames),
-                                    np.stack(h_frames), box)
+    return analysis.WaterTrajectory(np.arange(num_frames, dtype=float), np.stack(o_frames), np.stack(h_frames), box)
 
 
 def test_goh_excludes_the_molecules_own_hydrogens():
     trajectory = _water_like_molecules()
     r, g_inter = analysis.rdf_oh(trajectory, r_max_nm=0.9, intermolecular=True)
-    _, g_all = analysis.rdf_oh(trajectory, r_max_nm=0.9, intermolecular=False,
-                               normalise_excluded=False)
+    _, g_all = analysis.rdf_oh(trajectory, r_max_nm=0.9, intermolecular=False, normalise_excluded=False)
     bond = np.argmin(np.abs(r - 0.09572))
     assert g_inter[bond] == 0 and g_all[bond] > 100
     assert np.all(g_inter[r < 0.2] == 0)  # the nearest foreign H is 0.31 - 0.0957 nm away
@@ -110,16 +105,16 @@ def test_unwrap_recovers_a_random_walk():
 def _walk_trajectory(steps: np.ndarray, frame_ps: float) -> analysis.WaterTrajectory:
     num_frames = steps.shape[0]
     positions = np.mod(np.cumsum(steps, axis=0), 3.0)
-    return analysis.WaterTrajectory(frame_ps * np.arange(num_frames), positions,
-                                    np.repeat(positions, 2, axis=1), np.full((num_frames, 3), 3.0))
+    return analysis.WaterTrajectory(
+        frame_ps * np.arange(num_frames), positions, np.repeat(positions, 2, axis=1), np.full((num_frames, 3), 3.0)
+    )
 
 
 def test_msd_of_a_random_walk_gives_its_diffusion_coefficient():
     rng = np.random.default_rng(4)
     sigma, frame_ps = 0.03, 0.2
     steps = sigma * rng.standard_normal((400, 300, 3))
-    lag, msd = analysis.mean_squared_displacement(_walk_trajectory(steps, frame_ps),
-                                                  remove_drift=False)
+    lag, msd = analysis.mean_squared_displacement(_walk_trajectory(steps, frame_ps), remove_drift=False)
     assert lag[1] == pytest.approx(frame_ps, rel=1e-6)
     expected_slope = 3 * sigma**2 / frame_ps  # = 6 D
     assert analysis.fit_msd_slope(lag, msd) == pytest.approx(expected_slope, rel=0.05)
@@ -128,8 +123,9 @@ def test_msd_of_a_random_walk_gives_its_diffusion_coefficient():
 def test_msd_of_ballistic_motion_is_exact():
     velocity = np.random.default_rng(5).normal(size=(1, 50, 3)) * 0.01
     steps = np.repeat(velocity, 30, axis=0)
-    lag, msd = analysis.mean_squared_displacement(_walk_trajectory(steps, 1.0),
-                                                  origin_interval_ps=3.0, remove_drift=False)
+    lag, msd = analysis.mean_squared_displacement(
+        _walk_trajectory(steps, 1.0), origin_interval_ps=3.0, remove_drift=False
+    )
     speed2 = np.mean(np.sum(velocity[0] ** 2, axis=-1))
     np.testing.assert_allclose(msd, speed2 * lag**2, rtol=1e-4, atol=1e-9)
 

@@ -35,11 +35,11 @@ def test_neutron_vector_is_loaded_by_its_stored_order():
     raw = np.load(datasets.DATA_DIR / "dutta2018_abcpy-models_exp_data.npy").reshape(-1)
     vector = datasets.published_statistics("neutron")
     # stored [S1, S2, S3, S4, S7, S8, S5, S6, D]
-    assert vector[6] == raw[4] == pytest.approx(2.69200747)   # S7 first-peak height
-    assert vector[7] == raw[5] == pytest.approx(0.275)        # S8 first-peak position
-    assert vector[4] == raw[6] == pytest.approx(0.33)         # S5 first-minimum position
-    assert vector[5] == raw[7] == pytest.approx(0.13006526)   # S6 integral to the minimum
-    assert vector[3] == raw[3] == pytest.approx(0.86349557)   # S4 mean
+    assert vector[6] == raw[4] == pytest.approx(2.69200747)  # S7 first-peak height
+    assert vector[7] == raw[5] == pytest.approx(0.275)  # S8 first-peak position
+    assert vector[4] == raw[6] == pytest.approx(0.33)  # S5 first-minimum position
+    assert vector[5] == raw[7] == pytest.approx(0.13006526)  # S6 integral to the minimum
+    assert vector[3] == raw[3] == pytest.approx(0.86349557)  # S4 mean
     np.testing.assert_array_equal(vector[[0, 1, 2, 8]], raw[[0, 1, 2, 8]])
     # physical sanity of the reordering: height > 1, the peak before the minimum
     assert vector[6] > 2 and vector[7] < vector[4]

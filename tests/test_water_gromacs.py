@@ -128,10 +128,15 @@ def test_grompp_sees_the_defines(tmp_path):
     n = gromacs.build_system(protocol, tmp_path, GMX)
     (tmp_path / "topol.top").write_text(gromacs.topology_text(n))
     (tmp_path / "em.mdp").write_text(gromacs.mdp_text(protocol, params, "em"))
-    subprocess.run([GMX, "grompp", "-f", "em.mdp", "-c", "conf.gro", "-p", "topol.top", "-o",
-                    "em.tpr"], cwd=tmp_path, check=True, capture_output=True)
-    dump = subprocess.run([GMX, "dump", "-s", "em.tpr"], cwd=tmp_path, check=True,
-                          capture_output=True, text=True).stdout
+    subprocess.run(
+        [GMX, "grompp", "-f", "em.mdp", "-c", "conf.gro", "-p", "topol.top", "-o", "em.tpr"],
+        cwd=tmp_path,
+        check=True,
+        capture_output=True,
+    )
+    dump = subprocess.run(
+        [GMX, "dump", "-s", "em.tpr"], cwd=tmp_path, check=True, capture_output=True, text=True
+    ).stdout
     c6 = 4 * 0.5 * 0.33**6
     c12 = 4 * 0.5 * 0.33**12
     line = next(x for x in dump.splitlines() if "functype[0]=LJ_SR" in x)
@@ -142,8 +147,9 @@ def test_grompp_sees_the_defines(tmp_path):
 
 #: Points of a 12 x 12 grid over the prior where steepest descent with GROMACS's default first
 #: step (emstep 0.01 nm) crashed with SIGSEGV on the quick preset's starting box.
-EM_CRASHED_AT_EMSTEP_0_01 = [(np.linspace(0.281, 0.53, 12)[i], np.linspace(0.2, 0.9, 12)[j])
-                             for i, j in ((0, 7), (1, 4), (2, 1))]
+EM_CRASHED_AT_EMSTEP_0_01 = [
+    (np.linspace(0.281, 0.53, 12)[i], np.linspace(0.2, 0.9, 12)[j]) for i, j in ((0, 7), (1, 4), (2, 1))
+]
 
 
 @pytest.mark.gromacs
@@ -154,10 +160,19 @@ def test_energy_minimisation_does_not_crash(tmp_path, theta):
     n = gromacs.build_system(protocol, tmp_path, GMX)
     (tmp_path / "topol.top").write_text(gromacs.topology_text(n, params))
     (tmp_path / "em.mdp").write_text(gromacs.mdp_text(protocol, params, "em"))
-    subprocess.run([GMX, "grompp", "-f", "em.mdp", "-c", "conf.gro", "-p", "topol.top", "-o", "em.tpr"],
-                   cwd=tmp_path, check=True, capture_output=True)
-    done = subprocess.run([GMX, "mdrun", "-deffnm", "em", "-ntmpi", "1", "-ntomp", "1", "-pin", "off"],
-                          cwd=tmp_path, capture_output=True, text=True, env=dict(os.environ, OMP_NUM_THREADS="1"))
+    subprocess.run(
+        [GMX, "grompp", "-f", "em.mdp", "-c", "conf.gro", "-p", "topol.top", "-o", "em.tpr"],
+        cwd=tmp_path,
+        check=True,
+        capture_output=True,
+    )
+    done = subprocess.run(
+        [GMX, "mdrun", "-deffnm", "em", "-ntmpi", "1", "-ntomp", "1", "-pin", "off"],
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        env=dict(os.environ, OMP_NUM_THREADS="1"),
+    )
     assert done.returncode == 0, f"EM exited with {done.returncode}: {done.stderr[-1500:]}"
     assert (tmp_path / "em.gro").is_file()
 
@@ -172,9 +187,12 @@ def test_preset_builds_and_grompp_accepts_it(tmp_path, preset):
     (tmp_path / "topol.top").write_text(gromacs.topology_text(num_molecules))
     (tmp_path / "npt.mdp").write_text(gromacs.mdp_text(protocol, params, "npt", 1, 2))
     # exactly one warning is allowed (Parrinello-Rahman right after velocity generation)
-    completed = subprocess.run([GMX, "grompp", "-f", "npt.mdp", "-c", "conf.gro", "-p",
-                                "topol.top", "-o", "npt.tpr", "-maxwarn", "1"], cwd=tmp_path,
-                               capture_output=True, text=True)
+    completed = subprocess.run(
+        [GMX, "grompp", "-f", "npt.mdp", "-c", "conf.gro", "-p", "topol.top", "-o", "npt.tpr", "-maxwarn", "1"],
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+    )
     assert completed.returncode == 0, completed.stderr[-2000:]
 
 
@@ -183,10 +201,10 @@ def test_tiny_run_gives_finite_statistics(tiny_robust_run):
     values = tiny_robust_run.statistics
     assert values.shape == (9,) and np.all(np.isfinite(values))
     assert 900 < tiny_robust_run.curves.density_kg_m3 < 1100
-    assert 0.26 < values[7] < 0.29        # S8: first O-O peak of liquid water
-    assert 2.4 < values[6] < 3.6          # S7
-    assert 0.17 < values[1] < 0.30        # S2: first intermolecular g_OH minimum
-    assert 0.5 < values[8] < 8.0          # S9: D in 1e-5 cm^2/s (TIP4P ~3.3)
+    assert 0.26 < values[7] < 0.29  # S8: first O-O peak of liquid water
+    assert 2.4 < values[6] < 3.6  # S7
+    assert 0.17 < values[1] < 0.30  # S2: first intermolecular g_OH minimum
+    assert 0.5 < values[8] < 8.0  # S9: D in 1e-5 cm^2/s (TIP4P ~3.3)
 
 
 @pytest.mark.gromacs
@@ -285,10 +303,33 @@ def test_rdf_agrees_with_gmx_rdf(tiny_robust_run):
     selections = {"oo": "name OW", "oh": "name HW1 HW2"}
     for pair, selection in selections.items():
         output = run.workdir / f"rdf_{pair}.xvg"
-        subprocess.run([GMX, "rdf", "-f", run.trajectory.name, "-s", run.tpr.name, "-b", "1",
-                        "-bin", "0.002", "-rmax", "0.8", "-excl", "-ref", "name OW", "-sel",
-                        selection, "-o", output.name], cwd=run.workdir, env=env, check=True,
-                       capture_output=True)
+        subprocess.run(
+            [
+                GMX,
+                "rdf",
+                "-f",
+                run.trajectory.name,
+                "-s",
+                run.tpr.name,
+                "-b",
+                "1",
+                "-bin",
+                "0.002",
+                "-rmax",
+                "0.8",
+                "-excl",
+                "-ref",
+                "name OW",
+                "-sel",
+                selection,
+                "-o",
+                output.name,
+            ],
+            cwd=run.workdir,
+            env=env,
+            check=True,
+            capture_output=True,
+        )
         reference = np.loadtxt(output, comments=["#", "@"])
         compute = analysis.rdf_oo if pair == "oo" else analysis.rdf_oh
         r, g = compute(trajectory, r_max_nm=0.8, normalise_excluded=False, gmx_bins=True)
@@ -306,17 +347,36 @@ def test_msd_agrees_with_gmx_msd_at_1ps_spacing(tiny_robust_run):
     # gmx msd 2022.5 aborts at the 0.2 ps spacing we write; -dt 1 makes it read every 5th frame.
     run = tiny_robust_run.run
     env = dict(os.environ, GMX_MAXBACKUP="-1")
-    subprocess.run([GMX, "msd", "-f", run.trajectory.name, "-s", run.tpr.name, "-b", "1",
-                    "-dt", "1", "-sel", "name OW", "-o", "msd.xvg"], cwd=run.workdir, env=env,
-                   check=True, capture_output=True)
+    subprocess.run(
+        [
+            GMX,
+            "msd",
+            "-f",
+            run.trajectory.name,
+            "-s",
+            run.tpr.name,
+            "-b",
+            "1",
+            "-dt",
+            "1",
+            "-sel",
+            "name OW",
+            "-o",
+            "msd.xvg",
+        ],
+        cwd=run.workdir,
+        env=env,
+        check=True,
+        capture_output=True,
+    )
     reference = np.loadtxt(run.workdir / "msd.xvg", comments=["#", "@"])
     full = analysis.load_trajectory(run.trajectory, start_ps=1.0)
     every = slice(None, None, 5)
-    subsampled = analysis.WaterTrajectory(full.time_ps[every], full.oxygen_nm[every],
-                                          full.hydrogen_nm[every], full.box_nm[every])
+    subsampled = analysis.WaterTrajectory(
+        full.time_ps[every], full.oxygen_nm[every], full.hydrogen_nm[every], full.box_nm[every]
+    )
     # gmx msd: time origins every 10 ps (-trestart), no drift removal
-    lag, msd = analysis.mean_squared_displacement(subsampled, origin_interval_ps=10.0,
-                                                  remove_drift=False)
+    lag, msd = analysis.mean_squared_displacement(subsampled, origin_interval_ps=10.0, remove_drift=False)
     np.testing.assert_allclose(lag, reference[:, 0], atol=1e-6)
     np.testing.assert_allclose(msd[1:], reference[1:, 1], rtol=0.03)
 
@@ -340,7 +400,7 @@ def test_paper_preset_paper_statistics_near_published_simulated_vector():
 
     values = make_simulator("paper", "paper")(key(0), TIP4P)
     published = datasets.published_statistics("simulated")
-    assert values[0] == pytest.approx(published[0], abs=0.015)   # S1 (with the O-H spike)
-    assert values[2] == pytest.approx(published[2], abs=0.004)   # S3
-    assert values[3] == pytest.approx(published[3], abs=0.015)   # S4
-    assert values[6] == pytest.approx(published[6], abs=0.2)     # S7, the noisiest
+    assert values[0] == pytest.approx(published[0], abs=0.015)  # S1 (with the O-H spike)
+    assert values[2] == pytest.approx(published[2], abs=0.004)  # S3
+    assert values[3] == pytest.approx(published[3], abs=0.015)  # S4
+    assert values[6] == pytest.approx(published[6], abs=0.2)  # S7, the noisiest

@@ -22,8 +22,7 @@ def test_paper_variant_reproduces_published_xray_vector_exactly():
 
 
 def test_paper_variant_same_on_derived_csv():
-    table = np.loadtxt(datasets.DATA_DIR / "skinner2013_gOO_295K_nm.csv", delimiter=",",
-                       comments="#")
+    table = np.loadtxt(datasets.DATA_DIR / "skinner2013_gOO_295K_nm.csv", delimiter=",", comments="#")
     values = statistics.paper_oo_statistics(table[:, 0], table[:, 1])
     np.testing.assert_allclose(values, PUBLISHED_XRAY_S4_TO_S8, rtol=0, atol=5e-9)
 
@@ -40,9 +39,12 @@ def test_paper_variant_on_soper_2013_matches_provenance_checks():
 
 def _synthetic_goo(r):
     """Liquid-like g_OO: zero core, a first shell at 0.28 nm, a minimum, a second shell."""
-    g = (1.0 + 1.6 * np.exp(-0.5 * ((r - 0.28) / 0.018) ** 2)
-         - 0.25 * np.exp(-0.5 * ((r - 0.335) / 0.03) ** 2)
-         + 0.15 * np.exp(-0.5 * ((r - 0.45) / 0.04) ** 2))
+    g = (
+        1.0
+        + 1.6 * np.exp(-0.5 * ((r - 0.28) / 0.018) ** 2)
+        - 0.25 * np.exp(-0.5 * ((r - 0.335) / 0.03) ** 2)
+        + 0.15 * np.exp(-0.5 * ((r - 0.45) / 0.04) ** 2)
+    )
     return np.where(r < 0.235, 0.0, g * (1 - np.exp(-(((r - 0.235) / 0.01) ** 2))))
 
 
@@ -76,10 +78,10 @@ def test_robust_oo_tolerates_histogram_noise():
         spread.append(statistics.robust_oo_statistics(r, noisy) - clean)
     spread = np.abs(np.array(spread)).max(axis=0)
     # bounds ~3.5 standard deviations of each statistic measured over 40 such draws
-    assert spread[4] < 0.004   # S8 (nm), a 0.002 nm bin
-    assert spread[2] < 0.008   # S6 (nm)
-    assert spread[1] < 0.01    # S5 (nm): the minimum is shallow
-    assert spread[3] < 0.08    # S7 (2 % of 2.6 is 0.05 per point)
+    assert spread[4] < 0.004  # S8 (nm), a 0.002 nm bin
+    assert spread[2] < 0.008  # S6 (nm)
+    assert spread[1] < 0.01  # S5 (nm): the minimum is shallow
+    assert spread[3] < 0.08  # S7 (2 % of 2.6 is 0.05 per point)
 
 
 def test_robust_is_independent_of_the_input_grid():
@@ -117,8 +119,9 @@ def test_summary_statistics_rejects_intramolecular_goh_for_robust():
     from md.water.analysis import WaterCurves
 
     r = 0.001 + 0.002 * np.arange(450)
-    curves = WaterCurves(r, _synthetic_goo(r), r, _synthetic_goo(r), np.arange(10.0),
-                         np.arange(10.0), intermolecular_oh=False)
+    curves = WaterCurves(
+        r, _synthetic_goo(r), r, _synthetic_goo(r), np.arange(10.0), np.arange(10.0), intermolecular_oh=False
+    )
     with pytest.raises(ValueError, match="intermolecular"):
         statistics.summary_statistics(curves, "robust")
 

@@ -15,8 +15,7 @@ def _surrogate(prior, num_particles: int = 2000, *, observed, max_simulations: i
     """:func:`jaxabc.surrogate.build`, imported on first use (tinygp and blackjax are extras)."""
     from jaxabc.surrogate import build
 
-    return build(prior, num_particles, observed=observed, max_simulations=max_simulations,
-                 **options)
+    return build(prior, num_particles, observed=observed, max_simulations=max_simulations, **options)
 
 
 BUILDERS = {

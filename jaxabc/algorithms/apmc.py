@@ -158,16 +158,20 @@ def build(
     def init(key, proposal, distances):
         del key
         log_w = jnp.zeros((n,), proposal.thetas.dtype)
-        return _finish(proposal.thetas, log_w, distances, jnp.ones((n,), bool), jnp.int32(0),
-                       jnp.asarray(1.0, proposal.thetas.dtype))
+        return _finish(
+            proposal.thetas,
+            log_w,
+            distances,
+            jnp.ones((n,), bool),
+            jnp.int32(0),
+            jnp.asarray(1.0, proposal.thetas.dtype),
+        )
 
     def propose(key, state):
         k1, k2 = jax.random.split(key)
         lw = jnp.where(state.kept, state.log_weights, -jnp.inf)
         parents = kernels.resample_indices(k1, lw, m)
-        draw = kernels.truncated_gaussian_sample(
-            k2, state.particles[parents], state.chol, low, high, max_tries
-        )
+        draw = kernels.truncated_gaussian_sample(k2, state.particles[parents], state.chol, low, high, max_tries)
         return Proposal(draw.samples, jnp.ones((m,), bool), jnp.all(draw.ok))
 
     def update(key, state, proposal, distances):
@@ -182,9 +186,7 @@ def build(
         else:
             log_norm = kernels.log_truncation_normalizer(key, centres, state.chol, low, high)
             log_norm = jnp.where(state.kept[head], log_norm, 0.0)
-        new_lw = kernels.mixture_log_weights(
-            theta, prior.log_prob(theta), centres, centre_lw, state.chol, log_norm
-        )
+        new_lw = kernels.mixture_log_weights(theta, prior.log_prob(theta), centres, centre_lw, state.chol, log_norm)
         if abcpy:
             acceptance = jnp.mean(distances < state.threshold)
             kept_lw = centre_lw - logsumexp(centre_lw)
@@ -197,8 +199,7 @@ def build(
         dists = jnp.concatenate([state.distances[head], distances])
         valid = jnp.concatenate([state.kept[head], jnp.ones((m,), bool)])
         log_weights = jnp.where(valid, log_weights, -jnp.inf)
-        return _finish(particles, log_weights, dists, valid, state.generation + 1,
-                       acceptance.astype(theta.dtype))
+        return _finish(particles, log_weights, dists, valid, state.generation + 1, acceptance.astype(theta.dtype))
 
     def posterior(state):
         if abcpy:
@@ -213,10 +214,18 @@ def build(
         "covariance_factor": covariance_factor,
         "weights": weights,
     }
-    return ABCAlgorithm("apmcabc", initial_proposal, init, propose, update, posterior, settings,
-                        stop_reason=_stop_reason,
-                        # A zero cutoff never fires: the run needs another rule.
-                        needs_stopping_rule=acceptance_cutoff == 0.0)
+    return ABCAlgorithm(
+        "apmcabc",
+        initial_proposal,
+        init,
+        propose,
+        update,
+        posterior,
+        settings,
+        stop_reason=_stop_reason,
+        # A zero cutoff never fires: the run needs another rule.
+        needs_stopping_rule=acceptance_cutoff == 0.0,
+    )
 
 
 def _stop_reason(settings: dict, info: Info) -> str:

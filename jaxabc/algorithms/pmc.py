@@ -141,10 +141,18 @@ def build(
         scheduled = schedule[jnp.minimum(generation, max(num_scheduled - 1, 0))]
         threshold = jnp.where(generation < num_scheduled, scheduled, adaptive)
         return PMCState(
-            particles=particles, log_weights=log_weights, distances=distances,
-            filled=jnp.zeros((n,), bool), parents=particles, parent_log_weights=log_weights,
-            chol=chol, log_normalizer=log_norm, threshold=threshold, generation=generation,
-            round_simulations=jnp.int32(0), round_accepted=jnp.int32(0),
+            particles=particles,
+            log_weights=log_weights,
+            distances=distances,
+            filled=jnp.zeros((n,), bool),
+            parents=particles,
+            parent_log_weights=log_weights,
+            chol=chol,
+            log_normalizer=log_norm,
+            threshold=threshold,
+            generation=generation,
+            round_simulations=jnp.int32(0),
+            round_accepted=jnp.int32(0),
             acceptance_estimate=jnp.asarray(acceptance, particles.dtype),
         )
 
@@ -157,8 +165,13 @@ def build(
         # Before any round, guess that the first generation accepts about ``quantile`` of its
         # proposals (exact if the proposal were the prior itself).
         state = _start_generation(key, proposal.thetas, log_w, distances, jnp.int32(0), quantile)
-        info = Info(jnp.bool_(True), jnp.bool_(False), jnp.asarray(jnp.inf, dtype),
-                    jnp.asarray(1.0, dtype), jnp.asarray(n, dtype))
+        info = Info(
+            jnp.bool_(True),
+            jnp.bool_(False),
+            jnp.asarray(jnp.inf, dtype),
+            jnp.asarray(1.0, dtype),
+            jnp.asarray(n, dtype),
+        )
         return state, info
 
     def propose(key, state):
@@ -169,9 +182,7 @@ def build(
         want = (missing + 2.0 * jnp.sqrt(missing) + 1.0) / state.acceptance_estimate
         count = jnp.minimum(jnp.ceil(want), m).astype(jnp.int32)
         parents = kernels.resample_indices(k1, state.parent_log_weights, m)
-        draw = kernels.truncated_gaussian_sample(
-            k2, state.parents[parents], state.chol, low, high, max_tries
-        )
+        draw = kernels.truncated_gaussian_sample(k2, state.parents[parents], state.chol, low, high, max_tries)
         active = (jnp.arange(m) < count) & (missing > 0)
         return Proposal(draw.samples, active, jnp.all(draw.ok | ~active))
 
@@ -187,23 +198,32 @@ def build(
         dtype = particles.dtype
         rate = (acc / jnp.maximum(sims, 1)).astype(dtype)
         # Half an acceptance when none was seen keeps the next round finite and large.
-        estimate = jnp.where(sims > 0, jnp.maximum(acc, 0.5) / jnp.maximum(sims, 1),
-                             state.acceptance_estimate).astype(dtype)
+        estimate = jnp.where(sims > 0, jnp.maximum(acc, 0.5) / jnp.maximum(sims, 1), state.acceptance_estimate).astype(
+            dtype
+        )
 
         def finish(_):
             # The single weight pass of the generation: the weights depend only on the kept
             # particle and the previous generation, not on the round that proposed it.
             log_weights = kernels.mixture_log_weights(
-                particles, prior.log_prob(particles), state.parents, state.parent_log_weights,
-                state.chol, state.log_normalizer,
+                particles,
+                prior.log_prob(particles),
+                state.parents,
+                state.parent_log_weights,
+                state.chol,
+                state.log_normalizer,
             )
-            return _start_generation(key, particles, log_weights, dists, state.generation + 1,
-                                     estimate)
+            return _start_generation(key, particles, log_weights, dists, state.generation + 1, estimate)
 
         def carry_on(_):
-            return state._replace(particles=particles, distances=dists, filled=filled,
-                                  round_simulations=sims, round_accepted=acc,
-                                  acceptance_estimate=estimate)
+            return state._replace(
+                particles=particles,
+                distances=dists,
+                filled=filled,
+                round_simulations=sims,
+                round_accepted=acc,
+                acceptance_estimate=estimate,
+            )
 
         new_state = jax.lax.cond(done, finish, carry_on, None)
         ess = kernels.effective_sample_size(new_state.parent_log_weights)
@@ -220,8 +240,9 @@ def build(
         "covariance_factor": covariance_factor,
         "batch_size": m,
     }
-    return ABCAlgorithm("pmcabc", initial_proposal, init, propose, update, posterior, settings,
-                        needs_stopping_rule=True)
+    return ABCAlgorithm(
+        "pmcabc", initial_proposal, init, propose, update, posterior, settings, needs_stopping_rule=True
+    )
 
 
 def build_rejection(
@@ -247,9 +268,21 @@ def build_rejection(
 
     def _state(particles, distances, filled, thr, sims, acc, dtype):
         lw = jnp.zeros((n,), dtype)
-        return PMCState(particles, lw, distances, filled, particles, lw,
-                        jnp.eye(particles.shape[1], dtype=dtype), jnp.zeros((n,), dtype), thr,
-                        jnp.int32(0), sims, acc, jnp.asarray(1.0, dtype))
+        return PMCState(
+            particles,
+            lw,
+            distances,
+            filled,
+            particles,
+            lw,
+            jnp.eye(particles.shape[1], dtype=dtype),
+            jnp.zeros((n,), dtype),
+            thr,
+            jnp.int32(0),
+            sims,
+            acc,
+            jnp.asarray(1.0, dtype),
+        )
 
     def initial_proposal(key):
         return Proposal(prior.sample(key, batch), jnp.ones((batch,), bool), jnp.bool_(True))
@@ -260,13 +293,26 @@ def build_rejection(
         if quantile is not None:
             order = jnp.argsort(distances, stable=True)[:n]
             thr = distances[order[-1]]
-            state = _state(proposal.thetas[order], distances[order], jnp.ones((n,), bool), thr,
-                           jnp.int32(batch), jnp.int32(n), dtype)
-            info = Info(jnp.bool_(True), jnp.bool_(True), thr, jnp.asarray(n / batch, dtype),
-                        jnp.asarray(n, dtype))
+            state = _state(
+                proposal.thetas[order],
+                distances[order],
+                jnp.ones((n,), bool),
+                thr,
+                jnp.int32(batch),
+                jnp.int32(n),
+                dtype,
+            )
+            info = Info(jnp.bool_(True), jnp.bool_(True), thr, jnp.asarray(n / batch, dtype), jnp.asarray(n, dtype))
             return state, info
-        empty = _state(proposal.thetas, jnp.full((n,), jnp.inf, dtype), jnp.zeros((n,), bool),
-                       jnp.asarray(threshold, dtype), jnp.int32(0), jnp.int32(0), dtype)
+        empty = _state(
+            proposal.thetas,
+            jnp.full((n,), jnp.inf, dtype),
+            jnp.zeros((n,), bool),
+            jnp.asarray(threshold, dtype),
+            jnp.int32(0),
+            jnp.int32(0),
+            dtype,
+        )
         return update(None, empty, proposal, distances)
 
     def propose(key, state):
@@ -285,8 +331,14 @@ def build_rejection(
         acc = state.round_accepted + jnp.sum(take, dtype=jnp.int32)
         done = jnp.all(filled)
         dtype = particles.dtype
-        new_state = state._replace(particles=particles, distances=dists, filled=filled,
-                                   parents=particles, round_simulations=sims, round_accepted=acc)
+        new_state = state._replace(
+            particles=particles,
+            distances=dists,
+            filled=filled,
+            parents=particles,
+            round_simulations=sims,
+            round_accepted=acc,
+        )
         rate = (acc / jnp.maximum(sims, 1)).astype(dtype)
         return new_state, Info(done, done, state.threshold, rate, jnp.asarray(n, dtype))
 
@@ -295,8 +347,17 @@ def build_rejection(
 
     settings = {"num_particles": n, "threshold": threshold, "quantile": quantile}
     # With a threshold nothing bounds the number of rounds: an unreachable one would run forever.
-    return ABCAlgorithm("rejection", initial_proposal, init, propose, update, posterior, settings,
-                        stop_reason=_rejection_stop_reason, needs_stopping_rule=threshold is not None)
+    return ABCAlgorithm(
+        "rejection",
+        initial_proposal,
+        init,
+        propose,
+        update,
+        posterior,
+        settings,
+        stop_reason=_rejection_stop_reason,
+        needs_stopping_rule=threshold is not None,
+    )
 
 
 def _rejection_stop_reason(settings: dict, info: Info) -> str:

@@ -176,8 +176,7 @@ def build(
         threshold = 0.5 * (sorted_d[num_chains - 1] + sorted_d[num_chains])
         # With ties the midpoint equals both; keep the seeds' own largest distance then, so the
         # seeds are inside their level.
-        threshold = jnp.where(sorted_d[num_chains] > sorted_d[num_chains - 1], threshold,
-                              sorted_d[num_chains - 1])
+        threshold = jnp.where(sorted_d[num_chains] > sorted_d[num_chains - 1], threshold, sorted_d[num_chains - 1])
         seeds = particles[order[:num_chains]]
         seed_d = sorted_d[:num_chains]
         cov = kernels.weighted_covariance(seeds, jnp.zeros((num_chains,), seeds.dtype))
@@ -211,11 +210,18 @@ def build(
     def init(key, proposal, distances):
         del key
         dtype = proposal.thetas.dtype
-        state = _new_level(proposal.thetas, distances, jnp.arange(n, dtype=jnp.int32),
-                           jnp.asarray(initial_scale, dtype), jnp.int32(0), jnp.asarray(1.0, dtype))
+        state = _new_level(
+            proposal.thetas,
+            distances,
+            jnp.arange(n, dtype=jnp.int32),
+            jnp.asarray(initial_scale, dtype),
+            jnp.int32(0),
+            jnp.asarray(1.0, dtype),
+        )
         # Level 0's population is the prior sample, at tolerance +inf.
-        return state, _info(state, jnp.bool_(True), jnp.bool_(False),
-                            jnp.asarray(jnp.inf, dtype), jnp.asarray(1.0, dtype))
+        return state, _info(
+            state, jnp.bool_(True), jnp.bool_(False), jnp.asarray(jnp.inf, dtype), jnp.asarray(1.0, dtype)
+        )
 
     def propose(key, state):
         z = jax.random.normal(key, state.chain_position.shape, state.chain_position.dtype)
@@ -247,19 +253,25 @@ def build(
             # The level's population (all below state.threshold) is the posterior at that
             # tolerance; the next level's seeds and threshold come from it.
             ancestors = jnp.tile(state.chain_ancestors, chain_length)
-            return _new_level(particles, dists, ancestors, state.scale * factor, state.level + 1,
-                              rate)
+            return _new_level(particles, dists, ancestors, state.scale * factor, state.level + 1, rate)
 
         def carry_on(_):
             return state._replace(
-                buffer=particles, buffer_distances=dists, chain_position=position,
-                chain_distance=chain_d, chain_step=step, moves_accepted=accepted,
+                buffer=particles,
+                buffer_distances=dists,
+                chain_position=position,
+                chain_distance=chain_d,
+                chain_step=step,
+                moves_accepted=accepted,
                 moves_proposed=proposed,
             )
 
         new_state = jax.lax.cond(level_done, finish, carry_on, None)
-        stop = level_done & ((state.threshold <= final_threshold) | (rate < acceptance_floor)
-                             | (new_state.num_distinct < min_distinct_fraction * n))
+        stop = level_done & (
+            (state.threshold <= final_threshold)
+            | (rate < acceptance_floor)
+            | (new_state.num_distinct < min_distinct_fraction * n)
+        )
         return new_state, _info(new_state, level_done, stop, state.threshold, rate)
 
     def posterior(state):
@@ -275,10 +287,18 @@ def build(
         "initial_scale": initial_scale,
         "min_distinct_fraction": min_distinct_fraction,
     }
-    return ABCAlgorithm("abcsubsim", initial_proposal, init, propose, update, posterior, settings,
-                        stop_reason=stop_reason,
-                        finalize=functools.partial(finalize, settings=settings),
-                        needs_stopping_rule=not (final_threshold > 0 or acceptance_floor > 0))
+    return ABCAlgorithm(
+        "abcsubsim",
+        initial_proposal,
+        init,
+        propose,
+        update,
+        posterior,
+        settings,
+        stop_reason=stop_reason,
+        finalize=functools.partial(finalize, settings=settings),
+        needs_stopping_rule=not (final_threshold > 0 or acceptance_floor > 0),
+    )
 
 
 def count_distinct(x: jax.Array) -> jax.Array:
@@ -308,14 +328,11 @@ def population_ess_bound(state: SubsimState) -> jax.Array:
     counts = jax.ops.segment_sum(jnp.ones((n,), dtype), state.ancestors, num_segments=n)
     mean = jnp.mean(x, axis=0)
     k = lineages.astype(dtype)
-    var_of_mean = (jnp.sum((sums - counts[:, None] * mean) ** 2, axis=0) / n**2
-                   * k / jnp.maximum(k - 1.0, 1.0))
+    var_of_mean = jnp.sum((sums - counts[:, None] * mean) ** 2, axis=0) / n**2 * k / jnp.maximum(k - 1.0, 1.0)
     var = jnp.var(x, axis=0, ddof=1)
     # A parameter that does not vary across lineages (or at all) carries no bound of its own.
-    per_param = jnp.where(var_of_mean > 0, var / jnp.where(var_of_mean > 0, var_of_mean, 1.0),
-                          jnp.inf)
-    bound = jnp.minimum(jnp.minimum(state.num_distinct, lineages).astype(dtype),
-                        jnp.min(per_param))
+    per_param = jnp.where(var_of_mean > 0, var / jnp.where(var_of_mean > 0, var_of_mean, 1.0), jnp.inf)
+    bound = jnp.minimum(jnp.minimum(state.num_distinct, lineages).astype(dtype), jnp.min(per_param))
     return jnp.maximum(bound, 1.0)
 
 
@@ -336,8 +353,9 @@ def level_chains(particles: Any, num_chains: int) -> np.ndarray:
     return x.reshape(x.shape[0] // num_chains, num_chains, x.shape[1]).swapaxes(0, 1)
 
 
-def chain_diagnostics(particles: Any, settings: dict, level: int, level_acceptance: float,
-                      ess_bound: float | None = None) -> dict:
+def chain_diagnostics(
+    particles: Any, settings: dict, level: int, level_acceptance: float, ess_bound: float | None = None
+) -> dict:
     """Host diagnostics of a completed level's population, with a warning when stuck.
 
     Parameters
@@ -379,10 +397,16 @@ def chain_diagnostics(particles: Any, settings: dict, level: int, level_acceptan
             f"chains); the effective sample size is {ess:.1f}, not {n}. Stop earlier "
             "(num_steps, final_threshold) or set acceptance_floor / min_distinct_fraction"
         )
-    return {"ess": ess, "chain_ess": chain_value, "ess_bound": None if ess_bound is None else float(ess_bound),
-            "num_distinct": distinct, "level": int(level),
-            "level_acceptance": float(level_acceptance), "chains_stuck": bool(stuck),
-            "warning": message}
+    return {
+        "ess": ess,
+        "chain_ess": chain_value,
+        "ess_bound": None if ess_bound is None else float(ess_bound),
+        "num_distinct": distinct,
+        "level": int(level),
+        "level_acceptance": float(level_acceptance),
+        "chains_stuck": bool(stuck),
+        "warning": message,
+    }
 
 
 def finalize(state: SubsimState, settings: dict) -> dict:
@@ -397,13 +421,17 @@ def finalize(state: SubsimState, settings: dict) -> dict:
         diagnostics of :func:`chain_diagnostics`.
     """
     level = int(state.level)
-    diagnostics = chain_diagnostics(state.particles, settings, level,
-                                    float(state.level_acceptance),
-                                    float(population_ess_bound(state)))
+    diagnostics = chain_diagnostics(
+        state.particles, settings, level, float(state.level_acceptance), float(population_ess_bound(state))
+    )
     if diagnostics["warning"]:
         warnings.warn(diagnostics["warning"], UserWarning, stacklevel=2)
-    return {"ess": diagnostics["ess"], "level": level,
-            "log_evidence": log_evidence(level, settings["p0"]), "diagnostics": diagnostics}
+    return {
+        "ess": diagnostics["ess"],
+        "level": level,
+        "log_evidence": log_evidence(level, settings["p0"]),
+        "diagnostics": diagnostics,
+    }
 
 
 def stop_reason(settings: dict, info: Info) -> str:
@@ -412,7 +440,8 @@ def stop_reason(settings: dict, info: Info) -> str:
     if threshold <= settings["final_threshold"]:
         return f"final threshold {settings['final_threshold']} reached ({threshold:.4g})"
     if rate < settings["acceptance_floor"]:
-        return (f"chains stopped moving: move acceptance {rate:.3g} < acceptance floor "
-                f"{settings['acceptance_floor']}")
-    return (f"chains stopped moving: fewer than {settings['min_distinct_fraction']} x "
-            f"{settings['num_particles']} distinct particles (ESS bound {float(info.ess):.1f})")
+        return f"chains stopped moving: move acceptance {rate:.3g} < acceptance floor {settings['acceptance_floor']}"
+    return (
+        f"chains stopped moving: fewer than {settings['min_distinct_fraction']} x "
+        f"{settings['num_particles']} distinct particles (ESS bound {float(info.ess):.1f})"
+    )

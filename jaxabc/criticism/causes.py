@@ -356,12 +356,25 @@ def rank_causes(
                 cos[a, b] = float(u[:, a] @ prec @ u[:, b] / (norms[a] * norms[b]))
     rows = []
     for k, eff in enumerate(catalogue):
-        span = max(eff.high - eff.null, eff.null - eff.low) if eff.one_sided == 0 else (
-            eff.high - eff.null if eff.one_sided == 1 else eff.null - eff.low)
+        span = (
+            max(eff.high - eff.null, eff.null - eff.low)
+            if eff.one_sided == 0
+            else (eff.high - eff.null if eff.one_sided == 1 else eff.null - eff.low)
+        )
         max_snr = float(norms[k] * span)
         if norms[k] <= 0 or max_snr < invisible_snr:
-            rows.append(dict(name=eff.name, score=0.0, statistic=0.0, p_value=1.0, fraction_explained=0.0,
-                             estimate=float("nan"), max_snr=max_snr, invisible=True))
+            rows.append(
+                dict(
+                    name=eff.name,
+                    score=0.0,
+                    statistic=0.0,
+                    p_value=1.0,
+                    fraction_explained=0.0,
+                    estimate=float("nan"),
+                    max_snr=max_snr,
+                    invisible=True,
+                )
+            )
             continue
         t = float(u[:, k] @ prec @ r / norms[k])
         # Signed in the direction of increasing eta; a one-sided prior can only use one sign.
@@ -371,10 +384,20 @@ def rank_causes(
         estimate = eff.null + t / norms[k]
         load = np.abs(u[:, k]) * np.sqrt(np.diag(prec))
         acts_on = sorted(groups, key=lambda g: -float(np.sum(load[groups[g]] ** 2)))[:3]
-        rows.append(dict(name=eff.name, score=score, statistic=t, p_value=p,
-                         fraction_explained=score * score / total if total > 0 else 0.0, estimate=float(estimate),
-                         max_snr=max_snr, invisible=False, acts_on=acts_on,
-                         outside_prior=not (eff.low <= estimate <= eff.high)))
+        rows.append(
+            dict(
+                name=eff.name,
+                score=score,
+                statistic=t,
+                p_value=p,
+                fraction_explained=score * score / total if total > 0 else 0.0,
+                estimate=float(estimate),
+                max_snr=max_snr,
+                invisible=False,
+                acts_on=acts_on,
+                outside_prior=not (eff.low <= estimate <= eff.high),
+            )
+        )
     adj = adjust_pvalues(np.array([row["p_value"] for row in rows]), "holm")
     for row, q in zip(rows, adj, strict=True):
         row["adjusted_p_value"] = float(q)
@@ -388,9 +411,11 @@ def rank_causes(
         row["note"] = ""
         eff = catalogue[row["name"]]
         if row["invisible"]:
-            row["note"] = (f"invisible in the available summaries (largest signal over the prior "
-                           f"{row['max_snr']:.2g} noise sd after the base parameters absorb theirs)"
-                           + (f"; needs {eff.separated_by}" if eff.separated_by else ""))
+            row["note"] = (
+                f"invisible in the available summaries (largest signal over the prior "
+                f"{row['max_snr']:.2g} noise sd after the base parameters absorb theirs)"
+                + (f"; needs {eff.separated_by}" if eff.separated_by else "")
+            )
     # Which effects are still needed once the stronger ones are in: forward selection on
     # conditional scores (each candidate's signature and the residual with the selected
     # signatures projected out, Holm over the remaining candidates).  Per-effect scores share
@@ -431,8 +456,12 @@ def rank_causes(
     proj = _projector(u[:, selected], prec)
     residual = _residual_test(proj @ r, null_cov, num_replicates, len(selected))
     top_k = visible_idx[0] if visible_idx else None
-    after_top = _residual_test(_projector(u[:, [top_k]] if top_k is not None else u[:, []], prec) @ r,
-                               null_cov, num_replicates, int(top_k is not None))
+    after_top = _residual_test(
+        _projector(u[:, [top_k]] if top_k is not None else u[:, []], prec) @ r,
+        null_cov,
+        num_replicates,
+        int(top_k is not None),
+    )
     for row in rows:
         k = names.index(row["name"])
         row["needed"] = k in selected
@@ -464,12 +493,18 @@ def rank_causes(
                 partners.append((names[b], cos[a, b], row["score"] - other["score"], gap_sd, log_lr))
         if partners:
             row["ambiguous"] = True
-            needs = "; ".join(sorted({catalogue[n].separated_by for n, *_ in [*partners, (row["name"],)]
-                                      if catalogue[n].separated_by}))
-            txt = ", ".join(f"{n} (cos {c:+.3f}, score gap {g:.2f}, gap noise sd {gs:.2f}, log LR {lr:.1f})"
-                            for n, c, g, gs, lr in partners)
+            needs = "; ".join(
+                sorted(
+                    {catalogue[n].separated_by for n, *_ in [*partners, (row["name"],)] if catalogue[n].separated_by}
+                )
+            )
+            txt = ", ".join(
+                f"{n} (cos {c:+.3f}, score gap {g:.2f}, gap noise sd {gs:.2f}, log LR {lr:.1f})"
+                for n, c, g, gs, lr in partners
+            )
             row["note"] = f"ambiguous with {txt}: these summaries cannot tell them apart" + (
-                f"; needs {needs}" if needs else "")
+                f"; needs {needs}" if needs else ""
+            )
             ambiguities.append(f"{row['name']}: {row['note']}")
         else:
             others = [(names[b], cos[a, b]) for b in range(k_eff) if b != a and np.isfinite(cos[a, b])]
@@ -477,8 +512,18 @@ def rank_causes(
                 name_b, c = max(others, key=lambda x: abs(x[1]))
                 row["note"] = f"closest competitor {name_b} (cos {c:+.2f})"
     causes = [Cause(row.pop("name"), row.pop("score"), **row) for row in rows]
-    return CauseAnalysis(causes, directions, u, cos, ambiguities, needed=[names[k] for k in selected],
-                         total_chi2=total, residual=residual, residual_after_top=after_top, alpha=alpha)
+    return CauseAnalysis(
+        causes,
+        directions,
+        u,
+        cos,
+        ambiguities,
+        needed=[names[k] for k in selected],
+        total_chi2=total,
+        residual=residual,
+        residual_after_top=after_top,
+        alpha=alpha,
+    )
 
 
 def _span(eff: Effect) -> float:

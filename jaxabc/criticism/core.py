@@ -153,8 +153,16 @@ def critique(
     draws = result.resample(num_draws, seed=seed)
     full = lambda t: np.concatenate([np.atleast_2d(t), np.repeat(nulls[None], np.atleast_2d(t).shape[0], 0)], 1)  # noqa: E731
     theta_hat = full(result.bayes_estimate())[0]
-    pred = posterior_predictive(simulate_with_effects, full(draws), theta_hat, k_pred, num_replicates,
-                                executor=ex, names=names, groups=group_idx)
+    pred = posterior_predictive(
+        simulate_with_effects,
+        full(draws),
+        theta_hat,
+        k_pred,
+        num_replicates,
+        executor=ex,
+        names=names,
+        groups=group_idx,
+    )
 
     # The base parameters absorb what they can: a few Gauss-Newton steps on the fitted summaries
     # from the Bayes estimate, with expectations over common random numbers.  An ABC posterior
@@ -187,11 +195,17 @@ def critique(
         if np.all(moved < 0.05 * steps):
             break
     if num_refit_iterations:
-        reps = simulate_many(simulate_with_effects, pred.replicate_keys,
-                             np.repeat(theta[None], len(pred.replicate_keys), 0), ex)
+        reps = simulate_many(
+            simulate_with_effects, pred.replicate_keys, np.repeat(theta[None], len(pred.replicate_keys), 0), ex
+        )
         ok_r = np.all(np.isfinite(reps), axis=1)
-        pred = replace(pred, theta_hat=theta, replicates=reps[ok_r], replicate_keys=pred.replicate_keys[ok_r],
-                       noise_cov=shrunk_covariance(reps[ok_r]))
+        pred = replace(
+            pred,
+            theta_hat=theta,
+            replicates=reps[ok_r],
+            replicate_keys=pred.replicate_keys[ok_r],
+            noise_cov=shrunk_covariance(reps[ok_r]),
+        )
         pred.extra["bayes_estimate"] = theta_hat
         grad_keys = pred.replicate_keys[:num_grad]
     points = base_points(theta) + [(d + k, *eff.finite_difference_points()) for k, eff in enumerate(catalogue)]
@@ -199,17 +213,45 @@ def critique(
     jac, directions = sens[:, :d], sens[:, d:]
 
     mis = analyse_misfits(obs, pred, jac, held, alpha=alpha, correction=correction, level=level)
-    causes = rank_causes(catalogue, directions, mis.refit, mis.refit_residual, mis.null_cov, group_idx,
-                         alpha=cause_alpha, ambiguity_cosine=ambiguity_cosine, invisible_snr=invisible_snr,
-                         num_replicates=len(pred.replicate_keys))
+    causes = rank_causes(
+        catalogue,
+        directions,
+        mis.refit,
+        mis.refit_residual,
+        mis.null_cov,
+        group_idx,
+        alpha=cause_alpha,
+        ambiguity_cosine=ambiguity_cosine,
+        invisible_snr=invisible_snr,
+        num_replicates=len(pred.replicate_keys),
+    )
     report = CritiqueReport(
-        misfits=mis.flagged, all_misfits=mis.misfits, causes=causes.causes, extension=None, base_refit=None,
-        gain={}, ambiguities=causes.ambiguities, predictive=pred, misfit_analysis=mis, cause_analysis=causes,
-        catalogue=catalogue, observed=obs, held_out=held, base_result=result,
-        settings=dict(seed=seed, num_draws=num_draws, num_replicates=num_replicates,
-                      num_gradient_replicates=num_grad, alpha=alpha, correction=correction,
-                      cause_alpha=cause_alpha, ambiguity_cosine=ambiguity_cosine,
-                      invisible_snr=invisible_snr, level=level),
+        misfits=mis.flagged,
+        all_misfits=mis.misfits,
+        causes=causes.causes,
+        extension=None,
+        base_refit=None,
+        gain={},
+        ambiguities=causes.ambiguities,
+        predictive=pred,
+        misfit_analysis=mis,
+        cause_analysis=causes,
+        catalogue=catalogue,
+        observed=obs,
+        held_out=held,
+        base_result=result,
+        settings=dict(
+            seed=seed,
+            num_draws=num_draws,
+            num_replicates=num_replicates,
+            num_gradient_replicates=num_grad,
+            alpha=alpha,
+            correction=correction,
+            cause_alpha=cause_alpha,
+            ambiguity_cosine=ambiguity_cosine,
+            invisible_snr=invisible_snr,
+            level=level,
+        ),
     )
     visible = [c for c in causes.causes if not c.invisible]
     if not (extend and mis.flagged and visible):
@@ -217,12 +259,32 @@ def critique(
 
     top = visible[0]
     opts = dict(extend_options or {})
-    ext = refit(result, simulate_with_effects, obs, catalogue, [top.name], fitted, pred.noise_cov,
-                seed=int(jax.random.randint(k_ext, (), 0, 2**30)), executor=ex, **opts)
+    ext = refit(
+        result,
+        simulate_with_effects,
+        obs,
+        catalogue,
+        [top.name],
+        fitted,
+        pred.noise_cov,
+        seed=int(jax.random.randint(k_ext, (), 0, 2**30)),
+        executor=ex,
+        **opts,
+    )
     base = None
     if refit_base:
-        base = refit(result, simulate_with_effects, obs, catalogue, [], fitted, pred.noise_cov,
-                     seed=int(jax.random.randint(k_base, (), 0, 2**30)), executor=ex, **opts)
+        base = refit(
+            result,
+            simulate_with_effects,
+            obs,
+            catalogue,
+            [],
+            fitted,
+            pred.noise_cov,
+            seed=int(jax.random.randint(k_base, (), 0, 2**30)),
+            executor=ex,
+            **opts,
+        )
     slot = catalogue.index(top.name)
 
     def ext_full(t: np.ndarray) -> np.ndarray:
@@ -231,18 +293,38 @@ def critique(
         return out
 
     k1, k2 = jax.random.split(k_epred)
-    ext_draws = simulate_many(simulate_with_effects, jax.random.split(k1, num_draws),
-                              ext_full(ext.resample(num_draws, seed=seed + 1)), ex)
-    ext_reps = simulate_many(simulate_with_effects, jax.random.split(k2, num_replicates),
-                             np.repeat(ext_full(ext.bayes_estimate()[None]), num_replicates, 0), ex)
+    ext_draws = simulate_many(
+        simulate_with_effects, jax.random.split(k1, num_draws), ext_full(ext.resample(num_draws, seed=seed + 1)), ex
+    )
+    ext_reps = simulate_many(
+        simulate_with_effects,
+        jax.random.split(k2, num_replicates),
+        np.repeat(ext_full(ext.bayes_estimate()[None]), num_replicates, 0),
+        ex,
+    )
     if base is not None:
-        base_draws = simulate_many(simulate_with_effects, jax.random.split(k_bpred, num_draws),
-                                   full(base.resample(num_draws, seed=seed + 2)), ex)
+        base_draws = simulate_many(
+            simulate_with_effects,
+            jax.random.split(k_bpred, num_draws),
+            full(base.resample(num_draws, seed=seed + 2)),
+            ex,
+        )
     else:
         base_draws = pred.draws
     ok = lambda a: a[np.all(np.isfinite(a), axis=1)]  # noqa: E731
-    gain = held_out_gain(obs, held & pred.active, ok(base_draws), ok(ext_draws), ok(ext_reps), pred.noise_cov,
-                         extension=ext, effect=catalogue[top.name], effect_column=d, level=level, seed=seed)
+    gain = held_out_gain(
+        obs,
+        held & pred.active,
+        ok(base_draws),
+        ok(ext_draws),
+        ok(ext_reps),
+        pred.noise_cov,
+        extension=ext,
+        effect=catalogue[top.name],
+        effect_column=d,
+        level=level,
+        seed=seed,
+    )
     gain["effect"] = top.name
     report.extension, report.base_refit, report.gain = ext, base, gain
     report.extension_draws, report.base_draws = ok(ext_draws), ok(base_draws)

@@ -40,8 +40,14 @@ class ExtendedSimulator:
     when the simulator is a host program.
     """
 
-    def __init__(self, simulate: Callable, num_base: int, catalogue: Catalogue, effect_names: Sequence[str],
-                 keep: np.ndarray | None = None):
+    def __init__(
+        self,
+        simulate: Callable,
+        num_base: int,
+        catalogue: Catalogue,
+        effect_names: Sequence[str],
+        keep: np.ndarray | None = None,
+    ):
         self.simulate, self.num_base = simulate, int(num_base)
         self.nulls = catalogue.nulls().astype(np.float32)
         self.slots = np.asarray([catalogue.index(n) for n in effect_names], np.int32)
@@ -51,13 +57,16 @@ class ExtendedSimulator:
         theta = jnp.asarray(theta)
         eff = jnp.asarray(self.nulls, theta.dtype)
         if self.slots.size:
-            eff = eff.at[self.slots].set(theta[self.num_base:])
+            eff = eff.at[self.slots].set(theta[self.num_base :])
         out = self.simulate(key, jnp.concatenate([theta[: self.num_base], eff]))
         return out if self.keep is None else out[self.keep]
 
 
 def extended_simulator(
-    simulate: Callable, num_base: int, catalogue: Catalogue, effect_names: Sequence[str],
+    simulate: Callable,
+    num_base: int,
+    catalogue: Catalogue,
+    effect_names: Sequence[str],
     keep: np.ndarray | None = None,
 ) -> ExtendedSimulator:
     """The simulator of the base model plus ``effect_names`` (see :class:`ExtendedSimulator`)."""
@@ -120,6 +129,16 @@ def refit(
     n = int(num_particles or max(len(result.particles), 200))
     if algo in ("pmcabc", "abcsubsim") and num_steps is None:
         num_steps = 8
-    return run(algo, sim, prior, np.asarray(observed)[fitted], num_particles=n, num_steps=num_steps,
-               distance=whitened_distance(noise_cov[np.ix_(fitted, fitted)]), seed=seed, executor=executor,
-               metadata={"criticism": {"effects": list(effect_names)}}, **options)
+    return run(
+        algo,
+        sim,
+        prior,
+        np.asarray(observed)[fitted],
+        num_particles=n,
+        num_steps=num_steps,
+        distance=whitened_distance(noise_cov[np.ix_(fitted, fitted)]),
+        seed=seed,
+        executor=executor,
+        metadata={"criticism": {"effects": list(effect_names)}},
+        **options,
+    )

@@ -60,8 +60,9 @@ def _weighted_kde_at(x0: float, x: np.ndarray, w: np.ndarray, low: float, high: 
     return float(dens)
 
 
-def savage_dickey(result: ABCResult, column: int, effect: Effect, seed: int = 0,
-                  num_bootstrap: int = 100) -> tuple[float, float, bool]:
+def savage_dickey(
+    result: ABCResult, column: int, effect: Effect, seed: int = 0, num_bootstrap: int = 100
+) -> tuple[float, float, bool]:
     """Savage-Dickey log Bayes factor (extended : base) at ``effect.null``; (value, se, is_bound).
 
     The base model is the extended one with ``eta = null``, so ``BF = p(null) / p(null | data)``
@@ -165,8 +166,9 @@ def held_out_gain(
         out["discrepancy_reduction_se"] = float(np.std(disc_b[1:] - disc_e[1:], ddof=1))
         # Per-summary lpd on whitened coordinates (roughly independent): the LOO-style SE.
         wy, wb, we = white(y)[0], white(bd), white(ed)
-        per = (stats.norm.logpdf(wy, we.mean(0), we.std(0, ddof=1))
-               - stats.norm.logpdf(wy, wb.mean(0), wb.std(0, ddof=1)))
+        per = stats.norm.logpdf(wy, we.mean(0), we.std(0, ddof=1)) - stats.norm.logpdf(
+            wy, wb.mean(0), wb.std(0, ddof=1)
+        )
         out["delta_lpd_summaries"] = float(per.sum())
         out["delta_lpd_se_summaries"] = float(np.sqrt(per.size) * per.std(ddof=1)) if per.size > 1 else None
         q = (1.0 - level) / 2.0

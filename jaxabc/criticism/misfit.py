@@ -57,8 +57,10 @@ class Misfit(tuple):
     p_value = property(lambda self: self[2])
 
     def __repr__(self) -> str:
-        return (f"Misfit({self.name!r}, z={self.residual:+.2f}, p={self.p_value:.2e}, "
-                f"adjusted={self.adjusted_p_value:.2e}{', flagged' if self.flagged else ''})")
+        return (
+            f"Misfit({self.name!r}, z={self.residual:+.2f}, p={self.p_value:.2e}, "
+            f"adjusted={self.adjusted_p_value:.2e}{', flagged' if self.flagged else ''})"
+        )
 
 
 def adjust_pvalues(p: np.ndarray, method: str = "holm") -> np.ndarray:
@@ -199,10 +201,19 @@ def analyse_misfits(
     for i in np.flatnonzero(act):
         sd = np.sqrt(max(null[i, i], 1e-300))
         z = rc[i] / sd
-        tests.append(dict(name=predictive.names[i], residual=z, p_value=float(2 * stats.t.sf(abs(z), num_rep - 1)),
-                          kind="summary", indices=np.array([i]), held_out=bool(held_out[i]),
-                          observed=float(observed[i]), predictive_mean=float(pred_mean[i]),
-                          band=(float(band[i, 0]), float(band[i, 1]))))
+        tests.append(
+            dict(
+                name=predictive.names[i],
+                residual=z,
+                p_value=float(2 * stats.t.sf(abs(z), num_rep - 1)),
+                kind="summary",
+                indices=np.array([i]),
+                held_out=bool(held_out[i]),
+                observed=float(observed[i]),
+                predictive_mean=float(pred_mean[i]),
+                band=(float(band[i, 0]), float(band[i, 1])),
+            )
+        )
     for gname, idx in predictive.groups.items():
         idx = idx[act[idx]]
         parts = [(gname, idx)]
@@ -215,12 +226,20 @@ def analyse_misfits(
             mean_res = float(np.mean(rc[sub] / np.sqrt(np.maximum(np.diag(null)[sub], 1e-300))))
             z = float(np.sign(mean_res) * stats.norm.isf(max(p, 1e-300) / 2))
             region_draws = predictive.draws[:, sub].mean(axis=1)
-            tests.append(dict(name=name, residual=z, p_value=p, kind="group", indices=sub,
-                              held_out=bool(held_out[sub].all()), observed=float(observed[sub].mean()),
-                              predictive_mean=float(region_draws.mean()),
-                              band=tuple(float(x) for x in
-                                         np.quantile(region_draws, [(1 - level) / 2, (1 + level) / 2])),
-                              statistic=t))
+            tests.append(
+                dict(
+                    name=name,
+                    residual=z,
+                    p_value=p,
+                    kind="group",
+                    indices=sub,
+                    held_out=bool(held_out[sub].all()),
+                    observed=float(observed[sub].mean()),
+                    predictive_mean=float(region_draws.mean()),
+                    band=tuple(float(x) for x in np.quantile(region_draws, [(1 - level) / 2, (1 + level) / 2])),
+                    statistic=t,
+                )
+            )
     families = [False, True] if held_out[act].any() and (~held_out[act]).any() else [bool(held_out[act].all())]
     fam_alpha = alpha / len(families)
     for fam in families:
@@ -233,9 +252,11 @@ def analyse_misfits(
     misfits = []
     for t in tests:
         what = "mean over the region " if t["kind"] == "group" else ""
-        t["line"] = (f"{t['name']}{' (held out)' if t['held_out'] else ''}: {what}observed {_fmt(t['observed'])}, "
-                     f"predictive {round(level * 100)}% band [{_fmt(t['band'][0])}, {_fmt(t['band'][1])}] "
-                     f"(z = {t['residual']:+.2f}, adjusted p = {t['adjusted_p_value']:.2g})")
+        t["line"] = (
+            f"{t['name']}{' (held out)' if t['held_out'] else ''}: {what}observed {_fmt(t['observed'])}, "
+            f"predictive {round(level * 100)}% band [{_fmt(t['band'][0])}, {_fmt(t['band'][1])}] "
+            f"(z = {t['residual']:+.2f}, adjusted p = {t['adjusted_p_value']:.2g})"
+        )
         misfits.append(Misfit(t.pop("name"), t.pop("residual"), t.pop("p_value"), **t))
     misfits.sort(key=lambda m: (m.adjusted_p_value, m.p_value, -abs(m.residual)))
     chi2, chi2_p, k = _group_stat(rc[act], null[np.ix_(act, act)], num_rep)

@@ -88,9 +88,7 @@ def normalise_mask(spec: Any, num_summaries: int, groups: Mapping[str, np.ndarra
     return mask
 
 
-def simulate_many(
-    simulate: Callable, keys: jax.Array, thetas: np.ndarray, executor: Executor
-) -> np.ndarray:
+def simulate_many(simulate: Callable, keys: jax.Array, thetas: np.ndarray, executor: Executor) -> np.ndarray:
     """Run ``simulate`` at each (key, theta) on ``executor``; failures come back as NaN rows.
 
     Parameters
@@ -237,8 +235,14 @@ def posterior_predictive(
     scale = np.maximum(np.abs(reps_ok).max(axis=0), 1e-300)
     active = np.sqrt(np.diag(cov)) > 1e-9 * scale
     return PosteriorPredictive(
-        theta_hat=np.asarray(theta_hat, np.float64), draws_theta=theta_draws[ok_d], draws=draws[ok_d],
-        replicates=reps_ok, replicate_keys=rep_keys[np.flatnonzero(ok_r)], noise_cov=cov, active=active,
-        groups=normalise_groups(groups, s), names=names,
+        theta_hat=np.asarray(theta_hat, np.float64),
+        draws_theta=theta_draws[ok_d],
+        draws=draws[ok_d],
+        replicates=reps_ok,
+        replicate_keys=rep_keys[np.flatnonzero(ok_r)],
+        noise_cov=cov,
+        active=active,
+        groups=normalise_groups(groups, s),
+        names=names,
         failures=int((~ok_d).sum() + (~ok_r).sum()),
     )

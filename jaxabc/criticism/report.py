@@ -86,15 +86,19 @@ class CritiqueReport:
         if ca is not None and ca.unexplained:
             res = ca.residual
             best = ", ".join(ca.needed) or c.name
-            why = (f"no catalogue effect accounts for it: the best extension ({best}) explains "
-                   f"{100 * (ca.explained_fraction if ca.needed else c.fraction_explained):.0f}% of the remaining "
-                   f"residual and leaves chi2 {res['chi2']:.1f} on {res['dof']} dof (p={res['p_value']:.1e}); "
-                   "the cause is probably outside the catalogue")
+            why = (
+                f"no catalogue effect accounts for it: the best extension ({best}) explains "
+                f"{100 * (ca.explained_fraction if ca.needed else c.fraction_explained):.0f}% of the remaining "
+                f"residual and leaves chi2 {res['chi2']:.1f} on {res['dof']} dof (p={res['p_value']:.1e}); "
+                "the cause is probably outside the catalogue"
+            )
         elif c.ambiguous:
             why = f"the most likely cause is {c.name} but it is ambiguous: {c.note}"
         elif c.significant:
-            why = (f"the most likely cause is {c.name} (score {c.score:.1f}, explains "
-                   f"{100 * c.fraction_explained:.0f}% of the remaining residual)")
+            why = (
+                f"the most likely cause is {c.name} (score {c.score:.1f}, explains "
+                f"{100 * c.fraction_explained:.0f}% of the remaining residual)"
+            )
             if ca is not None and ca.needed and ca.needed != [c.name]:
                 why += f"; effects needed jointly: {', '.join(ca.needed)}"
         else:
@@ -102,10 +106,17 @@ class CritiqueReport:
         g = self.gain
         tail = ""
         if "delta_lpd" in g:
-            counts = ("counts" if g.get("counts") else "exceeds its uncertainty, but the new parameter is not "
-                      "learned away from its null" if g.get("significant") else "does not exceed its uncertainty")
-            tail = (f"; held-out gain of the extension: delta log predictive density {g['delta_lpd']:.1f} "
-                    f"+- {g['delta_lpd_se']:.1f} ({counts})")
+            counts = (
+                "counts"
+                if g.get("counts")
+                else "exceeds its uncertainty, but the new parameter is not learned away from its null"
+                if g.get("significant")
+                else "does not exceed its uncertainty"
+            )
+            tail = (
+                f"; held-out gain of the extension: delta log predictive density {g['delta_lpd']:.1f} "
+                f"+- {g['delta_lpd_se']:.1f} ({counts})"
+            )
         return f"Misfit in {top.name}; {why}{tail}."
 
     # -- text ---------------------------------------------------------------------------------
@@ -113,18 +124,42 @@ class CritiqueReport:
     def to_dict(self) -> dict:
         d = {
             "verdict": self.verdict,
-            "misfits": [dict(name=m.name, residual=m.residual, p_value=m.p_value,
-                             adjusted_p_value=m.adjusted_p_value, held_out=m.held_out, kind=m.kind,
-                             observed=m.observed, band=m.band, line=m.line) for m in self.all_misfits],
+            "misfits": [
+                dict(
+                    name=m.name,
+                    residual=m.residual,
+                    p_value=m.p_value,
+                    adjusted_p_value=m.adjusted_p_value,
+                    held_out=m.held_out,
+                    kind=m.kind,
+                    observed=m.observed,
+                    band=m.band,
+                    line=m.line,
+                )
+                for m in self.all_misfits
+            ],
             "flagged": [m.name for m in self.misfits],
-            "causes": [dict(name=c.name, score=c.score, statistic=c.statistic, p_value=c.p_value,
-                            adjusted_p_value=c.adjusted_p_value, significant=c.significant,
-                            fraction_explained=c.fraction_explained, estimate=c.estimate, max_snr=c.max_snr,
-                            ambiguous=c.ambiguous, invisible=c.invisible, note=c.note, acts_on=c.acts_on,
-                            needed=getattr(c, "needed", False),
-                            conditional_score=getattr(c, "conditional_score", None),
-                            conditional_p_value=getattr(c, "conditional_p_value", None))
-                       for c in self.causes],
+            "causes": [
+                dict(
+                    name=c.name,
+                    score=c.score,
+                    statistic=c.statistic,
+                    p_value=c.p_value,
+                    adjusted_p_value=c.adjusted_p_value,
+                    significant=c.significant,
+                    fraction_explained=c.fraction_explained,
+                    estimate=c.estimate,
+                    max_snr=c.max_snr,
+                    ambiguous=c.ambiguous,
+                    invisible=c.invisible,
+                    note=c.note,
+                    acts_on=c.acts_on,
+                    needed=getattr(c, "needed", False),
+                    conditional_score=getattr(c, "conditional_score", None),
+                    conditional_p_value=getattr(c, "conditional_p_value", None),
+                )
+                for c in self.causes
+            ],
             "ambiguities": self.ambiguities,
             "gain": self.gain,
             "settings": self.settings,
@@ -137,12 +172,19 @@ class CritiqueReport:
             d["residual_after_needed"] = ca.residual
             d["residual_after_top"] = ca.residual_after_top
         if self.misfit_analysis is not None:
-            d["global_chi2"] = dict(statistic=self.misfit_analysis.chi2, dof=self.misfit_analysis.chi2_dof,
-                                    p_value=self.misfit_analysis.chi2_p_value)
+            d["global_chi2"] = dict(
+                statistic=self.misfit_analysis.chi2,
+                dof=self.misfit_analysis.chi2_dof,
+                p_value=self.misfit_analysis.chi2_p_value,
+            )
         for label, res in (("extension", self.extension), ("base_refit", self.base_refit)):
             if res is not None:
-                d[label] = dict(names=list(res.names), bayes_estimate=res.bayes_estimate().tolist(),
-                                ci95=res.credible_interval(0.95).tolist(), num_simulations=res.num_simulations)
+                d[label] = dict(
+                    names=list(res.names),
+                    bayes_estimate=res.bayes_estimate().tolist(),
+                    ci95=res.credible_interval(0.95).tolist(),
+                    num_simulations=res.num_simulations,
+                )
         return _jsonable(d)
 
     def to_markdown(self, figures: dict[str, str] | None = None) -> str:
@@ -152,9 +194,11 @@ class CritiqueReport:
             lines += ["## Base calibration", "", "```", self.base_result.summary(), "```", ""]
         lines += ["## What it gets wrong", ""]
         corr = self.settings.get("correction", "holm")
-        lines.append(f"Calibrated p-values (refit-adjusted null from replicate simulations at the estimate), "
-                     f"{'Holm' if corr == 'holm' else 'Benjamini-Hochberg'} correction within the fitted and "
-                     f"held-out families at overall level {self.settings.get('alpha')}.")
+        lines.append(
+            f"Calibrated p-values (refit-adjusted null from replicate simulations at the estimate), "
+            f"{'Holm' if corr == 'holm' else 'Benjamini-Hochberg'} correction within the fitted and "
+            f"held-out families at overall level {self.settings.get('alpha')}."
+        )
         lines.append("")
         if self.misfits:
             lines += [f"{i + 1}. {m.line}" for i, m in enumerate(self.misfits)]
@@ -163,20 +207,29 @@ class CritiqueReport:
             lines += [f"- {m.line}" for m in self.all_misfits[:5]]
         if "misfits" in figures:
             lines += ["", f"![misfits]({figures['misfits']})"]
-        lines += ["", "## Why: ranked causes", "",
-                  "| rank | effect | score | adjusted p | explains | linearised estimate | note |",
-                  "|---|---|---|---|---|---|---|"]
+        lines += [
+            "",
+            "## Why: ranked causes",
+            "",
+            "| rank | effect | score | adjusted p | explains | linearised estimate | note |",
+            "|---|---|---|---|---|---|---|",
+        ]
         for i, c in enumerate(self.causes):
-            lines.append(f"| {i + 1} | {c.name} | {c.score:.2f} | {c.adjusted_p_value:.2g} | "
-                         f"{100 * c.fraction_explained:.0f}% | {c.estimate:.4g} | {c.note} |")
+            lines.append(
+                f"| {i + 1} | {c.name} | {c.score:.2f} | {c.adjusted_p_value:.2g} | "
+                f"{100 * c.fraction_explained:.0f}% | {c.estimate:.4g} | {c.note} |"
+            )
         ca = self.cause_analysis
         if ca is not None and ca.residual:
             res = ca.residual
-            lines += ["", f"Needed after the stronger effects are included (conditional Holm test): "
-                          f"{', '.join(ca.needed) or 'none'}. Residual after them: chi2 {res['chi2']:.1f} on "
-                          f"{res['dof']} dof (p={res['p_value']:.2g}); explained fraction "
-                          f"{100 * ca.explained_fraction:.0f}%"
-                          + (" -- **no catalogue effect accounts for the misfit**." if ca.unexplained else ".")]
+            lines += [
+                "",
+                f"Needed after the stronger effects are included (conditional Holm test): "
+                f"{', '.join(ca.needed) or 'none'}. Residual after them: chi2 {res['chi2']:.1f} on "
+                f"{res['dof']} dof (p={res['p_value']:.2g}); explained fraction "
+                f"{100 * ca.explained_fraction:.0f}%"
+                + (" -- **no catalogue effect accounts for the misfit**." if ca.unexplained else "."),
+            ]
         if self.ambiguities:
             lines += ["", "Ambiguities:"] + [f"- {a}" for a in self.ambiguities]
         if "causes" in figures:
@@ -216,8 +269,9 @@ class CritiqueReport:
             sd = p.draws.std(axis=0)
             sd = np.where(sd > 0, sd, 1.0)
             ref = p.mean()
-            ax1.fill_between(x, (band[:, 0] - ref) / sd, (band[:, 1] - ref) / sd, color="C0", alpha=0.3,
-                             label="predictive band")
+            ax1.fill_between(
+                x, (band[:, 0] - ref) / sd, (band[:, 1] - ref) / sd, color="C0", alpha=0.3, label="predictive band"
+            )
             ax1.plot(x, (self.observed - ref) / sd, "ko", ms=3, label="observed")
             ax1.set_ylabel("(y - predictive mean) / predictive sd")
             ax1.legend(fontsize=8)
@@ -240,10 +294,15 @@ class CritiqueReport:
             figs["misfits"] = "misfits.png"
         if self.causes:
             fig, ax = plt.subplots(figsize=(6, 0.4 * len(self.causes) + 1.5))
-            names = [c.name + (" (ambiguous)" if c.ambiguous else "") + (" (invisible)" if c.invisible else "")
-                     for c in self.causes][::-1]
-            ax.barh(names, [c.score for c in self.causes][::-1],
-                    color=["C3" if c.significant else "C7" for c in self.causes][::-1])
+            names = [
+                c.name + (" (ambiguous)" if c.ambiguous else "") + (" (invisible)" if c.invisible else "")
+                for c in self.causes
+            ][::-1]
+            ax.barh(
+                names,
+                [c.score for c in self.causes][::-1],
+                color=["C3" if c.significant else "C7" for c in self.causes][::-1],
+            )
             ax.axvline(2.0, color="k", ls=":", lw=1)
             ax.set_xlabel("matched-filter score (noise sd)")
             fig.tight_layout()
@@ -264,22 +323,38 @@ class CritiqueReport:
             fig.savefig(out / "extension.png", dpi=110)
             plt.close(fig)
             figs["extension"] = "extension.png"
-        if (p is not None and self.observed is not None and self.extension_draws is not None
-                and self.base_draws is not None and self.held_out is not None and self.held_out.any()):
+        if (
+            p is not None
+            and self.observed is not None
+            and self.extension_draws is not None
+            and self.base_draws is not None
+            and self.held_out is not None
+            and self.held_out.any()
+        ):
             h = np.flatnonzero(self.held_out & p.active)
             fig, ax = plt.subplots(figsize=(7, 3.5))
             sd = np.where(p.noise_sd > 0, p.noise_sd, 1.0)[h]
             for label, draws, c in (("base", self.base_draws, "C7"), ("extended", self.extension_draws, "C2")):
                 q = np.quantile((draws[:, h] - self.observed[h]) / sd, [0.05, 0.5, 0.95], axis=0)
-                ax.errorbar(np.arange(h.size) + (0.15 if c == "C2" else -0.15), q[1], yerr=[q[1] - q[0], q[2] - q[1]],
-                            fmt="o", color=c, label=label, ms=3)
+                ax.errorbar(
+                    np.arange(h.size) + (0.15 if c == "C2" else -0.15),
+                    q[1],
+                    yerr=[q[1] - q[0], q[2] - q[1]],
+                    fmt="o",
+                    color=c,
+                    label=label,
+                    ms=3,
+                )
             ax.axhline(0, color="k", lw=1)
             ax.set_xticks(np.arange(h.size))
             ax.set_xticklabels([p.names[i] for i in h], rotation=90, fontsize=6)
             ax.set_ylabel("(predictive - observed) / noise sd")
             g = self.gain
-            ax.set_title(f"held out: delta lpd {g.get('delta_lpd', float('nan')):.1f} +- "
-                         f"{g.get('delta_lpd_se', float('nan')):.1f}", fontsize=9)
+            ax.set_title(
+                f"held out: delta lpd {g.get('delta_lpd', float('nan')):.1f} +- "
+                f"{g.get('delta_lpd_se', float('nan')):.1f}",
+                fontsize=9,
+            )
             ax.legend(fontsize=8)
             fig.tight_layout()
             fig.savefig(out / "gain.png", dpi=110)

@@ -112,9 +112,15 @@ def wrap_keys(keys: np.ndarray) -> jax.Array:
     return jax.random.wrap_key_data(jnp.asarray(keys, dtype=jnp.uint32))
 
 
-def assemble_batch(outputs: list[Any], status: np.ndarray, reasons: list[str], times: np.ndarray,
-                   workers: np.ndarray, cpu_times: np.ndarray | None = None,
-                   summary_shape: tuple[int, ...] | None = None) -> SimulationBatch:
+def assemble_batch(
+    outputs: list[Any],
+    status: np.ndarray,
+    reasons: list[str],
+    times: np.ndarray,
+    workers: np.ndarray,
+    cpu_times: np.ndarray | None = None,
+    summary_shape: tuple[int, ...] | None = None,
+) -> SimulationBatch:
     """A :class:`SimulationBatch` from per-task outputs (arrays, or ``None`` where a task failed).
 
     Parameters

@@ -67,8 +67,9 @@ def dask_available() -> bool:
 _THREAD_STATE = threading.local()
 
 
-def _dask_task(payload: bytes, isolate: bool, timeout: float | None, key: np.ndarray,
-               theta: np.ndarray) -> tuple[Any, int, str, float, float, str]:
+def _dask_task(
+    payload: bytes, isolate: bool, timeout: float | None, key: np.ndarray, theta: np.ndarray
+) -> tuple[Any, int, str, float, float, str]:
     """Run one task on a dask worker; returns ``(out, status, reason, seconds, cpu_seconds, worker)``.
 
     Never raises for a simulator's failure; a simulator that cannot be loaded fails its task.
@@ -93,6 +94,7 @@ def _dask_task(payload: bytes, isolate: bool, timeout: float | None, key: np.nda
 
 # ---------------------------------------------------------------------------------------------
 # Driver side.
+
 
 class DaskExecutor:
     """Run host simulators on a ``dask.distributed`` cluster, one future per task.
@@ -131,9 +133,15 @@ class DaskExecutor:
 
     name = "dask"
 
-    def __init__(self, client: Any = None, n_workers: int | None = None, timeout: float | None = None,
-                 isolate: bool = True, order: str | CostModel | None = None,
-                 summary_shape: tuple[int, ...] | None = None):
+    def __init__(
+        self,
+        client: Any = None,
+        n_workers: int | None = None,
+        timeout: float | None = None,
+        isolate: bool = True,
+        order: str | CostModel | None = None,
+        summary_shape: tuple[int, ...] | None = None,
+    ):
         if n_workers is not None and n_workers < 1:
             raise ValueError(f"n_workers must be at least 1, got {n_workers}")
         if timeout is not None and timeout <= 0:
@@ -163,7 +171,8 @@ class DaskExecutor:
             # until close(), not only while the cluster starts.
             self._config = dask.config.set({"distributed.worker.daemon": False})
             self._own_cluster = distributed.LocalCluster(
-                n_workers=self.n_workers, threads_per_worker=1, processes=True, dashboard_address=None)
+                n_workers=self.n_workers, threads_per_worker=1, processes=True, dashboard_address=None
+            )
             self._client = distributed.Client(self._own_cluster)
         return self._client
 
@@ -193,8 +202,9 @@ class DaskExecutor:
         order = dispatch_order(self.cost_model, thetas)
         futures = {}
         for rank, i in enumerate(order):
-            fut = client.submit(_dask_task, payload, self.isolate, self.timeout, keys[i], thetas[i],
-                                pure=False, priority=m - rank)
+            fut = client.submit(
+                _dask_task, payload, self.isolate, self.timeout, keys[i], thetas[i], pure=False, priority=m - rank
+            )
             futures[fut] = int(i)
 
         outputs: list = [None] * m

@@ -49,7 +49,8 @@ class SerialExecutor:
         times, cpu = np.zeros(m), np.zeros(m)
         for i in range(m):
             out, status[i], reasons[i], times[i], cpu[i] = timed_run(
-                simulate, np.asarray(keys[i]), np.asarray(thetas[i]))
+                simulate, np.asarray(keys[i]), np.asarray(thetas[i])
+            )
             outputs.append(out)
         batch = assemble_batch(outputs, status, reasons, times, np.zeros(m, np.int32), cpu, self.summary_shape)
         self.summary_shape = _learn_shape(self.summary_shape, batch)
@@ -102,9 +103,14 @@ class ProcessPoolExecutor:
 
     name = "process_pool"
 
-    def __init__(self, max_workers: int | None = None, timeout: float | None = None,
-                 start_method: str = "spawn", order: str | CostModel | None = None,
-                 summary_shape: tuple[int, ...] | None = None):
+    def __init__(
+        self,
+        max_workers: int | None = None,
+        timeout: float | None = None,
+        start_method: str = "spawn",
+        order: str | CostModel | None = None,
+        summary_shape: tuple[int, ...] | None = None,
+    ):
         if max_workers is not None and max_workers < 1:
             raise ValueError(f"max_workers must be at least 1, got {max_workers}")
         if timeout is not None and timeout <= 0:
@@ -182,8 +188,7 @@ class ProcessPoolExecutor:
                         continue
                 elif worker.proc.sentinel in ready or not worker.proc.is_alive():
                     failure = STATUS_WORKER_DIED
-                elif (self.timeout is not None and worker.started is not None
-                      and now - worker.started > self.timeout):
+                elif self.timeout is not None and worker.started is not None and now - worker.started > self.timeout:
                     failure = STATUS_TIMEOUT
                 if failure is None:
                     continue

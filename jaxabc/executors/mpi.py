@@ -143,8 +143,9 @@ def _worker_rank() -> int:
     return MPI.COMM_WORLD.Get_rank()
 
 
-def _run_tasks(payload: bytes, isolate: bool, timeout: float | None, indices: np.ndarray,
-               keys: np.ndarray, thetas: np.ndarray) -> list[tuple[int, Any, int, str, float, float, int]]:
+def _run_tasks(
+    payload: bytes, isolate: bool, timeout: float | None, indices: np.ndarray, keys: np.ndarray, thetas: np.ndarray
+) -> list[tuple[int, Any, int, str, float, float, int]]:
     """Run tasks ``indices`` one after another on this rank.
 
     Returns one ``(index, summaries or None, status, reason, seconds, cpu_seconds, rank)`` per
@@ -167,6 +168,7 @@ def _run_tasks(payload: bytes, isolate: bool, timeout: float | None, indices: np
 
 # ---------------------------------------------------------------------------------------------
 # Driver side.
+
 
 class MPIExecutor:
     """Run host simulators on MPI worker ranks with dynamic or static allocation.
@@ -212,9 +214,15 @@ class MPIExecutor:
     it is pickled once per :meth:`map` and unpickled once per rank.
     """
 
-    def __init__(self, allocation: str = "dynamic", max_workers: int | None = None,
-                 timeout: float | None = None, isolate: bool = True,
-                 order: str | CostModel | None = None, summary_shape: tuple[int, ...] | None = None):
+    def __init__(
+        self,
+        allocation: str = "dynamic",
+        max_workers: int | None = None,
+        timeout: float | None = None,
+        isolate: bool = True,
+        order: str | CostModel | None = None,
+        summary_shape: tuple[int, ...] | None = None,
+    ):
         if allocation not in ALLOCATIONS:
             raise ValueError(f"allocation must be one of {ALLOCATIONS}, got {allocation!r}")
         if max_workers is not None and max_workers < 1:
@@ -288,8 +296,10 @@ class MPIExecutor:
         reasons = [""] * m
         times, workers, cpu = np.zeros(m), np.full(m, -1, np.int32), np.full(m, np.nan)
         t0 = time.perf_counter()
-        futs = {pool.submit(_run_tasks, payload, self.isolate, self.timeout, idx, keys[idx], thetas[idx]): idx
-                for idx in groups}
+        futs = {
+            pool.submit(_run_tasks, payload, self.isolate, self.timeout, idx, keys[idx], thetas[idx]): idx
+            for idx in groups
+        }
         finished, late = self._collect(futs)
         self.last_makespan = time.perf_counter() - t0
         for fut, results in finished:
@@ -306,8 +316,10 @@ class MPIExecutor:
         for fut in late:
             for i in futs[fut]:
                 status[i], times[i] = STATUS_TIMEOUT, self.timeout
-                reasons[i] = (f"timeout: its MPI worker ran longer than {self.timeout} s per task; the rank "
-                              "cannot be stopped (isolate=False) and the pool was abandoned")
+                reasons[i] = (
+                    f"timeout: its MPI worker ran longer than {self.timeout} s per task; the rank "
+                    "cannot be stopped (isolate=False) and the pool was abandoned"
+                )
         answered = {fut for fut, _ in finished} | set(late)
         for fut, idx in futs.items():
             if fut not in answered:
@@ -340,7 +352,8 @@ class MPIExecutor:
         late: list[Any] = []
         while pending and self._broken is None:
             done, pending = concurrent.futures.wait(
-                pending, timeout=_POLL_SECONDS if watch else None,
+                pending,
+                timeout=_POLL_SECONDS if watch else None,
                 return_when=concurrent.futures.FIRST_COMPLETED,
             )
             for fut in done:
@@ -359,8 +372,10 @@ class MPIExecutor:
                 assert self.timeout is not None  # watch implies a timeout
                 late = [f for f in pending if f in started and now - started[f] > self.timeout * len(futs[f])]
                 if late:
-                    self._broken = (f"{len(late)} future(s) ran past the {self.timeout} s timeout on ranks "
-                                    "that cannot be stopped (isolate=False)")
+                    self._broken = (
+                        f"{len(late)} future(s) ran past the {self.timeout} s timeout on ranks "
+                        "that cannot be stopped (isolate=False)"
+                    )
         if self._broken is not None:
             self._abandon(pending)
         return finished, late

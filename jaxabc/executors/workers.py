@@ -187,7 +187,8 @@ class WorkerProcess:
         self.conn, child = ctx.Pipe(duplex=True)
         # typeshed declares Process on each concrete context, not on BaseContext.
         self.proc = ctx.Process(  # pyright: ignore[reportAttributeAccessIssue]
-            target=_worker_main, args=(child,), daemon=True)
+            target=_worker_main, args=(child,), daemon=True
+        )
         self.proc.start()
         child.close()
         self.ready = False
@@ -254,8 +255,9 @@ class WorkerProcess:
             raise RuntimeError(f"could not load the simulator: {info}")
         self.payload = payload
 
-    def run(self, key: np.ndarray, theta: np.ndarray,
-            timeout: float | None) -> tuple[Any, int, str, float, float, bool]:
+    def run(
+        self, key: np.ndarray, theta: np.ndarray, timeout: float | None
+    ) -> tuple[Any, int, str, float, float, bool]:
         """Run one task after :meth:`load`.
 
         Returns ``(summaries or None, status, reason, seconds, cpu_seconds, alive)``; CPU seconds
@@ -279,8 +281,14 @@ class WorkerProcess:
         seconds = time.perf_counter() - t0
         self.kill()
         if not ready:
-            return (None, STATUS_TIMEOUT, f"timeout: ran longer than {timeout} s and was stopped", seconds,
-                    np.nan, False)
+            return (
+                None,
+                STATUS_TIMEOUT,
+                f"timeout: ran longer than {timeout} s and was stopped",
+                seconds,
+                np.nan,
+                False,
+            )
         return None, STATUS_WORKER_DIED, self.death_reason("running it"), seconds, np.nan, False
 
     # -- either ----------------------------------------------------------------------------------
@@ -331,8 +339,9 @@ class TaskRunner:
         self.simulate: Callable | None = None
         self.child: WorkerProcess | None = None
 
-    def run(self, payload: bytes, key: np.ndarray, theta: np.ndarray,
-            timeout: float | None) -> tuple[Any, int, str, float, float]:
+    def run(
+        self, payload: bytes, key: np.ndarray, theta: np.ndarray, timeout: float | None
+    ) -> tuple[Any, int, str, float, float]:
         """``(summaries or None, status, reason, seconds, cpu_seconds)`` of one task.
 
         Raises
@@ -353,7 +362,7 @@ class TaskRunner:
             self.child.load(payload)
         except RuntimeError:
             if not self.child.proc.is_alive():  # died or overran the start-up limit; a simulator
-                self.child = None               # that does not unpickle leaves a healthy child
+                self.child = None  # that does not unpickle leaves a healthy child
             raise
         out, status, reason, seconds, cpu, alive = self.child.run(key, theta, timeout)
         if not alive:

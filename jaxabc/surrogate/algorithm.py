@@ -183,8 +183,9 @@ def build(
         raise ValueError("observed summaries must be finite")
     num_initial = max(20, 10 * d) if num_initial is None else int(num_initial)
     if num_particles < 1000 or num_particles % num_chains:
-        raise ValueError(f"num_particles must be >= 1000 and a multiple of num_chains={num_chains}, "
-                         f"got {num_particles}")
+        raise ValueError(
+            f"num_particles must be >= 1000 and a multiple of num_chains={num_chains}, got {num_particles}"
+        )
     if on_failure not in ("flag", "raise"):
         raise ValueError(f"on_failure must be 'flag' or 'raise', got {on_failure!r}")
     if num_replicates < 0 or batch_size < 1 or num_holdout < 5:
@@ -200,11 +201,21 @@ def build(
     M = int(max_simulations)
     B = max(first, batch_size, num_holdout)
     settings = {
-        "num_particles": int(num_particles), "max_simulations": M, "num_initial": num_initial,
-        "num_replicates": int(num_replicates), "batch_size": int(batch_size), "num_holdout": int(num_holdout),
-        "tolerance": float(tolerance), "max_outputs": int(max_outputs), "num_candidates": int(num_candidates),
-        "num_chains": int(num_chains), "num_warmup": int(num_warmup), "thin": int(thin),
-        "on_failure": on_failure, "observed_size": k, "max_emulator_ratio": float(max_emulator_ratio),
+        "num_particles": int(num_particles),
+        "max_simulations": M,
+        "num_initial": num_initial,
+        "num_replicates": int(num_replicates),
+        "batch_size": int(batch_size),
+        "num_holdout": int(num_holdout),
+        "tolerance": float(tolerance),
+        "max_outputs": int(max_outputs),
+        "num_candidates": int(num_candidates),
+        "num_chains": int(num_chains),
+        "num_warmup": int(num_warmup),
+        "thin": int(thin),
+        "on_failure": on_failure,
+        "observed_size": k,
+        "max_emulator_ratio": float(max_emulator_ratio),
     }
 
     def to_unit(theta: np.ndarray) -> np.ndarray:
@@ -215,13 +226,25 @@ def build(
 
     def empty_state() -> SurrogateState:
         return SurrogateState(
-            thetas=np.zeros((M, d)), summaries=np.full((M, k), np.nan), ok=np.zeros(M, bool),
-            role=np.full(M, ROLE_EMPTY, np.int8), group=np.full(M, -1, np.int32), count=np.int64(0),
-            phase=np.int64(DESIGN), round=np.int64(0), pending=np.zeros((B, d)), num_pending=np.int64(0),
-            draws=np.zeros((num_particles, d)), hyper=np.zeros((q, d + 2)),
-            holdout_errors=np.full((num_holdout, q), np.nan), validated=np.bool_(False),
-            lack_of_fit_ok=np.bool_(True), coverage=np.float64(np.nan), mean_squared_error=np.float64(np.nan),
-            emulator_ratio=np.float64(np.nan), rhat=np.full(d, np.nan),
+            thetas=np.zeros((M, d)),
+            summaries=np.full((M, k), np.nan),
+            ok=np.zeros(M, bool),
+            role=np.full(M, ROLE_EMPTY, np.int8),
+            group=np.full(M, -1, np.int32),
+            count=np.int64(0),
+            phase=np.int64(DESIGN),
+            round=np.int64(0),
+            pending=np.zeros((B, d)),
+            num_pending=np.int64(0),
+            draws=np.zeros((num_particles, d)),
+            hyper=np.zeros((q, d + 2)),
+            holdout_errors=np.full((num_holdout, q), np.nan),
+            validated=np.bool_(False),
+            lack_of_fit_ok=np.bool_(True),
+            coverage=np.float64(np.nan),
+            mean_squared_error=np.float64(np.nan),
+            emulator_ratio=np.float64(np.nan),
+            rhat=np.full(d, np.nan),
         )
 
     def initial_proposal(key: jax.Array) -> Proposal:
@@ -233,8 +256,9 @@ def build(
         n = int(state.num_pending)
         return Proposal(np.array(state.pending[:n]), np.ones(n, bool), np.bool_(True))
 
-    def add_rows(state: SurrogateState, proposal: Proposal, summaries: Any, role: int,
-                 group: np.ndarray | None) -> SurrogateState:
+    def add_rows(
+        state: SurrogateState, proposal: Proposal, summaries: Any, role: int, group: np.ndarray | None
+    ) -> SurrogateState:
         active = np.asarray(proposal.active, bool)
         th = np.asarray(proposal.thetas, np.float64)[active]
         s = np.asarray(summaries, np.float64)
@@ -252,8 +276,7 @@ def build(
         oks[c : c + n], roles[c : c + n] = ok, role
         if group is not None:
             groups[c : c + n] = group[active]
-        return state._replace(thetas=thetas, summaries=summ, ok=oks, role=roles, group=groups,
-                              count=np.int64(c + n))
+        return state._replace(thetas=thetas, summaries=summ, ok=oks, role=roles, group=groups, count=np.int64(c + n))
 
     def fit(state: SurrogateState):
         """Emulator on the design rows; returns (transform, emulator, likelihood model, z_all)."""
@@ -325,9 +348,16 @@ def build(
         metric = (u - mu).T @ ((u - mu) * w[:, None]) + 1e-8 * np.eye(d)
         step_size = 0.9 * d**-0.25
         for _ in range(4):
-            draws, acceptance = sampling.nuts(jax.random.fold_in(key, 2), model, jnp.asarray(starts),
-                                              jnp.asarray(metric), jnp.asarray(step_size), num_warmup,
-                                              num_particles // num_chains, thin)
+            draws, acceptance = sampling.nuts(
+                jax.random.fold_in(key, 2),
+                model,
+                jnp.asarray(starts),
+                jnp.asarray(metric),
+                jnp.asarray(step_size),
+                num_warmup,
+                num_particles // num_chains,
+                thin,
+            )
             # A metric from importance weights may be off; a smaller step restores acceptance
             # without recompiling (the step size is traced).
             if float(np.min(acceptance)) >= 0.6:
@@ -340,8 +370,13 @@ def build(
         pick = pick.reshape(-1, d)[:num_holdout]
         pending = np.zeros((B, d))
         pending[:num_holdout] = to_theta(pick)
-        return state._replace(draws=to_theta(flat), rhat=rhat, pending=pending,
-                              num_pending=np.int64(num_holdout), phase=np.int64(VALIDATING))
+        return state._replace(
+            draws=to_theta(flat),
+            rhat=rhat,
+            pending=pending,
+            num_pending=np.int64(num_holdout),
+            phase=np.int64(VALIDATING),
+        )
 
     def validate(key: jax.Array, state: SurrogateState) -> SurrogateState:
         _, emu, _, z_all = fit(state)
@@ -355,9 +390,12 @@ def build(
         errors[: len(rows)] = check.errors
         resolved = float(state.emulator_ratio) <= max_emulator_ratio
         passed = check.passed and lof_ok is not False and resolved
-        state = state._replace(holdout_errors=errors, coverage=np.float64(check.coverage),
-                               mean_squared_error=np.float64(check.mean_squared),
-                               lack_of_fit_ok=np.bool_(lof_ok is not False))
+        state = state._replace(
+            holdout_errors=errors,
+            coverage=np.float64(check.coverage),
+            mean_squared_error=np.float64(check.mean_squared),
+            lack_of_fit_ok=np.bool_(lof_ok is not False),
+        )
         if passed:
             return state._replace(validated=np.bool_(True), phase=np.int64(DONE), num_pending=np.int64(0))
         role = state.role.copy()
@@ -366,8 +404,10 @@ def build(
         if M - int(state.count) >= batch_size + num_holdout and lof_ok is not False:
             # More design may cure an under-resolved emulator; a failed lack-of-fit test will not.
             return design_step(jax.random.fold_in(key, 3), state)
-        message = (f"surrogate: the emulator failed validation ({_failure_text(state, max_emulator_ratio)}); "
-                   f"{int(state.count)} real simulations used. The posterior is not trustworthy")
+        message = (
+            f"surrogate: the emulator failed validation ({_failure_text(state, max_emulator_ratio)}); "
+            f"{int(state.count)} real simulations used. The posterior is not trustworthy"
+        )
         if on_failure == "raise":
             raise EmulatorFailure(message)
         warnings.warn(message, RuntimeWarning, stacklevel=2)
@@ -377,8 +417,13 @@ def build(
         done = int(state.phase) == DONE
         trusted = bool(state.lack_of_fit_ok) and float(state.emulator_ratio) <= max_emulator_ratio
         threshold = float(state.mean_squared_error) if trusted else np.inf
-        return Info(generation_done=np.bool_(True), stop=np.bool_(done), threshold=np.float64(threshold),
-                    acceptance_rate=np.float64(state.coverage), ess=np.float64(num_particles))
+        return Info(
+            generation_done=np.bool_(True),
+            stop=np.bool_(done),
+            threshold=np.float64(threshold),
+            acceptance_rate=np.float64(state.coverage),
+            ess=np.float64(num_particles),
+        )
 
     def step(key: jax.Array, state: SurrogateState) -> tuple[SurrogateState, Info]:
         with jax.enable_x64(True), _single_threaded_blas():
@@ -397,8 +442,9 @@ def build(
         state = add_rows(empty_state(), proposal, summaries, ROLE_DESIGN, group)
         return step(key, state._replace(round=np.int64(-1)))
 
-    def update(key: jax.Array, state: SurrogateState, proposal: Proposal, distances: Any,
-               summaries: Any) -> tuple[SurrogateState, Info]:
+    def update(
+        key: jax.Array, state: SurrogateState, proposal: Proposal, distances: Any, summaries: Any
+    ) -> tuple[SurrogateState, Info]:
         if int(state.phase) == DONE:
             raise RuntimeError("surrogate: update called after the run stopped")
         role = ROLE_HOLDOUT if int(state.phase) == VALIDATING else ROLE_DESIGN
@@ -414,10 +460,14 @@ def build(
         n = settings["num_holdout"] * min(settings["observed_size"], settings["max_outputs"])
         cov_min, msq_max = diagnostics.holdout_bounds(n)
         if float(info.acceptance_rate) >= cov_min and float(info.threshold) <= msq_max:
-            return (f"emulator validated on held-out simulations (95 % coverage "
-                    f"{float(info.acceptance_rate):.2f}, mean squared standardised error {float(info.threshold):.2f})")
-        return _FLAG + (f"emulator failed validation (coverage {float(info.acceptance_rate):.2f}, "
-                        f"mean squared standardised error {float(info.threshold):.2f})")
+            return (
+                f"emulator validated on held-out simulations (95 % coverage "
+                f"{float(info.acceptance_rate):.2f}, mean squared standardised error {float(info.threshold):.2f})"
+            )
+        return _FLAG + (
+            f"emulator failed validation (coverage {float(info.acceptance_rate):.2f}, "
+            f"mean squared standardised error {float(info.threshold):.2f})"
+        )
 
     def finalize(state: SurrogateState) -> dict:
         c = int(state.count)
@@ -435,9 +485,7 @@ def build(
             "holdout_coverage_95": float(state.coverage),
             "holdout_mean_squared_error": float(state.mean_squared_error),
             # numpy's stubs reject None as the fill (an object array, which is what JSON needs).
-            "holdout_errors": np.where(
-                np.isfinite(state.holdout_errors), state.holdout_errors, None
-            ).tolist(),  # pyright: ignore[reportAttributeAccessIssue]
+            "holdout_errors": np.where(np.isfinite(state.holdout_errors), state.holdout_errors, None).tolist(),  # pyright: ignore[reportAttributeAccessIssue]
             "lack_of_fit_ok": bool(state.lack_of_fit_ok),
             "emulator_to_noise_variance": float(state.emulator_ratio),
             "lengthscales": ls.tolist(),
@@ -457,9 +505,19 @@ def build(
         return SurrogateState(*[np.asarray(flat[keystr(p)], dtype=np.asarray(v).dtype) for p, v in leaves])
 
     return ABCAlgorithm(
-        name="surrogate", initial_proposal=initial_proposal, init=init, propose=propose, update=update,
-        posterior=posterior, settings=settings, stop_reason=stop_reason, finalize=finalize,
-        needs_stopping_rule=False, host=True, uses_summaries=True, restore_state=restore_state,
+        name="surrogate",
+        initial_proposal=initial_proposal,
+        init=init,
+        propose=propose,
+        update=update,
+        posterior=posterior,
+        settings=settings,
+        stop_reason=stop_reason,
+        finalize=finalize,
+        needs_stopping_rule=False,
+        host=True,
+        uses_summaries=True,
+        restore_state=restore_state,
     )
 
 
@@ -469,14 +527,20 @@ _FLAG = "NOT VALIDATED: "
 def _failure_text(state: SurrogateState, max_emulator_ratio: float) -> str:
     parts = []
     if float(state.emulator_ratio) > max_emulator_ratio:
-        parts.append(f"the emulator's variance over the posterior is {float(state.emulator_ratio):.2g} times "
-                     "the simulator noise: the GP does not resolve the simulator (too rough, or too few runs)")
+        parts.append(
+            f"the emulator's variance over the posterior is {float(state.emulator_ratio):.2g} times "
+            "the simulator noise: the GP does not resolve the simulator (too rough, or too few runs)"
+        )
     if not bool(state.lack_of_fit_ok):
-        parts.append("fitted noise far above the replicate scatter: the GP cannot represent the "
-                     "simulator (a discontinuity or a phase change?)")
+        parts.append(
+            "fitted noise far above the replicate scatter: the GP cannot represent the "
+            "simulator (a discontinuity or a phase change?)"
+        )
     if np.isfinite(state.coverage):
-        parts.append(f"held-out 95 % coverage {float(state.coverage):.2f}, mean squared standardised "
-                     f"error {float(state.mean_squared_error):.2f}")
+        parts.append(
+            f"held-out 95 % coverage {float(state.coverage):.2f}, mean squared standardised "
+            f"error {float(state.mean_squared_error):.2f}"
+        )
     return "; ".join(parts)
 
 

@@ -80,8 +80,9 @@ class Candidates:
         self.x, self.log_q = x, log_q
 
 
-def candidates(rng: np.random.Generator, dim: int, num: int, centre: np.ndarray | None = None,
-               cov: np.ndarray | None = None) -> Candidates:
+def candidates(
+    rng: np.random.Generator, dim: int, num: int, centre: np.ndarray | None = None, cov: np.ndarray | None = None
+) -> Candidates:
     """Draw ``num`` candidates; with ``centre``/``cov`` (unit-box coordinates) half are local."""
     # seed= as in initial_design (scipy's decorator adds it; its annotations do not show it).
     sobol = scipy.stats.qmc.Sobol(dim, scramble=True, seed=rng)  # pyright: ignore[reportCallIssue]

@@ -36,8 +36,9 @@ def replicate_variance(z: np.ndarray, group: np.ndarray, ok: np.ndarray) -> tupl
     return (ss / df if df else np.full(z.shape[1], np.nan)), df
 
 
-def lack_of_fit(nugget_variance: np.ndarray, rep_variance: np.ndarray, df: int,
-                level: float = 1e-3) -> tuple[bool | None, np.ndarray]:
+def lack_of_fit(
+    nugget_variance: np.ndarray, rep_variance: np.ndarray, df: int, level: float = 1e-3
+) -> tuple[bool | None, np.ndarray]:
     """Test fitted nuggets against replicate scatter (Bonferroni over outputs).
 
     Returns

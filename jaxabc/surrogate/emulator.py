@@ -173,8 +173,9 @@ def fit(x: np.ndarray, z: np.ndarray, mask: np.ndarray, starts: tuple[float, ...
     best = None
     for ls in starts:
         p0 = np.tile(np.concatenate([[0.0], np.full(d, np.log(ls)), [np.log(0.1)]]), q)
-        res = scipy.optimize.minimize(objective, p0, jac=True, method="L-BFGS-B", bounds=bounds,
-                                      options={"maxiter": 300})
+        res = scipy.optimize.minimize(
+            objective, p0, jac=True, method="L-BFGS-B", bounds=bounds, options={"maxiter": 300}
+        )
         if best is None or res.fun < best.fun:
             best = res
     assert best is not None, "fit needs at least one start"
@@ -186,6 +187,7 @@ def predict(emulator: Emulator, x_new: jax.Array) -> tuple[jax.Array, jax.Array]
 
     Differentiable and jittable (uses the stored Cholesky factors, O(M^2) per point).
     """
+
     def one(log_amp, log_ls, alpha, chol):
         kstar = _kernel(log_amp, log_ls)(emulator.x, x_new)  # (M, n)
         kstar = jnp.where(emulator.mask[:, None], kstar, 0.0)
@@ -205,6 +207,7 @@ def loo_residuals(emulator: Emulator) -> jax.Array:
     ``r_i = [K^-1 z]_i / [K^-1]_ii``, the closed form of refitting without row ``i`` at fixed
     hyper-parameters.
     """
+
     def one(alpha, chol):
         eye = jnp.eye(chol.shape[0])
         kinv = jax.scipy.linalg.cho_solve((chol, True), eye)

@@ -131,8 +131,16 @@ def _logdensity_u(model: LikelihoodModel, u: jax.Array) -> jax.Array:
 
 
 @partial(jax.jit, static_argnames=("num_warmup", "num_draws", "thin"))
-def nuts(key: jax.Array, model: LikelihoodModel, x_init: jax.Array, inverse_mass_matrix: jax.Array,
-         step_size: jax.Array, num_warmup: int, num_draws: int, thin: int) -> tuple[jax.Array, jax.Array]:
+def nuts(
+    key: jax.Array,
+    model: LikelihoodModel,
+    x_init: jax.Array,
+    inverse_mass_matrix: jax.Array,
+    step_size: jax.Array,
+    num_warmup: int,
+    num_draws: int,
+    thin: int,
+) -> tuple[jax.Array, jax.Array]:
     """Sample the surrogate posterior with blackjax NUTS, one chain per starting point.
 
     The metric comes from the caller (the importance-weighted covariance of the design-phase

@@ -64,5 +64,10 @@ def load(fluid: str) -> FluidData:
     def read(name: str) -> np.ndarray:
         return np.genfromtxt(folder / name, delimiter=",", names=True, dtype=None, encoding="utf-8")
 
-    return FluidData(fluid, read("state_points.csv"), read("saturated_liquid.csv"), read("b2.csv"),
-                     (folder / "PROVENANCE.md").read_text())
+    return FluidData(
+        fluid,
+        read("state_points.csv"),
+        read("saturated_liquid.csv"),
+        read("b2.csv"),
+        (folder / "PROVENANCE.md").read_text(),
+    )

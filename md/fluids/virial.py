@@ -63,8 +63,10 @@ def b2_reduced(temperature: float, d_star: float = 0.0) -> float:
 
     # The core (r < 0.5) contributes -1 * r^2 to high accuracy: exp(-u/T) underflows there.
     core = -(0.5**3) / 3.0
-    parts = [integrate.quad(f, a, b, limit=200, epsabs=1e-12, epsrel=1e-11)[0]
-             for a, b in ((0.5, 1.0), (1.0, 1.5), (1.5, 3.0), (3.0, 10.0))]
+    parts = [
+        integrate.quad(f, a, b, limit=200, epsabs=1e-12, epsrel=1e-11)[0]
+        for a, b in ((0.5, 1.0), (1.0, 1.5), (1.5, 3.0), (3.0, 10.0))
+    ]
     tail = integrate.quad(f, 10.0, np.inf, limit=200, epsabs=1e-13)[0]
     return float(-2.0 * np.pi * (core + sum(parts) + tail))
 
@@ -78,7 +80,7 @@ def b2_lj(temperature: float | np.ndarray, d_star: float | np.ndarray = 0.0) -> 
 def b2_lj_series(temperature: float | np.ndarray, terms: int = 60) -> np.ndarray:
     """Classical LJ ``B2*`` from its exact series (Hirschfelder, Curtiss & Bird, eq. 3.6-8)::
 
-        B2* = -(2 pi / 3) sum_n 2^(n + 1/2) / (4 n!) Gamma((2n - 1) / 4) T*^(-(2n + 1) / 4)
+    B2* = -(2 pi / 3) sum_n 2^(n + 1/2) / (4 n!) Gamma((2n - 1) / 4) T*^(-(2n + 1) / 4)
     """
     t = np.asarray(temperature, float)
     n = np.arange(terms)[:, None]

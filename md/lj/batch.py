@@ -38,9 +38,7 @@ def batched(fn: Callable[..., Any], width: int | None) -> Callable[..., Any]:
 # argument, so its spec (static pytree metadata) is part of the cache key and a re-allocation
 # retraces instead of reusing a list size captured at trace time.
 @functools.partial(jax.jit, static_argnums=(0, 1))
-def _init_batch(
-    engine: LJEngine, width: int | None, keys: Array, params: LJParams, template: Any
-) -> Carry:
+def _init_batch(engine: LJEngine, width: int | None, keys: Array, params: LJParams, template: Any) -> Carry:
     return batched(lambda k, p: engine.init(k, p, neighbors=template), width)(keys, params)
 
 

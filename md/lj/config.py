@@ -163,9 +163,7 @@ class EngineConfig:
                 "use more atoms, a lower density, or a smaller skin"
             )
         if self.neighbor_format not in NEIGHBOR_FORMATS:
-            raise ValueError(
-                f"neighbor_format must be one of {NEIGHBOR_FORMATS}, got {self.neighbor_format!r}"
-            )
+            raise ValueError(f"neighbor_format must be one of {NEIGHBOR_FORMATS}, got {self.neighbor_format!r}")
         if self.rebuild_every < 1 or self.dt_ps <= 0.0:
             raise ValueError("rebuild_every must be >= 1 and dt_ps > 0")
         if self.rebuild not in REBUILD_POLICIES:

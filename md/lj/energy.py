@@ -33,9 +33,7 @@ def lj_pair_energy(r: Array, sigma: Array, epsilon: Array) -> Array:
     return 4.0 * epsilon * (sr6 * sr6 - sr6)
 
 
-def feynman_hibbs_correction(
-    r: Array, sigma: Array, epsilon: Array, mass_amu: float, kt_kj_mol: float
-) -> Array:
+def feynman_hibbs_correction(r: Array, sigma: Array, epsilon: Array, mass_amu: float, kt_kj_mol: float) -> Array:
     """Quadratic Feynman-Hibbs correction to the LJ pair energy, kJ/mol.
 
     ``hbar^2 / (24 mu k_B T) (U'' + 2 U'/r)`` with reduced mass ``mu = m / 2`` (Feynman & Hibbs
@@ -56,9 +54,7 @@ def feynman_hibbs_correction(
     return prefactor * 4.0 * epsilon * (132.0 * sr6 * sr6 - 30.0 * sr6) / r**2
 
 
-def axilrod_teller_energy(
-    vectors: Array, mask: Array, c9: float | Array, cutoff_nm: float
-) -> Array:
+def axilrod_teller_energy(vectors: Array, mask: Array, c9: float | Array, cutoff_nm: float) -> Array:
     """Axilrod-Teller triple-dipole energy summed over triples, kJ/mol.
 
     ``E = C9 (1 + 3 cos g1 cos g2 cos g3) / (r_ij r_ik r_jk)^3`` for every triple whose three
@@ -201,8 +197,10 @@ def make_energy_fn(
         if isinstance(idx, HalfPairs):
             force = (
                 jnp.zeros_like(position)
-                .at[jnp.where(valid, idx.i, 0)].add(pair_force)
-                .at[jnp.where(valid, idx.j, 0)].add(-pair_force)
+                .at[jnp.where(valid, idx.i, 0)]
+                .add(pair_force)
+                .at[jnp.where(valid, idx.j, 0)]
+                .add(-pair_force)
             )
             strain = 2.0 * jnp.sum(du * r2)
         else:
@@ -224,5 +222,3 @@ def lattice_positions(num_atoms: int) -> np.ndarray:
     grid = (np.arange(n) + 0.5) / n
     sites = np.stack(np.meshgrid(grid, grid, grid, indexing="ij"), axis=-1).reshape(-1, 3)
     return sites[:num_atoms].astype(np.float32)
-
-

@@ -74,9 +74,7 @@ class LJEngine:
         self.energy_fn = make_energy_fn(
             c.cutoff_nm, c.truncation, c.three_body, c.feynman_hibbs, c.mass_amu, c.kt_kj_mol
         )
-        self.displacement_fn, self.shift_fn = space.periodic_general(
-            self.box0, fractional_coordinates=True
-        )
+        self.displacement_fn, self.shift_fn = space.periodic_general(self.box0, fractional_coordinates=True)
         # jax-md's Nose-Hoover chains count 3N degrees of freedom, but the total momentum is zero
         # and conserved, so only 3N - 3 are thermal: scale the target so that the kinetic
         # temperature measured with 3N - 3 (LAMMPS's convention) equals the set point.
@@ -88,9 +86,7 @@ class LJEngine:
             "sy_steps": c.sy_steps,
         }
         if c.ensemble == "npt":
-            self._thermostat = jmd_simulate.nose_hoover_chain(
-                c.dt_ps, tau=c.tau_t_ps, **chain
-            )
+            self._thermostat = jmd_simulate.nose_hoover_chain(c.dt_ps, tau=c.tau_t_ps, **chain)
             self._barostat = jmd_simulate.nose_hoover_chain(c.dt_ps, tau=c.tau_p_ps, **chain)
             self._init_fn, self._apply_fn = jmd_simulate.npt_nose_hoover(
                 self.energy_fn,
@@ -158,9 +154,7 @@ class LJEngine:
             raise ValueError("this engine uses all pairs (use_neighbor_list=False): no list")
         c = self.config
         if position is None:
-            position = jax.random.uniform(
-                jax.random.PRNGKey(0), (c.num_atoms, 3), dtype=jnp.float32
-            )
+            position = jax.random.uniform(jax.random.PRNGKey(0), (c.num_atoms, 3), dtype=jnp.float32)
         self.neighbor_template = allocate_neighbor_list(
             self.neighbor_format,
             jnp.asarray(position),
@@ -192,14 +186,15 @@ class LJEngine:
         box = self.box(carry.md)
         nbrs = template.update(carry.md.position, box=box)
         diag = carry.diagnostics._replace(rebuilds=carry.diagnostics.rebuilds + 1)
-        return carry._replace(
-            neighbors=nbrs, list_reference=carry.unwrapped, list_side=box[0, 0], diagnostics=diag
-        )
+        return carry._replace(neighbors=nbrs, list_reference=carry.unwrapped, list_side=box[0, 0], diagnostics=diag)
 
     # -- batches on the host: overflow checks and re-allocation --------------------------------
 
     def init_batch(
-        self, keys: Array, params: LJParams, width: int | None = None,
+        self,
+        keys: Array,
+        params: LJParams,
+        width: int | None = None,
         max_reallocations: int = 6,
     ) -> Carry:
         """Start a batch (host side), re-allocating the list until no member overflows.
@@ -262,9 +257,7 @@ class LJEngine:
             after ``max_reallocations`` (those members' results cannot be trusted).
         """
         for attempt in range(max_reallocations + 1):
-            new, out = _advance_batch(
-                self, width, num_samples, blocks_per_sample, observe, carry, params
-            )
+            new, out = _advance_batch(self, width, num_samples, blocks_per_sample, observe, carry, params)
             overflow = np.asarray(new.diagnostics.overflow)
             if self.neighbor_fn is None or not overflow.any():
                 return new, out, True
@@ -273,9 +266,7 @@ class LJEngine:
             self.reallocate(np.asarray(carry.md.position[int(np.argmax(overflow))]))
             carry = _rebuild_batch(self, width, carry, self.neighbor_template)
             carry = carry._replace(
-                diagnostics=carry.diagnostics._replace(
-                    overflow=jnp.zeros_like(carry.diagnostics.overflow)
-                )
+                diagnostics=carry.diagnostics._replace(overflow=jnp.zeros_like(carry.diagnostics.overflow))
             )
         return new, out, False
 
@@ -284,16 +275,13 @@ class LJEngine:
     def _force_and_strain(self, position: Array, box: Array, **kwargs: Any) -> tuple:
         if not self.config.three_body:
             # Analytic pair forces and virial: no backward pass (and no scatter for dense lists).
-            return self.energy_fn.force_and_strain(
-                position, box, idx=kwargs.get("idx"), params=kwargs["params"]
-            )
+            return self.energy_fn.force_and_strain(position, box, idx=kwargs.get("idx"), params=kwargs["params"])
 
         def energy(pos: Array, eps: Array) -> Array:
             return self.energy_fn(pos, box=box, perturbation=1.0 + eps, **kwargs)
 
         grads = jax.grad(energy, argnums=(0, 1))(position, jnp.zeros((), position.dtype))
         return -grads[0], grads[1]
-
 
     # -- pure JAX ------------------------------------------------------------------------
 
@@ -372,16 +360,19 @@ class LJEngine:
         if c.ensemble == "npt":
             _, strain = self._force_and_strain(position, self.box0, **kw)
         return Carry(
-            md=md, neighbors=nbrs, unwrapped=position, diagnostics=diag, strain_derivative=strain,
-            list_reference=position, list_side=self.box0[0, 0],
+            md=md,
+            neighbors=nbrs,
+            unwrapped=position,
+            diagnostics=diag,
+            strain_derivative=strain,
+            list_reference=position,
+            list_side=self.box0[0, 0],
         )
 
     @staticmethod
     def _neighbor_error(nbrs: Any) -> Array:
         # MALFORMED_BOX is set spuriously with fractional coordinates: read the two real flags.
-        return jnp.asarray(nbrs.did_buffer_overflow, bool) | jnp.asarray(
-            nbrs.cell_size_too_small, bool
-        )
+        return jnp.asarray(nbrs.did_buffer_overflow, bool) | jnp.asarray(nbrs.cell_size_too_small, bool)
 
     def _block(self, carry: Carry, params: LJParams) -> Carry:
         """``rebuild_every`` steps, starting with a list rebuild (every block, or when needed)."""
@@ -465,8 +456,13 @@ class LJEngine:
             rebuilds=rebuilds,
         )
         return Carry(
-            md=md, neighbors=nbrs, unwrapped=unwrapped, diagnostics=diag, strain_derivative=strain,
-            list_reference=ref, list_side=side_ref,
+            md=md,
+            neighbors=nbrs,
+            unwrapped=unwrapped,
+            diagnostics=diag,
+            strain_derivative=strain,
+            list_reference=ref,
+            list_side=side_ref,
         )
 
     def run(

@@ -36,6 +36,7 @@ __all__ = [
     "build_neighbor_list",
 ]
 
+
 class HalfPairs(NamedTuple):
     """A sparse half neighbour list: each pair (i < j) once, ``num_atoms`` marks an empty slot.
 
@@ -94,11 +95,7 @@ def _neighbor_vectors(
 
 
 _HALF = [(0, 0, 0)] + [
-    (dx, dy, dz)
-    for dz in (-1, 0, 1)
-    for dy in (-1, 0, 1)
-    for dx in (-1, 0, 1)
-    if (dz, dy, dx) > (0, 0, 0)
+    (dx, dy, dz) for dz in (-1, 0, 1) for dy in (-1, 0, 1) for dx in (-1, 0, 1) if (dz, dy, dx) > (0, 0, 0)
 ]
 _STENCIL = np.array(_HALF + [(-dx, -dy, -dz) for dx, dy, dz in _HALF[1:]], np.int32)
 #: ``rebuild="when_needed"`` projects the displacement over the coming block with this multiple
@@ -312,13 +309,16 @@ def allocate_neighbor_list(
     probe = NeighborSpec(format, n, float(reach_nm), nc, max_candidates, max(pairs_cap, 1), n)
     if nc:
         # Cell occupancy and the number of candidates are known from the cell counts alone.
-        _, _, occupancy = (int(v) for v in build_neighbor_list(
-            dataclasses.replace(probe, candidate_capacity=1, capacity=1, cell_capacity=1),
-            position, box).required)
+        _, _, occupancy = (
+            int(v)
+            for v in build_neighbor_list(
+                dataclasses.replace(probe, candidate_capacity=1, capacity=1, cell_capacity=1), position, box
+            ).required
+        )
         probe = dataclasses.replace(probe, cell_capacity=max(occupancy, 1))
-        total = int(build_neighbor_list(
-            dataclasses.replace(probe, candidate_capacity=1, capacity=1), position, box
-        ).required[0])
+        total = int(
+            build_neighbor_list(dataclasses.replace(probe, candidate_capacity=1, capacity=1), position, box).required[0]
+        )
         probe = dataclasses.replace(probe, candidate_capacity=max(total, 1))
     total, needed, occupancy = (int(v) for v in build_neighbor_list(probe, position, box).required)
     extra_sparse = extra_capacity * max(1, n // 64)
@@ -339,4 +339,3 @@ def allocate_neighbor_list(
         cell_capacity=min(cell_cap, n),
     )
     return build_neighbor_list(spec, position, box)
-

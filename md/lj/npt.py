@@ -77,9 +77,7 @@ def npt_step(engine: Any, state: Any, strain: Array, **kwargs: Any) -> tuple[Any
         # jax-md's shift_fn: dR in real units, transformed by the inverse box and wrapped
         # into the unit cube; for orthorhombic boxes a division by the sides (no 3 x 3
         # product per atom) and x - floor(x) (the same value as mod(x, 1)).
-        dr = (r * (jnp.exp(x) - 1) + dt * v * jnp.exp(x_2) * sinhx_x(x_2)) / _box_diagonal(
-            box
-        )
+        dr = (r * (jnp.exp(x) - 1) + dt * v * jnp.exp(x_2) * sinhx_x(x_2)) / _box_diagonal(box)
         r = r + dr
         return r - jnp.floor(r)
 
@@ -116,7 +114,12 @@ def npt_step(engine: Any, state: Any, strain: Array, **kwargs: Any) -> tuple[Any
     p, tc = engine._thermostat.half_step(p, tc, kt)
     p_b, bc = engine._barostat.half_step(p_b, bc, kt)
     s = s.set(
-        position=r, momentum=p, force=f, box_position=r_b, box_momentum=p_b,
-        thermostat=tc, barostat=bc,
+        position=r,
+        momentum=p,
+        force=f,
+        box_position=r_b,
+        box_momentum=p_b,
+        thermostat=tc,
+        barostat=bc,
     )
     return s, strain

@@ -135,9 +135,7 @@ def load_trajectory(
         raise ValueError(f"{path}: triclinic boxes are not supported (isotropic NPT is cubic)")
     num_atoms = xyz.shape[1]
     if num_atoms % sites_per_molecule:
-        raise ValueError(
-            f"{path}: {num_atoms} atoms is not a multiple of {sites_per_molecule} sites/molecule"
-        )
+        raise ValueError(f"{path}: {num_atoms} atoms is not a multiple of {sites_per_molecule} sites/molecule")
     keep = time >= start_ps - 1e-6
     if stop_ps is not None:
         keep &= time <= stop_ps + 1e-6
@@ -238,8 +236,7 @@ def radial_distribution(
     num_b = positions_b.shape[1]
     if positions_b.shape[0] != num_frames or box_nm.shape != (num_frames, 3):
         raise ValueError(
-            f"shapes disagree: positions_a {positions_a.shape}, positions_b {positions_b.shape}, "
-            f"box {box_nm.shape}"
+            f"shapes disagree: positions_a {positions_a.shape}, positions_b {positions_b.shape}, box {box_nm.shape}"
         )
     if molecule_a.shape != (num_a,) or molecule_b.shape != (num_b,):
         raise ValueError("molecule_a and molecule_b must give one molecule index per site")
@@ -258,11 +255,16 @@ def radial_distribution(
     frames_per_batch = max(1, min(num_frames, int(2e7 // max(1, num_a * num_b * 3))))
     counts = np.asarray(
         _pair_histogram(
-            jnp.asarray(positions_a), jnp.asarray(positions_b), jnp.asarray(box_nm),
-            jnp.asarray(molecule_a), jnp.asarray(molecule_b), jnp.float32(bin_width_nm),
+            jnp.asarray(positions_a),
+            jnp.asarray(positions_b),
+            jnp.asarray(box_nm),
+            jnp.asarray(molecule_a),
+            jnp.asarray(molecule_b),
+            jnp.float32(bin_width_nm),
             jnp.float32(0.5 * bin_width_nm if gmx_bins else 0.0),
             # Rounded up to 64 bins so that a fluctuating half-box does not recompile each call.
-            64 * math.ceil(num_bins / 64), frames_per_batch,
+            64 * math.ceil(num_bins / 64),
+            frames_per_batch,
         ),
         dtype=np.float64,
     )[:num_bins]
@@ -287,8 +289,15 @@ def rdf_oo(
     """Oxygen-oxygen g(r) (self pairs excluded); see :func:`radial_distribution`."""
     molecules = np.arange(trajectory.num_molecules)
     return radial_distribution(
-        trajectory.oxygen_nm, trajectory.oxygen_nm, trajectory.box_nm, molecules, molecules,
-        r_max_nm, bin_width_nm, normalise_excluded, gmx_bins,
+        trajectory.oxygen_nm,
+        trajectory.oxygen_nm,
+        trajectory.box_nm,
+        molecules,
+        molecules,
+        r_max_nm,
+        bin_width_nm,
+        normalise_excluded,
+        gmx_bins,
     )
 
 
@@ -311,8 +320,15 @@ def rdf_oh(
         # Distinct labels for the two sets: nothing is excluded.
         hydrogen_molecule = hydrogen_molecule + trajectory.num_molecules
     return radial_distribution(
-        trajectory.oxygen_nm, trajectory.hydrogen_nm, trajectory.box_nm, molecules,
-        hydrogen_molecule, r_max_nm, bin_width_nm, normalise_excluded, gmx_bins,
+        trajectory.oxygen_nm,
+        trajectory.hydrogen_nm,
+        trajectory.box_nm,
+        molecules,
+        hydrogen_molecule,
+        r_max_nm,
+        bin_width_nm,
+        normalise_excluded,
+        gmx_bins,
     )
 
 
@@ -339,9 +355,7 @@ def unwrap(positions_nm: jax.Array, box_nm: jax.Array) -> jax.Array:
     step = positions_nm[1:] - positions_nm[:-1]
     edge = box_nm[1:, None, :]
     step = step - edge * jnp.round(step / edge)
-    return jnp.concatenate(
-        [positions_nm[:1], positions_nm[:1] + jnp.cumsum(step, axis=0)], axis=0
-    )
+    return jnp.concatenate([positions_nm[:1], positions_nm[:1] + jnp.cumsum(step, axis=0)], axis=0)
 
 
 @partial(jax.jit, static_argnames=("max_lag", "origin_stride", "remove_drift"))
@@ -484,9 +498,6 @@ def compute_curves(
         raise ValueError(f"variant must be 'robust' or 'paper', got {variant!r}")
     robust = variant == "robust"
     r_oo, g_oo = rdf_oo(trajectory, r_max_nm, bin_width_nm, normalise_excluded=robust)
-    r_oh, g_oh = rdf_oh(trajectory, r_max_nm, bin_width_nm, intermolecular=robust,
-                        normalise_excluded=robust)
-    lag, msd = mean_squared_displacement(
-        trajectory, origin_interval_ps=None if robust else 10.0, remove_drift=robust
-    )
+    r_oh, g_oh = rdf_oh(trajectory, r_max_nm, bin_width_nm, intermolecular=robust, normalise_excluded=robust)
+    lag, msd = mean_squared_displacement(trajectory, origin_interval_ps=None if robust else 10.0, remove_drift=robust)
     return WaterCurves(r_oo, g_oo, r_oh, g_oh, lag, msd, float(density_kg_m3), robust)

@@ -105,8 +105,9 @@ class ExperimentalCurve(NamedTuple):
 @cache
 def _skinner() -> np.ndarray:
     # The original file: tab separated, CRLF, 10 comment + 2 header lines, r in Angstrom.
-    table = np.genfromtxt(DATA_DIR / "skinner2013_Ambient_water_xray_data.txt", delimiter="\t",
-                          skip_header=12, usecols=(3, 4, 5))
+    table = np.genfromtxt(
+        DATA_DIR / "skinner2013_Ambient_water_xray_data.txt", delimiter="\t", skip_header=12, usecols=(3, 4, 5)
+    )
     return table[~np.isnan(table[:, 0])]
 
 
@@ -114,7 +115,10 @@ def xray_goo() -> ExperimentalCurve:
     """Skinner 2013 X-ray g_OO(r) at 295.15 K, r converted from Angstrom to nm."""
     table = _skinner()
     return ExperimentalCurve(
-        r_nm=table[:, 0] / 10.0, g=table[:, 1], error=table[:, 2], temperature_k=295.15,
+        r_nm=table[:, 0] / 10.0,
+        g=table[:, 1],
+        error=table[:, 2],
+        temperature_k=295.15,
         source="L. B. Skinner et al., J. Chem. Phys. 138, 074506 (2013), doi:10.1063/1.4790861",
     )
 
@@ -127,11 +131,9 @@ def _soper() -> np.ndarray:
 def neutron_curves() -> dict[str, ExperimentalCurve]:
     """Soper 2013 intermolecular ``{"OO", "OH", "HH"}`` g(r) of ambient water, r in nm."""
     table = _soper()
-    source = ("A. K. Soper, ISRN Physical Chemistry 2013, 279463 (2013), "
-              "doi:10.1155/2013/279463 (EPSR, ambient water)")
+    source = "A. K. Soper, ISRN Physical Chemistry 2013, 279463 (2013), doi:10.1155/2013/279463 (EPSR, ambient water)"
     return {
-        pair: ExperimentalCurve(table[:, 0] / 10.0, table[:, column], table[:, column + 1],
-                                298.0, source)
+        pair: ExperimentalCurve(table[:, 0] / 10.0, table[:, column], table[:, column + 1], 298.0, source)
         for pair, column in (("OO", 1), ("OH", 3), ("HH", 5))
     }
 
@@ -192,9 +194,7 @@ def diffusion_statistic_value(variant: str, diffusion: str = "experiment") -> fl
         d_cm2_s = DIFFUSION_298K_CM2_S if diffusion == "experiment" else PAPER_DIFFUSION_CM2_S
         slope = 6.0 * d_cm2_s * 1e2  # 1 cm^2/s = 1e14 nm^2 / 1e12 ps = 1e2 nm^2/ps
     else:
-        raise ValueError(
-            f"diffusion must be 'experiment', 'paper_text' or 'paper_stored', got {diffusion!r}"
-        )
+        raise ValueError(f"diffusion must be 'experiment', 'paper_text' or 'paper_stored', got {diffusion!r}")
     if variant == "paper":
         return slope
     if variant == "robust":

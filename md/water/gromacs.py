@@ -126,6 +126,7 @@ def _gmx_data_dir(gmx_path: str) -> Path:
 
 # --------------------------------------------------------------------------------------------
 
+
 def seeds_for_key(key) -> tuple[int, int]:
     """``(gen_seed, ld_seed)`` for GROMACS, derived from a particle's JAX key.
 
@@ -199,26 +200,26 @@ def _run_gmx(args: list[str], cwd: Path, deadline: float, stdin: str | None = No
     # (jaxabc.ProcessPoolExecutor does) then stops gmx too.  gmx is one process (thread-MPI),
     # so killing it on our own timeout needs no group kill.
     process = subprocess.Popen(
-        args, cwd=cwd, stdin=subprocess.PIPE if stdin is not None else subprocess.DEVNULL,
-        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env,
+        args,
+        cwd=cwd,
+        stdin=subprocess.PIPE if stdin is not None else subprocess.DEVNULL,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        env=env,
     )
     try:
         output, _ = process.communicate(input=stdin, timeout=remaining)
     except subprocess.TimeoutExpired:
         process.kill()
         process.communicate()
-        raise SimulationFailure(
-            f"timeout: `gmx {args[1]}` was killed after the run's time limit"
-        ) from None
+        raise SimulationFailure(f"timeout: `gmx {args[1]}` was killed after the run's time limit") from None
     if process.returncode < 0:
         raise SimulationFailure(
-            f"`gmx {args[1]}` was killed by signal {-process.returncode} "
-            f"({signal.Signals(-process.returncode).name})"
+            f"`gmx {args[1]}` was killed by signal {-process.returncode} ({signal.Signals(-process.returncode).name})"
         )
     if process.returncode != 0:
-        raise SimulationFailure(
-            f"`gmx {args[1]}` exited with status {process.returncode}: {_fatal_message(output)}"
-        )
+        raise SimulationFailure(f"`gmx {args[1]}` exited with status {process.returncode}: {_fatal_message(output)}")
 
 
 _NONFINITE = re.compile(r"(?<![A-Za-z])(nan|-?inf)(?![A-Za-z])", re.IGNORECASE)
@@ -234,9 +235,7 @@ def _check_log_energies(log: Path) -> None:
                 raise SimulationFailure(f"non-finite energies in {log.name}: {row.strip()}")
 
 
-def build_system(
-    protocol: Protocol, workdir: Path, gmx_path: str, deadline: float | None = None
-) -> int:
+def build_system(protocol: Protocol, workdir: Path, gmx_path: str, deadline: float | None = None) -> int:
     """Write ``conf.gro`` (the starting water box) into ``workdir``; return its molecule count.
 
     ``box_nm=None`` copies GROMACS's equilibrated ``tip4p.gro``; otherwise
@@ -249,8 +248,11 @@ def build_system(
         shutil.copyfile(top_dir / "tip4p.gro", workdir / "conf.gro")
     else:
         box = f"{protocol.box_nm!r}"
-        _run_gmx([gmx_path, "solvate", "-cs", str(top_dir / "tip4p.gro"), "-box", box, box, box,
-                  "-o", "conf.gro"], workdir, deadline)
+        _run_gmx(
+            [gmx_path, "solvate", "-cs", str(top_dir / "tip4p.gro"), "-box", box, box, box, "-o", "conf.gro"],
+            workdir,
+            deadline,
+        )
     lines = (workdir / "conf.gro").read_text().splitlines()
     num_atoms = int(lines[1])
     if num_atoms % 4:
@@ -305,13 +307,17 @@ def run_gromacs(
     (workdir / "npt.mdp").write_text(mdp_text(protocol, params, "npt", gen_seed, ld_seed))
 
     mdrun_threads = ["-ntmpi", "1", "-ntomp", "1", "-pin", "off"]
-    _run_gmx([gmx_path, "grompp", "-f", "em.mdp", "-c", "conf.gro", "-p", "topol.top",
-              "-o", "em.tpr"], workdir, deadline)
+    _run_gmx(
+        [gmx_path, "grompp", "-f", "em.mdp", "-c", "conf.gro", "-p", "topol.top", "-o", "em.tpr"], workdir, deadline
+    )
     _run_gmx([gmx_path, "mdrun", "-deffnm", "em", *mdrun_threads], workdir, deadline)
     # -maxwarn 1: the one warning is GROMACS's advice against Parrinello-Rahman right after
     # velocity generation; the paper's protocol does exactly that (its scripts used -maxwarn 2).
-    _run_gmx([gmx_path, "grompp", "-f", "npt.mdp", "-c", "em.gro", "-p", "topol.top",
-              "-o", "npt.tpr", "-maxwarn", "1"], workdir, deadline)
+    _run_gmx(
+        [gmx_path, "grompp", "-f", "npt.mdp", "-c", "em.gro", "-p", "topol.top", "-o", "npt.tpr", "-maxwarn", "1"],
+        workdir,
+        deadline,
+    )
     _run_gmx([gmx_path, "mdrun", "-deffnm", "npt", *mdrun_threads], workdir, deadline)
 
     run = GromacsRun(
@@ -364,8 +370,7 @@ def check_physical(box_nm: np.ndarray, num_molecules: int, protocol: Protocol) -
         )
     if mean_density > protocol.max_density_kg_m3:
         raise SimulationFailure(
-            f"density {mean_density:.4g} kg/m3 > {protocol.max_density_kg_m3:g} kg/m3: the "
-            "liquid collapsed"
+            f"density {mean_density:.4g} kg/m3 > {protocol.max_density_kg_m3:g} kg/m3: the liquid collapsed"
         )
     smallest = float(box_nm.min())
     if smallest < 2.0 * protocol.cutoff_nm:

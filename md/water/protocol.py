@@ -67,8 +67,7 @@ class Protocol:
             raise ValueError("num_steps and frame_interval_steps must be positive")
         if self.analysis_start_ps >= self.length_ps:
             raise ValueError(
-                f"analysis_start_ps={self.analysis_start_ps} must be below the run length "
-                f"{self.length_ps} ps"
+                f"analysis_start_ps={self.analysis_start_ps} must be below the run length {self.length_ps} ps"
             )
         if self.min_density_kg_m3 >= self.max_density_kg_m3:
             raise ValueError("min_density_kg_m3 must be below max_density_kg_m3")
@@ -139,8 +138,7 @@ def get_protocol(preset: str | Protocol, **overrides) -> Protocol:
             base = PRESETS[preset]
         except KeyError:
             raise ValueError(
-                f"unknown GROMACS preset {preset!r}; choose one of {sorted(PRESETS)} or pass a "
-                "Protocol"
+                f"unknown GROMACS preset {preset!r}; choose one of {sorted(PRESETS)} or pass a Protocol"
             ) from None
     return replace(base, **overrides) if overrides else base
 
@@ -212,4 +210,3 @@ def mdp_text(
     else:
         raise ValueError(f"stage must be 'em' or 'npt', got {stage!r}")
     return "".join(f"{k:<26}= {v}\n" for k, v in options.items())
-

@@ -103,9 +103,7 @@ class TIP4PSimulator:
         if statistics not in VARIANTS:
             raise ValueError(f"statistics must be one of {VARIANTS}, got {statistics!r}")
         if observed_kind not in OBSERVED_KINDS:
-            raise ValueError(
-                f"observed_kind must be one of {sorted(OBSERVED_KINDS)}, got {observed_kind!r}"
-            )
+            raise ValueError(f"observed_kind must be one of {sorted(OBSERVED_KINDS)}, got {observed_kind!r}")
         self.protocol = get_protocol(preset, **protocol_overrides)
         self.statistics = statistics
         self.observed_kind = observed_kind
@@ -131,8 +129,10 @@ class TIP4PSimulator:
                 "theta must hold 2 to 4 finite numbers (sigma_OW nm, epsilon_OW kJ/mol[, q_H e"
                 f"[, d_OM nm]]), got {theta}"
             )
-        values = {name: getattr(self.base_parameters, name)
-                  for name in (*self.THETA_NAMES, "oh_distance_nm", "hh_distance_nm")}
+        values = {
+            name: getattr(self.base_parameters, name)
+            for name in (*self.THETA_NAMES, "oh_distance_nm", "hh_distance_nm")
+        }
         values.update({name: float(v) for name, v in zip(self.THETA_NAMES, theta, strict=False)})
         return TIP4PParameters(**values)
 
@@ -170,9 +170,7 @@ class TIP4PSimulator:
         statistics = summary_statistics(curves, self.statistics)
         if not np.all(np.isfinite(statistics)):
             bad = [f"S{i + 1}" for i in np.flatnonzero(~np.isfinite(statistics))]
-            raise SimulationFailure(
-                f"no first peak/minimum found for {', '.join(bad)} (density {density:.4g} kg/m3)"
-            )
+            raise SimulationFailure(f"no first peak/minimum found for {', '.join(bad)} (density {density:.4g} kg/m3)")
         return SimulationOutput(statistics, curves, run)
 
     def __call__(self, key, theta) -> np.ndarray:

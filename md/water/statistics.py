@@ -164,9 +164,7 @@ def _float64(kernel):
         r_nm = np.asarray(r_nm, dtype=np.float64)
         g = np.asarray(g, dtype=np.float64)
         if r_nm.ndim != 1 or r_nm.shape != g.shape or r_nm.size < 8:
-            raise ValueError(
-                f"r_nm and g must be 1-D of equal length >= 8, got {r_nm.shape} and {g.shape}"
-            )
+            raise ValueError(f"r_nm and g must be 1-D of equal length >= 8, got {r_nm.shape} and {g.shape}")
         if np.any(np.diff(r_nm) <= 0):
             raise ValueError("r_nm must be strictly increasing")
         with _enable_x64():
@@ -189,9 +187,9 @@ def _numpy_gradient(g: jax.Array, r: jax.Array, start: jax.Array) -> jax.Array:
     """
     h_left = r[1:-1] - r[:-2]
     h_right = r[2:] - r[1:-1]
-    interior = (
-        h_left**2 * g[2:] + (h_right**2 - h_left**2) * g[1:-1] - h_right**2 * g[:-2]
-    ) / (h_left * h_right * (h_left + h_right))
+    interior = (h_left**2 * g[2:] + (h_right**2 - h_left**2) * g[1:-1] - h_right**2 * g[:-2]) / (
+        h_left * h_right * (h_left + h_right)
+    )
     forward = (g[1:] - g[:-1]) / (r[1:] - r[:-1])
     gradient = jnp.concatenate([forward[:1], interior, forward[-1:]])
     index = jnp.arange(g.shape[0])
@@ -244,9 +242,7 @@ def paper_oo_statistics(r_nm: jax.Array, g: jax.Array) -> jax.Array:
     start = jnp.max(jnp.where((index < top) & (g <= 0), index, 0))
     peak, minimum, ok = _paper_peak_and_minimum(r_nm, g, start, _GUARD_OO)
     mean = jnp.sum(jnp.where(index >= start, g, 0.0)) / (g.shape[0] - start)
-    values = jnp.stack([
-        mean, r_nm[minimum], _trapezoid_to(g, r_nm, start, minimum), g[peak], r_nm[peak]
-    ])
+    values = jnp.stack([mean, r_nm[minimum], _trapezoid_to(g, r_nm, start, minimum), g[peak], r_nm[peak]])
     return jnp.where(ok, values, jnp.nan).at[0].set(mean)
 
 
@@ -356,13 +352,10 @@ def robust_oo_statistics(r_nm: jax.Array, g: jax.Array) -> jax.Array:
     smooth = _smooth(jnp.nan_to_num(g))
     lo, hi = 0.2, 0.8
     r_peak, height, peak_ok = _robust_extremum(r, smooth, lo, hi, maximum=True)
-    r_min, _, min_ok = _robust_extremum(r, smooth, r_peak + 1e-6, jnp.minimum(1.6 * r_peak, hi),
-                                         maximum=False)
+    r_min, _, min_ok = _robust_extremum(r, smooth, r_peak + 1e-6, jnp.minimum(1.6 * r_peak, hi), maximum=False)
     covered = ~jnp.any(jnp.isnan(g) & (r >= lo - 0.002) & (r <= hi))
     g = jnp.nan_to_num(g)
-    values = jnp.stack([
-        _integral(r, g, lo, hi) / (hi - lo), r_min, _integral(r, g, lo, r_min), height, r_peak
-    ])
+    values = jnp.stack([_integral(r, g, lo, hi) / (hi - lo), r_min, _integral(r, g, lo, r_min), height, r_peak])
     return jnp.where(covered & peak_ok & min_ok, values, jnp.nan)
 
 
@@ -440,4 +433,3 @@ def summary_statistics(curves: WaterCurves, variant: str = "robust") -> np.ndarr
         raise ValueError(f"variant must be one of {VARIANTS}, got {variant!r}")
     diffusion = diffusion_statistic(curves.lag_ps, curves.msd_nm2, variant)
     return np.concatenate([np.asarray(oh, np.float64), np.asarray(oo, np.float64), [diffusion]])
-

@@ -40,8 +40,7 @@ class TIP4PParameters:
     hh_distance_nm: float = 0.15139
 
     def __post_init__(self) -> None:
-        for name in ("sigma_ow_nm", "epsilon_ow_kj_mol", "om_distance_nm", "oh_distance_nm",
-                     "hh_distance_nm"):
+        for name in ("sigma_ow_nm", "epsilon_ow_kj_mol", "om_distance_nm", "oh_distance_nm", "hh_distance_nm"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0):
                 raise ValueError(f"TIP4P parameter {name} must be finite and > 0, got {value!r}")
