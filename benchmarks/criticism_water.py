@@ -35,7 +35,7 @@ import numpy as np
 
 import jaxabc
 from jaxabc.criticism import critique
-from md.criticism_catalogue import WaterSimulatorWithEffects, water_catalogue
+from md.water.criticism import WaterSimulatorWithEffects, water_catalogue
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import QUICK_RESULTS, command_line, declare_input, write_result

@@ -38,6 +38,7 @@ import jax
 import numpy as np
 from scipy import stats
 
+from jaxabc.criticism._stats import _projector, _residual_test, _span
 from jaxabc.criticism.misfit import adjust_pvalues
 from jaxabc.criticism.predictive import simulate_many
 from jaxabc.executors import Executor
@@ -524,40 +525,3 @@ def rank_causes(
         residual_after_top=after_top,
         alpha=alpha,
     )
-
-
-def _span(eff: Effect) -> float:
-    """Largest move of the effect parameter away from its null that its prior allows."""
-    if eff.one_sided == 1:
-        return eff.high - eff.null
-    if eff.one_sided == -1:
-        return eff.null - eff.low
-    return max(eff.high - eff.null, eff.null - eff.low)
-
-
-def _projector(u: np.ndarray, prec: np.ndarray) -> np.ndarray:
-    """``I - U (U' W U)^+ U' W``: removes what the columns of ``u`` explain in the ``W`` metric."""
-    s = u.shape[0]
-    if u.shape[1] == 0:
-        return np.eye(s)
-    return np.eye(s) - u @ np.linalg.pinv(u.T @ prec @ u, rcond=1e-10, hermitian=True) @ u.T @ prec
-
-
-def _residual_test(r: np.ndarray, cov: np.ndarray, num_replicates: int | None, num_fitted: int) -> dict:
-    """Quadratic form of a residual in the null precision and its tail p-value.
-
-    The rank of ``cov`` less ``num_fitted`` (effect amplitudes fitted by projection) is the
-    degrees of freedom; with ``num_replicates`` the Hotelling F tail accounts for a covariance
-    estimated from that many replicates, otherwise the chi-squared tail.
-    """
-    w, v = np.linalg.eigh(cov)
-    keep = w > 1e-8 * max(w.max(), 1e-300)
-    proj = v[:, keep].T @ r
-    q = float(np.sum(proj**2 / w[keep]))
-    k = max(int(keep.sum()) - num_fitted, 1)
-    if num_replicates is not None and num_replicates - k > 2:
-        dof = num_replicates - k
-        p = float(stats.f.sf(q * dof / (k * (num_replicates - 1)), k, dof))
-    else:
-        p = float(stats.chi2.sf(q, k))
-    return dict(chi2=q, dof=k, p_value=p)

@@ -1,0 +1,98 @@
+"""Host-side bookkeeping of :mod:`jaxabc.fused`: records, history and stop reasons of a chunk."""
+
+from __future__ import annotations
+
+import time
+from typing import Any
+
+import jax.numpy as jnp
+import numpy as np
+
+from jaxabc.algorithms.base import ABCAlgorithm, Info
+from jaxabc.errors import STATUS_NONFINITE, STATUS_OK
+
+# Why a fused chunk stopped (the compiled loop's stop code).
+_NONE, _STOP_ALGORITHM, _STOP_STEPS, _STOP_THRESHOLD, _STOP_BUDGET = range(5)
+
+
+def _absorb(
+    block: dict, first_iteration: int, records: list, history: dict, t_start: float, algorithm: str, bar: Any
+) -> None:
+    """Move one chunk's per-iteration outputs (leading axis: iteration) into the host record."""
+    ran = np.flatnonzero(block["ran"])
+    if not np.all(block["ok"][ran]):
+        raise RuntimeError(
+            f"{algorithm}: the truncated perturbation kernel could not reach the prior's "
+            "support from some particles (no draw inside the box in 10,000 tries). The "
+            "posterior is piled against a prior bound: widen the prior there"
+        )
+    now = time.perf_counter() - t_start
+    for j, i in enumerate(ran):
+        active = block["active"][i]
+        records.append(
+            {
+                "theta": block["thetas"][i][active],
+                "distance": block["distances"][i][active],
+                "finite": block["finite"][i][active],
+                "active": active[active],
+                "iteration": np.full(int(active.sum()), first_iteration + j, np.int32),
+                **({"summaries": block["summaries"][i][active]} if "summaries" in block else {}),
+            }
+        )
+        if block["done"][i]:
+            history["threshold"].append(float(block["threshold"][i]))
+            history["sims"].append(int(block["generation_sims"][i]))
+            history["acceptance"].append(float(block["acceptance"][i]))
+            history["ess"].append(float(block["ess"][i]))
+            history["wall"].append(now)
+            if bar is not None:
+                bar.update(1)
+                bar.set_postfix(
+                    threshold=f"{float(block['threshold'][i]):.4g}", acceptance=f"{float(block['acceptance'][i]):.3f}"
+                )
+
+
+def _record_arrays(records: list[dict], keep_summaries: bool) -> dict[str, Any]:
+    if not records:
+        return {}
+    finite = np.concatenate([r["finite"] for r in records])
+    size = finite.shape[0]
+    out: dict[str, Any] = {
+        "theta": np.concatenate([r["theta"] for r in records]).astype(np.float64),
+        "distance": np.concatenate([r["distance"] for r in records]).astype(np.float64),
+        "status": np.where(finite, STATUS_OK, STATUS_NONFINITE).astype(np.int32),
+        "wall_time": np.full(size, np.nan),
+        "cpu_time": np.full(size, np.nan),
+        "worker": np.zeros(size, np.int32),
+        "iteration": np.concatenate([r["iteration"] for r in records]),
+        "reasons": ["" if f else "simulator returned non-finite summaries" for f in finite],
+    }
+    if keep_summaries:
+        out["summaries"] = np.concatenate([r["summaries"] for r in records])
+    return out
+
+
+def _stop_reason(
+    code: int,
+    algorithm: str,
+    algo: ABCAlgorithm,
+    history: dict,
+    num_steps: int | None,
+    final_threshold: float | None,
+    max_simulations: int | None,
+) -> str:
+    if code == _STOP_ALGORITHM:
+        done = jnp.asarray(True)
+        info = Info(
+            generation_done=done,
+            stop=done,
+            threshold=history["threshold"][-1],
+            acceptance_rate=history["acceptance"][-1],
+            ess=history["ess"][-1],
+        )
+        return algo.stop_reason(algo.settings, info)
+    if code == _STOP_STEPS:
+        return f"{num_steps} steps done"
+    if code == _STOP_THRESHOLD:
+        return f"final threshold {final_threshold} reached"
+    return f"simulation budget {max_simulations} reached"
