@@ -78,12 +78,22 @@ def check_shape(executor: Executor, simulate: Callable, prior: Uniform, observed
     """Fail early, with a clear message, when a JAX simulator's output shape is wrong."""
     if executor.name != "vmap" or hasattr(simulate, "simulate_batch"):
         return
+    check_traced_shape(simulate, prior, observed, distance, prior.low.dtype, "A vmap executor")
+
+
+def check_traced_shape(
+    simulate: Callable, prior: Uniform, observed: np.ndarray, distance: Any, dtype: Any, who: str
+) -> None:
+    """Trace ``simulate`` once (no compilation) and compare its output shape with ``observed``.
+
+    ``who`` names what needs a traceable simulator, for the error message.
+    """
     try:
-        out = jax.eval_shape(simulate, jax.random.key(0), jnp.zeros((prior.dim,), prior.low.dtype))
+        out = jax.eval_shape(simulate, jax.random.key(0), jnp.zeros((prior.dim,), dtype))
     except Exception as exc:
         raise TypeError(
             f"could not trace simulate(key, theta) with theta of shape ({prior.dim},): {exc}. "
-            "A vmap executor needs a JAX-traceable simulator; use executor='serial' or "
+            f"{who} needs a JAX-traceable simulator; use jaxabc.run with executor='serial' or "
             "'process_pool' for other code"
         ) from exc
     if not shapes_compatible(tuple(out.shape), observed.shape, distance):

@@ -33,8 +33,8 @@ from jaxabc._driver import build_by_name, builder_accepts
 from jaxabc._driver_checks import (
     cast_prior,
     check_stopping_rule,
+    check_traced_shape,
     precision,
-    shapes_compatible,
     validate_observed,
 )
 from jaxabc._fused_records import (
@@ -363,19 +363,7 @@ def _run_fused_body(
     if algo.host or algo.uses_summaries:
         raise ValueError(f"{algo.name} is host code: run it with jaxabc.run, not run_fused")
     check_stopping_rule(algo, num_steps, final_threshold, max_simulations, max_wall_time)
-    try:
-        out = jax.eval_shape(simulate, jax.random.key(0), jnp.zeros((prior.dim,), jdtype))
-    except Exception as exc:
-        raise TypeError(
-            f"could not trace simulate(key, theta) with theta of shape ({prior.dim},): {exc}. "
-            "The fused path needs a JAX-traceable simulator; use jaxabc.run with "
-            "executor='serial' or 'process_pool' for other code"
-        ) from exc
-    if not shapes_compatible(tuple(out.shape), obs.shape, distance):
-        raise ValueError(
-            f"the simulator returns summaries of shape {tuple(out.shape)} but the "
-            f"observed data has shape {obs.shape}: they must match"
-        )
+    check_traced_shape(simulate, prior, obs, distance, jdtype, "The fused path")
     dist_fn = get_distance(distance)
     root = jax.random.key(seed)
     obs_j = jnp.asarray(obs, jdtype)
