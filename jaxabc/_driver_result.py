@@ -57,6 +57,8 @@ def assemble(ctx: Context, prog: Progress, dtype: str, metadata: dict | None, se
     extras = dict(algo.finalize(prog.state)) if prog.state is not None else {}
     log_ev = extras.pop("log_evidence", None)
     diagnostics = extras.pop("diagnostics", None) or {}
+    if "distance_weights" in prog.history:
+        diagnostics = {**diagnostics, "distance_weights": prog.history["distance_weights"]}
     final_ess = extras.pop("ess", None)
     meta.update(extras)
     meta.update(metadata or {})

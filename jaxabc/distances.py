@@ -7,20 +7,30 @@ by :func:`jaxabc.run`.
 
 from __future__ import annotations
 
+import dataclasses
+import functools
 from collections.abc import Callable
+from typing import Any
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 __all__ = [
     "DISTANCES",
+    "AdaptivePNorm",
     "DistanceFn",
+    "adaptive_weights",
+    "as_adaptive",
     "euclidean",
     "gaussian_kde_density",
     "get_distance",
+    "is_adaptive",
     "kl_divergence",
+    "mad_scales",
     "mean_abs",
     "standardized_euclidean",
+    "weighted_pnorm",
 ]
 
 DistanceFn = Callable[[jax.Array, jax.Array], jax.Array]
@@ -129,7 +139,18 @@ DISTANCES: dict[str, DistanceFn] = {
 
 
 def get_distance(distance: str | DistanceFn) -> DistanceFn:
-    """Resolve a distance name (``"mean_abs"``, ``"euclidean"``, ``"kl"``) or pass a callable."""
+    """Resolve a distance name (``"mean_abs"``, ``"euclidean"``, ``"kl"``) or pass a callable.
+
+    ``"adaptive"`` (or an :class:`AdaptivePNorm`) is refused here with a message: its weights
+    change every generation, so only :func:`jaxabc.run` with an algorithm that re-estimates them
+    can use it.
+    """
+    if is_adaptive(distance):
+        raise ValueError(
+            "distance='adaptive' is re-weighted every generation by the algorithm itself, so it "
+            "cannot be used as a fixed distance function (e.g. by jaxabc.run_fused): call "
+            "jaxabc.run(..., distance='adaptive') with algorithm 'apmcabc' or 'pmcabc'"
+        )
     if callable(distance):
         return distance
     try:
@@ -139,3 +160,168 @@ def get_distance(distance: str | DistanceFn) -> DistanceFn:
             f"unknown distance {distance!r}: use one of {sorted(DISTANCES)} or pass a function "
             "distance(observed, simulated) -> scalar"
         ) from None
+
+
+# ----------------------------------------------------------------------------- adaptive p-norm
+
+
+def weighted_pnorm(observed: jax.Array, simulated: jax.Array, weights: jax.Array, p: float = 2.0) -> jax.Array:
+    """``(sum_k |w_k (x_k - y_k)|^p)^(1/p)`` for flat summary vectors.
+
+    Parameters
+    ----------
+    observed, simulated, weights : jax.Array, shape (s,)
+    p : float
+        The norm's order, at least 1.
+
+    Returns
+    -------
+    jax.Array, shape ()
+        NaN when ``simulated`` holds NaN (a failed simulation).
+    """
+    diff = jnp.abs(weights * (jnp.asarray(simulated) - jnp.asarray(observed)))
+    if p == 2.0:
+        return jnp.sqrt(jnp.sum(diff**2))
+    return jnp.sum(diff**p) ** (1.0 / p)
+
+
+def _masked_median(x: jax.Array, valid: jax.Array) -> jax.Array:
+    """Median of ``x[valid]`` for a fixed-size ``x`` (shape (m,)); NaN when nothing is valid."""
+    xs = jnp.sort(jnp.where(valid, x, jnp.inf))
+    n = jnp.sum(valid)
+    lo = jnp.maximum((n - 1) // 2, 0)
+    hi = jnp.maximum(n // 2, 0)
+    return jnp.where(n > 0, 0.5 * (xs[lo] + xs[hi]), jnp.nan)
+
+
+def mad_scales(summaries: jax.Array, valid: jax.Array) -> jax.Array:
+    """Median absolute deviation of each summary over the valid rows.
+
+    Parameters
+    ----------
+    summaries : jax.Array, shape (m, s)
+    valid : jax.Array, shape (m,)
+        Rows to use; rows holding a non-finite value are dropped as well.
+
+    Returns
+    -------
+    jax.Array, shape (s,)
+        ``median_i |x_ik - median_j x_jk|``; NaN when no row is valid.
+    """
+    valid = valid & jnp.all(jnp.isfinite(summaries), axis=1)
+
+    def column(x):
+        med = _masked_median(x, valid)
+        return _masked_median(jnp.abs(x - med), valid)
+
+    return jax.vmap(column, in_axes=1)(summaries)
+
+
+def adaptive_weights(summaries: jax.Array, valid: jax.Array) -> jax.Array:
+    """Prangle's (2017) weights ``1 / MAD`` of one generation's simulated summaries.
+
+    A summary with zero (or undefined) MAD gets weight 0: it did not vary over the generation,
+    so it cannot rank the particles, and ``1 / 0`` would swamp the others.
+
+    Parameters
+    ----------
+    summaries : jax.Array, shape (m, s)
+    valid : jax.Array, shape (m,)
+
+    Returns
+    -------
+    jax.Array, shape (s,)
+    """
+    scale = mad_scales(summaries, valid)
+    ok = jnp.isfinite(scale) & (scale > 0)
+    return jnp.where(ok, 1.0 / jnp.where(ok, scale, 1.0), 0.0)
+
+
+@dataclasses.dataclass(frozen=True)
+class AdaptivePNorm:
+    """The adaptive weighted p-norm of Prangle (2017), pyABC's ``AdaptivePNormDistance``.
+
+    Each generation, the weight of summary ``k`` becomes ``1 / MAD_k`` of the summaries simulated
+    in that generation (every proposal, accepted or not); the kept particles' distances are
+    recomputed with the new weights before the next threshold is chosen, so old and new
+    particles are compared on one scale.  MAD rather than the standard deviation, following
+    Prangle: one wild simulation (a crystallised water box, a diverging run) does not blow up a
+    summary's scale.
+
+    Pass ``distance="adaptive"`` (``p = 2``) or ``distance=AdaptivePNorm(p=...)`` to
+    :func:`jaxabc.run`; the driver binds the observed vector with :meth:`bind`.
+
+    Attributes
+    ----------
+    p : float
+        Order of the norm, at least 1.
+    observed : tuple of float
+        The flat observed summary vector (empty until bound).
+    """
+
+    p: float = 2.0
+    observed: tuple[float, ...] = ()
+
+    def __post_init__(self) -> None:
+        if not (isinstance(self.p, int | float) and self.p >= 1.0 and np.isfinite(self.p)):
+            raise ValueError(f"the adaptive p-norm needs a finite p >= 1, got p={self.p!r}")
+
+    def bind(self, observed: Any) -> AdaptivePNorm:
+        """This norm with ``observed`` (shape (s,)) attached; other shapes are refused."""
+        obs = np.asarray(observed, np.float64)
+        if obs.ndim != 1:
+            raise ValueError(
+                f"distance='adaptive' weights each summary separately, so the observed data must "
+                f"be a flat vector of summaries; got shape {obs.shape}: flatten it (and make the "
+                "simulator return the same flat vector)"
+            )
+        return dataclasses.replace(self, observed=tuple(float(v) for v in obs))
+
+    def settings(self) -> dict:
+        """The JSON form stored in the algorithm's settings."""
+        return {"p": float(self.p), "scale": "mad"}
+
+    def summaries_of(self, summaries: Any, distances: jax.Array, dtype: Any) -> jax.Array:
+        """The driver's summaries (m, s) in ``dtype``, NaN where the simulation failed.
+
+        Raises ValueError for anything but a batch of flat vectors of the observed length.
+        """
+        if summaries is None or summaries.ndim != 2 or summaries.shape[1] != len(self.observed):
+            raise ValueError(
+                "the adaptive distance needs flat summary vectors of the observed length "
+                f"{len(self.observed)}, as a batch of shape (m, {len(self.observed)}); got "
+                f"{None if summaries is None else tuple(summaries.shape)}"
+            )
+        summaries = jnp.asarray(summaries, dtype)
+        return jnp.where(jnp.isfinite(distances)[:, None], summaries, jnp.nan)
+
+    def distances(self, summaries: jax.Array, weights: jax.Array, valid: jax.Array) -> jax.Array:
+        """Distances of ``summaries`` (m, s) to the observed vector; ``+inf`` where not ``valid``."""
+        obs = jnp.asarray(self.observed, summaries.dtype)
+        d = jax.vmap(weighted_pnorm, in_axes=(None, 0, None, None))(obs, summaries, weights, self.p)
+        return jnp.where(valid & jnp.isfinite(d), d, jnp.inf)
+
+    def record_distance(self) -> DistanceFn:
+        """The unit-weight p-norm that the driver records for every simulation."""
+        return _unit_pnorm(float(self.p))
+
+
+@functools.cache
+def _unit_pnorm(p: float) -> DistanceFn:
+    # One function object per p, so the driver's compiled distance is reused across runs.
+    def distance(observed: jax.Array, simulated: jax.Array) -> jax.Array:
+        return weighted_pnorm(observed, simulated, jnp.ones_like(jnp.asarray(observed)), p)
+
+    distance.__name__ = distance.__qualname__ = f"adaptive_pnorm_unit_weights(p={p:g})"
+    return distance
+
+
+def is_adaptive(distance: Any) -> bool:
+    """Whether ``distance`` asks for the adaptive p-norm (``"adaptive"`` or an AdaptivePNorm)."""
+    return isinstance(distance, AdaptivePNorm) or (isinstance(distance, str) and distance == "adaptive")
+
+
+def as_adaptive(distance: Any, observed: Any) -> AdaptivePNorm:
+    """The :class:`AdaptivePNorm` that ``distance`` asks for, bound to ``observed``."""
+    spec = distance if isinstance(distance, AdaptivePNorm) else AdaptivePNorm()
+    return spec.bind(observed)

@@ -46,7 +46,7 @@ from jaxabc._driver_checks import (
 from jaxabc._driver_result import assemble
 from jaxabc.algorithms.base import ABCAlgorithm
 from jaxabc.checkpoint import CHECKPOINT_NAME
-from jaxabc.distances import get_distance
+from jaxabc.distances import AdaptivePNorm, as_adaptive, get_distance, is_adaptive
 from jaxabc.errors import STATUS_OK, TooManyFailures
 from jaxabc.executors import Executor, get_executor
 from jaxabc.priors import Uniform
@@ -150,6 +150,10 @@ def _end_generation(ctx: Context, prog: Progress, info: Any) -> None:
     h["acceptance"].append(float(info.acceptance_rate))
     h["ess"].append(float(info.ess))
     h["wall"].append(time.perf_counter() - ctx.t_start)
+    weights = getattr(prog.state, "distance_weights", None)
+    if weights is not None:
+        # An adaptive distance's weights change each generation; the history is checkpointed.
+        h.setdefault("distance_weights", []).append(np.asarray(weights, np.float64).tolist())
     prog.sims_this_generation = 0
     if ctx.bar is not None:
         ctx.bar.update(1)
@@ -245,6 +249,26 @@ def _restore(ctx: Context, prog: Progress) -> None:
 # ----------------------------------------------------------------------------- entry point
 
 
+def _adaptive_setup(distance: Any, algorithm: Any, obs: np.ndarray, options: dict) -> Callable:
+    """Hand the bound adaptive norm to the algorithm; return the distance the driver records."""
+    spec = as_adaptive(distance, obs)
+    if isinstance(algorithm, ABCAlgorithm):
+        if "adaptive_distance" not in algorithm.settings:
+            raise ValueError(
+                f"distance='adaptive' is computed by the algorithm, but this {algorithm.name} "
+                "object was built without adaptive_distance=: build it with "
+                "adaptive_distance=AdaptivePNorm().bind(observed), or pass its name"
+            )
+    elif builder_accepts(algorithm, "adaptive_distance"):
+        options["adaptive_distance"] = spec
+    else:
+        raise ValueError(
+            f"distance='adaptive' works with the SMC algorithms 'apmcabc' and 'pmcabc', not "
+            f"{algorithm!r}: choose one of them or a fixed distance"
+        )
+    return spec.record_distance()
+
+
 def run(
     algorithm: str | ABCAlgorithm,
     simulate: Callable,
@@ -252,7 +276,7 @@ def run(
     observed: Any,
     num_particles: int | None = None,
     num_steps: int | None = None,
-    distance: str | Callable = "mean_abs",
+    distance: str | Callable | AdaptivePNorm = "mean_abs",
     seed: int = 0,
     *,
     executor: str | Executor | None = None,
@@ -293,9 +317,14 @@ def run(
         Population size ``N``.
     num_steps : int, optional
         Maximum number of ABC steps (generations / levels), the initial prior sample included.
-    distance : str or callable
+    distance : str, callable or AdaptivePNorm
         ``"mean_abs"``, ``"euclidean"``, ``"kl"`` or ``distance(observed, simulated) -> scalar``.
-        A NaN distance of a successful simulation is recorded as a failure.
+        A NaN distance of a successful simulation is recorded as a failure.  ``"adaptive"``
+        (or :class:`jaxabc.distances.AdaptivePNorm` for another ``p``), for ``"apmcabc"`` and
+        ``"pmcabc"`` with flat summary vectors: Prangle's adaptive weighted p-norm, re-weighted
+        each generation by the algorithm; the weights of every generation are in
+        ``result.diagnostics["distance_weights"]`` (shape (generations, s)), the records hold
+        the unit-weight p-norm, and the thresholds are on each generation's own scale.
     seed : int
         The run's only source of randomness.
     executor : str or Executor
@@ -349,6 +378,9 @@ def run(
     t_start = time.perf_counter()
     validate_arguments(dtype, num_particles, num_steps, max_failure_fraction, simulate, prior)
     obs = validate_observed(observed)
+    if isinstance(distance, AdaptivePNorm) or is_adaptive(distance):
+        # The algorithm computes the adaptive distances; the driver records a fixed one.
+        distance = _adaptive_setup(distance, algorithm, obs, algorithm_options)
     with precision(dtype):
         jdtype = jnp.float64 if dtype == "float64" else jnp.float32
         prior = cast_prior(prior, jdtype)

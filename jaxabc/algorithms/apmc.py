@@ -21,6 +21,13 @@ Two weight modes:
     the whole merged population.  Mixing two weight scales over-weights whichever group has
     the larger scale; on a Gaussian toy it underestimates the posterior variance (see
     ``tests/test_algorithms.py``).
+
+With ``adaptive_distance`` (:class:`jaxabc.distances.AdaptivePNorm`, what
+``jaxabc.run(..., distance="adaptive")`` builds) the algorithm computes distances itself from
+the summaries: a new particle is counted as accepted when it is within the previous threshold
+under the previous weights; then the weights are re-estimated from the step's ``N - n_alpha``
+simulations and the whole merged population's distances are recomputed with them before the
+alpha selection (Prangle 2017).
 """
 
 from __future__ import annotations
@@ -34,6 +41,7 @@ from jax.scipy.special import logsumexp
 
 from jaxabc import kernels
 from jaxabc.algorithms.base import ABCAlgorithm, Info, Proposal, masked_percentile
+from jaxabc.distances import AdaptivePNorm, adaptive_weights
 from jaxabc.priors import Prior
 
 __all__ = ["APMCState", "build"]
@@ -60,6 +68,10 @@ class APMCState(NamedTuple):
     chol : jax.Array, shape (d, d)
         Cholesky factor of the perturbation covariance (2 x weighted covariance of the kept).
     generation : jax.Array, shape ()
+    summaries : jax.Array, shape (N, s), or None
+        With an adaptive distance: the merged population's summaries (NaN for failed slots).
+    distance_weights : jax.Array, shape (s,), or None
+        With an adaptive distance: the weights of ``distances`` and ``threshold``.
     """
 
     particles: jax.Array
@@ -70,6 +82,10 @@ class APMCState(NamedTuple):
     threshold: jax.Array
     chol: jax.Array
     generation: jax.Array
+    # None (no pytree leaves) without an adaptive distance, so such states and checkpoints are
+    # exactly those of a fixed distance.
+    summaries: jax.Array | None = None
+    distance_weights: jax.Array | None = None
 
 
 def build(
@@ -80,6 +96,7 @@ def build(
     covariance_factor: float = 2.0,
     weights: str = "lenormand",
     max_tries: int = 10_000,
+    adaptive_distance: AdaptivePNorm | None = None,
 ) -> ABCAlgorithm:
     """Build APMCABC.
 
@@ -100,6 +117,9 @@ def build(
         See the module docstring.
     max_tries : int
         Bound on truncated-kernel redraws per particle before reporting an unreachable support.
+    adaptive_distance : AdaptivePNorm, optional
+        Bound to the observed vector; the algorithm then receives the summaries and computes
+        its own distances (see the module docstring).
     """
     if not 0.0 < alpha < 1.0:
         raise ValueError(f"alpha must lie in (0, 1), got {alpha}; the paper used 0.1")
@@ -119,6 +139,9 @@ def build(
     m = n - n_alpha
     low, high = prior.low, prior.high
     abcpy = weights == "abcpy"
+    adaptive = adaptive_distance
+    if adaptive is not None and not adaptive.observed:
+        raise ValueError("adaptive_distance must be bound to the observed data: use AdaptivePNorm(...).bind(observed)")
 
     def _select(distances, valid, log_weights):
         """Alpha selection; returns kept mask, threshold, and the population compacted so that
@@ -141,12 +164,16 @@ def build(
         cov = covariance_factor * kernels.weighted_covariance(particles, lw)
         return jnp.linalg.cholesky(kernels.regularize_covariance(cov, low, high))
 
-    def _finish(particles, log_weights, distances, valid, generation, acceptance):
+    def _finish(particles, log_weights, distances, valid, generation, acceptance, summaries=None, dweights=None):
         order, kept, threshold = _select(distances, valid, log_weights)
         particles, log_weights = particles[order], log_weights[order]
         distances, valid = distances[order], valid[order]
         chol = _chol(particles, log_weights, kept)
-        state = APMCState(particles, log_weights, distances, valid, kept, threshold, chol, generation)
+        if summaries is not None:
+            summaries = summaries[order]
+        state = APMCState(
+            particles, log_weights, distances, valid, kept, threshold, chol, generation, summaries, dweights
+        )
         stop = acceptance < acceptance_cutoff
         post_lw = posterior(state)[1]
         info = Info(jnp.bool_(True), stop, threshold, acceptance, kernels.effective_sample_size(post_lw))
@@ -155,16 +182,29 @@ def build(
     def initial_proposal(key):
         return Proposal(prior.sample(key, n), jnp.ones((n,), bool), jnp.bool_(True))
 
-    def init(key, proposal, distances):
+    def _rescale(simulated, population):
+        """New weights from this step's ``simulated`` summaries; distances of ``population``."""
+        assert adaptive is not None, "only called with an adaptive distance"
+        dweights = adaptive_weights(simulated, jnp.all(jnp.isfinite(simulated), axis=1))
+        return adaptive.distances(population, dweights, jnp.ones(population.shape[0], bool)), dweights
+
+    def init(key, proposal, distances, summaries=None):
         del key
-        log_w = jnp.zeros((n,), proposal.thetas.dtype)
+        dtype = proposal.thetas.dtype
+        log_w = jnp.zeros((n,), dtype)
+        dweights = None
+        if adaptive is not None:
+            summaries = adaptive.summaries_of(summaries, distances, dtype)
+            distances, dweights = _rescale(summaries, summaries)
         return _finish(
             proposal.thetas,
             log_w,
             distances,
             jnp.ones((n,), bool),
             jnp.int32(0),
-            jnp.asarray(1.0, proposal.thetas.dtype),
+            jnp.asarray(1.0, dtype),
+            summaries,
+            dweights,
         )
 
     def propose(key, state):
@@ -174,7 +214,7 @@ def build(
         draw = kernels.truncated_gaussian_sample(k2, state.particles[parents], state.chol, low, high, max_tries)
         return Proposal(draw.samples, jnp.ones((m,), bool), jnp.all(draw.ok))
 
-    def update(key, state, proposal, distances):
+    def update(key, state, proposal, distances, summaries=None):
         theta = proposal.thetas
         # Kept particles occupy the first n_alpha slots (compacted by _select), so the kernel
         # mixture only needs those centres: (m, n_alpha) work instead of (m, N).
@@ -187,6 +227,12 @@ def build(
             log_norm = kernels.log_truncation_normalizer(key, centres, state.chol, low, high)
             log_norm = jnp.where(state.kept[head], log_norm, 0.0)
         new_lw = kernels.mixture_log_weights(theta, prior.log_prob(theta), centres, centre_lw, state.chol, log_norm)
+        merged_summaries = dweights = None
+        if adaptive is not None:
+            summaries = adaptive.summaries_of(summaries, distances, theta.dtype)
+            # Acceptance against the previous threshold, measured with the previous weights.
+            distances = adaptive.distances(summaries, state.distance_weights, jnp.ones((m,), bool))
+            merged_summaries = jnp.concatenate([state.summaries[head], summaries])
         if abcpy:
             acceptance = jnp.mean(distances < state.threshold)
             kept_lw = centre_lw - logsumexp(centre_lw)
@@ -199,7 +245,19 @@ def build(
         dists = jnp.concatenate([state.distances[head], distances])
         valid = jnp.concatenate([state.kept[head], jnp.ones((m,), bool)])
         log_weights = jnp.where(valid, log_weights, -jnp.inf)
-        return _finish(particles, log_weights, dists, valid, state.generation + 1, acceptance.astype(theta.dtype))
+        if merged_summaries is not None:
+            # Old and new particles on one scale: everyone is re-measured with the new weights.
+            dists, dweights = _rescale(summaries, merged_summaries)
+        return _finish(
+            particles,
+            log_weights,
+            dists,
+            valid,
+            state.generation + 1,
+            acceptance.astype(theta.dtype),
+            merged_summaries,
+            dweights,
+        )
 
     def posterior(state):
         if abcpy:
@@ -214,6 +272,8 @@ def build(
         "covariance_factor": covariance_factor,
         "weights": weights,
     }
+    if adaptive is not None:
+        settings["adaptive_distance"] = adaptive.settings()
     return ABCAlgorithm(
         "apmcabc",
         initial_proposal,
@@ -225,6 +285,7 @@ def build(
         stop_reason=_stop_reason,
         # A zero cutoff never fires: the run needs another rule.
         needs_stopping_rule=acceptance_cutoff == 0.0,
+        uses_summaries=adaptive is not None,
     )
 
 

@@ -15,6 +15,14 @@ distances.
 Rejection ABC is the same filling loop with the prior as proposal and a single generation; with
 ``threshold=None`` it instead simulates ``ceil(N / quantile)`` prior draws and keeps the best
 ``N`` (then ``quantile`` is the acceptance rate).
+
+With ``adaptive_distance`` (:class:`jaxabc.distances.AdaptivePNorm`, what
+``jaxabc.run(..., distance="adaptive")`` builds) PMC-ABC follows Prangle's (2017) algorithm 4:
+a generation accepts proposals within its threshold under the previous generation's weights;
+when it is complete, the weights are re-estimated from its simulations (accepted or not; at
+most ``batch_size`` of them, the first ones, which are i.i.d. draws from the same proposal as
+the rest), its particles' distances are recomputed with them, and the next threshold is their
+``quantile``.
 """
 
 from __future__ import annotations
@@ -22,13 +30,14 @@ from __future__ import annotations
 import itertools
 import math
 from collections.abc import Sequence
-from typing import NamedTuple
+from typing import NamedTuple, cast
 
 import jax
 import jax.numpy as jnp
 
 from jaxabc import kernels
 from jaxabc.algorithms.base import ABCAlgorithm, Info, Proposal
+from jaxabc.distances import AdaptivePNorm, adaptive_weights
 from jaxabc.priors import Prior
 
 __all__ = ["PMCState", "build", "build_rejection"]
@@ -56,6 +65,15 @@ class PMCState(NamedTuple):
         acceptance rate; discarded surplus acceptances included).
     acceptance_estimate : jax.Array, shape ()
         Acceptance rate used to size the next round before this generation has any of its own.
+    summaries : jax.Array, shape (N, s), or None
+        With an adaptive distance: the summaries of ``particles``.
+    distance_weights : jax.Array, shape (s,), or None
+        With an adaptive distance: the weights of ``threshold`` (estimated from the previous
+        generation's simulations).
+    scale_buffer : jax.Array, shape (batch_size, s), or None
+        With an adaptive distance: this generation's first finite simulated summaries.
+    scale_count : jax.Array, shape (), or None
+        Rows of ``scale_buffer`` in use.
     """
 
     particles: jax.Array
@@ -71,6 +89,12 @@ class PMCState(NamedTuple):
     round_simulations: jax.Array
     round_accepted: jax.Array
     acceptance_estimate: jax.Array
+    # None (no pytree leaves) without an adaptive distance, so such states and checkpoints are
+    # exactly those of a fixed distance.
+    summaries: jax.Array | None = None
+    distance_weights: jax.Array | None = None
+    scale_buffer: jax.Array | None = None
+    scale_count: jax.Array | None = None
 
 
 def _fill_in_order(filled: jax.Array, accept: jax.Array) -> tuple[jax.Array, jax.Array]:
@@ -97,6 +121,7 @@ def build(
     covariance_factor: float = 2.0,
     max_tries: int = 10_000,
     batch_size: int | None = None,
+    adaptive_distance: AdaptivePNorm | None = None,
 ) -> ABCAlgorithm:
     """Build PMC-ABC.
 
@@ -116,6 +141,10 @@ def build(
         Proposal slots per round (default ``4 N``); a round simulates only as many of them as
         it expects to need.  Larger batches mean fewer rounds; a fused JAX run
         (:func:`jaxabc.run_fused`) evaluates every slot, so there a larger batch costs compute.
+    adaptive_distance : AdaptivePNorm, optional
+        Bound to the observed vector; the algorithm then receives the summaries and computes
+        its own distances (see the module docstring).  Scheduled ``thresholds`` are then on
+        the scale of the previous generation's weights.
     """
     n = int(num_particles)
     # Four slots per particle: a round can then fill a generation whose acceptance is down to
@@ -130,8 +159,21 @@ def build(
     if thresholds and any(b > a for a, b in itertools.pairwise(thresholds)):
         raise ValueError(f"thresholds must be non-increasing, got {list(thresholds)}")
     low, high = prior.low, prior.high
+    # ``spec``, not ``adaptive``: that name is the quantile threshold in _start_generation.
+    spec = adaptive_distance
+    if spec is not None and not spec.observed:
+        raise ValueError("adaptive_distance must be bound to the observed data: use AdaptivePNorm(...).bind(observed)")
 
-    def _start_generation(key, particles, log_weights, distances, generation, acceptance):
+    def _start_generation(key, particles, log_weights, distances, generation, acceptance, summaries=None, buffer=None):
+        dweights = count = None
+        if spec is not None:
+            assert summaries is not None and buffer is not None, "adaptive states carry summaries"
+            # Prangle: the new scales come from this generation's simulations, and its
+            # particles are re-measured with them before the next threshold is chosen.
+            buffer, num_rows = buffer
+            dweights = adaptive_weights(buffer, jnp.arange(buffer.shape[0]) < num_rows)
+            distances = spec.distances(summaries, dweights, jnp.isfinite(distances))
+            count = jnp.int32(0)
         cov = covariance_factor * kernels.weighted_covariance(particles, log_weights)
         chol = jnp.linalg.cholesky(kernels.regularize_covariance(cov, low, high))
         log_norm = kernels.log_truncation_normalizer(key, particles, chol, low, high)
@@ -154,17 +196,28 @@ def build(
             round_simulations=jnp.int32(0),
             round_accepted=jnp.int32(0),
             acceptance_estimate=jnp.asarray(acceptance, particles.dtype),
+            summaries=summaries,
+            distance_weights=dweights,
+            scale_buffer=buffer,
+            scale_count=count,
         )
 
     def initial_proposal(key):
         return Proposal(prior.sample(key, n), jnp.ones((n,), bool), jnp.bool_(True))
 
-    def init(key, proposal, distances):
+    def init(key, proposal, distances, summaries=None):
         dtype = proposal.thetas.dtype
         log_w = jnp.zeros((n,), dtype)
+        buffer = None
+        if spec is not None:
+            summaries = spec.summaries_of(summaries, distances, dtype)
+            # The prior sample is generation 0's simulations; the buffer then holds the next
+            # generation's (its shape fixed by batch_size).
+            rows = jnp.full((m, summaries.shape[1]), jnp.nan, dtype).at[: min(m, n)].set(summaries[: min(m, n)])
+            buffer = (rows, jnp.int32(min(m, n)))
         # Before any round, guess that the first generation accepts about ``quantile`` of its
         # proposals (exact if the proposal were the prior itself).
-        state = _start_generation(key, proposal.thetas, log_w, distances, jnp.int32(0), quantile)
+        state = _start_generation(key, proposal.thetas, log_w, distances, jnp.int32(0), quantile, summaries, buffer)
         info = Info(
             jnp.bool_(True),
             jnp.bool_(False),
@@ -186,11 +239,23 @@ def build(
         active = (jnp.arange(m) < count) & (missing > 0)
         return Proposal(draw.samples, active, jnp.all(draw.ok | ~active))
 
-    def update(key, state, proposal, distances):
+    def update(key, state, proposal, distances, summaries=None):
+        summ = buffer = None
+        if spec is not None:
+            summaries = spec.summaries_of(summaries, distances, state.particles.dtype)
+            finite = proposal.active & jnp.isfinite(distances)
+            distances = spec.distances(summaries, state.distance_weights, finite)
+            # Append this round's finite simulations to the generation's scale sample; rows
+            # beyond the buffer are dropped.
+            row = jnp.where(finite, state.scale_count + jnp.cumsum(finite) - 1, m)
+            rows = cast(jax.Array, state.scale_buffer).at[row].set(summaries, mode="drop")
+            buffer = (rows, jnp.minimum(state.scale_count + jnp.sum(finite, dtype=jnp.int32), m))
         accept = proposal.active & (distances <= state.threshold)
         take, source = _fill_in_order(state.filled, accept)
         particles = jnp.where(take[:, None], proposal.thetas[source], state.particles)
         dists = jnp.where(take, distances[source], state.distances)
+        if summaries is not None:
+            summ = jnp.where(take[:, None], summaries[source], state.summaries)
         filled = state.filled | take
         sims = state.round_simulations + jnp.sum(proposal.active, dtype=jnp.int32)
         acc = state.round_accepted + jnp.sum(accept, dtype=jnp.int32)
@@ -213,10 +278,10 @@ def build(
                 state.chol,
                 state.log_normalizer,
             )
-            return _start_generation(key, particles, log_weights, dists, state.generation + 1, estimate)
+            return _start_generation(key, particles, log_weights, dists, state.generation + 1, estimate, summ, buffer)
 
         def carry_on(_):
-            return state._replace(
+            out = state._replace(
                 particles=particles,
                 distances=dists,
                 filled=filled,
@@ -224,6 +289,9 @@ def build(
                 round_accepted=acc,
                 acceptance_estimate=estimate,
             )
+            if buffer is not None:
+                out = out._replace(summaries=summ, scale_buffer=buffer[0], scale_count=buffer[1])
+            return out
 
         new_state = jax.lax.cond(done, finish, carry_on, None)
         ess = kernels.effective_sample_size(new_state.parent_log_weights)
@@ -240,8 +308,18 @@ def build(
         "covariance_factor": covariance_factor,
         "batch_size": m,
     }
+    if spec is not None:
+        settings["adaptive_distance"] = spec.settings()
     return ABCAlgorithm(
-        "pmcabc", initial_proposal, init, propose, update, posterior, settings, needs_stopping_rule=True
+        "pmcabc",
+        initial_proposal,
+        init,
+        propose,
+        update,
+        posterior,
+        settings,
+        needs_stopping_rule=True,
+        uses_summaries=spec is not None,
     )
 
 
