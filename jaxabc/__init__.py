@@ -11,6 +11,7 @@ __version__ = "0.1.0"
 
 from jaxabc import distances, kernels
 from jaxabc.algorithms import BUILDERS as ALGORITHMS
+from jaxabc.distances import AdaptivePNorm
 from jaxabc.errors import NoPosterior, SimulationFailure, TooManyFailures
 from jaxabc.executors import (
     DaskExecutor,
@@ -72,6 +73,7 @@ _cache_from_environment()
 __all__ = [
     "ALGORITHMS",
     "ABCResult",
+    "AdaptivePNorm",
     "CoverageStudy",
     "DaskExecutor",
     "Independent",
