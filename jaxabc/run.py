@@ -14,7 +14,7 @@ is required come from the :class:`~jaxabc.algorithms.base.ABCAlgorithm` fields.
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any, cast
 
@@ -270,10 +270,10 @@ def _adaptive_setup(distance: Any, algorithm: Any, obs: np.ndarray, options: dic
 
 
 def run(
-    algorithm: str | ABCAlgorithm,
-    simulate: Callable,
-    prior: Uniform,
-    observed: Any,
+    algorithm: str | ABCAlgorithm | Sequence[Any],
+    simulate: Callable | None = None,
+    prior: Uniform | None = None,
+    observed: Any = None,
     num_particles: int | None = None,
     num_steps: int | None = None,
     distance: str | Callable | AdaptivePNorm = "mean_abs",
@@ -302,6 +302,9 @@ def run(
     algorithm : {"apmcabc", "abcsubsim", "pmcabc", "rejection"} or ABCAlgorithm
         A name is built from :data:`jaxabc.algorithms.BUILDERS` with ``prior``,
         ``num_particles`` and ``**algorithm_options``; an algorithm object is used as it is.
+        A list of models, ``jaxabc.run([(simulate_a, prior_a), (simulate_b, prior_b)],
+        observed=...)``, runs ABC model choice instead and returns a
+        :class:`jaxabc.model_choice.ModelChoiceResult` (see :func:`jaxabc.model_choice.run_model_choice`).
     simulate : callable ``(key, theta) -> summaries``
         One parameter vector in, a fixed-shape summary array (or a scalar) out.  A JAX function
         for the ``"vmap"`` executor; any picklable callable for ``"process_pool"`` / ``"mpi"``
@@ -375,6 +378,14 @@ def run(
     ------
     TooManyFailures, NoPosterior, jaxabc.checkpoint.CheckpointError, FileExistsError
     """
+    if type(algorithm) in (list, tuple) or type(simulate) in (list, tuple):
+        # Model choice, imported here so that a calibration never loads it.
+        from jaxabc.model_choice import run_from_driver
+
+        return run_from_driver(dict(locals()))
+    if simulate is None or prior is None:
+        raise TypeError("run() needs simulate and prior (for model choice: a list of models first)")
+    algorithm = cast(str | ABCAlgorithm, algorithm)
     t_start = time.perf_counter()
     validate_arguments(dtype, num_particles, num_steps, max_failure_fraction, simulate, prior)
     obs = validate_observed(observed)

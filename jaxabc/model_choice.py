@@ -1,0 +1,520 @@
+"""ABC model choice: which of several simulators explains the observed data, and how surely.
+
+The method: one ABC-SMC population per model, all run to a **shared tolerance**, and each
+model's ABC evidence ``Z_m(eps) = P(d(S_sim, S_obs) <= eps | m)`` estimated by importance
+sampling in every generation (Didelot, Everitt, Johansen & Lawson 2011, *Bayesian Analysis* 6,
+49-76; the populations move as in Beaumont, Cornuet, Marin & Robert 2009).  The model
+probabilities at the shared tolerance are
+
+    P(m | S_obs) = p(m) Z_m(eps) / sum_k p(k) Z_k(eps),
+
+the quantity that the joint-space ABC-SMC of Toni et al. (2009) estimates by the share of
+particles each model keeps.  Here every model keeps its own population, so none dies out by
+chance and an improbable model still gets a usable posterior.
+
+One generation, for each model still alive:
+
+1. the tolerance is the largest of the models' ``quantile``-quantiles of their current
+   weighted distances (clipped at ``final_threshold``), so the slowest model sets the pace and
+   every model keeps about ``quantile`` of its population;
+2. ``M`` proposals: a fraction ``defensive_fraction`` from the prior, the rest from the
+   previous population perturbed by a Gaussian of ``covariance_factor`` times its weighted
+   covariance; ``M`` is set from past generations so that about ``num_particles`` are
+   accepted;
+3. proposals outside the prior's box get weight zero and cost no simulation; the others are
+   simulated, and those within the tolerance are accepted with weight
+   ``prior / (defensive_fraction prior + (1 - defensive_fraction) kernel mixture)``
+   (Hesterberg's defensive mixture, 1995: the weight is at most ``1 / defensive_fraction``,
+   so the evidence estimate has a finite variance even when a population has collapsed);
+4. ``Z_m = sum(accepted weights) / M``: unbiased given the past, because the tolerance, the
+   proposal and ``M`` are fixed before the generation's simulations.
+
+Monte Carlo error: the standard error of each ``Z_m`` is the sample standard deviation of the
+``M`` terms over ``sqrt(M)``; the probabilities' standard errors follow by the delta method
+(the models' estimates are independent).  They are conditional on the tolerance reached.
+
+Randomness: generation ``t`` of model ``m`` uses ``fold_in(fold_in(key(seed), t), m)`` only,
+and each proposal slot gets its own simulation key, so a seed fixes the whole run on any
+executor.  Failed simulations get distance ``+inf``, are recorded with their reason, and stop
+the run (:class:`jaxabc.TooManyFailures`) when more than ``max_failure_fraction`` of a
+model's simulations (after its first 20) fail.
+
+What the probabilities mean: ABC model choice compares the models' predictions of the
+*summaries*.  As the tolerance goes to zero the probabilities converge to those of the Bayes
+factor of the summaries, which equals the Bayes factor of the full data only when the
+summaries are sufficient across the models jointly (Robert, Cornuet, Marin & Pillai 2011,
+PNAS 108, 15112; Didelot et al. 2011): the sum of counts is sufficient for a Poisson and for a
+geometric model separately, but not for choosing between them.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+import warnings
+from collections.abc import Callable, Sequence
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxabc._driver import Recorder, SharedVmapExecutor, make_distance_fn
+from jaxabc._driver_checks import cast_prior, check_traced_shape, precision, shapes_compatible, validate_observed
+from jaxabc._model_choice_result import ModelChoiceResult, load_model_choice, probabilities_with_errors
+from jaxabc._model_choice_smc import ALGORITHM_NAME, Context, ModelTrack, Settings, next_threshold
+from jaxabc.distances import get_distance
+from jaxabc.executors import Executor, get_executor
+from jaxabc.results import versions
+
+__all__ = [
+    "ALGORITHM_NAME",
+    "Model",
+    "ModelChoiceResult",
+    "load_model_choice",
+    "run_from_driver",
+    "run_model_choice",
+]
+
+#: How the probabilities were computed, for result metadata.
+METHOD = (
+    "ABC-SMC per model at a shared tolerance, importance-sampling evidence with a defensive "
+    "prior mixture (Didelot et al. 2011); standard errors by the delta method"
+)
+
+
+class Model(NamedTuple):
+    """One candidate model.
+
+    Attributes
+    ----------
+    name : str
+        Used in results and messages; unique among the models compared.
+    simulate : callable ``(key, theta) -> summaries``
+        As for :func:`jaxabc.run`: one parameter vector in, a fixed-shape summary array out;
+        every model's summaries must have the observed data's shape.
+    prior : Uniform or Independent
+        The model's parameter prior (its box bounds the perturbation kernel).
+    """
+
+    name: str
+    simulate: Callable
+    prior: Any
+
+
+def as_models(models: Any) -> list[Model]:
+    """Normalise ``models`` to a list of :class:`Model`, refusing bad input clearly.
+
+    Accepts :class:`Model` objects, ``(simulate, prior)`` pairs (named ``model0``, ``model1``,
+    ...) and ``(name, simulate, prior)`` triples.
+    """
+    if isinstance(models, Model) or not isinstance(models, list | tuple):
+        raise TypeError(
+            "models must be a list of models: [(simulate_a, prior_a), (simulate_b, prior_b)], "
+            "(name, simulate, prior) triples or jaxabc.Model(name, simulate, prior) objects"
+        )
+    if len(models) == 0:
+        raise ValueError(
+            "the list of models is empty: give at least two, e.g. jaxabc.run([(simulate_a, prior_a), "
+            "(simulate_b, prior_b)], observed=...)"
+        )
+    out = []
+    for i, entry in enumerate(models):
+        if isinstance(entry, Model):
+            model = entry
+        elif isinstance(entry, tuple | list) and len(entry) == 2:
+            model = Model(f"model{i}", entry[0], entry[1])
+        elif isinstance(entry, tuple | list) and len(entry) == 3 and isinstance(entry[0], str):
+            model = Model(*entry)
+        else:
+            raise TypeError(
+                f"model {i} is a {type(entry).__name__}: give (simulate, prior), "
+                "(name, simulate, prior) or jaxabc.Model(name, simulate, prior)"
+            )
+        if not callable(model.simulate):
+            raise TypeError(f"model {model.name!r}: simulate must be a callable simulate(key, theta) -> summaries")
+        if not hasattr(model.prior, "sample") or not hasattr(model.prior, "low"):
+            raise TypeError(
+                f"model {model.name!r}: the prior must be a jaxabc prior such as jaxabc.Uniform(low, high, names)"
+            )
+        out.append(model)
+    if len(out) < 2:
+        raise ValueError(
+            "model choice needs at least two models; to calibrate one model use "
+            "jaxabc.run(algorithm, simulate, prior, observed)"
+        )
+    names = [m.name for m in out]
+    duplicates = sorted({n for n in names if names.count(n) > 1})
+    if duplicates:
+        raise ValueError(f"model names must be unique, got {duplicates} more than once")
+    return out
+
+
+def _model_prior(model_prior: Sequence[float] | None, num_models: int) -> np.ndarray:
+    if model_prior is None:
+        return np.full(num_models, 1.0 / num_models)
+    p = np.asarray(model_prior, np.float64).reshape(-1)
+    if p.shape != (num_models,):
+        raise ValueError(f"model_prior has {p.size} entries for {num_models} models: give one per model")
+    if not np.all(np.isfinite(p)) or np.any(p <= 0):
+        raise ValueError(f"model_prior entries must be positive and finite, got {p.tolist()}")
+    return p / p.sum()
+
+
+# ----------------------------------------------------------------------------- the run
+
+
+def _check_summary_shapes(models: list[Model], priors: list[Any], observed: np.ndarray, distance: Any) -> None:
+    """Trace every JAX model once; refuse models whose summaries differ from each other or the data."""
+    shapes = {}
+    for model, prior in zip(models, priors, strict=True):
+        try:
+            out = jax.eval_shape(model.simulate, jax.random.key(0), jnp.zeros((prior.dim,), prior.low.dtype))
+        except Exception:
+            # Raises with the tracing error and what to do about it.
+            check_traced_shape(
+                model.simulate, prior, observed, distance, prior.low.dtype, f"Model {model.name!r} on the vmap executor"
+            )
+            raise
+        shapes[model.name] = tuple(out.shape)
+    if len(set(shapes.values())) > 1:
+        listing = ", ".join(f"{name!r} {shape}" for name, shape in shapes.items())
+        raise ValueError(
+            f"the models return summaries of different shapes ({listing}): model choice compares every "
+            f"model with the same observed summaries (shape {observed.shape}), so they must agree"
+        )
+    for name, shape in shapes.items():
+        if not shapes_compatible(shape, observed.shape, distance):
+            raise ValueError(
+                f"model {name!r} returns summaries of shape {shape} but the observed data has shape "
+                f"{observed.shape}: they must match"
+            )
+
+
+def _loop(ctx: Context, tracks: list[ModelTrack], progress: bool) -> tuple[list[float], str]:
+    """Run generations until a stopping rule fires; returns the tolerances and the stop reason."""
+    s = ctx.settings
+    thresholds: list[float] = []
+
+    def run_generation(eps: float, nums: list[int]) -> None:
+        index = len(thresholds)
+        key = jax.random.fold_in(ctx.root, index)
+        for m, (track, num) in enumerate(zip(tracks, nums, strict=True)):
+            track.generation(ctx, index, jax.random.fold_in(key, m), eps, num)
+        thresholds.append(eps)
+
+    def stop_reason() -> str:
+        eps = thresholds[-1]
+        if not any(t.alive for t in tracks):
+            return f"no simulation of any model met the tolerance {eps:.4g}"
+        if s.num_steps is not None and len(thresholds) >= s.num_steps:
+            return f"{s.num_steps} steps done"
+        if s.final_threshold is not None and eps <= s.final_threshold:
+            return f"final threshold {s.final_threshold} reached"
+        if s.max_wall_time is not None and time.perf_counter() - ctx.t_start > s.max_wall_time:
+            return f"wall time {s.max_wall_time} s reached"
+        return ""
+
+    bar = None
+    if progress:
+        from tqdm.auto import tqdm
+
+        bar = tqdm(total=s.num_steps, desc="model choice", unit="step")
+    try:
+        run_generation(math.inf, [s.num_particles] * len(tracks))
+        while True:
+            if bar is not None:
+                bar.update(1)
+                bar.set_postfix(threshold=f"{thresholds[-1]:.4g}", sims=sum(t.num_simulations for t in tracks))
+            reason = stop_reason()
+            if reason:
+                return thresholds, reason
+            populations = [t.population if t.alive else None for t in tracks]
+            eps = next_threshold(populations, thresholds[-1], s.quantile, s.final_threshold)
+            if eps is None:
+                return thresholds, (
+                    f"the tolerance cannot go below {thresholds[-1]:.6g}: every accepted simulation of every "
+                    "model is at that distance"
+                )
+            nums = [t.num_proposals(eps, s.num_particles) for t in tracks]
+            spent = sum(t.num_simulations for t in tracks)
+            if s.max_simulations is not None and spent + sum(nums) > s.max_simulations:
+                return thresholds, f"simulation budget {s.max_simulations} reached"
+            run_generation(eps, nums)
+    finally:
+        if bar is not None:
+            bar.close()
+
+
+def _assemble(
+    ctx: Context,
+    tracks: list[ModelTrack],
+    thresholds: list[float],
+    stop_reason: str,
+    model_prior: np.ndarray,
+    dtype: str,
+    metadata: dict | None,
+) -> ModelChoiceResult:
+    log_z = np.array([t.history["log_evidence"] for t in tracks]).T  # (g, K)
+    rel = np.array([t.history["relative_error"] for t in tracks]).T
+    probs, errors = probabilities_with_errors(log_z, rel, model_prior)
+    # The answer is at the last tolerance some model reached (all die only in the last step).
+    final = max(i for i in range(len(thresholds)) if np.any(np.isfinite(log_z[i])))
+    wall = time.perf_counter() - ctx.t_start
+    dead = [t.name for t in tracks if t.died_at is not None and t.died_at <= final]
+    if dead:
+        warnings.warn(
+            f"no simulation of {', '.join(dead)} met the tolerance {thresholds[final]:.4g}: the probability "
+            "is estimated as 0 with a zero standard error, which understates the uncertainty; raise "
+            "num_particles to bound it",
+            UserWarning,
+            stacklevel=4,
+        )
+    posteriors = tuple(t.result(ctx, final, dtype, wall, stop_reason) for t in tracks)
+    meta: dict[str, Any] = {
+        "versions": versions(),
+        "executor": ctx.executor.name,
+        "settings": ctx.settings._asdict(),
+        "dtype": dtype,
+        "method": METHOD,
+    }
+    meta.update(metadata or {})
+    return ModelChoiceResult(
+        names=tuple(t.name for t in tracks),
+        probabilities=probs[final],
+        standard_errors=errors[final],
+        log_evidence=log_z[final],
+        log_evidence_errors=rel[final],
+        model_prior=model_prior,
+        threshold=float(thresholds[final]),
+        thresholds=np.asarray(thresholds[: final + 1], np.float64),
+        probability_history=probs[: final + 1],
+        standard_error_history=errors[: final + 1],
+        simulations_per_step=np.array([t.history["sims"][: final + 1] for t in tracks]).T,
+        posteriors=posteriors,
+        num_simulations=sum(t.num_simulations for t in tracks),
+        seed=ctx.seed,
+        stop_reason=stop_reason,
+        wall_time=wall,
+        metadata=meta,
+    )
+
+
+def run_model_choice(
+    models: Sequence[Model | tuple],
+    observed: Any,
+    num_particles: int = 1000,
+    num_steps: int | None = None,
+    distance: str | Callable = "mean_abs",
+    seed: int = 0,
+    *,
+    executor: str | Executor | None = None,
+    final_threshold: float | None = None,
+    max_simulations: int | None = None,
+    max_wall_time: float | None = None,
+    max_failure_fraction: float = 0.5,
+    quantile: float = 0.5,
+    model_prior: Sequence[float] | None = None,
+    covariance_factor: float = 2.0,
+    defensive_fraction: float = 0.05,
+    keep_summaries: bool = True,
+    progress: bool = False,
+    dtype: str = "float32",
+    metadata: dict | None = None,
+) -> ModelChoiceResult:
+    """Posterior probabilities of competing models at a shared ABC tolerance.
+
+    Also reached as ``jaxabc.run(models, observed=..., ...)``.  The method, its Monte Carlo
+    error and what the probabilities mean are described in :mod:`jaxabc.model_choice`.
+
+    Parameters
+    ----------
+    models : sequence
+        Two or more of ``(simulate, prior)``, ``(name, simulate, prior)`` or :class:`Model`.
+        Every ``simulate`` returns summaries of the shape of ``observed``.
+    observed : array_like
+        The measured summaries.
+    num_particles : int
+        Prior draws per model in the first generation, and the number of accepted particles
+        each later generation aims at per model.
+    num_steps : int, optional
+        Maximum number of generations, the prior sample included.
+    distance : str or callable
+        As for :func:`jaxabc.run`; the same for every model.
+    seed : int
+        The run's only source of randomness.
+    executor : str or Executor, optional
+        As for :func:`jaxabc.run` (default ``"vmap"``).
+    final_threshold : float, optional
+        Stop at this shared tolerance; the tolerance schedule never goes below it.
+    max_simulations : int, optional
+        Stop before a generation that could take the total over all models past this.
+    max_wall_time : float, optional
+        Seconds; checked after each generation.
+    max_failure_fraction : float
+        Per model, as for :func:`jaxabc.run`.
+    quantile : float
+        In (0, 1); each model's tolerance proposal is this quantile of its weighted distances.
+    model_prior : sequence of float, optional
+        Prior model probabilities (default uniform); normalised.
+    covariance_factor : float
+        Kernel covariance over the population's weighted covariance (Beaumont et al.'s 2).
+    defensive_fraction : float
+        In (0, 1); the share of each generation's proposals drawn from the prior.
+    keep_summaries : bool
+        Keep every simulation's summaries in the per-model records.
+    progress : bool
+        Show a progress bar over generations.
+    dtype : {"float32", "float64"}
+        Precision of the parameters handed to the simulators and of the distances.
+    metadata : dict, optional
+        Stored in the result.
+
+    Returns
+    -------
+    ModelChoiceResult
+
+    Raises
+    ------
+    TypeError, ValueError
+        Bad models or options (the message says what to give instead).
+    TooManyFailures
+        Too many simulations of one model failed.
+    """
+    t_start = time.perf_counter()
+    model_list = as_models(models)
+    settings = _validate(
+        Settings(
+            num_particles,
+            quantile,
+            covariance_factor,
+            defensive_fraction,
+            max_failure_fraction,
+            num_steps,
+            final_threshold,
+            max_simulations,
+            max_wall_time,
+        ),
+        dtype,
+    )
+    p_model = _model_prior(model_prior, len(model_list))
+    obs = validate_observed(observed)
+    get_distance(distance)  # an unknown name fails here, before any simulation
+    with precision(dtype):
+        jdtype = jnp.float64 if dtype == "float64" else jnp.float32
+        priors = [cast_prior(m.prior, jdtype) for m in model_list]
+        own_executor = not hasattr(executor, "map")
+        ex = SharedVmapExecutor() if executor in (None, "vmap") else get_executor(executor)
+        try:
+            if ex.name == "vmap" and not any(hasattr(m.simulate, "simulate_batch") for m in model_list):
+                _check_summary_shapes(model_list, priors, obs, distance)
+            if hasattr(ex, "summary_shape") and not getattr(get_distance(distance), "compares_samples", False):
+                # A batch where every task fails keeps it (not on the Executor protocol).
+                ex.summary_shape = tuple(obs.shape)  # pyright: ignore[reportAttributeAccessIssue]
+            ctx = Context(
+                settings,
+                ex,
+                make_distance_fn(distance, obs, jdtype),
+                obs,
+                distance,
+                jax.random.key(seed),
+                seed,
+                t_start,
+            )
+            tracks = [
+                ModelTrack(model.name, model.simulate, prior, Recorder(keep_summaries))
+                for model, prior in zip(model_list, priors, strict=True)
+            ]
+            thresholds, stop_reason = _loop(ctx, tracks, progress)
+        finally:
+            if own_executor:
+                ex.close()
+    return _assemble(ctx, tracks, thresholds, stop_reason, p_model, dtype, metadata)
+
+
+def _validate(s: Settings, dtype: str) -> Settings:
+    if not isinstance(s.num_particles, int | np.integer) or s.num_particles < 2:
+        raise ValueError(f"num_particles must be an integer of at least 2, got {s.num_particles!r}")
+    if s.num_steps is not None and s.num_steps < 1:
+        raise ValueError(f"num_steps must be at least 1, got {s.num_steps}")
+    if all(rule is None for rule in (s.num_steps, s.final_threshold, s.max_simulations, s.max_wall_time)):
+        raise ValueError(
+            "model choice needs a stopping rule: give num_steps, final_threshold, max_simulations or max_wall_time"
+        )
+    if s.final_threshold is not None and not s.final_threshold >= 0:
+        raise ValueError(f"final_threshold must be a non-negative number, got {s.final_threshold}")
+    if not 0.0 < s.max_failure_fraction <= 1.0:
+        raise ValueError(f"max_failure_fraction must lie in (0, 1], got {s.max_failure_fraction}")
+    if not 0.0 < s.quantile < 1.0:
+        raise ValueError(f"quantile must lie in (0, 1), got {s.quantile}")
+    if not s.covariance_factor > 0:
+        raise ValueError(f"covariance_factor must be positive, got {s.covariance_factor}")
+    if not 0.0 < s.defensive_fraction < 1.0:
+        raise ValueError(
+            f"defensive_fraction must lie in (0, 1), got {s.defensive_fraction}: some prior draws keep "
+            "the evidence estimate's variance finite"
+        )
+    if dtype not in ("float32", "float64"):
+        raise ValueError(f"dtype must be 'float32' or 'float64', got {dtype!r}")
+    return s._replace(num_particles=int(s.num_particles))
+
+
+# ----------------------------------------------------------------------------- driver hook
+
+# jaxabc.run's keywords that model choice takes over unchanged.
+_PASSED_ON = (
+    "num_steps",
+    "distance",
+    "seed",
+    "executor",
+    "final_threshold",
+    "max_simulations",
+    "max_wall_time",
+    "max_failure_fraction",
+    "keep_summaries",
+    "progress",
+    "dtype",
+    "metadata",
+)
+# jaxabc.run's keywords with no meaning here yet, with their defaults.
+_NOT_SUPPORTED = {
+    "checkpoint_dir": None,
+    "resume": False,
+    "overwrite": False,
+    "simulator_id": None,
+    "stop_after_iterations": None,
+}
+_OPTIONS = ("quantile", "model_prior", "covariance_factor", "defensive_fraction")
+
+
+def run_from_driver(arguments: dict[str, Any]) -> ModelChoiceResult:
+    """:func:`jaxabc.run`'s arguments (its ``locals()``) when it was given a list of models."""
+    models, simulate, prior = arguments["algorithm"], arguments["simulate"], arguments["prior"]
+    if type(models) not in (list, tuple):
+        raise TypeError(
+            "to choose between models pass the list of models first: jaxabc.run([(simulate_a, prior_a), "
+            "(simulate_b, prior_b)], observed=...); the method is fixed (ABC-SMC at a shared tolerance)"
+        )
+    if simulate is not None or prior is not None:
+        raise TypeError(
+            "model choice takes the models as the first argument and the data by keyword: "
+            "jaxabc.run(models, observed=data, num_particles=..., ...)"
+        )
+    if arguments["observed"] is None:
+        raise TypeError("model choice needs the data: jaxabc.run(models, observed=data, ...)")
+    unsupported = [k for k, default in _NOT_SUPPORTED.items() if arguments[k] != default]
+    if unsupported:
+        raise ValueError(f"model choice does not support {', '.join(unsupported)} (no checkpoints yet): leave them out")
+    options = dict(arguments["algorithm_options"])
+    unknown = sorted(set(options) - set(_OPTIONS))
+    if unknown:
+        raise TypeError(f"unknown option(s) {unknown} for model choice: it accepts {list(_OPTIONS)}")
+    passed = {k: arguments[k] for k in _PASSED_ON}
+    num_particles = arguments["num_particles"]
+    return run_model_choice(
+        models,
+        arguments["observed"],
+        1000 if num_particles is None else num_particles,
+        **passed,
+        **options,
+    )
