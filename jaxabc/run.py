@@ -16,7 +16,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any, cast
+from typing import TYPE_CHECKING, Any, cast, overload
 
 import jax
 import jax.numpy as jnp
@@ -51,6 +51,9 @@ from jaxabc.errors import STATUS_OK, TooManyFailures
 from jaxabc.executors import Executor, get_executor
 from jaxabc.priors import Uniform
 from jaxabc.results import ABCResult
+
+if TYPE_CHECKING:  # model choice is imported only when a list of models is run
+    from jaxabc.model_choice import ModelChoiceResult
 
 __all__ = ["CHECKPOINT_NAME", "run"]
 
@@ -269,6 +272,26 @@ def _adaptive_setup(distance: Any, algorithm: Any, obs: np.ndarray, options: dic
     return spec.record_distance()
 
 
+@overload
+def run(
+    algorithm: list[Any] | tuple[Any, ...],
+    simulate: None = None,
+    prior: None = None,
+    observed: Any = None,
+    **options: Any,
+) -> ModelChoiceResult: ...
+
+
+@overload
+def run(
+    algorithm: str | ABCAlgorithm,
+    simulate: Callable,
+    prior: Uniform,
+    observed: Any,
+    **options: Any,
+) -> ABCResult: ...
+
+
 def run(
     algorithm: str | ABCAlgorithm | Sequence[Any],
     simulate: Callable | None = None,
@@ -294,7 +317,7 @@ def run(
     dtype: str = "float32",
     metadata: dict | None = None,
     **algorithm_options: Any,
-) -> ABCResult:
+) -> ABCResult | ModelChoiceResult:
     """Calibrate ``simulate`` against ``observed`` with an ABC algorithm.
 
     Parameters
