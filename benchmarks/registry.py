@@ -306,6 +306,16 @@ REGISTRY: tuple[Entry, ...] = (
         legacy_cost_keys=("wall_time_s",),
         requires=("gmx",),
     ),
+    Entry(
+        "surrogate_coverage",
+        f"{R}/surrogate_coverage.json",
+        "python benchmarks/surrogate_coverage.py --datasets 40",
+        quick="python benchmarks/surrogate_coverage.py --quick",
+        quick_output=f"{Q}/surrogate_coverage.json",
+        estimated_cost_s=2400.0,
+        note="simulation-based calibration of the surrogate (one jaxabc.run per data set) next to "
+        "jaxabc.coverage_study('apmcabc') on the same data sets",
+    ),
 )
 
 

@@ -23,6 +23,20 @@ Usage (all cores, one single-threaded ``gmx mdrun`` per worker)::
     python benchmarks/water_calibration.py --data neutron --statistics robust --validation-ps 1000
     python benchmarks/water_calibration.py --quick --data simulated    # a few min: 30 particles, 2 steps,
                                                                        # 5 ps runs, into results/quick/
+    python benchmarks/water_calibration.py --data simulated --algorithm surrogate --max-simulations 300
+    mpiexec -n 9 python -m mpi4py.futures benchmarks/water_calibration.py --data xray --executor mpi
+
+Executors: ``--executor pool`` (default) runs ``--workers`` local processes; ``--executor mpi``
+uses the other ranks of an ``mpiexec ... -m mpi4py.futures`` job (dynamic allocation).  Either
+way a second bar counts finished simulations as they finish (from a progress file that every
+worker appends to, see ``CountingSimulator``), with the rate and an ETA against the budget.
+
+``--algorithm surrogate`` calibrates through ``jaxabc.run("surrogate", ...)`` (a GP emulator of
+the nine statistics, sequential design, held-out validation) within ``--max-simulations`` GROMACS
+runs; ``--surrogate-mode abc`` samples it with APMCABC on emulated statistics (same distance as
+APMCABC) instead of the synthetic likelihood.  It needs no pilot scaling (the emulator
+standardises the statistics), so ``--scale`` defaults to ``none`` there.  Its results go to
+``water_<data>_surrogate.json`` and ``water_<data>_<variant>_surrogate.npz``.
 
 Failures: with the paper's prior U[0.281, 0.53] x U[0.2, 0.9] most draws do not stay liquid at
 298 K and 1 atm (measured with 2 ps quick runs: 11 of 12 prior draws vaporised, density < 500
@@ -39,14 +53,18 @@ from __future__ import annotations
 
 import argparse
 import concurrent.futures
+import contextlib
 import itertools
 import json
 import multiprocessing
 import os
 import subprocess
 import sys
+import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -63,6 +81,8 @@ from md.water.statistics import ROBUST_GRID_NM, STATISTIC_NAMES, STATISTIC_UNITS
 
 sys.path.insert(0, str(ROOT / "benchmarks"))
 from _common import QUICK_RESULTS, command_line, declare_input, write_result  # noqa: E402
+
+from jaxabc.checkpoint import simulator_identity  # noqa: E402
 
 TIP4P_THETA = np.array([TIP4P_PARAMETERS.sigma_ow_nm, TIP4P_PARAMETERS.epsilon_ow_kj_mol])
 PRIOR_LOW, PRIOR_HIGH = (0.281, 0.2), (0.53, 0.9)
@@ -86,11 +106,57 @@ def parse_arguments(argv=None) -> argparse.Namespace:
     parser.add_argument("--data", choices=("simulated", "xray", "neutron"), required=True)
     parser.add_argument("--statistics", choices=("paper", "robust"), default="robust")
     parser.add_argument("--preset", choices=("quick", "paper"), default="quick")
-    parser.add_argument("--particles", type=int, default=100)
+    parser.add_argument(
+        "--particles", type=int, default=None, help="APMCABC population (default 100); surrogate draws (default 2000)"
+    )
     parser.add_argument("--steps", type=int, default=10, help="APMCABC steps (paper: 10)")
     parser.add_argument("--alpha", type=float, default=0.1)
     parser.add_argument("--acceptance-cutoff", type=float, default=0.03)
-    parser.add_argument("--workers", type=int, default=os.cpu_count())
+    parser.add_argument("--workers", type=int, default=os.cpu_count(), help="process-pool workers")
+    parser.add_argument(
+        "--executor",
+        choices=("pool", "mpi"),
+        default="pool",
+        help="pool: --workers local processes; mpi: the worker ranks of `mpiexec -n K python -m "
+        "mpi4py.futures benchmarks/water_calibration.py ...` (dynamic allocation)",
+    )
+    parser.add_argument("--algorithm", choices=("apmcabc", "surrogate"), default="apmcabc")
+    parser.add_argument(
+        "--max-simulations",
+        type=int,
+        default=None,
+        help="simulation budget (surrogate: required in effect, default 300; APMCABC: optional cap)",
+    )
+    parser.add_argument(
+        "--surrogate-mode",
+        choices=("synthetic_likelihood", "abc"),
+        default="synthetic_likelihood",
+        help="surrogate posterior: NUTS on the synthetic likelihood, or APMCABC on emulated statistics",
+    )
+    parser.add_argument("--surrogate-batch", type=int, default=None, help="design batch (default: the workers)")
+    parser.add_argument(
+        "--surrogate-initial",
+        type=int,
+        default=32,
+        help="Sobol start; most of the prior box fails (vapour, collapse), and the run needs at "
+        "least 3 liquid runs before an emulator is fitted, so more than the library's default 20",
+    )
+    parser.add_argument(
+        "--surrogate-replicates",
+        type=int,
+        default=0,
+        help="replicate runs measuring the noise; the library puts them at the box centre and the "
+        "first Sobol point, which vaporise in the paper's box, so by default none (the noise is "
+        "then the fitted nugget, checked by the held-out runs)",
+    )
+    parser.add_argument("--surrogate-holdout", type=int, default=20, help="held-out runs per validation")
+    parser.add_argument(
+        "--stop-after-iterations",
+        type=int,
+        default=None,
+        help="stop (resumably, with --checkpoint-dir) after this many driver iterations",
+    )
+    parser.add_argument("--no-progress", action="store_true", help="no progress bars")
     parser.add_argument(
         "--order",
         choices=("fifo", "longest_first"),
@@ -154,9 +220,18 @@ def parse_arguments(argv=None) -> argparse.Namespace:
         "runs, written to benchmarks/results/quick/",
     )
     args = parser.parse_args(argv)
+    if args.particles is None:
+        args.particles = 2000 if args.algorithm == "surrogate" else 100
+    if args.algorithm == "surrogate":
+        if args.max_simulations is None:
+            args.max_simulations = 300
+        if args.scale is None:
+            args.scale = "none"
     if args.quick:
         # 30 particles keep 3 (APMCABC needs 2) although ~90 % of prior draws vaporise.
-        args.particles, args.steps, args.md_steps, args.scale = 30, 2, 2500, "none"
+        if args.algorithm == "apmcabc":
+            args.particles, args.steps = 30, 2
+        args.md_steps, args.scale = 2500, "none"
         args.predictive, args.validation_ps, args.out_dir = 0, 0.0, QUICK_RESULTS
     return args
 
@@ -427,7 +502,161 @@ def validation_table(args, estimate: np.ndarray) -> dict:
     return {**{name: cache[keys[name]] for name in points}, "experiment": EXPERIMENT_298K}
 
 
+# ---------------------------------------------------------------------------- progress
+# The executors report a batch only when all of it is done, and a water step is one batch of
+# hundreds of GROMACS runs, so the driver's per-step bar stands still for an hour.  Here the
+# simulator leaves a trace instead: CountingSimulator appends one line (ok / failed) to a file
+# after every run, in whichever worker process or MPI rank ran it, and ProgressMonitor, a thread
+# in the driver, counts the lines once a second for a bar with rate and ETA.  The file lives on
+# the driver's file system (a process pool, MPI on one node or on a shared file system); lines of
+# a few bytes written with O_APPEND do not interleave.  The wrapper passes keys, parameters,
+# results and exceptions through unchanged, and the run gets the inner simulator's identity
+# (simulator_id), so results and checkpoints do not depend on it.
+
+
+class CountingSimulator:
+    """``simulate(key, theta)`` that also appends ``ok`` / ``failed`` to ``path`` after each run.
+
+    Parameters
+    ----------
+    simulate : callable ``(key, theta) -> summaries``
+        Picklable (it travels to the workers inside this object).
+    path : str or Path
+        The progress file (absolute; created by :class:`ProgressMonitor`).
+    """
+
+    def __init__(self, simulate: Callable, path: str | os.PathLike):
+        self.simulate = simulate
+        self.path = str(Path(path).resolve())
+
+    def _mark(self, word: str) -> None:
+        try:
+            fd = os.open(self.path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
+            try:
+                os.write(fd, f"{word}\n".encode())
+            finally:
+                os.close(fd)
+        except OSError:  # progress is a nicety: never let it fail a simulation
+            pass
+
+    def __call__(self, key: Any, theta: Any) -> Any:
+        try:
+            out = self.simulate(key, theta)
+        except BaseException:
+            self._mark("failed")
+            raise
+        finite = bool(np.all(np.isfinite(np.asarray(out, dtype=np.float64))))
+        self._mark("ok" if finite else "failed")
+        return out
+
+    def __getattr__(self, name: str) -> Any:
+        # Attributes of the wrapped simulator (protocol, run, ...) stay reachable; the guard
+        # keeps unpickling (which looks up attributes before __init__ ran) from recursing.
+        if name in ("simulate", "path"):
+            raise AttributeError(name)
+        return getattr(self.simulate, name)
+
+
+class ProgressMonitor:
+    """A thread that shows the line count of a progress file as a bar with rate and ETA.
+
+    Parameters
+    ----------
+    path : str or Path
+        The progress file; emptied on start.
+    total : int
+        Simulations expected (an upper bound, e.g. the budget): the ETA assumes the rate so far.
+    description : str
+    interval_s : float
+        Seconds between polls.
+
+    Use as a context manager around the run.
+    """
+
+    def __init__(self, path: str | os.PathLike, total: int, description: str = "simulations", interval_s: float = 1.0):
+        self.path = Path(path)
+        self.total = int(total)
+        self.description = description
+        self.interval_s = float(interval_s)
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self.done = 0
+        self.failed = 0
+
+    def _count(self) -> tuple[int, int]:
+        try:
+            text = self.path.read_text()
+        except OSError:
+            return 0, 0
+        lines = text.split()
+        return len(lines), lines.count("failed")
+
+    def _watch(self) -> None:
+        from tqdm.auto import tqdm
+
+        with tqdm(total=self.total, desc=self.description, unit="sim", position=1, smoothing=0.0) as bar:
+            started = time.perf_counter()
+            while True:
+                stopping = self._stop.wait(self.interval_s)
+                done, failed = self._count()
+                if done > bar.n:
+                    bar.update(done - bar.n)
+                self.done, self.failed = done, failed
+                bar.set_postfix(failed=failed, per_sim_s=f"{(time.perf_counter() - started) / max(done, 1):.1f}")
+                if stopping:
+                    return
+
+    def __enter__(self) -> ProgressMonitor:
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self.path.write_text("")
+        self._thread = threading.Thread(target=self._watch, name="simulation-progress", daemon=True)
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=10.0)
+
+
 # ---------------------------------------------------------------------------- main
+
+
+def make_executor(args, timeout_s: float):
+    """The process pool (``--workers``) or the MPI pool of an ``mpiexec`` job."""
+    if args.executor == "mpi":
+        return jaxabc.MPIExecutor(allocation="dynamic", timeout=timeout_s, order=args.order)
+    return jaxabc.ProcessPoolExecutor(max_workers=args.workers, order=args.order, timeout=timeout_s)
+
+
+def num_workers(args, executor) -> int:
+    return int(executor.num_workers) if args.executor == "mpi" else int(args.workers)
+
+
+def algorithm_options(args, executor, distance) -> dict:
+    """Builder options of ``--algorithm``."""
+    if args.algorithm == "apmcabc":
+        return {"alpha": args.alpha, "acceptance_cutoff": args.acceptance_cutoff}
+    options = {
+        # One design batch per round of the workers keeps them all busy.
+        "batch_size": args.surrogate_batch or num_workers(args, executor),
+        "num_replicates": args.surrogate_replicates,
+        "num_holdout": args.surrogate_holdout,
+    }
+    options["num_initial"] = args.surrogate_initial
+    if args.surrogate_mode == "abc":
+        options |= {"mode": "abc", "abc_distance": distance}
+    return options
+
+
+def expected_simulations(args, scale_mode: str) -> int:
+    """Simulations this invocation will run at most (the bar's total; the ETA assumes it)."""
+    pilot = args.pilot if scale_mode == "pilot" else 0
+    if args.algorithm == "surrogate":
+        return pilot + args.max_simulations
+    kept = int(np.ceil(args.alpha * args.particles))
+    budget = args.particles + (args.steps - 1) * (args.particles - kept)
+    return pilot + (budget if args.max_simulations is None else min(budget, args.max_simulations))
 
 
 def _command(argv: list[str] | None) -> str:
@@ -458,40 +687,50 @@ def main(argv=None) -> dict:
     kind = "simulated" if args.data == "simulated" else args.data
     simulate = make_simulator(args.preset, args.statistics, observed_kind=kind, **protocol_overrides(args))
     prior = jaxabc.Uniform(PRIOR_LOW, PRIOR_HIGH, names=("sigma_OW", "epsilon_OW"), units=("nm", "kJ/mol"))
-    executor = jaxabc.ProcessPoolExecutor(
-        max_workers=args.workers, order=args.order, timeout=simulate.protocol.timeout_s + 60
-    )
+    executor = make_executor(args, simulate.protocol.timeout_s + 60)
+    surrogate = args.algorithm == "surrogate"
+    suffix = "_surrogate" if surrogate else ""
+    stem = f"water_{args.data}_{args.statistics}{suffix}"
+    args.out_dir.mkdir(parents=True, exist_ok=True)
+    progress_file = args.out_dir / f".{stem}.progress"
+    # Workers report each finished run to the progress file; results are those of `simulate`.
+    counted = CountingSimulator(simulate, progress_file)
     started = time.perf_counter()
     observed = observed_vector(args, simulate)
-    if scale_mode == "pilot":
-        scale = pilot_scales(args, simulate, prior, executor)
-        distance = scaled_mean_abs(scale)
-    else:
-        scale, distance = np.ones(9), "mean_abs"
+    monitor = (
+        contextlib.nullcontext()
+        if args.no_progress
+        else ProgressMonitor(progress_file, expected_simulations(args, scale_mode), f"{args.algorithm} GROMACS runs")
+    )
     try:
-        result = jaxabc.run(
-            "apmcabc",
-            simulate,
-            prior,
-            observed,
-            num_particles=args.particles,
-            num_steps=args.steps,
-            distance=distance,
-            seed=args.seed,
-            executor=executor,
-            alpha=args.alpha,
-            acceptance_cutoff=args.acceptance_cutoff,
-            max_failure_fraction=args.max_failure_fraction,
-            checkpoint_dir=args.checkpoint_dir,
-            resume=args.resume,
-            progress=True,
-            metadata={"data": args.data, "statistics": args.statistics, "preset": args.preset},
-        )
+        with monitor:
+            if scale_mode == "pilot":
+                scale = pilot_scales(args, counted, prior, executor)
+                distance = scaled_mean_abs(scale)
+            else:
+                scale, distance = np.ones(9), "mean_abs"
+            result = jaxabc.run(
+                args.algorithm,
+                counted,
+                prior,
+                observed,
+                num_particles=args.particles,
+                num_steps=None if surrogate else args.steps,
+                distance=distance,
+                seed=args.seed,
+                executor=executor,
+                max_simulations=args.max_simulations,
+                max_failure_fraction=args.max_failure_fraction,
+                checkpoint_dir=args.checkpoint_dir,
+                resume=args.resume,
+                stop_after_iterations=args.stop_after_iterations,
+                simulator_id=simulator_identity(simulate, None),
+                progress=not args.no_progress,
+                metadata={"data": args.data, "statistics": args.statistics, "preset": args.preset},
+                **algorithm_options(args, executor, distance),
+            )
     finally:
         executor.close()
-
-    args.out_dir.mkdir(parents=True, exist_ok=True)
-    stem = f"water_{args.data}_{args.statistics}"
     result.save(args.out_dir / f"{stem}.npz", overwrite=True)
     truth = TIP4P_THETA if args.data == "simulated" else None
     result.plot_posterior(args.out_dir / f"{stem}_posterior.png", truth=truth)
@@ -507,13 +746,19 @@ def main(argv=None) -> dict:
         "distance": "mean_abs" if scale_mode == "none" else "mean_abs / pilot MAD",
         "scale": np.asarray(scale).tolist(),
         "settings": {
+            "algorithm": args.algorithm,
             "particles": args.particles,
-            "steps": args.steps,
-            "alpha": args.alpha,
-            "acceptance_cutoff": args.acceptance_cutoff,
+            "max_simulations": args.max_simulations,
             "seed": args.seed,
-            "workers": args.workers,
+            "executor": args.executor,
+            "workers": num_workers(args, executor),
             "order": args.order,
+            **(
+                {}
+                if surrogate
+                else {"steps": args.steps, "alpha": args.alpha, "acceptance_cutoff": args.acceptance_cutoff}
+            ),
+            **(result.settings if surrogate else {}),
         },
         "bayes_estimate": result.bayes_estimate().tolist(),
         "correlation": float(result.correlation()[0, 1]),
@@ -526,6 +771,9 @@ def main(argv=None) -> dict:
         "stop_reason": result.stop_reason,
         "paper": PAPER[args.data],
     }
+    if surrogate:
+        # The design points and held-out checks: how many real runs, and how well they are predicted.
+        entry["surrogate"] = {k: v for k, v in result.diagnostics.items() if k != "holdout_errors"}
     if truth is not None:
         entry["truth"] = truth.tolist()
         entry["truth_in_50pct_hpd"] = truth_in_hpd(result, truth)
@@ -535,7 +783,7 @@ def main(argv=None) -> dict:
         plot_bands(entry["predictive_goo"], args.data, args.out_dir / f"{stem}_predictive.png")
     if args.validation_ps:
         entry["validation"] = validation_table(args, result.bayes_estimate())
-    path = args.out_dir / f"water_{args.data}.json"
+    path = args.out_dir / f"water_{args.data}{suffix}.json"
     everything = json.loads(path.read_text()) if path.exists() else {}
     everything[args.statistics] = entry
     declare_input(datasets.DATA_DIR)

@@ -1,12 +1,23 @@
 """Surrogate-accelerated calibration: a GP emulator of the simulator, a synthetic-likelihood
-posterior sampled with NUTS, sequential design, and held-out validation before reporting.
+posterior sampled with NUTS (or ABC on emulated summaries, ``mode="abc"``), sequential design,
+and held-out validation before reporting.
 
 ``build(prior, num_particles, observed=..., max_simulations=...)`` returns an
 :class:`~jaxabc.algorithms.base.ABCAlgorithm` (host code) for the driver :func:`jaxabc.run`.
 See ``docs/guide/surrogate.md``.
 """
 
-from jaxabc.surrogate import design, diagnostics, emulator, sampling
-from jaxabc.surrogate.algorithm import EmulatorFailure, SurrogateState, build
+from jaxabc.surrogate import abc_mode, design, diagnostics, emulator, sampling
+from jaxabc.surrogate.algorithm import MODES, EmulatorFailure, SurrogateState, build
 
-__all__ = ["EmulatorFailure", "SurrogateState", "build", "design", "diagnostics", "emulator", "sampling"]
+__all__ = [
+    "MODES",
+    "EmulatorFailure",
+    "SurrogateState",
+    "abc_mode",
+    "build",
+    "design",
+    "diagnostics",
+    "emulator",
+    "sampling",
+]

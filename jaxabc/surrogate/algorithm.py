@@ -6,8 +6,9 @@ decides what to simulate next:
 1. *design*: a Sobol start with replicates (``initial_proposal``), then acquisition batches
    (:mod:`.design`) until the emulator's variance over the posterior is small next to the
    simulator noise (``tolerance``) or the design budget is spent;
-2. *validation*: NUTS draws from the surrogate posterior; ``num_holdout`` of them are simulated
-   for real and compared with the emulator's predictions (:mod:`.diagnostics`).  Pass: stop with
+2. *validation*: draws from the surrogate posterior (NUTS on the synthetic likelihood, or with
+   ``mode="abc"`` APMCABC on emulated summaries, :mod:`.abc_mode`); ``num_holdout`` of them are
+   simulated for real and compared with the emulator's predictions (:mod:`.diagnostics`).  Pass: stop with
    that posterior.  Fail: the held-out runs join the design and step 1 resumes while the budget
    allows; otherwise the run stops flagged as unvalidated (or raises, ``on_failure="raise"``).
 
@@ -26,10 +27,13 @@ import numpy as np
 from jax.tree_util import keystr, tree_flatten_with_path
 
 from jaxabc.algorithms.base import ABCAlgorithm, Info, Proposal
-from jaxabc.surrogate import design, diagnostics, emulator, sampling
+from jaxabc.distances import get_distance
+from jaxabc.surrogate import abc_mode, design, diagnostics, emulator, sampling
 from jaxabc.surrogate._support import _FLAG, _evaluate, _failure_text, _noise_correlation
 
-__all__ = ["EmulatorFailure", "SurrogateState", "build"]
+__all__ = ["MODES", "EmulatorFailure", "SurrogateState", "build"]
+
+MODES = ("synthetic_likelihood", "abc")
 
 DESIGN, VALIDATING, DONE = 0, 1, 2
 ROLE_EMPTY, ROLE_DESIGN, ROLE_HOLDOUT, ROLE_FAILED_HOLDOUT = -1, 0, 1, 2
@@ -64,7 +68,10 @@ class SurrogateState(NamedTuple):
         The next proposal's parameters (first ``num_pending`` rows).
     num_pending : array, shape ()
     draws : array, shape (P, d)
-        The current posterior draws (importance resampled during design; NUTS once validating).
+        The current posterior draws (importance resampled during design; NUTS, or the APMCABC
+        population in ABC mode, once validating).
+    log_weights : array, shape (P,)
+        Their log weights (zero except for the APMCABC population).
     hyper : array, shape (q, d + 2)
         Emulator log hyper-parameters (amplitude, length scales, noise sd) of the last fit.
     holdout_errors : array, shape (H, q)
@@ -74,7 +81,10 @@ class SurrogateState(NamedTuple):
         Held-out 95 % coverage and mean squared standardised error; posterior mean of
         ``mean_j var_j / noise_j^2`` at the last fit.
     rhat : array, shape (d,)
-        Split-R-hat of the NUTS chains (NaN before).
+        Split-R-hat of the NUTS chains (NaN before, and in ABC mode).
+    abc_threshold, abc_generations, abc_emulated : array, shape ()
+        ABC mode: final tolerance, APMCABC generations and emulated simulations of the last
+        posterior (NaN / 0 otherwise).
     """
 
     thetas: Any
@@ -88,6 +98,7 @@ class SurrogateState(NamedTuple):
     pending: Any
     num_pending: Any
     draws: Any
+    log_weights: Any
     hyper: Any
     holdout_errors: Any
     validated: Any
@@ -96,6 +107,13 @@ class SurrogateState(NamedTuple):
     mean_squared_error: Any
     emulator_ratio: Any
     rhat: Any
+    abc_threshold: Any
+    abc_generations: Any
+    abc_emulated: Any
+
+
+# Fields added after the first release: a checkpoint without them restores with these values.
+_LATER_FIELDS = (".log_weights", ".abc_threshold", ".abc_generations", ".abc_emulated")
 
 
 def _single_threaded_blas() -> contextlib.AbstractContextManager:
@@ -106,6 +124,12 @@ def _single_threaded_blas() -> contextlib.AbstractContextManager:
     except ImportError:  # optional: without it only speed suffers
         return contextlib.nullcontext()
     return threadpool_limits(limits=1, user_api="blas")
+
+
+def kish_ess(log_weights: np.ndarray) -> float:
+    """Kish effective sample size ``(sum w)^2 / sum w^2`` of log weights ``(n,)``."""
+    w = np.exp(np.asarray(log_weights, np.float64) - np.max(log_weights))
+    return float(w.sum() ** 2 / np.sum(w**2))
 
 
 def _int_seed(key: jax.Array) -> int:
@@ -130,6 +154,11 @@ def build(
     thin: int = 2,
     max_emulator_ratio: float = 1.0,
     on_failure: str = "flag",
+    mode: str = "synthetic_likelihood",
+    abc_distance: str | Any = "mean_abs",
+    abc_alpha: float = 0.5,
+    abc_acceptance_cutoff: float = 0.03,
+    abc_max_generations: int = 60,
 ) -> Any:
     """Build the surrogate (GP-emulator synthetic-likelihood) algorithm.
 
@@ -169,6 +198,20 @@ def build(
     on_failure : {"flag", "raise"}
         When validation fails with the budget spent: stop with an unvalidated, flagged result
         and a warning, or raise :class:`EmulatorFailure`.
+    mode : {"synthetic_likelihood", "abc"}
+        The posterior: NUTS on the synthetic likelihood (equal weights), or APMCABC on emulated
+        summaries with emulator and simulator noise added (:mod:`.abc_mode`; weighted, wider by
+        the ABC tolerance).  The sequential design is the same in both.
+    abc_distance : str or callable
+        ABC mode: a :mod:`jaxabc.distances` name or ``distance(observed, simulated) -> scalar``
+        on the raw summaries.  :func:`jaxabc.run` does not hand its own ``distance`` to
+        builders: pass the same one here.
+    abc_alpha, abc_acceptance_cutoff : float
+        ABC mode: APMCABC's kept fraction and stopping cutoff; it runs ``num_particles /
+        abc_alpha`` particles and returns the ``num_particles`` kept.
+    abc_max_generations : int
+        ABC mode: a bound on APMCABC generations (emulated simulations are cheap; the cutoff
+        normally ends the run first).
 
     Returns
     -------
@@ -183,7 +226,15 @@ def build(
     if not np.all(np.isfinite(obs)):
         raise ValueError("observed summaries must be finite")
     num_initial = max(20, 10 * d) if num_initial is None else int(num_initial)
-    if num_particles < 1000 or num_particles % num_chains:
+    if mode not in MODES:
+        raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
+    abc = mode == "abc"
+    if abc:
+        abc_mode.population_size(num_particles, abc_alpha)  # refuses an alpha that cannot keep P
+        abc_distance_fn = get_distance(abc_distance)
+        if abc_max_generations < 2:
+            raise ValueError(f"abc_max_generations must be at least 2, got {abc_max_generations}")
+    if num_particles < 1000 or (not abc and num_particles % num_chains):
         raise ValueError(
             f"num_particles must be >= 1000 and a multiple of num_chains={num_chains}, got {num_particles}"
         )
@@ -200,6 +251,10 @@ def build(
         )
     q = min(k, max_outputs)
     M = int(max_simulations)
+    # Below this many successful runs the emulator is not fitted; batches explore instead.
+    min_successes = max(3, d + 1)
+    # Exploration spreads a batch over a tenth of the box per parameter (unit-box widths).
+    explore_radius = 0.1
     B = max(first, batch_size, num_holdout)
     settings = {
         "num_particles": int(num_particles),
@@ -218,6 +273,17 @@ def build(
         "observed_size": k,
         "max_emulator_ratio": float(max_emulator_ratio),
     }
+    if abc:
+        # Only in ABC mode, so that synthetic-likelihood checkpoints keep their fingerprints.
+        settings |= {
+            "mode": mode,
+            "abc_distance": abc_distance
+            if isinstance(abc_distance, str)
+            else getattr(abc_distance, "__name__", "custom"),
+            "abc_alpha": float(abc_alpha),
+            "abc_acceptance_cutoff": float(abc_acceptance_cutoff),
+            "abc_max_generations": int(abc_max_generations),
+        }
 
     def to_unit(theta: np.ndarray) -> np.ndarray:
         return (theta - low) / (high - low)
@@ -238,6 +304,7 @@ def build(
             pending=np.zeros((B, d)),
             num_pending=np.int64(0),
             draws=np.zeros((num_particles, d)),
+            log_weights=np.zeros(num_particles),
             hyper=np.zeros((q, d + 2)),
             holdout_errors=np.full((num_holdout, q), np.nan),
             validated=np.bool_(False),
@@ -246,6 +313,9 @@ def build(
             mean_squared_error=np.float64(np.nan),
             emulator_ratio=np.float64(np.nan),
             rhat=np.full(d, np.nan),
+            abc_threshold=np.float64(np.nan),
+            abc_generations=np.int64(0),
+            abc_emulated=np.int64(0),
         )
 
     def initial_proposal(key: jax.Array) -> Proposal:
@@ -314,17 +384,47 @@ def build(
         w /= w.sum()
         return cand.x, lp, ratio, w
 
+    def explore_step(key: jax.Array, state: SurrogateState, num_ok: int) -> SurrogateState:
+        """Too few successful runs for an emulator (most of the box fails, as water's prior
+        does): the next batch goes where the success classifier expects runs to succeed,
+        spread out and away from the runs already made."""
+        used = state.role != ROLE_EMPTY
+        if M - int(state.count) < batch_size + num_holdout:
+            raise RuntimeError(
+                f"surrogate: only {num_ok} of {int(used.sum())} simulations succeeded and the budget is "
+                f"spent; the emulator needs at least {min_successes}. Check the simulator, narrow the "
+                "prior to where it succeeds, or raise max_simulations"
+            )
+        rng = np.random.default_rng(_int_seed(key))
+        cand = design.candidates(rng, d, num_candidates)
+        x_used = to_unit(state.thetas[used])
+        feas = sampling.fit_feasibility(x_used, state.ok[used])
+        acquisition = np.array(sampling.feasibility(feas, jnp.asarray(cand.x)), np.float64)
+        for x0 in x_used:  # no repeats of what is known
+            acquisition *= 1.0 - np.exp(-0.5 * np.sum(((cand.x - x0) / explore_radius) ** 2, axis=1))
+        idx = design.select_batch(cand.x, acquisition, np.full(d, explore_radius), batch_size)
+        pending = np.zeros((B, d))
+        pending[:batch_size] = to_theta(cand.x[idx])
+        return state._replace(pending=pending, num_pending=np.int64(batch_size), phase=np.int64(DESIGN))
+
     def design_step(key: jax.Array, state: SurrogateState) -> SurrogateState:
-        _, emu, model, _ = fit(state)
+        num_ok = int(np.sum((state.role != ROLE_EMPTY) & state.ok & (state.role != ROLE_HOLDOUT)))
+        if num_ok < min_successes:
+            return explore_step(key, state, num_ok)
+        transform, emu, model, _ = fit(state)
         rng = np.random.default_rng(_int_seed(key))
         x, lp, ratio, w = importance_posterior(rng, model)
         emulator_ratio = float(w @ ratio)
         draws = to_theta(x[rng.choice(len(x), size=num_particles, p=w)])
         hyper = np.asarray(np.column_stack([emu.log_amp, emu.log_ls, emu.log_noise]))
-        state = state._replace(draws=draws, hyper=hyper, emulator_ratio=np.float64(emulator_ratio))
+        state = state._replace(
+            draws=draws, log_weights=np.zeros(num_particles), hyper=hyper, emulator_ratio=np.float64(emulator_ratio)
+        )
         room = M - int(state.count)
         converged = emulator_ratio < tolerance and int(state.round) >= 1
         if converged or room < batch_size + num_holdout:
+            if abc:
+                return start_abc_validation(key, state, transform, model)
             return start_validation(key, state, model, x, w)
         # The posterior density already holds p_feasible once; a second factor is the chance
         # that the run succeeds and teaches the emulator anything.
@@ -379,6 +479,45 @@ def build(
             phase=np.int64(VALIDATING),
         )
 
+    def start_abc_validation(key, state, transform, model) -> SurrogateState:
+        """ABC mode: APMCABC on the emulated simulator, then held-out points resampled from it."""
+        emulated = abc_mode.emulated_simulator(model.emulator, transform, model.noise_chol, model.feasible, low, high)
+        post = abc_mode.run_abc(
+            jax.random.fold_in(key, 4),
+            emulated,
+            abc_mode.project_observed(emulated, transform, obs),
+            num_particles=num_particles,
+            alpha=abc_alpha,
+            acceptance_cutoff=abc_acceptance_cutoff,
+            distance=abc_distance_fn,
+            max_generations=abc_max_generations,
+        )
+        if not post.stopped:
+            warnings.warn(
+                f"surrogate ABC mode: APMCABC reached abc_max_generations={abc_max_generations} "
+                f"before its acceptance cutoff (threshold {post.threshold:.3g}); raise it for a "
+                "smaller tolerance",
+                RuntimeWarning,
+                stacklevel=2,
+            )
+        w = np.exp(post.log_weights - np.max(post.log_weights))
+        w /= w.sum()
+        rng = np.random.default_rng(_int_seed(jax.random.fold_in(key, 5)))
+        # Systematic resampling: held-out points spread over the weighted sample.
+        idx = np.searchsorted(np.cumsum(w), (rng.uniform() + np.arange(num_holdout)) / num_holdout)
+        pending = np.zeros((B, d))
+        pending[:num_holdout] = post.particles[np.minimum(idx, num_particles - 1)]
+        return state._replace(
+            draws=post.particles,
+            log_weights=post.log_weights,
+            abc_threshold=np.float64(post.threshold),
+            abc_generations=np.int64(post.generations),
+            abc_emulated=np.int64(post.num_emulated),
+            pending=pending,
+            num_pending=np.int64(num_holdout),
+            phase=np.int64(VALIDATING),
+        )
+
     def validate(key: jax.Array, state: SurrogateState) -> SurrogateState:
         _, emu, _, z_all = fit(state)
         rows = np.flatnonzero((state.role == ROLE_HOLDOUT) & state.ok)
@@ -423,7 +562,7 @@ def build(
             stop=np.bool_(done),
             threshold=np.float64(threshold),
             acceptance_rate=np.float64(state.coverage),
-            ess=np.float64(num_particles),
+            ess=np.float64(kish_ess(state.log_weights)),
         )
 
     def step(key: jax.Array, state: SurrogateState) -> tuple[SurrogateState, Info]:
@@ -453,7 +592,7 @@ def build(
         return step(key, state)
 
     def posterior(state: SurrogateState) -> tuple[np.ndarray, np.ndarray]:
-        return np.array(state.draws), np.zeros(num_particles)
+        return np.array(state.draws), np.array(state.log_weights, np.float64)
 
     def stop_reason(settings: dict, info: Info) -> str:
         if not np.isfinite(float(info.threshold)) or np.isnan(float(info.acceptance_rate)):
@@ -495,11 +634,19 @@ def build(
             "nuts_split_rhat": state.rhat.tolist(),
             "rounds": int(state.round),
         }
-        return {"ess": float(num_particles), "diagnostics": diag}
+        if abc:
+            diag |= {
+                "mode": mode,
+                "abc_threshold": float(state.abc_threshold),
+                "abc_generations": int(state.abc_generations),
+                "abc_emulated_simulations": int(state.abc_emulated),
+            }
+        return {"ess": kish_ess(state.log_weights), "diagnostics": diag}
 
     def restore_state(flat: dict[str, np.ndarray]) -> SurrogateState:
         template = empty_state()
         leaves = tree_flatten_with_path(template)[0]
+        flat = {**{keystr(p): v for p, v in leaves if keystr(p) in _LATER_FIELDS}, **flat}
         missing = [keystr(p) for p, _ in leaves if keystr(p) not in flat]
         if missing:
             raise ValueError(f"checkpoint lacks surrogate state entries {missing}")
