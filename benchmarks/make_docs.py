@@ -339,6 +339,53 @@ ESS).  The last column is what the exact ABC posterior at each run's final toler
 """
 
 
+def page_surrogate_coverage() -> str:
+    d = load("surrogate_coverage")
+    if d is None:
+        return "# Coverage of the surrogate posterior\n\nNot saved yet.\n"
+    rows = []
+    for key, label in (("surrogate", "surrogate (GP synthetic likelihood)"), ("apmcabc_reference", "APMCABC")):
+        c = d[key]
+        h, iv = c["hpd_coverage"], c["interval_coverage"]["0.95"]
+        sims = c.get("simulations_per_dataset", {})
+        pooled = c.get("interval_coverage_pooled", {}).get("0.95")
+        rows.append(
+            [
+                label,
+                f"{sims['median']:.0f} (max {sims['max']})" if sims else "-",
+                *(f"{h[q][0]:.2f} +- {h[q][1]:.2f}" for q in ("0.5", "0.9", "0.95")),
+                " / ".join(f"{v:.2f}" for v in iv[0]),
+                f"{pooled[0]:.2f} +- {pooled[1]:.2f}" if pooled else "-",
+                c["num_datasets"],
+            ]
+        )
+    return f"""# Coverage of the surrogate posterior
+
+Simulation-based calibration of `jaxabc.run("surrogate", ...)` on the correlated Gaussian problem
+({d["problem"]}), beside APMCABC on the same data sets: how often each region holds the truth.
+Errors are binomial standard errors over the data sets; the pooled 95 % interval coverage counts
+both parameters (its error is a lower bound: the two intervals of one data set are correlated).
+
+{source("surrogate_coverage")}
+
+{
+        table(
+            [
+                "run",
+                "simulations per data set (median)",
+                "HPD 50 %",
+                "HPD 90 %",
+                "HPD 95 %",
+                "95 % intervals (per parameter)",
+                "95 % intervals pooled",
+                "data sets",
+            ],
+            rows,
+        )
+    }
+"""
+
+
 ORDERS = (
     ("dynamic", "arrival"),
     ("dynamic_longest_first", "longest predicted first"),
@@ -699,7 +746,7 @@ every benchmark's quick mode reproduces its saved numbers.
 
 - [Helium Table 1](helium_table1.md) and [the choice of the CPU preset](helium_identifiability.md)
 - [Engine throughput](engine_throughput.md) and [agreement with LAMMPS](lammps_agreement.md)
-- [Coverage of credible regions](coverage.md)
+- [Coverage of credible regions](coverage.md) and [of the surrogate posterior](surrogate_coverage.md)
 - [Speedup and scheduling](speedup.md)
 - [Cost of an ABC step](abc_overhead.md)
 - [Water calibrations](water_calibrations.md)
@@ -718,6 +765,7 @@ PAGES: dict[str, Callable[[], str]] = {
     "engine_throughput.md": page_engine,
     "lammps_agreement.md": page_lammps,
     "coverage.md": page_coverage,
+    "surrogate_coverage.md": page_surrogate_coverage,
     "speedup.md": page_speedup,
     "abc_overhead.md": page_abc_overhead,
     "water_calibrations.md": page_water,
