@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 from jax.tree_util import keystr, tree_flatten_with_path
 
+from jaxabc.diagnostics import chain_ess
 from jaxabc.executors import SerialExecutor, VmapExecutor, mark_nonfinite
 from jaxabc.priors import Uniform
 
@@ -100,6 +101,10 @@ def test_finalize_reports_design_and_validation(gaussian_run):
     lo, hi = diagnostics.holdout_bounds(diag["num_holdout"] * 2)
     assert lo <= diag["holdout_coverage_95"] and diag["holdout_mean_squared_error"] <= hi
     assert max(diag["nuts_split_rhat"]) < 1.05
+    # The NUTS draws carry equal weights, but their ESS is the chains' (ArviZ), not the count.
+    chains = np.asarray(state.draws).reshape(algorithm.settings["num_chains"], -1, 2)
+    assert extras["ess"] == pytest.approx(chain_ess(chains))
+    assert 1 <= extras["ess"] <= len(state.draws)
 
 
 def test_restore_state_round_trips_a_checkpoint(gaussian_run):

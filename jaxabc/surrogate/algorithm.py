@@ -132,6 +132,18 @@ def kish_ess(log_weights: np.ndarray) -> float:
     return float(w.sum() ** 2 / np.sum(w**2))
 
 
+def posterior_ess(state: Any, num_chains: int, abc: bool) -> float:
+    """ESS of the reported draws: Kish's of the weights in ABC mode (and before NUTS has run),
+    ArviZ's multi-chain ESS of the NUTS chains otherwise -- equal weights say nothing of the
+    chains' autocorrelation."""
+    draws = np.asarray(state.draws, np.float64)
+    if abc or not np.all(np.isfinite(np.asarray(state.rhat))) or len(draws) % num_chains:
+        return kish_ess(state.log_weights)
+    from jaxabc.diagnostics import chain_ess
+
+    return chain_ess(draws.reshape(num_chains, -1, draws.shape[1]))
+
+
 def _int_seed(key: jax.Array) -> int:
     return int(jax.random.randint(key, (), 0, 2**31 - 1))
 
@@ -562,7 +574,7 @@ def build(
             stop=np.bool_(done),
             threshold=np.float64(threshold),
             acceptance_rate=np.float64(state.coverage),
-            ess=np.float64(kish_ess(state.log_weights)),
+            ess=np.float64(posterior_ess(state, num_chains, abc)),
         )
 
     def step(key: jax.Array, state: SurrogateState) -> tuple[SurrogateState, Info]:
@@ -641,7 +653,7 @@ def build(
                 "abc_generations": int(state.abc_generations),
                 "abc_emulated_simulations": int(state.abc_emulated),
             }
-        return {"ess": kish_ess(state.log_weights), "diagnostics": diag}
+        return {"ess": posterior_ess(state, num_chains, abc), "diagnostics": diag}
 
     def restore_state(flat: dict[str, np.ndarray]) -> SurrogateState:
         template = empty_state()
