@@ -1,31 +1,33 @@
 """ABC model choice: which of several simulators explains the observed data, and how surely.
 
-The method: one ABC-SMC population per model, all run to a **shared tolerance**, and each
-model's ABC evidence ``Z_m(eps) = P(d(S_sim, S_obs) <= eps | m)`` estimated by importance
-sampling in every generation (Didelot, Everitt, Johansen & Lawson 2011, *Bayesian Analysis* 6,
-49-76; the populations move as in Beaumont, Cornuet, Marin & Robert 2009).  The model
-probabilities at the shared tolerance are
+The method: one ABC-SMC population per model, all at a **shared tolerance** in every
+generation, and each model's ABC evidence ``Z_m(eps) = P(d(S_sim, S_obs) <= eps | m)``
+estimated by importance sampling (the per-model evidence route of Didelot, Everitt, Johansen
+& Lawson 2011, *Bayesian Analysis* 6, 49-76; populations move as in Beaumont, Cornuet, Marin &
+Robert 2009).  The model probabilities at the shared tolerance are
 
     P(m | S_obs) = p(m) Z_m(eps) / sum_k p(k) Z_k(eps),
 
 the quantity that the joint-space ABC-SMC of Toni et al. (2009) estimates by the share of
-particles each model keeps.  Here every model keeps its own population, so none dies out by
-chance and an improbable model still gets a usable posterior.
+particles each model keeps.  Here each model keeps its own population of about
+``num_particles``, however improbable it is, so its evidence has a small relative error and its
+posterior stays usable; a model dies out only when not one of its proposals meets the
+tolerance, and then it gets a 95% upper bound instead of a standard error.
 
-One generation, for each model still alive:
+One generation:
 
-1. the tolerance is the largest of the models' ``quantile``-quantiles of their current
-   weighted distances (clipped at ``final_threshold``), so the slowest model sets the pace and
-   every model keeps about ``quantile`` of its population;
-2. ``M`` proposals: a fraction ``defensive_fraction`` from the prior, the rest from the
-   previous population perturbed by a Gaussian of ``covariance_factor`` times its weighted
-   covariance; ``M`` is set from past generations so that about ``num_particles`` are
-   accepted;
+1. the tolerance is the ``quantile`` of the distances under the current joint ABC posterior
+   over (model, parameters), each model's weights scaled by its probability (Toni et al.'s
+   rule), clipped at ``final_threshold``: it follows the models that fit;
+2. per living model, ``M`` proposals: a share ``defensive_fraction`` from the prior, the rest
+   from the previous population perturbed by a Gaussian of ``covariance_factor`` times its
+   weighted covariance; ``M`` is set from past generations so that about ``num_particles``
+   are accepted (at most ``50 num_particles``);
 3. proposals outside the prior's box get weight zero and cost no simulation; the others are
    simulated, and those within the tolerance are accepted with weight
-   ``prior / (defensive_fraction prior + (1 - defensive_fraction) kernel mixture)``
-   (Hesterberg's defensive mixture, 1995: the weight is at most ``1 / defensive_fraction``,
-   so the evidence estimate has a finite variance even when a population has collapsed);
+   ``prior / (eta prior + (1 - eta) kernel mixture)``, ``eta`` the prior share (Hesterberg's
+   defensive mixture, 1995: weights are at most ``1 / eta``, so the evidence estimate has a
+   finite variance even when a population has collapsed);
 4. ``Z_m = sum(accepted weights) / M``: unbiased given the past, because the tolerance, the
    proposal and ``M`` are fixed before the generation's simulations.
 
@@ -191,7 +193,7 @@ def _check_summary_shapes(models: list[Model], priors: list[Any], observed: np.n
             )
 
 
-def _loop(ctx: Context, tracks: list[ModelTrack], progress: bool) -> tuple[list[float], str]:
+def _loop(ctx: Context, tracks: list[ModelTrack], model_prior: np.ndarray, progress: bool) -> tuple[list[float], str]:
     """Run generations until a stopping rule fires; returns the tolerances and the stop reason."""
     s = ctx.settings
     thresholds: list[float] = []
@@ -230,7 +232,10 @@ def _loop(ctx: Context, tracks: list[ModelTrack], progress: bool) -> tuple[list[
             if reason:
                 return thresholds, reason
             populations = [t.population if t.alive else None for t in tracks]
-            eps = next_threshold(populations, thresholds[-1], s.quantile, s.final_threshold)
+            log_z = np.array([t.history["log_evidence"][-1] for t in tracks])
+            rel = np.array([t.history["relative_error"][-1] for t in tracks])
+            probabilities = probabilities_with_errors(log_z, rel, model_prior)[0]
+            eps = next_threshold(populations, probabilities, thresholds[-1], s.quantile, s.final_threshold)
             if eps is None:
                 return thresholds, (
                     f"the tolerance cannot go below {thresholds[-1]:.6g}: every accepted simulation of every "
@@ -261,14 +266,15 @@ def _assemble(
     # The answer is at the last tolerance some model reached (all die only in the last step).
     final = max(i for i in range(len(thresholds)) if np.any(np.isfinite(log_z[i])))
     wall = time.perf_counter() - ctx.t_start
-    dead = [t.name for t in tracks if t.died_at is not None and t.died_at <= final]
+    bounds = _upper_bounds(tracks, final, log_z[final], model_prior, ctx.settings.defensive_fraction)
+    dead = [f"{t.name} (below {bounds[i]:.2g})" for i, t in enumerate(tracks) if np.isfinite(bounds[i])]
     if dead:
         warnings.warn(
-            f"no simulation of {', '.join(dead)} met the tolerance {thresholds[final]:.4g}: the probability "
-            "is estimated as 0 with a zero standard error, which understates the uncertainty; raise "
-            "num_particles to bound it",
+            f"no simulation of {', '.join(dead)} met the tolerance {thresholds[final]:.4g}: its probability "
+            "is estimated as 0 with a zero standard error; the 95% upper bound given here is in "
+            "probability_upper_bounds",
             UserWarning,
-            stacklevel=4,
+            stacklevel=_caller_stacklevel(),
         )
     posteriors = tuple(t.result(ctx, final, dtype, wall, stop_reason) for t in tracks)
     meta: dict[str, Any] = {
@@ -288,6 +294,7 @@ def _assemble(
         model_prior=model_prior,
         threshold=float(thresholds[final]),
         thresholds=np.asarray(thresholds[: final + 1], np.float64),
+        probability_upper_bounds=bounds,
         probability_history=probs[: final + 1],
         standard_error_history=errors[: final + 1],
         simulations_per_step=np.array([t.history["sims"][: final + 1] for t in tracks]).T,
@@ -298,6 +305,43 @@ def _assemble(
         wall_time=wall,
         metadata=meta,
     )
+
+
+def _upper_bounds(
+    tracks: list[ModelTrack], final: int, log_z: np.ndarray, model_prior: np.ndarray, defensive_fraction: float
+) -> np.ndarray:
+    """95% upper bounds on the probabilities of models with no accepted simulation (else NaN).
+
+    A prior draw meets the tolerance with probability ``Z`` exactly, so none among the
+    ``ceil(defensive_fraction M)`` prior draws of the generation where the model died gives
+    ``Z < 3 / ceil(defensive_fraction M)`` with 95% confidence (the rule of three); the
+    evidence at the final tolerance is no larger.  The other models' evidence is taken at its
+    estimate.
+    """
+    out = np.full(len(tracks), np.nan)
+    z = np.exp(log_z)
+    for i, t in enumerate(tracks):
+        if t.died_at is None or t.died_at > final:
+            continue
+        num = t.history["proposals"][t.died_at]
+        z_up = 3.0 / math.ceil(defensive_fraction * num) if t.died_at > 0 else 3.0 / num
+        others = np.sum(np.delete(model_prior * z, i))
+        out[i] = model_prior[i] * z_up / (model_prior[i] * z_up + others)
+    return out
+
+
+def _caller_stacklevel() -> int:
+    """The ``stacklevel`` that points a warning at the first frame outside jaxabc."""
+    import inspect
+    from pathlib import Path
+
+    package = str(Path(__file__).parent)
+    level = 0  # this function's own frame is not counted by warnings.warn
+    frame = inspect.currentframe()
+    while frame is not None and frame.f_code.co_filename.startswith(package):
+        frame = frame.f_back
+        level += 1
+    return level
 
 
 def run_model_choice(
@@ -354,7 +398,8 @@ def run_model_choice(
     max_failure_fraction : float
         Per model, as for :func:`jaxabc.run`.
     quantile : float
-        In (0, 1); each model's tolerance proposal is this quantile of its weighted distances.
+        In (0, 1); each tolerance is this quantile of the distances under the joint ABC
+        posterior over (model, parameters) of the previous generation.
     model_prior : sequence of float, optional
         Prior model probabilities (default uniform); normalised.
     covariance_factor : float
@@ -425,7 +470,7 @@ def run_model_choice(
                 ModelTrack(model.name, model.simulate, prior, Recorder(keep_summaries))
                 for model, prior in zip(model_list, priors, strict=True)
             ]
-            thresholds, stop_reason = _loop(ctx, tracks, progress)
+            thresholds, stop_reason = _loop(ctx, tracks, p_model, progress)
         finally:
             if own_executor:
                 ex.close()
