@@ -134,13 +134,13 @@ class ModelChoiceResult:
     def bayes_factor(self, numerator: str, denominator: str) -> tuple[float, float]:
         """``(B, standard error of log B)`` for ``Z_numerator / Z_denominator``.
 
-        ``B`` is ``inf`` or ``0`` when a model had no accepted simulation (its error is then
-        ``inf``).
+        ``B`` is ``inf`` or ``0`` when one of the two models had no accepted simulation (NaN
+        when neither had), and its error is then ``inf``.
         """
         i, j = self._index(numerator), self._index(denominator)
-        log_b = self.log_evidence[i] - self.log_evidence[j]
-        err = math.hypot(self.log_evidence_errors[i], self.log_evidence_errors[j])
-        return float(np.exp(log_b)) if np.isfinite(log_b) else float(log_b > 0) * math.inf, float(err)
+        with np.errstate(invalid="ignore", over="ignore"):
+            bayes = float(np.exp(self.log_evidence[i] - self.log_evidence[j]))
+        return bayes, math.hypot(self.log_evidence_errors[i], self.log_evidence_errors[j])
 
     def summary(self) -> str:
         """A few lines for a terminal: probabilities with errors, evidence, cost per model."""

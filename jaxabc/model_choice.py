@@ -51,20 +51,24 @@ geometric model separately, but not for choosing between them.
 
 from __future__ import annotations
 
+import inspect
 import math
 import time
 import warnings
 from collections.abc import Callable, Sequence
+from pathlib import Path
 from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxabc import _model_choice_checkpoint as _ckpt
 from jaxabc._driver import Recorder, SharedVmapExecutor, make_distance_fn
 from jaxabc._driver_checks import cast_prior, check_traced_shape, precision, shapes_compatible, validate_observed
 from jaxabc._model_choice_result import ModelChoiceResult, load_model_choice, probabilities_with_errors
 from jaxabc._model_choice_smc import ALGORITHM_NAME, Context, ModelTrack, Settings, next_threshold
+from jaxabc.checkpoint import prepare_folder
 from jaxabc.distances import get_distance
 from jaxabc.executors import Executor, get_executor
 from jaxabc.results import versions
@@ -193,10 +197,18 @@ def _check_summary_shapes(models: list[Model], priors: list[Any], observed: np.n
             )
 
 
-def _loop(ctx: Context, tracks: list[ModelTrack], model_prior: np.ndarray, progress: bool) -> tuple[list[float], str]:
-    """Run generations until a stopping rule fires; returns the tolerances and the stop reason."""
+def _loop(
+    ctx: Context,
+    tracks: list[ModelTrack],
+    thresholds: list[float],
+    model_prior: np.ndarray,
+    progress: bool,
+    after_generation: Callable[[list[float]], None],
+    stop_after_generations: int | None,
+) -> str:
+    """Run generations until a stopping rule fires, appending to ``thresholds`` (empty for a
+    fresh run, the saved ones on resume); returns the stop reason."""
     s = ctx.settings
-    thresholds: list[float] = []
 
     def run_generation(eps: float, nums: list[int]) -> None:
         index = len(thresholds)
@@ -204,6 +216,7 @@ def _loop(ctx: Context, tracks: list[ModelTrack], model_prior: np.ndarray, progr
         for m, (track, num) in enumerate(zip(tracks, nums, strict=True)):
             track.generation(ctx, index, jax.random.fold_in(key, m), eps, num)
         thresholds.append(eps)
+        after_generation(thresholds)
 
     def stop_reason() -> str:
         eps = thresholds[-1]
@@ -215,36 +228,39 @@ def _loop(ctx: Context, tracks: list[ModelTrack], model_prior: np.ndarray, progr
             return f"final threshold {s.final_threshold} reached"
         if s.max_wall_time is not None and time.perf_counter() - ctx.t_start > s.max_wall_time:
             return f"wall time {s.max_wall_time} s reached"
+        if stop_after_generations is not None and len(thresholds) >= stop_after_generations:
+            return f"stopped after {len(thresholds)} generations (resumable)"
         return ""
 
     bar = None
     if progress:
         from tqdm.auto import tqdm
 
-        bar = tqdm(total=s.num_steps, desc="model choice", unit="step")
+        bar = tqdm(total=s.num_steps, desc="model choice", unit="step", initial=max(0, len(thresholds) - 1))
     try:
-        run_generation(math.inf, [s.num_particles] * len(tracks))
+        if not thresholds:
+            run_generation(math.inf, [s.num_particles] * len(tracks))
         while True:
             if bar is not None:
                 bar.update(1)
                 bar.set_postfix(threshold=f"{thresholds[-1]:.4g}", sims=sum(t.num_simulations for t in tracks))
             reason = stop_reason()
             if reason:
-                return thresholds, reason
+                return reason
             populations = [t.population if t.alive else None for t in tracks]
             log_z = np.array([t.history["log_evidence"][-1] for t in tracks])
             rel = np.array([t.history["relative_error"][-1] for t in tracks])
             probabilities = probabilities_with_errors(log_z, rel, model_prior)[0]
             eps = next_threshold(populations, probabilities, thresholds[-1], s.quantile, s.final_threshold)
             if eps is None:
-                return thresholds, (
+                return (
                     f"the tolerance cannot go below {thresholds[-1]:.6g}: every accepted simulation of every "
                     "model is at that distance"
                 )
             nums = [t.num_proposals(eps, s.num_particles) for t in tracks]
             spent = sum(t.num_simulations for t in tracks)
             if s.max_simulations is not None and spent + sum(nums) > s.max_simulations:
-                return thresholds, f"simulation budget {s.max_simulations} reached"
+                return f"simulation budget {s.max_simulations} reached"
             run_generation(eps, nums)
     finally:
         if bar is not None:
@@ -332,9 +348,6 @@ def _upper_bounds(
 
 def _caller_stacklevel() -> int:
     """The ``stacklevel`` that points a warning at the first frame outside jaxabc."""
-    import inspect
-    from pathlib import Path
-
     package = str(Path(__file__).parent)
     level = 0  # this function's own frame is not counted by warnings.warn
     frame = inspect.currentframe()
@@ -361,6 +374,11 @@ def run_model_choice(
     model_prior: Sequence[float] | None = None,
     covariance_factor: float = 2.0,
     defensive_fraction: float = 0.05,
+    checkpoint_dir: str | Path | None = None,
+    resume: bool = False,
+    overwrite: bool = False,
+    simulator_id: str | None = None,
+    stop_after_generations: int | None = None,
     keep_summaries: bool = True,
     progress: bool = False,
     dtype: str = "float32",
@@ -406,6 +424,19 @@ def run_model_choice(
         Kernel covariance over the population's weighted covariance (Beaumont et al.'s 2).
     defensive_fraction : float
         In (0, 1); the share of each generation's proposals drawn from the prior.
+    checkpoint_dir : path, optional
+        Write ``checkpoint.npz`` there after every generation (atomically); a fresh run into a
+        folder holding one is refused unless ``resume`` or ``overwrite`` is given.
+    resume : bool
+        Continue from the checkpoint in ``checkpoint_dir``; the result equals that of the
+        uninterrupted run.  Refused when the problem differs (models, priors, simulators,
+        observed data, distance, settings, seed, dtype).
+    overwrite : bool
+        Delete an existing checkpoint in ``checkpoint_dir`` and start over.
+    simulator_id : str, optional
+        The simulators' identity in checkpoints (default: each one's ``module:qualname``).
+    stop_after_generations : int, optional
+        Stop after this many generations, resumable (for tests and for splitting long runs).
     keep_summaries : bool
         Keep every simulation's summaries in the per-model records.
     progress : bool
@@ -442,6 +473,8 @@ def run_model_choice(
         ),
         dtype,
     )
+    if stop_after_generations is not None and stop_after_generations < 1:
+        raise ValueError(f"stop_after_generations must be at least 1, got {stop_after_generations}")
     p_model = _model_prior(model_prior, len(model_list))
     obs = validate_observed(observed)
     get_distance(distance)  # an unknown name fails here, before any simulation
@@ -470,7 +503,25 @@ def run_model_choice(
                 ModelTrack(model.name, model.simulate, prior, Recorder(keep_summaries))
                 for model, prior in zip(model_list, priors, strict=True)
             ]
-            thresholds, stop_reason = _loop(ctx, tracks, p_model, progress)
+            fp = _ckpt.problem_fingerprint(tracks, settings, p_model, obs, distance, seed, dtype, simulator_id)
+            # Only now, with every input checked, may overwrite=True delete an old checkpoint.
+            ckpt_path = prepare_folder(checkpoint_dir, resume, overwrite)
+            thresholds: list[float] = []
+            stop_reason = ""
+            if resume:
+                assert ckpt_path is not None, "prepare_folder refuses resume without a folder"
+                thresholds, stop_reason = _ckpt.restore(ckpt_path, fp, tracks)
+
+            def after_generation(done: list[float]) -> None:
+                if ckpt_path is not None:
+                    _ckpt.save(ckpt_path, fp, tracks, done, "")
+
+            if not stop_reason:
+                stop_reason = _loop(
+                    ctx, tracks, thresholds, p_model, progress, after_generation, stop_after_generations
+                )
+                if ckpt_path is not None and "resumable" not in stop_reason:
+                    _ckpt.save(ckpt_path, fp, tracks, thresholds, stop_reason)
         finally:
             if own_executor:
                 ex.close()
@@ -516,24 +567,24 @@ _PASSED_ON = (
     "max_simulations",
     "max_wall_time",
     "max_failure_fraction",
+    "checkpoint_dir",
+    "resume",
+    "overwrite",
+    "simulator_id",
     "keep_summaries",
     "progress",
     "dtype",
     "metadata",
 )
-# jaxabc.run's keywords with no meaning here yet, with their defaults.
-_NOT_SUPPORTED = {
-    "checkpoint_dir": None,
-    "resume": False,
-    "overwrite": False,
-    "simulator_id": None,
-    "stop_after_iterations": None,
-}
 _OPTIONS = ("quantile", "model_prior", "covariance_factor", "defensive_fraction")
 
 
-def run_from_driver(arguments: dict[str, Any]) -> ModelChoiceResult:
-    """:func:`jaxabc.run`'s arguments (its ``locals()``) when it was given a list of models."""
+def run_from_driver(arguments: dict[str, Any]) -> Any:
+    """:func:`jaxabc.run`'s arguments (its ``locals()``) when it was given a list of models.
+
+    Returns a :class:`ModelChoiceResult`; typed ``Any`` because ``jaxabc.run`` is annotated to
+    return an ``ABCResult`` (call :func:`run_model_choice` for the precise type).
+    """
     models, simulate, prior = arguments["algorithm"], arguments["simulate"], arguments["prior"]
     if type(models) not in (list, tuple):
         raise TypeError(
@@ -547,9 +598,6 @@ def run_from_driver(arguments: dict[str, Any]) -> ModelChoiceResult:
         )
     if arguments["observed"] is None:
         raise TypeError("model choice needs the data: jaxabc.run(models, observed=data, ...)")
-    unsupported = [k for k, default in _NOT_SUPPORTED.items() if arguments[k] != default]
-    if unsupported:
-        raise ValueError(f"model choice does not support {', '.join(unsupported)} (no checkpoints yet): leave them out")
     options = dict(arguments["algorithm_options"])
     unknown = sorted(set(options) - set(_OPTIONS))
     if unknown:
@@ -560,6 +608,7 @@ def run_from_driver(arguments: dict[str, Any]) -> ModelChoiceResult:
         models,
         arguments["observed"],
         1000 if num_particles is None else num_particles,
+        stop_after_generations=arguments["stop_after_iterations"],
         **passed,
         **options,
     )

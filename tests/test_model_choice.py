@@ -141,9 +141,13 @@ def test_picks_the_model_that_simulated_the_data(truth, theta):
     ]
     data_model = models[0] if truth == "poisson" else models[1]
     observed = data_model.simulate(jax.random.key(42), jnp.array([theta]))
-    r = jaxabc.run(models, observed=observed, num_particles=200, num_steps=6, distance="euclidean", seed=1)
+    loser = "geometric" if truth == "poisson" else "poisson"
+    # The loser cannot match the spread: it dies out, and its probability gets an upper bound.
+    with pytest.warns(UserWarning, match=f"no simulation of {loser}"):
+        r = jaxabc.run(models, observed=observed, num_particles=200, num_steps=6, distance="euclidean", seed=1)
     assert r.best == truth
     assert r.probability(truth)[0] > 0.95
+    assert r.probability_upper_bounds[r.names.index(loser)] < 0.2
     # The winner's posterior is where the data came from.
     lo, hi = r.posterior(truth).credible_interval(0.99)[0]
     assert lo < theta < hi
@@ -170,6 +174,7 @@ def test_a_model_that_never_comes_close_gets_probability_zero_with_a_warning():
     assert r.probability("far") == (0.0, 0.0)
     assert r.probability("poisson")[0] == 1.0
     assert r.log_evidence[1] == -np.inf
+    assert r.bayes_factor("poisson", "far") == (np.inf, np.inf)
     # Once the tolerance is below 95, nothing of 'far' lies within it, so it gets the most
     # proposals (50 N), 5% of them prior draws, none accepted: Z < 3 / 250 at 95% (rule of three).
     far_post = r.posterior("far")
@@ -219,6 +224,29 @@ def test_host_simulators_on_the_serial_executor():
     assert all(("p below 0.05" in why) == (t < 0.05) for why, t in zip(reasons, theta, strict=True))
 
 
+def test_a_stopped_run_resumes_to_the_uninterrupted_result(tmp_path):
+    kw = dict(observed=[12.0], num_particles=100, num_steps=4, seed=5)
+    full = jaxabc.run([POISSON, GEOMETRIC], **kw)
+    part = jaxabc.run([POISSON, GEOMETRIC], checkpoint_dir=tmp_path, stop_after_iterations=2, **kw)
+    assert "resumable" in part.stop_reason and len(part.thresholds) == 2
+    with pytest.raises(jaxabc.checkpoint.CheckpointError, match="earlier run"):
+        jaxabc.run([POISSON, GEOMETRIC], checkpoint_dir=tmp_path, **kw)
+    with pytest.raises(jaxabc.checkpoint.CheckpointError, match="seed: checkpoint 5, this run 6"):
+        jaxabc.run([POISSON, GEOMETRIC], checkpoint_dir=tmp_path, resume=True, **{**kw, "seed": 6})
+    with pytest.raises(jaxabc.checkpoint.CheckpointError, match="settings"):
+        jaxabc.run([POISSON, GEOMETRIC], checkpoint_dir=tmp_path, resume=True, model_prior=[0.3, 0.7], **kw)
+    rest = jaxabc.run([POISSON, GEOMETRIC], checkpoint_dir=tmp_path, resume=True, **kw)
+    np.testing.assert_array_equal(rest.probabilities, full.probabilities)
+    np.testing.assert_array_equal(rest.thresholds, full.thresholds)
+    for a, b in zip(rest.posteriors, full.posteriors, strict=True):
+        np.testing.assert_array_equal(a.particles, b.particles)
+        np.testing.assert_array_equal(a.records["theta"], b.records["theta"])
+    # A finished run resumes to itself without simulating.
+    again = jaxabc.run([POISSON, GEOMETRIC], checkpoint_dir=tmp_path, resume=True, **kw)
+    np.testing.assert_array_equal(again.probabilities, full.probabilities)
+    assert again.num_simulations == full.num_simulations
+
+
 def test_save_load_and_json_summary(counts_run, tmp_path):
     path = counts_run.save(tmp_path / "choice")
     again = load_model_choice(tmp_path / "choice")
@@ -263,7 +291,7 @@ def test_models_with_different_summary_shapes_are_refused():
         (dict(num_steps=None), ValueError, "needs a stopping rule"),
         (dict(model_prior=[1.0]), ValueError, "model_prior has 1 entries for 2 models"),
         (dict(model_prior=[1.0, -1.0]), ValueError, "positive and finite"),
-        (dict(checkpoint_dir="x"), ValueError, "does not support checkpoint_dir"),
+        (dict(resume=True), ValueError, "resume=True needs checkpoint_dir"),
         (dict(alpha=0.1), TypeError, r"unknown option\(s\) \['alpha'\]"),
         (dict(quantile=1.0), ValueError, r"quantile must lie in \(0, 1\)"),
         (dict(defensive_fraction=0.0), ValueError, "defensive_fraction"),
