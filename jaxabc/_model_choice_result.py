@@ -69,6 +69,9 @@ class ModelChoiceResult:
         of the model met the tolerance.
     log_evidence_errors : numpy.ndarray, shape (K,)
         Standard errors of ``log_evidence`` (the evidence's relative standard errors).
+    probability_upper_bounds : numpy.ndarray, shape (K,)
+        For a model with no simulation within the final tolerance (probability 0, standard
+        error 0): a 95% upper bound on its probability; NaN for the others.
     model_prior : numpy.ndarray, shape (K,)
     threshold : float
         The final shared tolerance, in distance units.
@@ -94,6 +97,7 @@ class ModelChoiceResult:
     standard_errors: np.ndarray
     log_evidence: np.ndarray
     log_evidence_errors: np.ndarray
+    probability_upper_bounds: np.ndarray
     model_prior: np.ndarray
     threshold: float
     thresholds: np.ndarray
@@ -130,13 +134,13 @@ class ModelChoiceResult:
     def bayes_factor(self, numerator: str, denominator: str) -> tuple[float, float]:
         """``(B, standard error of log B)`` for ``Z_numerator / Z_denominator``.
 
-        ``B`` is ``inf`` or ``0`` when a model had no accepted simulation (its error is then
-        ``inf``).
+        ``B`` is ``inf`` or ``0`` when one of the two models had no accepted simulation (NaN
+        when neither had), and its error is then ``inf``.
         """
         i, j = self._index(numerator), self._index(denominator)
-        log_b = self.log_evidence[i] - self.log_evidence[j]
-        err = math.hypot(self.log_evidence_errors[i], self.log_evidence_errors[j])
-        return float(np.exp(log_b)) if np.isfinite(log_b) else float(log_b > 0) * math.inf, float(err)
+        with np.errstate(invalid="ignore", over="ignore"):
+            bayes = float(np.exp(self.log_evidence[i] - self.log_evidence[j]))
+        return bayes, math.hypot(self.log_evidence_errors[i], self.log_evidence_errors[j])
 
     def summary(self) -> str:
         """A few lines for a terminal: probabilities with errors, evidence, cost per model."""
@@ -164,6 +168,7 @@ class ModelChoiceResult:
             "standard_errors": self.standard_errors.tolist(),
             "log_evidence": [_finite_or_none(v) for v in self.log_evidence],
             "log_evidence_errors": [_finite_or_none(v) for v in self.log_evidence_errors],
+            "probability_upper_bounds": [_finite_or_none(v) for v in self.probability_upper_bounds],
             "model_prior": self.model_prior.tolist(),
             "threshold": self.threshold,
             "thresholds": [_finite_or_none(v) for v in self.thresholds],
@@ -240,6 +245,7 @@ def load_model_choice(folder: str | Path) -> ModelChoiceResult:
         standard_errors=floats(data["standard_errors"]),
         log_evidence=log_z,
         log_evidence_errors=log_z_err,
+        probability_upper_bounds=floats(data["probability_upper_bounds"]),
         model_prior=floats(data["model_prior"]),
         threshold=float(data["threshold"]),
         thresholds=thresholds,

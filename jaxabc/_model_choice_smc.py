@@ -237,29 +237,45 @@ def weighted_quantile(x: np.ndarray, log_weights: np.ndarray, q: float) -> float
 
 
 def next_threshold(
-    populations: Sequence[Population | None], current: float, quantile: float, floor: float | None
+    populations: Sequence[Population | None],
+    probabilities: np.ndarray,
+    current: float,
+    quantile: float,
+    floor: float | None,
 ) -> float | None:
-    """The next shared tolerance, or None when no model can go below ``current``.
+    """The next shared tolerance, or None when no particle of any model is below ``current``.
 
-    Each living model (a population, not None) proposes the weighted ``quantile`` of its
-    distances, or, where that does not go below ``current`` (ties of a discrete distance), its
-    largest distance below ``current``; the largest proposal wins, so every model keeps a part
-    of its population.  The result is never below ``floor``.
+    The weighted ``quantile`` of the distances under the joint ABC posterior over (model,
+    parameters): each living model's normalised weights scaled by its probability, as the
+    joint population of Toni et al. (2009) would hold them.  Where ties of a discrete distance
+    keep that at ``current``, the largest distance below ``current`` is taken instead.  The
+    result is never below ``floor``.
+
+    Parameters
+    ----------
+    populations : sequence of Population or None, length K
+        None for a model that has died out.
+    probabilities : numpy.ndarray, shape (K,)
+        The models' current probabilities.
+    current : float
+    quantile : float
+    floor : float or None
     """
-    candidates = []
-    for pop in populations:
-        if pop is None:
+    distances, log_weights = [], []
+    for pop, prob in zip(populations, probabilities, strict=True):
+        if pop is None or not prob > 0:
             continue
-        q = weighted_quantile(pop.distances, pop.log_weights, quantile)
-        if q >= current:
-            below = pop.distances[pop.distances < current]
-            if below.size == 0:
-                continue
-            q = float(below.max())
-        candidates.append(q)
-    if not candidates:
+        distances.append(pop.distances)
+        log_weights.append(pop.log_weights - logsumexp(pop.log_weights) + math.log(prob))
+    if not distances:
         return None
-    eps = max(candidates)
+    d, log_w = np.concatenate(distances), np.concatenate(log_weights)
+    eps = weighted_quantile(d, log_w, quantile)
+    if eps >= current:
+        below = d[d < current]
+        if below.size == 0:
+            return None
+        eps = float(below.max())
     return eps if floor is None else max(eps, floor)
 
 

@@ -1,31 +1,33 @@
 """ABC model choice: which of several simulators explains the observed data, and how surely.
 
-The method: one ABC-SMC population per model, all run to a **shared tolerance**, and each
-model's ABC evidence ``Z_m(eps) = P(d(S_sim, S_obs) <= eps | m)`` estimated by importance
-sampling in every generation (Didelot, Everitt, Johansen & Lawson 2011, *Bayesian Analysis* 6,
-49-76; the populations move as in Beaumont, Cornuet, Marin & Robert 2009).  The model
-probabilities at the shared tolerance are
+The method: one ABC-SMC population per model, all at a **shared tolerance** in every
+generation, and each model's ABC evidence ``Z_m(eps) = P(d(S_sim, S_obs) <= eps | m)``
+estimated by importance sampling (the per-model evidence route of Didelot, Everitt, Johansen
+& Lawson 2011, *Bayesian Analysis* 6, 49-76; populations move as in Beaumont, Cornuet, Marin &
+Robert 2009).  The model probabilities at the shared tolerance are
 
     P(m | S_obs) = p(m) Z_m(eps) / sum_k p(k) Z_k(eps),
 
 the quantity that the joint-space ABC-SMC of Toni et al. (2009) estimates by the share of
-particles each model keeps.  Here every model keeps its own population, so none dies out by
-chance and an improbable model still gets a usable posterior.
+particles each model keeps.  Here each model keeps its own population of about
+``num_particles``, however improbable it is, so its evidence has a small relative error and its
+posterior stays usable; a model dies out only when not one of its proposals meets the
+tolerance, and then it gets a 95% upper bound instead of a standard error.
 
-One generation, for each model still alive:
+One generation:
 
-1. the tolerance is the largest of the models' ``quantile``-quantiles of their current
-   weighted distances (clipped at ``final_threshold``), so the slowest model sets the pace and
-   every model keeps about ``quantile`` of its population;
-2. ``M`` proposals: a fraction ``defensive_fraction`` from the prior, the rest from the
-   previous population perturbed by a Gaussian of ``covariance_factor`` times its weighted
-   covariance; ``M`` is set from past generations so that about ``num_particles`` are
-   accepted;
+1. the tolerance is the ``quantile`` of the distances under the current joint ABC posterior
+   over (model, parameters), each model's weights scaled by its probability (Toni et al.'s
+   rule), clipped at ``final_threshold``: it follows the models that fit;
+2. per living model, ``M`` proposals: a share ``defensive_fraction`` from the prior, the rest
+   from the previous population perturbed by a Gaussian of ``covariance_factor`` times its
+   weighted covariance; ``M`` is set from past generations so that about ``num_particles``
+   are accepted (at most ``50 num_particles``);
 3. proposals outside the prior's box get weight zero and cost no simulation; the others are
    simulated, and those within the tolerance are accepted with weight
-   ``prior / (defensive_fraction prior + (1 - defensive_fraction) kernel mixture)``
-   (Hesterberg's defensive mixture, 1995: the weight is at most ``1 / defensive_fraction``,
-   so the evidence estimate has a finite variance even when a population has collapsed);
+   ``prior / (eta prior + (1 - eta) kernel mixture)``, ``eta`` the prior share (Hesterberg's
+   defensive mixture, 1995: weights are at most ``1 / eta``, so the evidence estimate has a
+   finite variance even when a population has collapsed);
 4. ``Z_m = sum(accepted weights) / M``: unbiased given the past, because the tolerance, the
    proposal and ``M`` are fixed before the generation's simulations.
 
@@ -49,20 +51,24 @@ geometric model separately, but not for choosing between them.
 
 from __future__ import annotations
 
+import inspect
 import math
 import time
 import warnings
 from collections.abc import Callable, Sequence
+from pathlib import Path
 from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxabc import _model_choice_checkpoint as _ckpt
 from jaxabc._driver import Recorder, SharedVmapExecutor, make_distance_fn
 from jaxabc._driver_checks import cast_prior, check_traced_shape, precision, shapes_compatible, validate_observed
 from jaxabc._model_choice_result import ModelChoiceResult, load_model_choice, probabilities_with_errors
 from jaxabc._model_choice_smc import ALGORITHM_NAME, Context, ModelTrack, Settings, next_threshold
+from jaxabc.checkpoint import prepare_folder
 from jaxabc.distances import get_distance
 from jaxabc.executors import Executor, get_executor
 from jaxabc.results import versions
@@ -191,10 +197,18 @@ def _check_summary_shapes(models: list[Model], priors: list[Any], observed: np.n
             )
 
 
-def _loop(ctx: Context, tracks: list[ModelTrack], progress: bool) -> tuple[list[float], str]:
-    """Run generations until a stopping rule fires; returns the tolerances and the stop reason."""
+def _loop(
+    ctx: Context,
+    tracks: list[ModelTrack],
+    thresholds: list[float],
+    model_prior: np.ndarray,
+    progress: bool,
+    after_generation: Callable[[list[float]], None],
+    stop_after_generations: int | None,
+) -> str:
+    """Run generations until a stopping rule fires, appending to ``thresholds`` (empty for a
+    fresh run, the saved ones on resume); returns the stop reason."""
     s = ctx.settings
-    thresholds: list[float] = []
 
     def run_generation(eps: float, nums: list[int]) -> None:
         index = len(thresholds)
@@ -202,6 +216,7 @@ def _loop(ctx: Context, tracks: list[ModelTrack], progress: bool) -> tuple[list[
         for m, (track, num) in enumerate(zip(tracks, nums, strict=True)):
             track.generation(ctx, index, jax.random.fold_in(key, m), eps, num)
         thresholds.append(eps)
+        after_generation(thresholds)
 
     def stop_reason() -> str:
         eps = thresholds[-1]
@@ -213,33 +228,39 @@ def _loop(ctx: Context, tracks: list[ModelTrack], progress: bool) -> tuple[list[
             return f"final threshold {s.final_threshold} reached"
         if s.max_wall_time is not None and time.perf_counter() - ctx.t_start > s.max_wall_time:
             return f"wall time {s.max_wall_time} s reached"
+        if stop_after_generations is not None and len(thresholds) >= stop_after_generations:
+            return f"stopped after {len(thresholds)} generations (resumable)"
         return ""
 
     bar = None
     if progress:
         from tqdm.auto import tqdm
 
-        bar = tqdm(total=s.num_steps, desc="model choice", unit="step")
+        bar = tqdm(total=s.num_steps, desc="model choice", unit="step", initial=max(0, len(thresholds) - 1))
     try:
-        run_generation(math.inf, [s.num_particles] * len(tracks))
+        if not thresholds:
+            run_generation(math.inf, [s.num_particles] * len(tracks))
         while True:
             if bar is not None:
                 bar.update(1)
                 bar.set_postfix(threshold=f"{thresholds[-1]:.4g}", sims=sum(t.num_simulations for t in tracks))
             reason = stop_reason()
             if reason:
-                return thresholds, reason
+                return reason
             populations = [t.population if t.alive else None for t in tracks]
-            eps = next_threshold(populations, thresholds[-1], s.quantile, s.final_threshold)
+            log_z = np.array([t.history["log_evidence"][-1] for t in tracks])
+            rel = np.array([t.history["relative_error"][-1] for t in tracks])
+            probabilities = probabilities_with_errors(log_z, rel, model_prior)[0]
+            eps = next_threshold(populations, probabilities, thresholds[-1], s.quantile, s.final_threshold)
             if eps is None:
-                return thresholds, (
+                return (
                     f"the tolerance cannot go below {thresholds[-1]:.6g}: every accepted simulation of every "
                     "model is at that distance"
                 )
             nums = [t.num_proposals(eps, s.num_particles) for t in tracks]
             spent = sum(t.num_simulations for t in tracks)
             if s.max_simulations is not None and spent + sum(nums) > s.max_simulations:
-                return thresholds, f"simulation budget {s.max_simulations} reached"
+                return f"simulation budget {s.max_simulations} reached"
             run_generation(eps, nums)
     finally:
         if bar is not None:
@@ -261,14 +282,15 @@ def _assemble(
     # The answer is at the last tolerance some model reached (all die only in the last step).
     final = max(i for i in range(len(thresholds)) if np.any(np.isfinite(log_z[i])))
     wall = time.perf_counter() - ctx.t_start
-    dead = [t.name for t in tracks if t.died_at is not None and t.died_at <= final]
+    bounds = _upper_bounds(tracks, final, log_z[final], model_prior, ctx.settings.defensive_fraction)
+    dead = [f"{t.name} (below {bounds[i]:.2g})" for i, t in enumerate(tracks) if np.isfinite(bounds[i])]
     if dead:
         warnings.warn(
-            f"no simulation of {', '.join(dead)} met the tolerance {thresholds[final]:.4g}: the probability "
-            "is estimated as 0 with a zero standard error, which understates the uncertainty; raise "
-            "num_particles to bound it",
+            f"no simulation of {', '.join(dead)} met the tolerance {thresholds[final]:.4g}: its probability "
+            "is estimated as 0 with a zero standard error; the 95% upper bound given here is in "
+            "probability_upper_bounds",
             UserWarning,
-            stacklevel=4,
+            stacklevel=_caller_stacklevel(),
         )
     posteriors = tuple(t.result(ctx, final, dtype, wall, stop_reason) for t in tracks)
     meta: dict[str, Any] = {
@@ -288,6 +310,7 @@ def _assemble(
         model_prior=model_prior,
         threshold=float(thresholds[final]),
         thresholds=np.asarray(thresholds[: final + 1], np.float64),
+        probability_upper_bounds=bounds,
         probability_history=probs[: final + 1],
         standard_error_history=errors[: final + 1],
         simulations_per_step=np.array([t.history["sims"][: final + 1] for t in tracks]).T,
@@ -298,6 +321,40 @@ def _assemble(
         wall_time=wall,
         metadata=meta,
     )
+
+
+def _upper_bounds(
+    tracks: list[ModelTrack], final: int, log_z: np.ndarray, model_prior: np.ndarray, defensive_fraction: float
+) -> np.ndarray:
+    """95% upper bounds on the probabilities of models with no accepted simulation (else NaN).
+
+    A prior draw meets the tolerance with probability ``Z`` exactly, so none among the
+    ``ceil(defensive_fraction M)`` prior draws of the generation where the model died gives
+    ``Z < 3 / ceil(defensive_fraction M)`` with 95% confidence (the rule of three); the
+    evidence at the final tolerance is no larger.  The other models' evidence is taken at its
+    estimate.
+    """
+    out = np.full(len(tracks), np.nan)
+    z = np.exp(log_z)
+    for i, t in enumerate(tracks):
+        if t.died_at is None or t.died_at > final:
+            continue
+        num = t.history["proposals"][t.died_at]
+        z_up = 3.0 / math.ceil(defensive_fraction * num) if t.died_at > 0 else 3.0 / num
+        others = np.sum(np.delete(model_prior * z, i))
+        out[i] = model_prior[i] * z_up / (model_prior[i] * z_up + others)
+    return out
+
+
+def _caller_stacklevel() -> int:
+    """The ``stacklevel`` that points a warning at the first frame outside jaxabc."""
+    package = str(Path(__file__).parent)
+    level = 0  # this function's own frame is not counted by warnings.warn
+    frame = inspect.currentframe()
+    while frame is not None and frame.f_code.co_filename.startswith(package):
+        frame = frame.f_back
+        level += 1
+    return level
 
 
 def run_model_choice(
@@ -317,6 +374,11 @@ def run_model_choice(
     model_prior: Sequence[float] | None = None,
     covariance_factor: float = 2.0,
     defensive_fraction: float = 0.05,
+    checkpoint_dir: str | Path | None = None,
+    resume: bool = False,
+    overwrite: bool = False,
+    simulator_id: str | None = None,
+    stop_after_generations: int | None = None,
     keep_summaries: bool = True,
     progress: bool = False,
     dtype: str = "float32",
@@ -354,13 +416,27 @@ def run_model_choice(
     max_failure_fraction : float
         Per model, as for :func:`jaxabc.run`.
     quantile : float
-        In (0, 1); each model's tolerance proposal is this quantile of its weighted distances.
+        In (0, 1); each tolerance is this quantile of the distances under the joint ABC
+        posterior over (model, parameters) of the previous generation.
     model_prior : sequence of float, optional
         Prior model probabilities (default uniform); normalised.
     covariance_factor : float
         Kernel covariance over the population's weighted covariance (Beaumont et al.'s 2).
     defensive_fraction : float
         In (0, 1); the share of each generation's proposals drawn from the prior.
+    checkpoint_dir : path, optional
+        Write ``checkpoint.npz`` there after every generation (atomically); a fresh run into a
+        folder holding one is refused unless ``resume`` or ``overwrite`` is given.
+    resume : bool
+        Continue from the checkpoint in ``checkpoint_dir``; the result equals that of the
+        uninterrupted run.  Refused when the problem differs (models, priors, simulators,
+        observed data, distance, settings, seed, dtype).
+    overwrite : bool
+        Delete an existing checkpoint in ``checkpoint_dir`` and start over.
+    simulator_id : str, optional
+        The simulators' identity in checkpoints (default: each one's ``module:qualname``).
+    stop_after_generations : int, optional
+        Stop after this many generations, resumable (for tests and for splitting long runs).
     keep_summaries : bool
         Keep every simulation's summaries in the per-model records.
     progress : bool
@@ -397,6 +473,8 @@ def run_model_choice(
         ),
         dtype,
     )
+    if stop_after_generations is not None and stop_after_generations < 1:
+        raise ValueError(f"stop_after_generations must be at least 1, got {stop_after_generations}")
     p_model = _model_prior(model_prior, len(model_list))
     obs = validate_observed(observed)
     get_distance(distance)  # an unknown name fails here, before any simulation
@@ -425,7 +503,25 @@ def run_model_choice(
                 ModelTrack(model.name, model.simulate, prior, Recorder(keep_summaries))
                 for model, prior in zip(model_list, priors, strict=True)
             ]
-            thresholds, stop_reason = _loop(ctx, tracks, progress)
+            fp = _ckpt.problem_fingerprint(tracks, settings, p_model, obs, distance, seed, dtype, simulator_id)
+            # Only now, with every input checked, may overwrite=True delete an old checkpoint.
+            ckpt_path = prepare_folder(checkpoint_dir, resume, overwrite)
+            thresholds: list[float] = []
+            stop_reason = ""
+            if resume:
+                assert ckpt_path is not None, "prepare_folder refuses resume without a folder"
+                thresholds, stop_reason = _ckpt.restore(ckpt_path, fp, tracks)
+
+            def after_generation(done: list[float]) -> None:
+                if ckpt_path is not None:
+                    _ckpt.save(ckpt_path, fp, tracks, done, "")
+
+            if not stop_reason:
+                stop_reason = _loop(
+                    ctx, tracks, thresholds, p_model, progress, after_generation, stop_after_generations
+                )
+                if ckpt_path is not None and "resumable" not in stop_reason:
+                    _ckpt.save(ckpt_path, fp, tracks, thresholds, stop_reason)
         finally:
             if own_executor:
                 ex.close()
@@ -471,24 +567,24 @@ _PASSED_ON = (
     "max_simulations",
     "max_wall_time",
     "max_failure_fraction",
+    "checkpoint_dir",
+    "resume",
+    "overwrite",
+    "simulator_id",
     "keep_summaries",
     "progress",
     "dtype",
     "metadata",
 )
-# jaxabc.run's keywords with no meaning here yet, with their defaults.
-_NOT_SUPPORTED = {
-    "checkpoint_dir": None,
-    "resume": False,
-    "overwrite": False,
-    "simulator_id": None,
-    "stop_after_iterations": None,
-}
 _OPTIONS = ("quantile", "model_prior", "covariance_factor", "defensive_fraction")
 
 
-def run_from_driver(arguments: dict[str, Any]) -> ModelChoiceResult:
-    """:func:`jaxabc.run`'s arguments (its ``locals()``) when it was given a list of models."""
+def run_from_driver(arguments: dict[str, Any]) -> Any:
+    """:func:`jaxabc.run`'s arguments (its ``locals()``) when it was given a list of models.
+
+    Returns a :class:`ModelChoiceResult`; typed ``Any`` because ``jaxabc.run`` is annotated to
+    return an ``ABCResult`` (call :func:`run_model_choice` for the precise type).
+    """
     models, simulate, prior = arguments["algorithm"], arguments["simulate"], arguments["prior"]
     if type(models) not in (list, tuple):
         raise TypeError(
@@ -502,9 +598,6 @@ def run_from_driver(arguments: dict[str, Any]) -> ModelChoiceResult:
         )
     if arguments["observed"] is None:
         raise TypeError("model choice needs the data: jaxabc.run(models, observed=data, ...)")
-    unsupported = [k for k, default in _NOT_SUPPORTED.items() if arguments[k] != default]
-    if unsupported:
-        raise ValueError(f"model choice does not support {', '.join(unsupported)} (no checkpoints yet): leave them out")
     options = dict(arguments["algorithm_options"])
     unknown = sorted(set(options) - set(_OPTIONS))
     if unknown:
@@ -515,6 +608,7 @@ def run_from_driver(arguments: dict[str, Any]) -> ModelChoiceResult:
         models,
         arguments["observed"],
         1000 if num_particles is None else num_particles,
+        stop_after_generations=arguments["stop_after_iterations"],
         **passed,
         **options,
     )
