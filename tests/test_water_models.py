@@ -12,6 +12,7 @@ import subprocess
 from dataclasses import replace
 from pathlib import Path
 
+import jax.numpy as jnp
 import numpy as np
 import pytest
 
@@ -135,7 +136,7 @@ def test_priors_centred_on_published_values():
         prior = model_prior(m)
         centre = (np.asarray(prior.low) + np.asarray(prior.high)) / 2
         np.testing.assert_allclose(centre, m.lj, rtol=1e-6)
-        assert prior.contains(np.asarray(m.lj, np.float32))
+        assert prior.contains(jnp.asarray(m.lj, jnp.float32))
     with pytest.raises(ValueError, match="fractions"):
         model_prior("TIP4P", (0.0, 0.5))
 
@@ -178,6 +179,7 @@ def test_written_topology_passes_grompp(name, tmp_path):
     from md.water.protocol import get_protocol, mdp_text
 
     top = _gmx_top()
+    assert GMX is not None
     m = MODELS[name]
     conf = "tip4p.gro" if m.num_sites == 4 else "spc216.gro"
     shutil.copyfile(top / conf, tmp_path / "conf.gro")
@@ -218,3 +220,54 @@ def test_each_model_runs_a_few_ps(name):
     assert 900 < density < 1100
     assert 0.26 < summaries[7] < 0.30  # S8, first g_OO peak position (nm)
     assert 35 < hvap < 50
+
+
+class _CountingSimulator:
+    """Stands in for WaterModelSimulator: 11 summaries from theta, fails for theta[0] < 0."""
+
+    model = MODELS["TIP4P"]
+    protocol = "protocol-a"
+
+    def __init__(self) -> None:
+        self.calls = 0
+
+    def __repr__(self) -> str:
+        return "counting"
+
+    def __call__(self, key, theta):
+        from jaxabc.errors import SimulationFailure
+
+        self.calls += 1
+        if theta[0] < 0:
+            raise SimulationFailure("vapour")
+        return np.arange(11.0) + theta[0]
+
+
+def test_cached_summaries_replays_results_and_failures(tmp_path):
+    from jaxabc.errors import SimulationFailure
+    from md.water.model_simulator import CachedSummaries
+
+    fitted = np.zeros(11, bool)
+    fitted[[3, 10]] = True
+    inner = _CountingSimulator()
+    cached = CachedSummaries(inner, fitted, tmp_path)  # type: ignore[arg-type]
+    key = np.array([0, 5], np.uint32)
+    first = cached(key, np.array([0.5, 1.0]))
+    np.testing.assert_array_equal(first, [3.5, 10.5])
+    with pytest.raises(SimulationFailure, match="vapour"):
+        cached(key, np.array([-1.0, 1.0]))
+    assert inner.calls == 2
+    # A new wrapper on the same folder (a resumed run) simulates nothing again.
+    again = CachedSummaries(inner, fitted, tmp_path)  # type: ignore[arg-type]
+    np.testing.assert_array_equal(again(key, np.array([0.5, 1.0])), first)
+    with pytest.raises(SimulationFailure, match="vapour"):
+        again(key, np.array([-1.0, 1.0]))
+    assert inner.calls == 2
+    np.testing.assert_array_equal(again.full(key, np.array([0.5, 1.0])), np.arange(11.0) + 0.5)
+    # Another key, theta or protocol is another simulation.
+    again(np.array([0, 6], np.uint32), np.array([0.5, 1.0]))
+    inner.protocol = "protocol-b"
+    again(key, np.array([0.5, 1.0]))
+    assert inner.calls == 4
+    with pytest.raises(ValueError, match="boolean mask"):
+        CachedSummaries(inner, np.zeros(11, bool))  # type: ignore[arg-type]

@@ -22,6 +22,7 @@ value directly (:mod:`md.water.joint_data` states what else is left out).
 
 from __future__ import annotations
 
+import hashlib
 import os
 import shutil
 import subprocess
@@ -57,7 +58,7 @@ from md.water.protocol import Protocol
 from md.water.simulator import OBSERVED_KINDS, TIP4PSimulator
 from md.water.statistics import summary_statistics
 
-__all__ = ["JOINT_SUMMARY_NAMES", "ModelOutput", "WaterModelSimulator", "make_model_simulator"]
+__all__ = ["JOINT_SUMMARY_NAMES", "CachedSummaries", "ModelOutput", "WaterModelSimulator", "make_model_simulator"]
 
 #: Names of the joint summaries, in the order a call returns them.
 JOINT_SUMMARY_NAMES: tuple[str, ...] = (
@@ -277,3 +278,81 @@ class WaterModelSimulator(TIP4PSimulator):
 def make_model_simulator(model: WaterModel | str, preset: str | Protocol = "quick", **options) -> WaterModelSimulator:
     """Build :class:`WaterModelSimulator`; raises ``GromacsNotFoundError`` if ``gmx`` is missing."""
     return WaterModelSimulator(model, preset, **options)
+
+
+class CachedSummaries:
+    """Picklable ``simulate(key, theta)`` returning the ``fitted`` joint summaries, with a disk cache.
+
+    Every simulation's full output (all 11 joint summaries, or its failure reason) is stored in
+    ``cache_dir`` under a hash of the simulator (model, preset, protocol), the key and theta,
+    so that (a) a rerun with the same seed after an interruption replays finished simulations
+    instead of repeating them, and (b) held-out summaries stay available for criticism.
+
+    Parameters
+    ----------
+    simulate : WaterModelSimulator
+    fitted : array_like of bool, shape (11,)
+        Which joint summaries the call returns (the distance sees only these).
+    cache_dir : path-like, optional
+        Created if missing; no caching when None.
+    """
+
+    def __init__(self, simulate: WaterModelSimulator, fitted, cache_dir: str | os.PathLike | None = None) -> None:
+        fitted = np.asarray(fitted, dtype=bool)
+        if fitted.shape != (len(JOINT_SUMMARY_NAMES),) or not fitted.any():
+            raise ValueError(f"fitted must be a boolean mask of shape ({len(JOINT_SUMMARY_NAMES)},) with a True entry")
+        self.simulate = simulate
+        self.fitted = fitted
+        self.cache_dir = None if cache_dir is None else Path(cache_dir)
+        if self.cache_dir is not None:
+            self.cache_dir.mkdir(parents=True, exist_ok=True)
+
+    def __repr__(self) -> str:
+        return f"CachedSummaries({self.simulate!r}, fitted={self.fitted.astype(int).tolist()})"
+
+    def cache_path(self, key, theta) -> Path | None:
+        """The cache file of one simulation (None without a cache)."""
+        if self.cache_dir is None:
+            return None
+        try:
+            import jax
+
+            key_data = np.asarray(jax.random.key_data(key))
+        except (TypeError, ValueError):
+            key_data = np.asarray(key)
+        digest = hashlib.sha256()
+        digest.update(repr((self.simulate, self.simulate.protocol)).encode())
+        digest.update(np.ascontiguousarray(key_data, dtype=np.uint32).tobytes())
+        digest.update(np.ascontiguousarray(np.asarray(theta, dtype=np.float64).reshape(-1)).tobytes())
+        return self.cache_dir / f"{self.simulate.model.slug}-{digest.hexdigest()[:24]}.npz"
+
+    def full(self, key, theta) -> np.ndarray:
+        """All 11 joint summaries (from the cache when present).
+
+        Raises
+        ------
+        jaxabc.errors.SimulationFailure
+            The simulation failed (now or when it was cached), with its reason.
+        """
+        path = self.cache_path(key, theta)
+        if path is not None and path.is_file():
+            with np.load(path) as stored:
+                if str(stored["reason"]):
+                    raise SimulationFailure(str(stored["reason"]))
+                return np.array(stored["summaries"])
+        try:
+            summaries, reason = self.simulate(key, theta), ""
+        except SimulationFailure as failure:
+            summaries, reason = np.full(len(JOINT_SUMMARY_NAMES), np.nan), str(failure)
+        if path is not None:
+            # Write then rename: a worker killed mid-write leaves no half file to replay.
+            partial = path.with_suffix(".tmp.npz")
+            np.savez(partial, summaries=summaries, reason=np.array(reason))
+            os.replace(partial, path)
+        if reason:
+            raise SimulationFailure(reason)
+        return summaries
+
+    def __call__(self, key, theta) -> np.ndarray:
+        """The fitted summaries, shape ``(fitted.sum(),)``."""
+        return self.full(key, theta)[self.fitted]

@@ -333,8 +333,8 @@ def model_prior(model: WaterModel | str, relative_half_width: tuple[float, float
         raise ValueError(f"relative_half_width must be two fractions in (0, 1), got {relative_half_width!r}")
     centre = np.asarray(model.lj)
     return Uniform(
-        low=centre * (1 - widths),
-        high=centre * (1 + widths),
+        low=(centre * (1 - widths)).tolist(),
+        high=(centre * (1 + widths)).tolist(),
         names=("sigma_OO", "epsilon_OO"),
         units=("nm", "kJ/mol"),
     )
