@@ -192,7 +192,7 @@ def main(argv=None) -> None:
             for m in MODELS.values()
         },
         "model_choice": result.to_dict(),
-        "cache_dir": str(args.cache_dir),
+        "cache_dir": os.path.relpath(args.cache_dir, ROOT),
         "wall_time_s": time.perf_counter() - start,
     }
     path = write_result(
