@@ -1,0 +1,205 @@
+"""ABC model choice among five published rigid water models on joint measured data.
+
+Models: TIP4P, TIP4P/2005, TIP4P-Ew, SPC/E and TIP3P (:mod:`md.water.models`), each with its
+published charges and geometry and its O-O Lennard-Jones pair calibrated under a uniform prior
+centred on the published values (:func:`md.water.models.model_prior`).  Data: the joint
+measured summaries of :mod:`md.water.joint_data` (g(r) statistics of the X-ray or neutron data,
+self-diffusion, enthalpy of vaporisation); only the summaries the data file marks *fitted*
+enter the distance, the held-out ones (the density) stay in the cache for criticism.
+
+Method: :func:`jaxabc.run` over the five ``(name, simulate, prior)`` models
+(:mod:`jaxabc.model_choice`), each simulation one GROMACS run
+(:class:`md.water.model_simulator.WaterModelSimulator`) in a process pool; distance: mean
+absolute difference of the fitted summaries, each scaled by its median absolute deviation
+over ``--pilot`` prior-predictive runs per model (pooled over the models, so no model's spread
+sets its own scale).
+
+Resumable: every simulation's output (or failure) is stored under ``--cache-dir`` keyed by the
+model, protocol, particle key and theta.  A run is a deterministic function of its seed, so
+rerunning the same command after an interruption replays the finished simulations from the
+cache and continues where it stopped.
+
+Usage (from the repository root)::
+
+    python benchmarks/water_model_choice.py --data xray --workers 2          # hours of GROMACS
+    python benchmarks/water_model_choice.py --tiny                           # smoke test, minutes
+
+``--tiny`` runs 2 ps simulations, 3 pilot runs and 4 particles per model for 2 generations and
+writes ``benchmarks/results/quick/water_model_choice.json``: it shows that the pipeline starts
+and saves, its probabilities mean nothing.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+import jax  # noqa: E402
+import jax.numpy as jnp  # noqa: E402
+
+import jaxabc  # noqa: E402
+from jaxabc.model_choice import Model  # noqa: E402
+from md.water.joint_data import JOINT_DATA_FILE, joint_observed, joint_record  # noqa: E402
+from md.water.model_simulator import CachedSummaries, WaterModelSimulator  # noqa: E402
+from md.water.models import MODELS, model_prior, polarisation_correction_kj_mol  # noqa: E402
+
+sys.path.insert(0, str(ROOT / "benchmarks"))
+from _common import command_line, write_result  # noqa: E402
+
+DATA_FILES = {
+    "xray": [JOINT_DATA_FILE, ROOT / "md/water/data/skinner2013_gOO_295K_nm.csv"],
+    "neutron": [JOINT_DATA_FILE, ROOT / "md/water/data/soper2013_gOO_gOH_gHH_nm.csv"],
+}
+
+
+def parse_arguments(argv=None) -> argparse.Namespace:
+    parser = argparse.ArgumentParser(description=(__doc__ or "").split("\n\n")[0])
+    parser.add_argument("--data", choices=("xray", "neutron"), default="xray")
+    parser.add_argument("--preset", choices=("quick", "paper"), default="quick")
+    parser.add_argument("--particles", type=int, default=100, help="accepted particles per model and generation")
+    parser.add_argument("--steps", type=int, default=8, help="maximum generations, the prior sample included")
+    parser.add_argument("--pilot", type=int, default=20, help="prior-predictive runs per model for the scales")
+    parser.add_argument("--quantile", type=float, default=0.5)
+    parser.add_argument("--workers", type=int, default=os.cpu_count() or 1)
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--max-simulations", type=int, default=None)
+    parser.add_argument("--max-hours", type=float, default=None, help="stop after this wall time (resumable)")
+    parser.add_argument("--md-steps", type=int, default=None, help="override the preset's NPT steps (smoke only)")
+    parser.add_argument("--cache-dir", type=Path, default=None, help="default runs/water_model_choice/<data>_<preset>")
+    parser.add_argument("--tiny", action="store_true", help="smoke test: tiny budgets, 2 ps runs, quick JSON")
+    parser.add_argument("--no-progress", action="store_true")
+    args = parser.parse_args(argv)
+    if args.tiny:
+        args.particles, args.steps, args.pilot = 4, 2, 3
+        args.md_steps = args.md_steps or 1000
+    suffix = f"{args.data}_{args.preset}" + ("_tiny" if args.tiny else "")
+    args.cache_dir = args.cache_dir or ROOT / "runs" / "water_model_choice" / suffix
+    return args
+
+
+def protocol_overrides(args) -> dict:
+    if args.md_steps is None:
+        return {}
+    # Keep the last 80 % of a shortened run, as water_calibration.py does.
+    return {"num_steps": args.md_steps, "analysis_start_ps": 0.2 * args.md_steps * 0.002}
+
+
+def make_models(args, fitted: np.ndarray) -> list[Model]:
+    models = []
+    for model in MODELS.values():
+        simulate = WaterModelSimulator(model, args.preset, "robust", args.data, **protocol_overrides(args))
+        cached = CachedSummaries(simulate, fitted, args.cache_dir)
+        models.append(Model(model.name, cached, model_prior(model)))
+    return models
+
+
+def pilot_scales(args, models: list[Model], executor) -> tuple[np.ndarray, dict]:
+    """Median absolute deviation of each fitted summary over the pooled pilot runs."""
+    pooled, failures = [], {}
+    for index, model in enumerate(models):
+        key = jax.random.fold_in(jax.random.key(args.seed + 1_000_003), index)
+        thetas = np.asarray(model.prior.sample(key, args.pilot), dtype=np.float64)
+        keys = np.asarray(jax.random.key_data(jax.random.split(jax.random.fold_in(key, 1), args.pilot)))
+        batch = executor.map(model.simulate, keys, thetas)
+        pooled.append(batch.summaries[batch.status == 0])
+        failures[model.name] = {"failed": int(np.sum(batch.status != 0)), "reasons": sorted(set(batch.reasons))}
+    good = np.concatenate(pooled)
+    if good.shape[0] < 3:
+        raise RuntimeError(f"only {good.shape[0]} pilot simulations succeeded: {failures}")
+    mad = np.median(np.abs(good - np.median(good, axis=0)), axis=0)
+    return np.where(mad > 0, mad, 1.0), {"num_runs": int(good.shape[0]), "failures": failures}
+
+
+def scaled_mean_abs(scale: np.ndarray):
+    scale_j = jnp.asarray(scale)
+
+    def distance(observed, simulated):
+        return jnp.mean(jnp.abs(jnp.asarray(observed) - jnp.asarray(simulated)) / scale_j)
+
+    return distance
+
+
+def main(argv=None) -> None:
+    args = parse_arguments(argv)
+    start = time.perf_counter()
+    data = joint_observed(args.data)
+    models = make_models(args, data.fitted)
+    timeout_s = models[0].simulate.simulate.protocol.timeout_s + 60
+    executor = jaxabc.ProcessPoolExecutor(max_workers=args.workers, timeout=timeout_s)
+    try:
+        scales, pilot = pilot_scales(args, models, executor)
+        result = jaxabc.run(
+            models,
+            observed=data.observed[data.fitted],
+            num_particles=args.particles,
+            num_steps=args.steps,
+            distance=scaled_mean_abs(scales),
+            seed=args.seed,
+            executor=executor,
+            quantile=args.quantile,
+            max_simulations=args.max_simulations,
+            max_wall_time=None if args.max_hours is None else 3600.0 * args.max_hours,
+            progress=not args.no_progress,
+            dtype="float64",
+        )
+    finally:
+        executor.close()
+    print(result.summary())
+    fitted_names = [n for n, f in zip(data.names, data.fitted, strict=True) if f]
+    payload = {
+        "data": args.data,
+        "preset": args.preset,
+        "tiny": args.tiny,
+        "settings": {
+            "particles": args.particles,
+            "steps": args.steps,
+            "pilot_per_model": args.pilot,
+            "quantile": args.quantile,
+            "seed": args.seed,
+            "md_steps": args.md_steps,
+            "workers": args.workers,
+        },
+        "summaries": {
+            "names": list(data.names),
+            "observed": data.observed.tolist(),
+            "stated_errors": [None if np.isnan(e) else float(e) for e in data.errors],
+            "fitted": fitted_names,
+            "held_out": [n for n, h in zip(data.names, data.held_out, strict=True) if h],
+            "distance_scales": dict(zip(fitted_names, np.asarray(scales).tolist(), strict=True)),
+        },
+        "data_record": joint_record(),
+        "pilot": pilot,
+        "models": {
+            m.name: {
+                "citation": m.citation,
+                "num_sites": m.num_sites,
+                "charge_h_e": m.charge_h_e,
+                "om_distance_nm": m.om_distance_nm,
+                "published_lj": list(m.lj),
+                "prior_low": np.asarray(model_prior(m).low).tolist(),
+                "prior_high": np.asarray(model_prior(m).high).tolist(),
+                "dipole_debye": m.dipole_debye,
+                "polarisation_correction_kj_mol": polarisation_correction_kj_mol(m),
+            }
+            for m in MODELS.values()
+        },
+        "model_choice": result.to_dict(),
+        "cache_dir": os.path.relpath(args.cache_dir, ROOT),
+        "wall_time_s": time.perf_counter() - start,
+    }
+    path = write_result(
+        "water_model_choice", payload, quick=args.tiny, inputs=DATA_FILES[args.data], command=command_line(argv)
+    )
+    print(f"wrote {path}")
+
+
+if __name__ == "__main__":
+    main()

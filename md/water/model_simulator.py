@@ -1,0 +1,358 @@
+"""``simulate(key, theta)`` for any published rigid water model, on the joint summaries.
+
+:class:`WaterModelSimulator` is :class:`md.water.simulator.TIP4PSimulator` (same presets,
+seeding, temporary directories and :class:`jaxabc.errors.SimulationFailure` statuses) for a
+:class:`md.water.models.WaterModel`, with ``theta = (sigma_OO nm, epsilon_OO kJ/mol)``:
+
+* 4-site models (TIP4P, TIP4P/2005, TIP4P-Ew) run through the frozen
+  :func:`md.water.gromacs.run_gromacs`, with the model's charges, M site and geometry as the
+  TIP4P topology's ``base_parameters``;
+* 3-site models (SPC/E, TIP3P) run the same steps (minimisation, NPT, the same ``.mdp``) on
+  GROMACS's equilibrated 3-site box ``spc216.gro`` with
+  :func:`md.water.models.three_site_topology_text`.
+
+A call returns the joint summaries, shape (11,): S1..S9 of :mod:`md.water.statistics`
+(unobserved ones zeroed as in ``TIP4PSimulator``), the mean density (kg/m3) and the enthalpy of
+vaporisation (kJ/mol) over the analysed frames,
+``dH_vap = -<U_pot>/N + R T - E_pol(model)``: the ideal-gas ``pV = RT`` of the vapour and
+Berendsen et al.'s (1987) self-polarisation correction
+(:func:`md.water.models.polarisation_correction_kj_mol`), so that it compares with the measured
+value directly (:mod:`md.water.joint_data` states what else is left out).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import shutil
+import subprocess
+import time
+from pathlib import Path
+from typing import NamedTuple
+
+import numpy as np
+
+from jaxabc.errors import SimulationFailure
+from md.water.analysis import WaterCurves, compute_curves, load_trajectory
+
+# Private helpers of the frozen runner, reused so that the 3-site path fails exactly as the
+# 4-site one does (same timeouts, exit-status and NaN-energy checks).
+from md.water.gromacs import (
+    GromacsRun,
+    TIP4PParameters,
+    _check_log_energies,
+    _gmx_data_dir,
+    _run_gmx,
+    check_physical,
+    mdp_text,
+    run_gromacs,
+)
+from md.water.models import (
+    WaterModel,
+    get_model,
+    polarisation_correction_kj_mol,
+    three_site_defines,
+    three_site_topology_text,
+)
+from md.water.protocol import Protocol
+from md.water.simulator import OBSERVED_KINDS, TIP4PSimulator
+from md.water.statistics import summary_statistics
+
+__all__ = ["JOINT_SUMMARY_NAMES", "CachedSummaries", "ModelOutput", "WaterModelSimulator", "make_model_simulator"]
+
+#: Names of the joint summaries, in the order a call returns them.
+JOINT_SUMMARY_NAMES: tuple[str, ...] = (
+    *(f"S{i}" for i in range(1, 10)),
+    "density_kg_m3",
+    "hvap_kj_mol",
+)
+#: Molar gas constant (kJ/mol/K).
+GAS_CONSTANT_KJ_MOL_K = 8.314462618e-3
+
+
+class ModelOutput(NamedTuple):
+    """One simulation of a water model.
+
+    Attributes
+    ----------
+    statistics : np.ndarray, shape (9,)
+        S1..S9, unobserved entries not zeroed.
+    density_kg_m3 : float
+    potential_kj_mol : float
+        Mean potential energy per molecule over the analysed frames.
+    hvap_kj_mol : float
+        ``-potential_kj_mol + R T - E_pol``.
+    curves : WaterCurves
+    run : GromacsRun
+    """
+
+    statistics: np.ndarray
+    density_kg_m3: float
+    potential_kj_mol: float
+    hvap_kj_mol: float
+    curves: WaterCurves
+    run: GromacsRun
+
+
+def _mean_potential(run: GromacsRun, gmx: str, start_ps: float, deadline: float) -> float:
+    """Mean total potential energy (kJ/mol, whole box) from ``gmx energy`` after ``start_ps``."""
+    xvg = run.workdir / "potential.xvg"
+    remaining = deadline - time.monotonic()
+    if remaining <= 0:
+        raise SimulationFailure("timeout: no time left for `gmx energy`")
+    done = subprocess.run(
+        [gmx, "energy", "-f", run.energy.name, "-o", xvg.name, "-b", repr(start_ps)],
+        input="Potential\n\n",
+        text=True,
+        cwd=run.workdir,
+        capture_output=True,
+        timeout=remaining,
+        env=dict(os.environ, GMX_MAXBACKUP="-1"),
+    )
+    if done.returncode != 0 or not xvg.is_file():
+        raise SimulationFailure(f"`gmx energy` exited with status {done.returncode}: {done.stdout[-400:]}")
+    table = np.loadtxt(xvg, comments=["#", "@"], ndmin=2)
+    if table.shape[0] == 0 or not np.all(np.isfinite(table[:, 1])):
+        raise SimulationFailure("`gmx energy` gave no finite potential energy in the analysis window")
+    return float(np.mean(table[:, 1]))
+
+
+def run_gromacs_three_site(
+    model: WaterModel,
+    protocol: Protocol,
+    workdir: Path,
+    gen_seed: int,
+    ld_seed: int,
+    gmx: str,
+) -> GromacsRun:
+    """:func:`md.water.gromacs.run_gromacs` for a 3-site model, starting from ``spc216.gro``.
+
+    ``protocol.expected_molecules`` is checked only for the copied 216-molecule box: ``gmx
+    solvate`` from ``spc216.gro`` fills a box with another count than from ``tip4p.gro``.
+
+    Raises
+    ------
+    jaxabc.errors.SimulationFailure
+        As ``run_gromacs``.
+    """
+    start = time.monotonic()
+    deadline = start + protocol.timeout_s
+    source = _gmx_data_dir(gmx) / "spc216.gro"
+    if protocol.box_nm is None:
+        shutil.copyfile(source, workdir / "conf.gro")
+    else:
+        box = repr(protocol.box_nm)
+        _run_gmx([gmx, "solvate", "-cs", str(source), "-box", box, box, box, "-o", "conf.gro"], workdir, deadline)
+    num_atoms = int((workdir / "conf.gro").read_text().splitlines()[1])
+    if num_atoms % 3:
+        raise SimulationFailure(f"conf.gro has {num_atoms} atoms, not a multiple of 3")
+    num_molecules = num_atoms // 3
+    if protocol.box_nm is None and protocol.expected_molecules not in (None, num_molecules):
+        raise RuntimeError(f"spc216.gro holds {num_molecules} molecules, preset expects {protocol.expected_molecules}")
+    (workdir / "topol.top").write_text(three_site_topology_text(num_molecules, model))
+    # The frozen mdp_text writes the TIP4P define line; everything else (cut-offs, PME,
+    # thermostat, barostat, EM step) must stay identical across models, so only that line changes.
+    for stage, seeds in (("em", (1, 1)), ("npt", (gen_seed, ld_seed))):
+        lines = mdp_text(protocol, TIP4PParameters(), stage, *seeds).splitlines()
+        lines = [f"{'define':<26}= {three_site_defines(model)}" if ln.startswith("define ") else ln for ln in lines]
+        (workdir / f"{stage}.mdp").write_text("\n".join(lines) + "\n")
+    threads = ["-ntmpi", "1", "-ntomp", "1", "-pin", "off"]
+    _run_gmx([gmx, "grompp", "-f", "em.mdp", "-c", "conf.gro", "-p", "topol.top", "-o", "em.tpr"], workdir, deadline)
+    _run_gmx([gmx, "mdrun", "-deffnm", "em", *threads], workdir, deadline)
+    _run_gmx(
+        [gmx, "grompp", "-f", "npt.mdp", "-c", "em.gro", "-p", "topol.top", "-o", "npt.tpr", "-maxwarn", "1"],
+        workdir,
+        deadline,
+    )
+    _run_gmx([gmx, "mdrun", "-deffnm", "npt", *threads], workdir, deadline)
+    run = GromacsRun(
+        workdir=workdir,
+        structure=workdir / "em.gro",
+        trajectory=workdir / "npt.xtc",
+        tpr=workdir / "npt.tpr",
+        log=workdir / "npt.log",
+        energy=workdir / "npt.edr",
+        num_molecules=num_molecules,
+        gen_seed=int(gen_seed),
+        ld_seed=int(ld_seed),
+        wall_time_s=time.monotonic() - start,
+    )
+    if not run.trajectory.is_file() or run.trajectory.stat().st_size == 0:
+        raise SimulationFailure("gmx mdrun exited normally but wrote no trajectory (npt.xtc)")
+    _check_log_energies(run.log)
+    return run
+
+
+class WaterModelSimulator(TIP4PSimulator):
+    """Picklable ``simulate(key, theta) -> np.ndarray (11,)`` for one published water model.
+
+    Parameters
+    ----------
+    model : WaterModel or str
+        E.g. ``"SPC/E"`` or :data:`md.water.models.MODELS` ``["TIP4P/2005"]``; everything but
+        the oxygen Lennard-Jones pair is held at the model's published values.
+    preset, statistics, observed_kind, gmx, **protocol_overrides
+        As for :class:`md.water.simulator.TIP4PSimulator`.
+
+    Notes
+    -----
+    ``theta`` must hold exactly ``(sigma_OO nm, epsilon_OO kJ/mol)``.  Failures raise
+    :class:`jaxabc.errors.SimulationFailure` with the reasons of ``TIP4PSimulator``, plus a
+    failed ``gmx energy``.
+    """
+
+    def __init__(
+        self,
+        model: WaterModel | str,
+        preset: str | Protocol = "quick",
+        statistics: str = "robust",
+        observed_kind: str = "simulated",
+        gmx: str | None = None,
+        **protocol_overrides,
+    ) -> None:
+        self.model = get_model(model)
+        base = self.model.tip4p_parameters() if self.model.num_sites == 4 else None
+        super().__init__(preset, statistics, observed_kind, gmx, base_parameters=base, **protocol_overrides)
+
+    def __repr__(self) -> str:
+        return (
+            f"WaterModelSimulator(model={self.model.name!r}, preset={self.protocol.name!r}, "
+            f"statistics={self.statistics!r}, observed_kind={self.observed_kind!r})"
+        )
+
+    def parameters(self, theta) -> TIP4PParameters:
+        """TIP4P-topology parameters for ``theta = (sigma_OO, epsilon_OO)`` (see the class)."""
+        theta = np.asarray(theta, dtype=np.float64).reshape(-1)
+        if theta.size != 2:
+            raise ValueError(
+                f"{self.model.name}: theta must be (sigma_OO nm, epsilon_OO kJ/mol), got {theta.size} numbers"
+            )
+        return super().parameters(theta)
+
+    def model_for(self, theta) -> WaterModel:
+        """The model with ``theta``'s Lennard-Jones pair."""
+        params = self.parameters(theta)
+        return self.model.with_lj(params.sigma_ow_nm, params.epsilon_ow_kj_mol)
+
+    def _run_in(self, workdir: Path, params, gen_seed: int, ld_seed: int) -> ModelOutput:  # type: ignore[override]
+        model = self.model.with_lj(params.sigma_ow_nm, params.epsilon_ow_kj_mol)
+        start = time.monotonic()
+        if model.num_sites == 4:
+            run = run_gromacs(params, self.protocol, workdir, gen_seed, ld_seed, gmx=self.gmx)
+        else:
+            run = run_gromacs_three_site(model, self.protocol, workdir, gen_seed, ld_seed, self.gmx)
+        try:
+            trajectory = load_trajectory(
+                run.trajectory, start_ps=self.protocol.analysis_start_ps, sites_per_molecule=model.num_sites
+            )
+        except (OSError, ValueError) as error:
+            raise SimulationFailure(f"unreadable trajectory: {error}") from error
+        density = check_physical(trajectory.box_nm, run.num_molecules, self.protocol)
+        curves = compute_curves(trajectory, self.statistics, density_kg_m3=density)
+        statistics = summary_statistics(curves, self.statistics)
+        if not np.all(np.isfinite(statistics)):
+            bad = [f"S{i + 1}" for i in np.flatnonzero(~np.isfinite(statistics))]
+            raise SimulationFailure(f"no first peak/minimum found for {', '.join(bad)} (density {density:.4g} kg/m3)")
+        deadline = start + self.protocol.timeout_s
+        potential = _mean_potential(run, self.gmx, self.protocol.analysis_start_ps, deadline) / run.num_molecules
+        rt = GAS_CONSTANT_KJ_MOL_K * self.protocol.temperature_k
+        hvap = -potential + rt - polarisation_correction_kj_mol(model)
+        return ModelOutput(statistics, density, potential, hvap, curves, run)
+
+    def run(self, key, theta, keep_directory: str | os.PathLike | None = None) -> ModelOutput:  # type: ignore[override]
+        """Simulate and analyse; see :meth:`TIP4PSimulator.run`.
+
+        Raises
+        ------
+        jaxabc.errors.SimulationFailure
+        """
+        return super().run(key, theta, keep_directory)  # type: ignore[return-value]
+
+    def __call__(self, key, theta) -> np.ndarray:
+        """Joint summaries, shape (11,), float64, in :data:`JOINT_SUMMARY_NAMES` order."""
+        out = self.run(key, theta)
+        statistics = np.where(OBSERVED_KINDS[self.observed_kind], out.statistics, 0.0)
+        return np.concatenate([statistics, [out.density_kg_m3, out.hvap_kj_mol]])
+
+
+def make_model_simulator(model: WaterModel | str, preset: str | Protocol = "quick", **options) -> WaterModelSimulator:
+    """Build :class:`WaterModelSimulator`; raises ``GromacsNotFoundError`` if ``gmx`` is missing."""
+    return WaterModelSimulator(model, preset, **options)
+
+
+class CachedSummaries:
+    """Picklable ``simulate(key, theta)`` returning the ``fitted`` joint summaries, with a disk cache.
+
+    Every simulation's full output (all 11 joint summaries, or its failure reason) is stored in
+    ``cache_dir`` under a hash of the simulator (model, preset, protocol), the key and theta,
+    so that (a) a rerun with the same seed after an interruption replays finished simulations
+    instead of repeating them, and (b) held-out summaries stay available for criticism.
+
+    Parameters
+    ----------
+    simulate : WaterModelSimulator
+    fitted : array_like of bool, shape (11,)
+        Which joint summaries the call returns (the distance sees only these).
+    cache_dir : path-like, optional
+        Created if missing; no caching when None.
+    """
+
+    def __init__(self, simulate: WaterModelSimulator, fitted, cache_dir: str | os.PathLike | None = None) -> None:
+        fitted = np.asarray(fitted, dtype=bool)
+        if fitted.shape != (len(JOINT_SUMMARY_NAMES),) or not fitted.any():
+            raise ValueError(f"fitted must be a boolean mask of shape ({len(JOINT_SUMMARY_NAMES)},) with a True entry")
+        self.simulate = simulate
+        self.fitted = fitted
+        self.cache_dir = None if cache_dir is None else Path(cache_dir)
+        if self.cache_dir is not None:
+            self.cache_dir.mkdir(parents=True, exist_ok=True)
+
+    def __repr__(self) -> str:
+        return f"CachedSummaries({self.simulate!r}, fitted={self.fitted.astype(int).tolist()})"
+
+    def cache_path(self, key, theta) -> Path | None:
+        """The cache file of one simulation (None without a cache)."""
+        if self.cache_dir is None:
+            return None
+        try:
+            import jax
+
+            key_data = np.asarray(jax.random.key_data(key))
+        except (TypeError, ValueError):
+            key_data = np.asarray(key)
+        digest = hashlib.sha256()
+        digest.update(repr((self.simulate, self.simulate.protocol)).encode())
+        digest.update(np.ascontiguousarray(key_data, dtype=np.uint32).tobytes())
+        digest.update(np.ascontiguousarray(np.asarray(theta, dtype=np.float64).reshape(-1)).tobytes())
+        return self.cache_dir / f"{self.simulate.model.slug}-{digest.hexdigest()[:24]}.npz"
+
+    def full(self, key, theta) -> np.ndarray:
+        """All 11 joint summaries (from the cache when present).
+
+        Raises
+        ------
+        jaxabc.errors.SimulationFailure
+            The simulation failed (now or when it was cached), with its reason.
+        """
+        path = self.cache_path(key, theta)
+        if path is not None and path.is_file():
+            with np.load(path) as stored:
+                if str(stored["reason"]):
+                    raise SimulationFailure(str(stored["reason"]))
+                return np.array(stored["summaries"])
+        try:
+            summaries, reason = self.simulate(key, theta), ""
+        except SimulationFailure as failure:
+            summaries, reason = np.full(len(JOINT_SUMMARY_NAMES), np.nan), str(failure)
+        if path is not None:
+            # Write then rename: a worker killed mid-write leaves no half file to replay.
+            partial = path.with_suffix(".tmp.npz")
+            np.savez(partial, summaries=summaries, reason=np.array(reason))
+            os.replace(partial, path)
+        if reason:
+            raise SimulationFailure(reason)
+        return summaries
+
+    def __call__(self, key, theta) -> np.ndarray:
+        """The fitted summaries, shape ``(fitted.sum(),)``."""
+        return self.full(key, theta)[self.fitted]
