@@ -316,6 +316,16 @@ REGISTRY: tuple[Entry, ...] = (
         note="simulation-based calibration of the surrogate (one jaxabc.run per data set) next to "
         "jaxabc.coverage_study('apmcabc') on the same data sets",
     ),
+    Entry(
+        "water_model_choice",
+        f"{R}/water_model_choice.json",
+        "python benchmarks/water_model_choice.py --data xray --workers 2",
+        long=True,
+        requires=("gmx",),
+        quick="python benchmarks/water_model_choice.py --tiny --workers 2 --no-progress",
+        quick_output=f"{Q}/water_model_choice.json",
+        note="ABC model choice over five rigid water models; not run yet (hours of GROMACS)",
+    ),
 )
 
 
