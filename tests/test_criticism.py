@@ -361,9 +361,12 @@ def test_savage_dickey_reports_its_cap_and_an_uncapped_value():
 
 # rdf_normalisation runs on the engine (test_engine_hidden_effect_is_found_named_recovered_and_gains).
 HIDDEN = ["temperature_offset", "axilrod_teller", "qmax_ripple", "density_error"]
+# The default suite hides one thermodynamic effect (confusable with epsilon in g(r)) and one
+# measurement effect; the other two run under `slow`.
+HIDDEN_SLOW = {"axilrod_teller", "density_error"}
 
 
-@pytest.mark.parametrize("effect", HIDDEN)
+@pytest.mark.parametrize("effect", [pytest.param(e, marks=pytest.mark.slow) if e in HIDDEN_SLOW else e for e in HIDDEN])
 def test_hidden_effect_is_found_named_recovered_and_gains(effect, tmp_path):
     seed = zlib.crc32(effect.encode()) % 10_000
     theta, eta, snr, where = hidden_case(effect, seed)
