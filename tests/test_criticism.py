@@ -361,9 +361,12 @@ def test_savage_dickey_reports_its_cap_and_an_uncapped_value():
 
 # rdf_normalisation runs on the engine (test_engine_hidden_effect_is_found_named_recovered_and_gains).
 HIDDEN = ["temperature_offset", "axilrod_teller", "qmax_ripple", "density_error"]
+# The default suite hides one thermodynamic effect (confusable with epsilon in g(r)) and one
+# measurement effect; the other two run under `slow`.
+HIDDEN_SLOW = {"axilrod_teller", "density_error"}
 
 
-@pytest.mark.parametrize("effect", HIDDEN)
+@pytest.mark.parametrize("effect", [pytest.param(e, marks=pytest.mark.slow) if e in HIDDEN_SLOW else e for e in HIDDEN])
 def test_hidden_effect_is_found_named_recovered_and_gains(effect, tmp_path):
     seed = zlib.crc32(effect.encode()) % 10_000
     theta, eta, snr, where = hidden_case(effect, seed)
@@ -659,10 +662,13 @@ def _engine_null_flags(eng, seeds) -> list:
     return flagged
 
 
+# Two whole engine critiques: the null rate stays in the default suite through the surrogate's
+# 40-seed test (same pipeline), and is checked on the engine by the slow tests.
+@pytest.mark.slow
 def test_engine_null_flags_nothing(lj_engine):
     """No effect, engine data and engine pipeline: two seeds must flag nothing.
 
-    This is the default-suite guard, not the 95 % claim itself: with a per-seed false-alarm rate
+    A quick guard, not the 95 % claim itself: with a per-seed false-alarm rate
     p, two clean seeds happen with probability (1 - p)^2 (0.90 at p = 5 %, 0.64 at p = 20 %), so
     it catches a grossly miscalibrated pipeline only.  The claim "at most 5 %" is checked by
     :func:`test_engine_null_95_percent_of_seeds` (slow, 40 seeds, at most 2 flagged: a procedure

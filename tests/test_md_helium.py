@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import functools
 
 import jax
 import jax.numpy as jnp
@@ -110,21 +111,38 @@ def test_prior_corner_stays_finite():
     assert np.all(np.isfinite(f_b)) and np.all(f_b > 0)
 
 
+_OVERFLOW_KEYS = jax.random.split(jax.random.PRNGKey(4), 2)
+_OVERFLOW_THETAS = jnp.asarray([helium.TRUE_THETA, (0.3, 0.5)], jnp.float32)
+
+
+def _overflow_preset(atoms: int) -> helium.HeliumPreset:
+    return helium.get_preset("cpu", num_atoms=atoms, use_neighbor_list=True, batch_size=2, **TINY)
+
+
+@functools.cache
+def _roomy_reference(atoms: int) -> np.ndarray:
+    """f_B with the engine's own (roomy) list: computed once per size, before any test below
+    shrinks that list, and shared by the overflow cases of that size."""
+    simulate = helium.make_simulator(_overflow_preset(atoms))
+    return np.asarray(jax.jit(jax.vmap(simulate))(_OVERFLOW_KEYS, _OVERFLOW_THETAS))
+
+
+# Each case compiles the helium engine three times over: the default suite overflows pair slots
+# without cells and atoms per cell with them; the other two kinds run under `slow`.
 @pytest.mark.parametrize(
     "atoms, tighten",
     [
         (32, "capacity"),  # too few cells a side: every atom a candidate, pair slots overflow
-        (128, "capacity"),  # 3 cells a side: sort-free cell list, pair slots overflow
+        pytest.param(128, "capacity", marks=pytest.mark.slow),  # 3 cells a side: sort-free cell list
         (128, "cell_capacity"),  # atoms per cell
-        (128, "candidate_capacity"),  # (atom, stencil-cell partner) slots
+        pytest.param(128, "candidate_capacity", marks=pytest.mark.slow),  # (atom, stencil-cell partner) slots
     ],
 )
 def test_neighbor_list_overflow_is_reallocated_not_dropped(atoms, tighten):
-    preset = helium.get_preset("cpu", num_atoms=atoms, use_neighbor_list=True, batch_size=2, **TINY)
+    preset = _overflow_preset(atoms)
     engine = helium.make_engine(preset)
-    keys = jax.random.split(jax.random.PRNGKey(4), 2)
-    thetas = jnp.asarray([helium.TRUE_THETA, (0.3, 0.5)], jnp.float32)
-    reference = np.asarray(jax.jit(jax.vmap(helium.make_simulator(preset)))(keys, thetas))
+    keys, thetas = _OVERFLOW_KEYS, _OVERFLOW_THETAS
+    reference = _roomy_reference(atoms)
     assert np.all(np.isfinite(reference))
     roomy = engine.neighbor_template
     assert (roomy.spec.cells_per_side >= 3) == (atoms == 128)

@@ -295,7 +295,9 @@ def _pairs_within(pos, box, reach):
     return set(zip(i.tolist(), j.tolist(), strict=True))
 
 
-@pytest.mark.parametrize("fmt", ["sparse", "dense"])
+# The engine's default format runs by default; the dense (three-body) list is also checked
+# against all pairs by test_neighbor_list_matches_all_pairs[dense], and exactly here under `slow`.
+@pytest.mark.parametrize("fmt", ["sparse", pytest.param("dense", marks=pytest.mark.slow)])
 def test_cell_list_finds_exactly_the_pairs_within_reach(fmt):
     """A dilute box with many cells a side and a dense one with clusters: every pair, once."""
     rng = np.random.default_rng(3)
