@@ -205,3 +205,123 @@ def test_rigid_fit_recovers_a_rigid_configuration():
     delta = sites[:, :3] - molecules
     delta -= box * np.round(delta / box)
     assert np.abs(delta).max() < 1e-5
+
+
+# --------------------------------------------------------------------------------------------
+# Dynamics
+# --------------------------------------------------------------------------------------------
+
+
+def _nve_energies(dtype, dt_ps: float, duration_ps: float = 0.4):
+    """Total and kinetic energy along an NVE run of 64 molecules (lattice start, r_c 0.6 nm)."""
+    from md.lj.npt import jax_md_float32
+    from md.water.jaxmd.simulator import lattice_configuration
+
+    model = ff.MODELS["tip4p"]
+    edge = 1.86824 * (64 / 216) ** (1 / 3)
+    engine = RigidWater(64, [edge] * 3, model, ff.ReactionField(0.6), dt_ps=dt_ps, dtype=dtype, neighbor_list=False)
+    body = engine.bodies(lattice_configuration(64, edge, model))
+    typed_model = ff.WaterModel(*(jnp.asarray(v, dtype) for v in model))
+    steps = round(duration_ps / 20 / dt_ps)
+    with jax_md_float32():
+        frames, status = jax.jit(lambda key: engine.run_nvt(key, typed_model, body, 298.0, 20, steps, ensemble="nve"))(
+            jax.random.PRNGKey(0)
+        )
+    assert int(status) == 0
+    total = np.asarray(frames.potential_kj_mol + frames.kinetic_kj_mol, np.float64)
+    return total, np.asarray(frames.kinetic_kj_mol, np.float64)
+
+
+def test_nve_conserves_energy_float32():
+    """2 fs steps in float32: total energy fluctuates ~1 % of the kinetic energy's fluctuation.
+
+    The lattice start melts (the kinetic energy more than triples), the hardest part of a run.
+    """
+    total, kinetic = _nve_energies(jnp.float32, 0.002)
+    assert total.std() < 0.03 * kinetic.std(), (total.std(), kinetic.std())
+    assert abs(total[-1] - total[0]) < 0.1 * kinetic.std(), (total[-1] - total[0], kinetic.std())
+
+
+@pytest.mark.slow
+def test_nve_energy_error_is_second_order_in_the_time_step():
+    """NO_SQUISH is a second-order symplectic splitting: halving dt quarters the energy error."""
+    with _enable_x64():
+        coarse, _ = _nve_energies(jnp.float64, 0.002)
+        fine, _ = _nve_energies(jnp.float64, 0.001)
+    ratio = coarse.std() / fine.std()
+    assert 3.0 < ratio < 5.5, ratio
+
+
+# --------------------------------------------------------------------------------------------
+# Simulator and summaries
+# --------------------------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def tiny_simulator(tip4p_box):
+    from md.lj.npt import jax_md_float32
+    from md.water.jaxmd.simulator import make_simulator
+
+    with jax_md_float32():
+        yield make_simulator("tiny", equilibration_steps=50, frame_interval_steps=25, num_frames=8)
+
+
+@pytest.mark.slow  # compiles the 216-molecule engine and the analysis (~1 min on 2 shared cores)
+def test_jax_summaries_equal_the_host_pipeline(tiny_simulator):
+    """S1..S9 in JAX from the frames = md.water.analysis + statistics (float64, numpy) on them."""
+    from md.water import analysis, statistics
+    from md.water.jaxmd.simulator import summaries_from_frames
+
+    simulator = tiny_simulator
+    theta = jnp.array([0.315365, 0.648520])
+    frames, status = simulator._frames(jax.random.PRNGKey(3), theta)  # the compiled first half
+    assert int(status) == 0
+    box = np.asarray(simulator.engine.box_nm)
+    ours = np.asarray(summaries_from_frames(frames, box, simulator.preset.frame_interval_ps))
+    num_frames = frames.oxygen_nm.shape[0]
+    trajectory = analysis.WaterTrajectory(
+        time_ps=simulator.preset.frame_interval_ps * np.arange(num_frames),
+        oxygen_nm=np.asarray(frames.oxygen_nm),
+        hydrogen_nm=np.asarray(frames.hydrogen_nm),
+        box_nm=np.tile(box, (num_frames, 1)),
+    )
+    curves = analysis.compute_curves(trajectory, "robust")
+    host = statistics.summary_statistics(curves, "robust")
+    assert np.all(np.isfinite(host))
+    np.testing.assert_allclose(ours, host, rtol=2e-4, atol=1e-5)
+
+
+@pytest.mark.slow
+def test_simulator_runs_and_reports_failures(tiny_simulator, monkeypatch):
+    from jaxabc.errors import SimulationFailure
+    from md.water.jaxmd.engine import STATUS_NONFINITE_ENERGY
+    from md.water.jaxmd.simulator import STATUS_NO_EXTREMUM, failure_reason
+
+    simulator = tiny_simulator
+    key = jax.random.PRNGKey(0)
+    summaries = simulator(key, (0.315365, 0.648520))
+    assert summaries.shape == (9,) and np.all(np.isfinite(summaries))
+    # first g_OO peak of liquid water near 0.28 nm, g -> 1 on average
+    assert 0.26 < summaries[7] < 0.29 and 0.9 < summaries[3] < 1.1
+    np.testing.assert_allclose(simulator(key, (0.315365, 0.648520)), summaries)  # same key, same run
+    # failures are data inside JAX ...
+    bad, status = simulator._finish(*simulator._frames(key, jnp.array([jnp.nan, 0.6])))
+    assert int(status) & STATUS_NONFINITE_ENERGY and np.all(np.isnan(bad))
+    # ... and a SimulationFailure with the reason on the host
+    monkeypatch.setattr(simulator, "_finish", lambda f, s: (jnp.full(9, jnp.nan), jnp.asarray(STATUS_NO_EXTREMUM)))
+    with pytest.raises(SimulationFailure, match="no first peak"):
+        simulator(key, (0.3, 0.6))
+    assert failure_reason(0) == "ok"
+    with pytest.raises(ValueError, match="2 to 4 finite"):
+        simulator(key, (0.3,))
+
+
+@pytest.mark.slow
+def test_batch_equals_single_runs(tiny_simulator):
+    simulator = tiny_simulator
+    keys = jax.random.split(jax.random.PRNGKey(5), 2)
+    thetas = np.array([[0.315365, 0.648520], [0.30, 0.80]])
+    summaries, status = simulator.batch(keys, thetas)
+    assert summaries.shape == (2, 9) and np.all(status == 0)
+    for i in range(2):
+        np.testing.assert_allclose(summaries[i], simulator(keys[i], thetas[i]), rtol=1e-3, atol=1e-4)
