@@ -325,3 +325,54 @@ def test_batch_equals_single_runs(tiny_simulator):
     assert summaries.shape == (2, 9) and np.all(status == 0)
     for i in range(2):
         np.testing.assert_allclose(summaries[i], simulator(keys[i], thetas[i]), rtol=1e-3, atol=1e-4)
+
+
+@pytest.mark.slow
+def test_forward_mode_derivatives_match_finite_differences(tip4p_box):
+    """d(<U>/N, n_OO)/d(sigma, epsilon) by jax.jacfwd through 80 steps of NVT, against central
+    differences with common random numbers (same key: same velocities), float64."""
+    from md.lj.npt import jax_md_float32
+    from md.water.jaxmd.sensitivity import observable_derivatives, smooth_observables
+    from md.water.jaxmd.simulator import make_simulator
+
+    key = jax.random.PRNGKey(0)
+    with _enable_x64(), jax_md_float32():
+        simulator = make_simulator(
+            "tiny", dtype=jnp.float64, equilibration_steps=0, frame_interval_steps=10, num_frames=8
+        )
+        theta = jnp.array([0.315365, 0.648520])
+        _, jacobian = jax.jit(lambda t: observable_derivatives(simulator, key, t))(theta)
+        observe = jax.jit(lambda t: smooth_observables(simulator.frames(key, t)[0], simulator.engine.box_nm))
+        for i, step in ((0, 1e-5), (1, 1e-4)):
+            shift = jnp.zeros(2).at[i].set(step)
+            central = (observe(theta + shift) - observe(theta - shift)) / (2 * step)
+            # central differences carry O(step^2) error: ~1e-3 relative at these steps
+            np.testing.assert_allclose(np.asarray(jacobian[:, i]), np.asarray(central), rtol=3e-3)
+            assert np.all(np.abs(np.asarray(central)) > 0.1)  # the derivatives are not trivially zero
+
+
+@pytest.mark.slow  # two compilations of the engine
+def test_engine_neighbor_list_matches_all_pairs():
+    """The engine's jax-md neighbour list gives the all-pairs energies along a short NVE run."""
+    from md.lj.npt import jax_md_float32
+    from md.water.jaxmd.simulator import lattice_configuration
+
+    model = ff.MODELS["tip4p"]
+    edge = 1.86824 * (64 / 216) ** (1 / 3)
+    settings = ff.ReactionField(0.3)  # small enough for a list in this 1.245 nm box
+    typed_model = ff.WaterModel(*(jnp.asarray(v, jnp.float32) for v in model))
+    energies = []
+    with jax_md_float32():
+        for use_list in (False, True):
+            engine = RigidWater(64, [edge] * 3, model, settings, neighbor_list=use_list, skin_nm=0.05)
+            assert engine.use_neighbor_list is use_list
+            body = engine.bodies(lattice_configuration(64, edge, model))
+            neighbors = engine.allocate_neighbors(body)
+            frames, status = jax.jit(
+                lambda key, nbrs, engine=engine, body=body: engine.run_nvt(
+                    key, typed_model, body, 298.0, 8, 5, ensemble="nve", neighbor=nbrs
+                )
+            )(jax.random.PRNGKey(1), neighbors)
+            assert int(status) == 0
+            energies.append(np.asarray(frames.potential_kj_mol))
+    np.testing.assert_allclose(energies[1], energies[0], rtol=1e-4, atol=0.05)

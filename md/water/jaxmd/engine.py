@@ -244,6 +244,8 @@ class RigidWater:
                 self.list_cutoff_nm,
                 dr_threshold=skin_nm,
                 format=partition.NeighborListFormat.Dense,
+                # jax-md's cell list needs at least three cells per edge.
+                disable_cell_list=float(box.min()) < 3 * (self.list_cutoff_nm + skin_nm),
             )
 
     # -- geometry -----------------------------------------------------------------------------
@@ -372,7 +374,7 @@ class RigidWater:
             state, nbrs, overflow = carry
             if nbrs is not None:
                 nbrs = nbrs.update(state.position.center)
-                overflow = overflow | nbrs.did_buffer_overflow
+                overflow = overflow | (jnp.asarray(nbrs.did_buffer_overflow) != 0)
             state = apply_fn(state, neighbor=nbrs)  # pyright: ignore[reportCallIssue]
             return (state, nbrs, overflow), None
 
