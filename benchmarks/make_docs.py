@@ -679,7 +679,8 @@ def page_criticism() -> str:
 
 def page_water_jaxmd() -> str:
     parts = [
-        "# In-process rigid TIP4P (jax-md) against GROMACS: speed\n",
+        "# In-process rigid TIP4P (jax-md) against GROMACS\n",
+        "## Speed\n",
         "The same 216-molecule box (GROMACS's `tip4p.gro`), NVT at 298 K, 2 fs, reaction field with "
         "r_c 0.85 nm; jax-md on one XLA thread (float32, all pairs, batches under `vmap`), GROMACS "
         "`mdrun -ntmpi 1 -ntomp 1`.  ns/day per core from CPU time, the fastest of interleaved repeats "
@@ -717,6 +718,25 @@ def page_water_jaxmd() -> str:
         table(["engine", "device", "steps", "ns/day/core", "ms/step/system", "mean U/N (kJ/mol)"], rows) + "\n",
         f"GROMACS is {d['ratio_gromacs_over_jax_batch1']:.1f}x faster per core than one jax-md system.\n",
     ]
+    agreement = load("water_jaxmd_agreement")
+    if agreement is not None:
+        rows = [
+            [
+                name,
+                f"{c['jax_md_mean']:.4g} +- {c['jax_md_standard_error']:.2g}",
+                f"{c['gromacs_mean']:.4g} +- {c['gromacs_standard_error']:.2g}",
+                f(c["difference_in_combined_standard_errors"], 1),
+            ]
+            for name, c in agreement["comparison"].items()
+        ]
+        parts += [
+            "## Same state point against GROMACS\n",
+            f"{agreement['state_point']}; `quick` timing (5 ps equilibration, 15 ps analysed); mean +- "
+            f"standard error over {agreement['seeds']} seeds per engine; robust S1..S9 (S9 = D in "
+            "1e-5 cm^2/s).  The last column is (jax-md - GROMACS) / combined standard error.\n",
+            source("water_jaxmd_agreement") + "\n",
+            table(["statistic", "jax-md", "GROMACS", "difference / s.e."], rows) + "\n",
+        ]
     return "\n".join(parts)
 
 
