@@ -685,7 +685,9 @@ def page_water_jaxmd() -> str:
         "r_c 0.85 nm; jax-md on one XLA thread (float32, all pairs, batches under `vmap`), GROMACS "
         "`mdrun -ntmpi 1 -ntomp 1`.  ns/day per core from CPU time, the fastest of interleaved repeats "
         "(all are in the JSON).  The potential energies are one "
-        "short run each from GROMACS's equilibrated start, not an equilibrium comparison.  See "
+        "short run each from GROMACS's equilibrated start, not an equilibrium comparison, and jax-md's "
+        "leaves out the constant reaction-field terms of excluded pairs that GROMACS's includes (the "
+        "agreement table below adds them).  See "
         "[the engine's page](../water_jaxmd.md).\n",
     ]
     d = load("water_jaxmd_speed")
@@ -733,7 +735,8 @@ def page_water_jaxmd() -> str:
             "## Same state point against GROMACS\n",
             f"{agreement['state_point']}; `quick` timing (5 ps equilibration, 15 ps analysed); mean +- "
             f"standard error over {agreement['seeds']} seeds per engine; robust S1..S9 (S9 = D in "
-            "1e-5 cm^2/s).  The last column is (jax-md - GROMACS) / combined standard error.\n",
+            "1e-5 cm^2/s; jax-md's U/N includes GROMACS's constant reaction-field terms of excluded pairs).  "
+            "The last column is (jax-md - GROMACS) / combined standard error.\n",
             source("water_jaxmd_agreement") + "\n",
             table(["statistic", "jax-md", "GROMACS", "difference / s.e."], rows) + "\n",
         ]
