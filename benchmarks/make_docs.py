@@ -724,6 +724,72 @@ def page_criticism() -> str:
     return "\n".join(parts)
 
 
+def page_water_jaxmd() -> str:
+    parts = [
+        "# In-process rigid TIP4P (jax-md) against GROMACS\n",
+        "## Speed\n",
+        "The same 216-molecule box (GROMACS's `tip4p.gro`), NVT at 298 K, 2 fs, reaction field with "
+        "r_c 0.85 nm; jax-md on one XLA thread (float32, all pairs, batches under `vmap`), GROMACS "
+        "`mdrun -ntmpi 1 -ntomp 1`.  ns/day per core from CPU time, the fastest of interleaved repeats "
+        "(all are in the JSON).  The potential energies are one "
+        "short run each from GROMACS's equilibrated start, not an equilibrium comparison, and jax-md's "
+        "leaves out the constant reaction-field terms of excluded pairs that GROMACS's includes (the "
+        "agreement table below adds them).  See "
+        "[the engine's page](../water_jaxmd.md).\n",
+    ]
+    d = load("water_jaxmd_speed")
+    if d is None:
+        return "\n".join([*parts, "Not measured yet: run `python benchmarks/water_jaxmd_speed.py`.\n"])
+    rows = [
+        [
+            f"jax-md, batch {r['batch']}",
+            d.get("jax_device", "-"),
+            r["num_steps"],
+            g(r["ns_per_day_per_core"], 3),
+            g(r["ms_per_step_per_system"], 3),
+            f(r["mean_potential_kj_mol_per_molecule"], 2),
+        ]
+        for r in d["jax"]
+    ]
+    gm = d["gromacs"]
+    rows.append(
+        [
+            "GROMACS 2022 (mixed precision)",
+            "CPU",
+            gm["num_steps"],
+            g(gm["ns_per_day_per_core"], 3),
+            g(gm["ms_per_step"], 3),
+            f(gm["mean_potential_kj_mol_per_molecule"], 2),
+        ]
+    )
+    parts += [
+        source("water_jaxmd_speed") + "\n",
+        table(["engine", "device", "steps", "ns/day/core", "ms/step/system", "mean U/N (kJ/mol)"], rows) + "\n",
+        f"GROMACS is {d['ratio_gromacs_over_jax_batch1']:.1f}x faster per core than one jax-md system.\n",
+    ]
+    agreement = load("water_jaxmd_agreement")
+    if agreement is not None:
+        rows = [
+            [
+                name,
+                f"{c['jax_md_mean']:.4g} +- {c['jax_md_standard_error']:.2g}",
+                f"{c['gromacs_mean']:.4g} +- {c['gromacs_standard_error']:.2g}",
+                f(c["difference_in_combined_standard_errors"], 1),
+            ]
+            for name, c in agreement["comparison"].items()
+        ]
+        parts += [
+            "## Same state point against GROMACS\n",
+            f"{agreement['state_point']}; `quick` timing (5 ps equilibration, 15 ps analysed); mean +- "
+            f"standard error over {agreement['seeds']} seeds per engine; robust S1..S9 (S9 = D in "
+            "1e-5 cm^2/s; jax-md's U/N includes GROMACS's constant reaction-field terms of excluded pairs).  "
+            "The last column is (jax-md - GROMACS) / combined standard error.\n",
+            source("water_jaxmd_agreement") + "\n",
+            table(["statistic", "jax-md", "GROMACS", "difference / s.e."], rows) + "\n",
+        ]
+    return "\n".join(parts)
+
+
 def page_index() -> str:
     rows = []
     for e in REGISTRY:
@@ -770,6 +836,7 @@ PAGES: dict[str, Callable[[], str]] = {
     "abc_overhead.md": page_abc_overhead,
     "water_calibrations.md": page_water,
     "criticism.md": page_criticism,
+    "water_jaxmd.md": page_water_jaxmd,
 }
 
 
