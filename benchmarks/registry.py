@@ -326,6 +326,23 @@ REGISTRY: tuple[Entry, ...] = (
         quick_output=f"{Q}/water_model_choice.json",
         note="ABC model choice over five rigid water models; not run yet (hours of GROMACS)",
     ),
+    Entry(
+        "water_jaxmd_speed",
+        f"{R}/water_jaxmd_speed.json",
+        "python benchmarks/water_jaxmd_speed.py",
+        requires=("gmx",),
+        note="timings of the jax-md TIP4P engine against GROMACS on one core; run on a quiet machine",
+    ),
+    Entry(
+        "water_jaxmd_agreement",
+        f"{R}/water_jaxmd_agreement.json",
+        "python benchmarks/water_jaxmd_agreement.py",
+        long=True,
+        estimated_cost_s=2700.0,
+        requires=("gmx",),
+        note="the saved JSON was re-analysed (--add-constant-to) after its simulations, which ran at "
+        "commit 1c29b34: rerun the full command to record the simulations' own provenance",
+    ),
 )
 
 
