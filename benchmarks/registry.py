@@ -306,6 +306,21 @@ REGISTRY: tuple[Entry, ...] = (
         legacy_cost_keys=("wall_time_s",),
         requires=("gmx",),
     ),
+    Entry(
+        "criticism_neon",
+        f"{R}/criticism_neon.json",
+        "python benchmarks/criticism_neon.py",
+        long=True,
+        estimated_cost_s=2400.0,
+        note="smoke run of the plumbing: python benchmarks/criticism_neon.py --tiny (numbers meaningless)",
+    ),
+    Entry(
+        "criticism_argon",
+        f"{R}/criticism_argon.json",
+        "python benchmarks/criticism_argon.py",
+        long=True,
+        estimated_cost_s=3000.0,
+    ),
 )
 
 
