@@ -384,8 +384,9 @@ def _make_simulator(
 
         # jax-md reads kT at trace time only through arithmetic, so a traced T* is fine.
         init_fn, apply_fn = jmd_simulate.nvt_langevin(force_fn, shift, cfg.dt, t_star, gamma=cfg.gamma)  # pyright: ignore[reportArgumentType]
-        # The lattice start releases several epsilon per atom as it melts: a strong friction over
-        # the first half of the equilibration takes that heat out within a few dozen steps.
+        # The start liquid, rescaled to this box and temperature, releases heat as it relaxes: a
+        # strong friction over the first half of the equilibration takes it out within a few
+        # dozen steps (the kinetic temperature otherwise stays above the set point for hundreds).
         _, quench_fn = jmd_simulate.nvt_langevin(force_fn, shift, cfg.dt, t_star, gamma=_QUENCH_GAMMA)  # pyright: ignore[reportArgumentType]
         k_pick, k_pos, k_md = jax.random.split(key, 3)
         start = starts[jax.random.randint(k_pick, (), 0, starts.shape[0])]
