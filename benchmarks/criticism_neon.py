@@ -17,7 +17,7 @@ argon: Tegeler et al. 1999), which are fitted to measurements -- not raw measure
 
 Usage::
 
-    python benchmarks/criticism_neon.py                 # about 30-50 minutes on 2 cores
+    python benchmarks/criticism_neon.py                 # about an hour on 2 cores
     python benchmarks/criticism_neon.py --fluid argon   # what criticism_argon.py runs
     python benchmarks/criticism_neon.py --tiny          # plumbing smoke test, numbers meaningless
 """
