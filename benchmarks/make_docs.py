@@ -790,6 +790,74 @@ def page_water_jaxmd() -> str:
     return "\n".join(parts)
 
 
+def page_criticism_fluids() -> str:
+    parts = [
+        "# Model criticism of Lennard-Jones neon and argon on measured data\n",
+        "The data are reference equations of state fitted to measurements (CoolProp; see "
+        "`md/fluids/data/<fluid>/PROVENANCE.md`), not raw measurements.  108-atom state points, "
+        "jax-md Langevin; the protocol is on the [fluids page](../fluids.md).\n",
+    ]
+    for name, label, expected in (
+        ("criticism_neon", "Neon", "feynman_hibbs"),
+        ("criticism_argon", "Argon", "axilrod_teller"),
+    ):
+        d = load(name)
+        parts.append(f"## {label}\n")
+        parts.append(source(name, data=d) + "\n")
+        if d is None:
+            parts.append("Not saved yet.\n")
+            continue
+        misfits = [
+            [
+                m["name"],
+                f(m["observed"], 3),
+                f"{f(m['band'][0], 3)}-{f(m['band'][1], 3)}",
+                f(m["residual"], 1),
+                g(m["adjusted_p_value"], 2),
+                "held out" if m["held_out"] else "fitted",
+            ]
+            for m in d["misfits"][:10]
+        ]
+        causes = [
+            [
+                c["name"],
+                f(c["score"], 1),
+                f"{100 * c['fraction_explained']:.0f} %",
+                g(c["adjusted_p_value"], 2),
+                "yes" if c["ambiguous"] else "no",
+                c.get("note", ""),
+            ]
+            for c in d["causes"]
+        ]
+        base = d["base_fit"]
+        parts += [
+            f"Base fit (APMCABC, {base['num_simulations']} simulations): sigma "
+            f"{f(base['bayes_estimate'][0], 4)} nm, epsilon / k_B {f(base['bayes_estimate'][1], 2)} K "
+            f"(literature {f(base['literature'][0], 4)} nm, {f(base['literature'][1], 1)} K).  Wall time "
+            f"{format_cost(d['wall_time_s'])}.  Expected cause: `{expected}`.\n",
+            f"Verdict: {d['verdict']}\n",
+            table(["misfit", "observed", "predictive 90 % band", "z", "adjusted p", ""], misfits) + "\n",
+            table(["cause", "score", "explains", "adjusted p", "ambiguous", "note"], causes) + "\n",
+        ]
+        ext = (d.get("physical_comparison") or {}).get("extension")
+        gain = d.get("gain") or {}
+        if ext:
+            phys = "-" if ext["physical"] is None else g(ext["physical"], 3)
+            parts.append(
+                f"Refit with `{ext['effect']}`: {g(ext['estimate'], 3)} [{g(ext['ci95'][0], 3)}, "
+                f"{g(ext['ci95'][1], 3)}] (95 %); physical value {phys} "
+                f"({'inside' if ext['physical_inside_ci95'] else 'outside'} the interval).  "
+                f"Conversion: {ext['conversion']}.\n"
+            )
+        if gain:
+            parts.append(
+                f"Held-out delta log predictive density {f(gain['delta_lpd'], 2)} +- "
+                f"{f(gain['delta_lpd_se'], 2)} (exceeds its uncertainty: "
+                f"{'yes' if gain['significant'] else 'no'}).\n"
+            )
+    return "\n".join(parts)
+
+
 def page_index() -> str:
     rows = []
     for e in REGISTRY:
@@ -817,6 +885,7 @@ every benchmark's quick mode reproduces its saved numbers.
 - [Cost of an ABC step](abc_overhead.md)
 - [Water calibrations](water_calibrations.md)
 - [Model criticism of water](criticism.md)
+- [Model criticism of neon and argon](criticism_fluids.md)
 
 Status when these pages were generated:
 
@@ -837,6 +906,7 @@ PAGES: dict[str, Callable[[], str]] = {
     "water_calibrations.md": page_water,
     "criticism.md": page_criticism,
     "water_jaxmd.md": page_water_jaxmd,
+    "criticism_fluids.md": page_criticism_fluids,
 }
 
 

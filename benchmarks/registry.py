@@ -343,6 +343,21 @@ REGISTRY: tuple[Entry, ...] = (
         note="the saved JSON was re-analysed (--add-constant-to) after its simulations, which ran at "
         "commit 1c29b34: rerun the full command to record the simulations' own provenance",
     ),
+    Entry(
+        "criticism_neon",
+        f"{R}/criticism_neon.json",
+        "python benchmarks/criticism_neon.py",
+        long=True,
+        estimated_cost_s=2400.0,
+        note="smoke run of the plumbing: python benchmarks/criticism_neon.py --tiny (numbers meaningless)",
+    ),
+    Entry(
+        "criticism_argon",
+        f"{R}/criticism_argon.json",
+        "python benchmarks/criticism_argon.py",
+        long=True,
+        estimated_cost_s=3000.0,
+    ),
 )
 
 

@@ -1,0 +1,21 @@
+"""Model criticism of Lennard-Jones argon on measured data: :mod:`criticism_neon` with ``--fluid argon``.
+
+The expected cause is the Axilrod-Teller triple-dipole term (C9 = 521 hartree bohr^9); see
+``criticism_neon.py`` for the protocol, the data's provenance and the options; its ``main``
+saves ``benchmarks/results/criticism_argon.json`` through ``_common.write_result(...)``.
+
+Usage::
+
+    python benchmarks/criticism_argon.py
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from criticism_neon import main
+
+if __name__ == "__main__":
+    main(fluid="argon")
