@@ -27,6 +27,8 @@ TIMING_KEYS = (
     "numpy_over_jax",
     "*fraction_of_step*",
     "cost_s",
+    "us_per_*",
+    "*_over_apmc",
 )
 
 
