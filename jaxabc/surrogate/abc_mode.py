@@ -34,7 +34,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxabc.algorithms import apmc, make_jax_step
+from jaxabc.algorithms import apmc
+from jaxabc.algorithms.base import make_jax_step
 from jaxabc.distances import get_distance
 from jaxabc.priors import Uniform
 from jaxabc.surrogate.emulator import Emulator, OutputTransform, predict
