@@ -90,6 +90,36 @@ def span(values: Sequence[float], digits: int = 2) -> str:
     return lo if lo == hi else f"{lo}-{hi}"
 
 
+def misfit_rows(d: dict[str, Any], limit: int) -> list[list[str]]:
+    """Rows of a criticism report's first ``limit`` misfits."""
+    return [
+        [
+            m["name"],
+            f(m["observed"], 3),
+            f"{f(m['band'][0], 3)}-{f(m['band'][1], 3)}",
+            f(m["residual"], 1),
+            g(m["adjusted_p_value"], 2),
+            "held out" if m["held_out"] else "fitted",
+        ]
+        for m in d["misfits"][:limit]
+    ]
+
+
+def cause_rows(d: dict[str, Any]) -> list[list[str]]:
+    """Rows of a criticism report's ranked causes."""
+    return [
+        [
+            c["name"],
+            f(c["score"], 1),
+            f"{100 * c['fraction_explained']:.0f} %",
+            g(c["adjusted_p_value"], 2),
+            "yes" if c["ambiguous"] else "no",
+            c.get("note", ""),
+        ]
+        for c in d["causes"]
+    ]
+
+
 # ----------------------------------------------------------------------------- pages
 
 
@@ -679,28 +709,7 @@ def page_criticism() -> str:
         d = load(name)
         if d is None:
             continue
-        misfits = [
-            [
-                m["name"],
-                f(m["observed"], 3),
-                f"{f(m['band'][0], 3)}-{f(m['band'][1], 3)}",
-                f(m["residual"], 1),
-                g(m["adjusted_p_value"], 2),
-                "held out" if m["held_out"] else "fitted",
-            ]
-            for m in d["misfits"][:8]
-        ]
-        causes = [
-            [
-                c["name"],
-                f(c["score"], 1),
-                f"{100 * c['fraction_explained']:.0f} %",
-                g(c["adjusted_p_value"], 2),
-                "yes" if c["ambiguous"] else "no",
-                c.get("note", ""),
-            ]
-            for c in d["causes"]
-        ]
+        misfits, causes = misfit_rows(d, 8), cause_rows(d)
         ext = d["extension"]
         est = ", ".join(
             f"{n} {f(b, 4)} [{f(lo, 4)}, {f(hi, 4)}]"
@@ -807,28 +816,7 @@ def page_criticism_fluids() -> str:
         if d is None:
             parts.append("Not saved yet.\n")
             continue
-        misfits = [
-            [
-                m["name"],
-                f(m["observed"], 3),
-                f"{f(m['band'][0], 3)}-{f(m['band'][1], 3)}",
-                f(m["residual"], 1),
-                g(m["adjusted_p_value"], 2),
-                "held out" if m["held_out"] else "fitted",
-            ]
-            for m in d["misfits"][:10]
-        ]
-        causes = [
-            [
-                c["name"],
-                f(c["score"], 1),
-                f"{100 * c['fraction_explained']:.0f} %",
-                g(c["adjusted_p_value"], 2),
-                "yes" if c["ambiguous"] else "no",
-                c.get("note", ""),
-            ]
-            for c in d["causes"]
-        ]
+        misfits, causes = misfit_rows(d, 10), cause_rows(d)
         base = d["base_fit"]
         parts += [
             f"Base fit (APMCABC, {base['num_simulations']} simulations): sigma "
