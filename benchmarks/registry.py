@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-__all__ = ["REGISTRY", "TIMING_KEYS", "Entry", "by_name"]
+__all__ = ["CACHES", "REGISTRY", "TIMING_KEYS", "Entry", "by_name"]
 
 #: Key patterns (fnmatch, on the key alone) that hold wall/CPU times, loads or rates derived from
 #: them: they differ from run to run and are left out of the exact reproduction comparison.
@@ -30,6 +30,11 @@ TIMING_KEYS = (
     "us_per_*",
     "*_over_apmc",
 )
+
+
+#: JSON files under ``benchmarks/results/`` that are caches read by the scripts, not results: the
+#: water validation runs are keyed by (preset, length, theta) and reused by every dataset's run.
+CACHES = frozenset({"benchmarks/results/water_validation_runs.json"})
 
 
 @dataclass(frozen=True)
@@ -166,6 +171,15 @@ REGISTRY: tuple[Entry, ...] = (
         estimated_cost_s=600.0,
         requires=("lmp",),
         note="timings on one pinned core; run on a quiet machine",
+    ),
+    Entry(
+        "engine_throughput_small_system",
+        f"{R}/engine_throughput_small_system.json",
+        "python benchmarks/engine_throughput.py --small-system",
+        estimated_cost_s=600.0,
+        requires=("lmp",),
+        note="the 32-atom CPU preset batched over parameters against LAMMPS, in system-steps per CPU "
+        "second (robust to a shared machine); --baseline-tree DIR adds the speed-up over an earlier commit",
     ),
     Entry(
         "imbalance:water",

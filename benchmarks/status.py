@@ -32,7 +32,7 @@ from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import ROOT, code_hash, data_hash
-from registry import REGISTRY, TIMING_KEYS, Entry
+from registry import CACHES, REGISTRY, TIMING_KEYS, Entry
 
 __all__ = [
     "Status",
@@ -144,7 +144,7 @@ def status_all(quick: bool = False, root: Path = ROOT) -> list[Status]:
         known = {e.output for e in REGISTRY}
         for path in sorted((root / "benchmarks" / "results").glob("*.json")):
             rel = path.relative_to(root).as_posix()
-            if rel not in known:
+            if rel not in known and rel not in CACHES:
                 data = json.loads(path.read_text())
                 prov = data.get("provenance") if isinstance(data, dict) else None
                 st = Status(path.stem, rel, "unknown", note="not in benchmarks/registry.py")
