@@ -175,7 +175,7 @@ REGISTRY: tuple[Entry, ...] = (
     Entry(
         "engine_throughput_small_system",
         f"{R}/engine_throughput_small_system.json",
-        "python benchmarks/engine_throughput.py --small-system",
+        "python benchmarks/engine_throughput.py --small-system --main-job",
         estimated_cost_s=600.0,
         requires=("lmp",),
         note="the 32-atom CPU preset batched over parameters against LAMMPS, in system-steps per CPU "
