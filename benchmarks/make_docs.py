@@ -416,6 +416,77 @@ both parameters (its error is a lower bound: the two intervals of one data set a
 """
 
 
+def page_surrogate_helium() -> str:
+    d = load("surrogate_helium")
+    title = "# Surrogate against APMCABC on helium"
+    if d is None:
+        return f"{title}\n\nNot saved yet: run `python benchmarks/surrogate_helium.py`.\n"
+    ref, base, summ = d["reference"], d["apmcabc"], d["summary"]
+
+    def row(label: str, r: dict[str, Any], extra: str) -> list[str]:
+        se = r.get("energy_distance_se")
+        ed = f(r["energy_distance"], 4) + (f" +- {f(se, 4)}" if se else "")
+        return [
+            label,
+            str(r["simulations"]),
+            ed,
+            " / ".join(f(v, 2) for v in r["mean_error_in_ref_sd"]),
+            " / ".join(f(v, 2) for v in r["sd_ratio_to_ref"]),
+            f(r["correlation"], 2),
+            f(r["d_E"], 4),
+            f"{r['wall_time_s']:.0f}",
+            extra,
+        ]
+
+    rows = [row("APMCABC (Table 1 settings)", base, f"ESS {base['effective_sample_size']:.0f}")]
+    rows += [
+        row(
+            f"surrogate, budget {r['budget']}",
+            r,
+            ("validated" if r["validated"] else "NOT validated") + f", {r['failed_simulations']} failed",
+        )
+        for r in d["surrogate"]
+    ]
+    match = summ["surrogate_simulations_to_match"]
+    verdict = (
+        f"The surrogate matched APMCABC's accuracy with {match} simulations: "
+        f"{summ['simulation_ratio']:.1f}x fewer than APMCABC's {summ['apmcabc_simulations']} "
+        f"(goal {summ['goal_ratio']:.0f}x)."
+        if match
+        else f"No surrogate budget matched APMCABC's accuracy ({summ['criterion']})."
+    )
+    return f"""{title}
+
+How many real simulations does `jaxabc.run("surrogate", ...)` need to reach the accuracy of the
+Table 1 APMCABC run on the helium CPU preset?  Accuracy is the energy distance (coordinates in
+prior widths) to a long APMCABC reference posterior ({ref["num_particles"]} particles,
+{ref["num_steps"]} generations, {ref["simulations"]} simulations, ESS {ref["effective_sample_size"]:.0f});
+moments are in units of the reference sd.  The surrogate sees {d["setup"]["surrogate_summaries"]};
+APMCABC and the reference use the KL distance on the series, so the reference favours APMCABC.
+
+{source("surrogate_helium")}
+
+{
+        table(
+            [
+                "run",
+                "simulations",
+                "energy distance",
+                "mean error (ref sd)",
+                "sd / ref sd",
+                "corr",
+                "d_E",
+                "wall s",
+                "notes",
+            ],
+            rows,
+        )
+    }
+
+{verdict} Criterion: {summ["criterion"]}.
+"""
+
+
 ORDERS = (
     ("dynamic", "arrival"),
     ("dynamic_longest_first", "longest predicted first"),
@@ -869,6 +940,7 @@ every benchmark's quick mode reproduces its saved numbers.
 - [Helium Table 1](helium_table1.md) and [the choice of the CPU preset](helium_identifiability.md)
 - [Engine throughput](engine_throughput.md) and [agreement with LAMMPS](lammps_agreement.md)
 - [Coverage of credible regions](coverage.md) and [of the surrogate posterior](surrogate_coverage.md)
+- [Surrogate against APMCABC on helium](surrogate_helium.md)
 - [Speedup and scheduling](speedup.md)
 - [Cost of an ABC step](abc_overhead.md)
 - [Water calibrations](water_calibrations.md)
@@ -889,6 +961,7 @@ PAGES: dict[str, Callable[[], str]] = {
     "lammps_agreement.md": page_lammps,
     "coverage.md": page_coverage,
     "surrogate_coverage.md": page_surrogate_coverage,
+    "surrogate_helium.md": page_surrogate_helium,
     "speedup.md": page_speedup,
     "abc_overhead.md": page_abc_overhead,
     "water_calibrations.md": page_water,

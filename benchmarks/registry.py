@@ -151,8 +151,11 @@ REGISTRY: tuple[Entry, ...] = (
         "surrogate_helium",
         f"{R}/surrogate_helium.json",
         "python benchmarks/surrogate_helium.py",
+        quick="python benchmarks/surrogate_helium.py --quick",
+        quick_output=f"{Q}/surrogate_helium.json",
         estimated_cost_s=1800.0,
-        note="a sketch, never run: simulations the surrogate needs against the saved APMCABC run",
+        note="simulations the GP surrogate needs to match the Table 1 APMCABC accuracy, against a long "
+        "APMCABC reference posterior, in one run",
     ),
     Entry(
         "engine_throughput",
