@@ -487,6 +487,62 @@ APMCABC and the reference use the KL distance on the series, so the reference fa
 """
 
 
+def page_density_relaxation() -> str:
+    d = load("water_density_relaxation")
+    title = "# Has the quick preset's density relaxed?"
+    if d is None:
+        return f"{title}\n\nNot saved yet: run `python benchmarks/water_density_relaxation.py --workers 2`.\n"
+    st, v = d["setup"], d["verdict"]
+
+    def se(x: float | None, e: float | None) -> str:
+        return "-" if x is None else f(x, 1) + ("" if e is None else f" +- {f(e, 1)}")
+
+    rows = [
+        [
+            p["name"],
+            f"{p['sigma_nm']:.4f} / {p['epsilon_kj_mol']:.3f}",
+            f"{p['num_seeds']} ({p['num_failed']} failed)",
+            f(p["window_mean"], 1),
+            f(p["tail_mean"], 1),
+            se(p["difference"], p["difference_se"]),
+            se(p["drift"], p["drift_se"]),
+            f(p["tau_ps"], 2),
+            "yes" if p["relaxed"] else "NO",
+        ]
+        for p in d["summary"]
+    ]
+    w, t = st["analysed_window_ps"], st["tail_ps"]
+    return f"""{title}
+
+Quick-preset GROMACS runs ({st["num_molecules"]} molecules, {st["temperature_k"]:.0f} K, {st["barostat"]})
+extended to {st["run_length_ps"]:.0f} ps: the density averaged over the analysed window
+({w[0]:.0f}-{w[1]:.0f} ps) against its mean over a later tail ({t[0]:.0f}-{t[1]:.0f} ps), at TIP4P and at
+points of the prior box `{st["prior"]}` far from it.  Densities in kg/m3 with standard errors
+({st["standard_errors"]}); tau from {st["relaxation_fit"]}.
+
+{source("water_density_relaxation")}
+
+{
+        table(
+            [
+                "point",
+                "sigma nm / epsilon kJ/mol",
+                "seeds",
+                "window",
+                "tail",
+                "window - tail",
+                "drift in window",
+                "tau ps",
+                "relaxed",
+            ],
+            rows,
+        )
+    }
+
+Criterion: {v["criterion"]}.  All liquid points relaxed: {"yes" if v["all_liquid_points_relaxed"] else "no"}.
+"""
+
+
 ORDERS = (
     ("dynamic", "arrival"),
     ("dynamic_longest_first", "longest predicted first"),
@@ -943,7 +999,7 @@ every benchmark's quick mode reproduces its saved numbers.
 - [Surrogate against APMCABC on helium](surrogate_helium.md)
 - [Speedup and scheduling](speedup.md)
 - [Cost of an ABC step](abc_overhead.md)
-- [Water calibrations](water_calibrations.md)
+- [Water calibrations](water_calibrations.md) and [the quick preset's density relaxation](water_density_relaxation.md)
 - [Model criticism of water](criticism.md)
 - [Model criticism of neon and argon](criticism_fluids.md)
 
@@ -965,6 +1021,7 @@ PAGES: dict[str, Callable[[], str]] = {
     "speedup.md": page_speedup,
     "abc_overhead.md": page_abc_overhead,
     "water_calibrations.md": page_water,
+    "water_density_relaxation.md": page_density_relaxation,
     "criticism.md": page_criticism,
     "water_jaxmd.md": page_water_jaxmd,
     "criticism_fluids.md": page_criticism_fluids,

@@ -346,6 +346,16 @@ REGISTRY: tuple[Entry, ...] = (
         note="ABC model choice over five rigid water models; not run yet (hours of GROMACS)",
     ),
     Entry(
+        "water_density_relaxation",
+        f"{R}/water_density_relaxation.json",
+        "python benchmarks/water_density_relaxation.py --workers 2",
+        quick="python benchmarks/water_density_relaxation.py --quick",
+        quick_output=f"{Q}/water_density_relaxation.json",
+        estimated_cost_s=1100.0,
+        requires=("gmx",),
+        note="quick preset: analysed-window density against an extended tail at TIP4P and 8 prior corners",
+    ),
+    Entry(
         "water_jaxmd_speed",
         f"{R}/water_jaxmd_speed.json",
         "python benchmarks/water_jaxmd_speed.py",
