@@ -4,7 +4,7 @@ One observed f_B series (the Table 1 data of ``helium_table1.py``'s seed) is cal
 ways in the same run:
 
 - a long **reference** posterior: APMCABC with the KL distance on the series, many particles and
-  more generations than Table 1 (by default 2000 particles, 9 generations);
+  more generations than Table 1 (by default 1500 particles, 8 generations);
 - **APMCABC at the Table 1 settings** (500 particles, 6 generations: 2750 simulations), the
   accuracy to match;
 - the **surrogate** (``jaxabc.run("surrogate", ...)``, synthetic likelihood) with budgets of
@@ -96,11 +96,11 @@ def apmcabc(simulate, prior, observed, particles: int, steps: int, seed: int) ->
 
 def main(argv: list[str] | None = None) -> dict:
     parser = argparse.ArgumentParser(description=(__doc__ or "").split("\n\n")[0])
-    parser.add_argument("--budgets", type=int, nargs="+", default=[50, 100, 200, 300])
+    parser.add_argument("--budgets", type=int, nargs="+", default=[60, 100, 150, 200, 300])
     parser.add_argument("--preset", default="cpu")
     parser.add_argument("--seed", type=int, default=0, help="the Table 1 seed: data and inference")
-    parser.add_argument("--reference-particles", type=int, default=2000)
-    parser.add_argument("--reference-steps", type=int, default=9)
+    parser.add_argument("--reference-particles", type=int, default=1500)
+    parser.add_argument("--reference-steps", type=int, default=8)
     parser.add_argument("--apmc-particles", type=int, default=500)
     parser.add_argument("--apmc-steps", type=int, default=6)
     parser.add_argument("--draws", type=int, default=2000, help="surrogate posterior draws")
@@ -109,7 +109,7 @@ def main(argv: list[str] | None = None) -> dict:
     parser.add_argument("--quick", action="store_true", help="small everything: results/quick/")
     args = parser.parse_args(argv)
     if args.quick:
-        args.budgets, args.reference_particles, args.reference_steps = [40], 200, 4
+        args.budgets, args.reference_particles, args.reference_steps = [60], 200, 4
         args.apmc_particles, args.apmc_steps, args.draws, args.ed_num, args.ed_repeats = 100, 3, 1000, 300, 3
 
     simulate, prior = make_model(args.preset)
