@@ -167,7 +167,8 @@ def test_molecules_stay_rigid_along_a_run(water, water_run):
 
 
 def test_proposal_width_adapts_only_in_equilibration(ideal_gas):
-    """OpenMM's rule: after 10 attempts, times 1.1 above 75 % acceptance, 0.9 below 25 %."""
+    """OpenMM's rule: after 10 attempts, times 1.1 above 75 % acceptance, / 1.1 below 25 %, and
+    the counts restart only when the width changed."""
     barostat, free, _, _, _ = ideal_gas
     with jax_md_float32():
         body = barostat.engine.bodies(lattice_configuration(8, 3.0, TIP4P))
@@ -175,12 +176,14 @@ def test_proposal_width_adapts_only_in_equilibration(ideal_gas):
         state = jax.jit(barostat.init)(jax.random.PRNGKey(0), free, body)._replace(log_volume_step=jnp.float32(1e-7))
         move = jax.jit(lambda s, adapt: barostat.volume_move(jax.random.PRNGKey(1), s, free, adapt), static_argnums=1)
         nine = jnp.asarray(9, jnp.int32)
-        for previously_accepted, factor in ((9, 1.1), (5, 1.0), (1, 0.9)):
+        for previously_accepted, factor in ((9, 1.1), (5, 1.0), (1, 1 / 1.1)):
             start = state._replace(attempts=nine, accepted=jnp.asarray(previously_accepted, jnp.int32))
             new, info = move(start, True)
             assert bool(info.accepted)
             assert float(new.log_volume_step) == pytest.approx(1e-7 * factor, rel=1e-6)
-            assert int(new.attempts) == 0 and int(new.accepted) == 0
+            restarted = factor != 1.0
+            assert int(new.attempts) == (0 if restarted else 10)
+            assert int(new.accepted) == (0 if restarted else previously_accepted + 1)
             new, _ = move(start, False)
             assert float(new.log_volume_step) == float(start.log_volume_step) and int(new.attempts) == 10
 

@@ -18,17 +18,18 @@ Commun. 91, 283 (1995); OpenMM's ``MonteCarloBarostat``), on the molecules' cent
 - a rejected move returns the old state unchanged, bit for bit (a ``jnp.where`` over the whole
   state, so it works under ``vmap``); an accepted one also stores the forces at the new positions
   and box, which the next velocity-Verlet half kick uses;
-- the proposal width ``w`` adapts during equilibration only (OpenMM's rule: every 10 attempts,
-  times 0.9 below 25 % acceptance, times 1.1 above 75 %); in production it is frozen, so the
-  production moves form a fixed, reversible Markov kernel.
+- the proposal width ``w`` adapts during equilibration only (OpenMM's rule, without its cap:
+  after at least 10 attempts, divided by 1.1 below 25 % acceptance, times 1.1 above 75 %, and
+  the count restarts); in production it is frozen, so the production moves form a fixed,
+  reversible Markov kernel.
 
 Why this and not a barostat in the equations of motion: an MTTK or Langevin piston acting on
 the centres of mass would need its own rigid-body integrator (the box momentum couples to the
 NO_SQUISH translation step), to be written and verified here; the Monte Carlo move reuses
 jax-md's NVT step untouched, needs only the energy, and its correctness reduces to the
 acceptance rule above, which the ideal-gas test checks against the analytic answer.  The price:
-no dynamical meaning of the volume's motion (fine for densities and structure), and one extra
-energy and force evaluation per move.
+no dynamical meaning of the volume's motion (fine for densities and structure), and one energy
+plus one energy-and-force evaluation per move.
 
 The thermostat stays valid across a volume move: momenta are not touched, so the Nose-Hoover
 chain's variables describe the same kinetic energy.  The reaction field and LJ cut-off act on
@@ -311,12 +312,12 @@ class MonteCarloBarostat:
         accepted = state.accepted + accept.astype(jnp.int32)
         step = state.log_volume_step
         if adapt:
-            due = attempts >= _ADAPT_EVERY
-            rate = accepted / attempts
-            factor = jnp.where(rate < 0.25, 0.9, jnp.where(rate > 0.75, 1.1, 1.0)).astype(dtype)
-            step = jnp.where(due, step * factor, step)
-            attempts = jnp.where(due, 0, attempts)
-            accepted = jnp.where(due, 0, accepted)
+            # OpenMM's rule; its counters restart only when the width changes.
+            low = (attempts >= _ADAPT_EVERY) & (accepted < 0.25 * attempts)
+            high = (attempts >= _ADAPT_EVERY) & (accepted > 0.75 * attempts)
+            step = jnp.where(low, step / 1.1, jnp.where(high, step * 1.1, step)).astype(dtype)
+            attempts = jnp.where(low | high, 0, attempts)
+            accepted = jnp.where(low | high, 0, accepted)
         info = MoveInfo(
             accept,
             fits,
