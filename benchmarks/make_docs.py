@@ -923,6 +923,29 @@ def page_water_jaxmd() -> str:
             source("water_jaxmd_agreement") + "\n",
             table(["statistic", "jax-md", "GROMACS", "difference / s.e."], rows) + "\n",
         ]
+    density = load("water_jaxmd_density")
+    if density is not None:
+        rows = [
+            [
+                name,
+                f"{c['jax_md_mean']:.5g} +- {c['jax_md_standard_error']:.2g}",
+                f"{c['gromacs_mean']:.5g} +- {c['gromacs_standard_error']:.2g}",
+                f(c["difference_in_combined_standard_errors"], 1),
+            ]
+            for name, c in density["comparison"].items()
+        ]
+        b, jm = density["barostats"], density["jax_md"]
+        parts += [
+            "## NPT: density against GROMACS\n",
+            f"{density['state_point']}.  jax-md: {b['jax_md']} (volume acceptance "
+            f"{span(jm['acceptance_rate'])}); GROMACS: {b['gromacs']}.  {density['seeds']} seeds per "
+            f"engine, {density['equilibration_steps']} equilibration and {density['production_steps']} "
+            "production steps; mean +- standard error over seeds (jax-md's U/N includes GROMACS's "
+            "constant reaction-field terms of excluded pairs).  The last column is (jax-md - GROMACS) / "
+            "combined standard error.\n",
+            source("water_jaxmd_density") + "\n",
+            table(["statistic", "jax-md", "GROMACS", "difference / s.e."], rows) + "\n",
+        ]
     return "\n".join(parts)
 
 

@@ -363,6 +363,16 @@ REGISTRY: tuple[Entry, ...] = (
         note="timings of the jax-md TIP4P engine against GROMACS on one core; run on a quiet machine",
     ),
     Entry(
+        "water_jaxmd_density",
+        f"{R}/water_jaxmd_density.json",
+        "python benchmarks/water_jaxmd_density.py",
+        quick="python benchmarks/water_jaxmd_density.py --quick",
+        quick_output=f"{Q}/water_jaxmd_density.json",
+        estimated_cost_s=1000.0,
+        requires=("gmx",),
+        note="NPT density and U/N: jax-md Monte Carlo barostat against GROMACS C-rescale, same state point",
+    ),
+    Entry(
         "water_jaxmd_agreement",
         f"{R}/water_jaxmd_agreement.json",
         "python benchmarks/water_jaxmd_agreement.py",
