@@ -40,7 +40,7 @@ QUICK = [e for e in registry.REGISTRY if e.quick]
 
 
 @pytest.mark.slow
-@pytest.mark.timeout(900)
+@pytest.mark.timeout(2400)
 @pytest.mark.parametrize("entry", QUICK, ids=[e.name for e in QUICK])
 def test_quick_mode_reproduces_saved_json(entry: registry.Entry) -> None:
     missing = [p for p in entry.requires if shutil.which(p) is None]
