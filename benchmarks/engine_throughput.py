@@ -314,28 +314,26 @@ def small_system(args: argparse.Namespace) -> None:
         ratios["main_job_wall_speedup_over_baseline"] = jobs["baseline"]["wall_seconds"] / jobs["this"]["wall_seconds"]
     if lmp:
         ratios["best_ratio_to_lammps"] = max(r["ratio_to_lammps_same_run"] for r in rates["this"])
-    args.output.parent.mkdir(parents=True, exist_ok=True)
-    args.output.write_text(
-        json.dumps(
-            {
-                "description": __doc__,
-                "command": " ".join([os.path.basename(sys.executable), *sys.argv]),
-                "measure": "CPU seconds (process_time; LAMMPS loop time x % CPU): the machine is shared",
-                "versions": versions(),
-                "machine": {
-                    "cpus": os.cpu_count(),
-                    "platform": platform.platform(),
-                    "processor": platform.processor(),
-                    "jax": jax.__version__,
-                    "load_average_at_end": os.getloadavg(),
-                },
-                "lammps": lmp,
-                "jax_md": rates,
-                "main_job": jobs,
-                "ratios": ratios,
+    # Through the shared helper, so that the result records its commit and fingerprint.
+    write_result(
+        args.output,
+        {
+            "description": __doc__,
+            "command": " ".join([os.path.basename(sys.executable), *sys.argv]),
+            "measure": "CPU seconds (process_time; LAMMPS loop time x % CPU): the machine is shared",
+            "versions": versions(),
+            "machine": {
+                "cpus": os.cpu_count(),
+                "platform": platform.platform(),
+                "processor": platform.processor(),
+                "jax": jax.__version__,
+                "load_average_at_end": os.getloadavg(),
             },
-            indent=1,
-        )
+            "lammps": lmp,
+            "jax_md": rates,
+            "main_job": jobs,
+            "ratios": ratios,
+        },
     )
 
 
