@@ -491,6 +491,7 @@ def page_density_relaxation() -> str:
     def se(x: float | None, e: float | None) -> str:
         return "-" if x is None else f(x, 1) + ("" if e is None else f" +- {f(e, 1)}")
 
+    failed = [p for p in d["summary"] if "window_mean" not in p]
     rows = [
         [
             p["name"],
@@ -504,6 +505,13 @@ def page_density_relaxation() -> str:
             "yes" if p["relaxed"] else "NO",
         ]
         for p in d["summary"]
+        if "window_mean" in p
+    ]
+    rows += [
+        [p["name"], f"{p['sigma_nm']:.4f} / {p['epsilon_kj_mol']:.3f}", f"all {p['num_failed']} failed"]
+        + ["-"] * 5
+        + [p["failures"][0] if p["failures"] else "-"]
+        for p in failed
     ]
     w, t = st["analysed_window_ps"], st["tail_ps"]
     return f"""{title}
