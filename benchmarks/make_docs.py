@@ -474,7 +474,10 @@ in prior widths) to a long APMCABC reference posterior; moments are in units of 
 The surrogate sees {d["setup"]["surrogate_summaries"]}: the `quantiles` target (APMCABC on the
 same quantiles) is the like-for-like comparison, the `kl` target (Table 1's KL distance on the
 series) shows how far those summaries take it from Table 1's posterior.  Criterion:
-{summ["criterion"]}.
+{summ["criterion"]}.  The references are ABC runs at a finite threshold, which widens a posterior;
+the surrogate's synthetic likelihood has no threshold, so a surrogate narrower than a reference is
+not by that alone wrong (the surrogate's calibration is checked on an exact problem in
+[its coverage study](surrogate_coverage.md)).
 
 {source("surrogate_helium")}
 
