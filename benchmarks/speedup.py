@@ -770,6 +770,12 @@ def main(argv: list[str] | None = None) -> None:
         "--rank-particles", type=int, default=100, help="N of the algorithms timed on real ranks (paper water: 100)"
     )
     parser.add_argument("--rank-steps", type=int, default=3)
+    parser.add_argument(
+        "--reuse-ranks",
+        action="store_true",
+        help="keep the saved rank timings (same durations only) and launch only the worker counts they lack, "
+        "to split a long series of launches over several calls",
+    )
     parser.add_argument("--sleep-mean", type=float, default=0.03, help="mean sleep per task, seconds")
     parser.add_argument("--real-num", type=int, default=6, help="water simulations for the n = 1, 2 part")
     parser.add_argument("--seed", type=int, default=0)
@@ -837,7 +843,16 @@ def main(argv: list[str] | None = None) -> None:
                 "p0": args.p0,
                 "steps": args.rank_steps,
             },
-            **rank_study(dist, small, args.ranks, args.sleep_mean, args.seed, args.timeout, previous=out.get("ranks")),
+            **rank_study(
+                dist,
+                small,
+                args.ranks,
+                args.sleep_mean,
+                args.seed,
+                args.timeout,
+                # Reused only on request: a saved result must not pass off old timings as new ones.
+                previous=out.get("ranks") if args.reuse_ranks else None,
+            ),
         }
     if "real" in args.parts:
         out["real"] = {
