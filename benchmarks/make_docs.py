@@ -865,6 +865,19 @@ def page_criticism() -> str:
     return "\n".join(parts)
 
 
+def engine_comparison_rows(d: dict[str, Any], digits: int) -> list[list[str]]:
+    """Rows of a jax-md-against-GROMACS ``comparison`` block: means +- SE and their difference in SE."""
+    return [
+        [
+            name,
+            f"{c['jax_md_mean']:.{digits}g} +- {c['jax_md_standard_error']:.2g}",
+            f"{c['gromacs_mean']:.{digits}g} +- {c['gromacs_standard_error']:.2g}",
+            f(c["difference_in_combined_standard_errors"], 1),
+        ]
+        for name, c in d["comparison"].items()
+    ]
+
+
 def page_water_jaxmd() -> str:
     parts = [
         "# In-process rigid TIP4P (jax-md) against GROMACS\n",
@@ -910,15 +923,7 @@ def page_water_jaxmd() -> str:
     ]
     agreement = load("water_jaxmd_agreement")
     if agreement is not None:
-        rows = [
-            [
-                name,
-                f"{c['jax_md_mean']:.4g} +- {c['jax_md_standard_error']:.2g}",
-                f"{c['gromacs_mean']:.4g} +- {c['gromacs_standard_error']:.2g}",
-                f(c["difference_in_combined_standard_errors"], 1),
-            ]
-            for name, c in agreement["comparison"].items()
-        ]
+        rows = engine_comparison_rows(agreement, 4)
         parts += [
             "## Same state point against GROMACS\n",
             f"{agreement['state_point']}; `quick` timing (5 ps equilibration, 15 ps analysed); mean +- "
@@ -930,15 +935,7 @@ def page_water_jaxmd() -> str:
         ]
     density = load("water_jaxmd_density")
     if density is not None:
-        rows = [
-            [
-                name,
-                f"{c['jax_md_mean']:.5g} +- {c['jax_md_standard_error']:.2g}",
-                f"{c['gromacs_mean']:.5g} +- {c['gromacs_standard_error']:.2g}",
-                f(c["difference_in_combined_standard_errors"], 1),
-            ]
-            for name, c in density["comparison"].items()
-        ]
+        rows = engine_comparison_rows(density, 5)
         b, jm = density["barostats"], density["jax_md"]
         parts += [
             "## NPT: density against GROMACS\n",
