@@ -22,7 +22,7 @@ every distance.
 
 Usage::
 
-    python benchmarks/surrogate_helium.py                 # about 20 min on 2 cores
+    python benchmarks/surrogate_helium.py                 # its cost is recorded in the JSON
     python benchmarks/surrogate_helium.py --quick         # plumbing check: results/quick/
 """
 

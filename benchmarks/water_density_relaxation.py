@@ -45,10 +45,9 @@ Usage (from the repository root)::
     nice -n 15 python benchmarks/water_density_relaxation.py --workers 2    # 9 points x 3 seeds
     nice -n 15 python benchmarks/water_density_relaxation.py --quick        # 2 points, 1 seed
 
-Cost: the full run is 27 GROMACS runs of 65 ps (3.25 times a ``quick`` run), about 40 CPU-seconds
-each: about 18 core-minutes, 9 minutes of wall time on 2 free cores (longer when they are
-shared; the JSON records each run's CPU and wall time).  ``--quick`` runs TIP4P and the outer
-low-density corner with one seed and extension x3 (50 ps), about a CPU-minute, and writes
+Cost: the full run is 27 GROMACS runs of 65 ps (3.25 times a ``quick`` run); the JSON records
+its cost and each run's CPU and wall time.  ``--quick`` runs TIP4P and the outer
+low-density corner with one seed and extension x3 (50 ps), and writes
 ``benchmarks/results/quick/water_density_relaxation.json``.  Freezing is not detected (the
 simulator's checks cover vapour, collapse and GROMACS failures); at 298 K none of these points is
 expected to freeze within 65 ps, and a frozen box would show as a density plateau with no

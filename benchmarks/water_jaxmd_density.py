@@ -22,8 +22,8 @@ series (arviz ESS), jax-md's acceptance rates and proposal widths, and the CPU s
 engine.
 
 Run: ``nice -n 15 python benchmarks/water_jaxmd_density.py [--seeds 4] [--quick]``.  The full
-run (4 seeds, 10 ps equilibration, 30 ps production each) costs about 15-20 CPU minutes, most
-of it jax-md's; ``--quick`` (2 seeds, 1 + 1 ps) writes to ``results/quick/``.
+run (4 seeds, 10 ps equilibration, 30 ps production each) is mostly jax-md's time (its cost is
+recorded in the JSON); ``--quick`` (2 seeds, 1 + 1 ps) writes to ``results/quick/``.
 """
 
 from __future__ import annotations
