@@ -18,7 +18,8 @@ negligible): the error of the weighted mean, ``|mean|``, and of the weighted cov
 jaxabc's runs: ``jaxabc.run_fused`` (PMC-ABC) in a fresh process with an empty persistent
 compilation cache (cold), then a second time in the same process (warm: compiled chunks
 reused), then in another fresh process that finds the persistent cache filled (cold, cached), and
-in a fresh process with ``fast_compile=True`` and no persistent cache.
+in a fresh process with ``fast_compile=True`` and no persistent cache (``run_fused`` keeps one
+in ``~/.cache/jaxabc/xla`` by default: every cold row here sets ``JAXABC_COMPILATION_CACHE``).
 The host driver ``jaxabc.run`` (PMC-ABC, vmap executor) runs cold once per size.  A last part
 compares PMC-ABC's and APMCABC's steady-state cost per simulation in the host driver at the
 largest size.
@@ -45,6 +46,10 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import write_result
+
+# The jaxabc runs happen in child processes; importing what they run here puts those modules
+# in this result's fingerprint, so an edit to the fused path marks the result stale.
+import jaxabc.fused  # noqa: F401
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -272,6 +277,8 @@ def jaxabc_rows(n: int, seed: int, thresholds: list, timeout: float, cache: Path
         )
     finally:
         shutil.rmtree(xla, ignore_errors=True)
+    # run_fused keeps a persistent cache in ~/.cache by default: these rows are cold only without it.
+    env = {**env, "JAXABC_COMPILATION_CACHE": "off"}
     fast = run_process([sys.executable, *script, "fused_fast_compile", "1"], timeout, env)
     rows["fused_cold_fast_compile"] = (
         fast if "error" in fast else summarise(fast["output"][0], fast["process_wall_s"], thresholds[-1])

@@ -11,8 +11,10 @@ record of simulations.
 Compiled chunks are cached in the process, keyed on the algorithm's configuration, the
 simulator and distance functions, the prior, the shapes and the precision; the observed data
 and the stopping limits are traced arguments, so a second run with new data or a new budget
-reuses the compiled program.  :func:`enable_compilation_cache` (or the environment variable
-``JAXABC_COMPILATION_CACHE``) adds JAX's persistent cache across processes.
+reuses the compiled program.  Across processes, :func:`run_fused` turns on JAX's persistent
+compilation cache in ``~/.cache/jaxabc/xla`` (see :func:`enable_compilation_cache`), so only the
+first run of a configuration on a machine pays XLA's compile time; set
+``JAXABC_COMPILATION_CACHE`` to another folder, or to ``off`` to keep it off.
 """
 
 from __future__ import annotations
@@ -55,8 +57,10 @@ from jaxabc.results import ABCResult, versions
 
 __all__ = ["enable_compilation_cache", "run_fused"]
 
-#: Environment variable naming a folder for JAX's persistent compilation cache (opt-in).
+#: Environment variable naming a folder for JAX's persistent compilation cache; ``off``
+#: (or ``0``, ``false``, ``no``) keeps :func:`run_fused` from turning the cache on.
 CACHE_ENV = "JAXABC_COMPILATION_CACHE"
+_CACHE_OFF = ("off", "0", "false", "no")
 
 _INT_MAX = np.iinfo(np.int32).max
 _MIN_FOR_FAILURE_CHECK = 20
@@ -67,7 +71,7 @@ _MAX_COMPILED = 32
 _FAST_COMPILE = {"xla_backend_optimization_level": 0, "xla_llvm_disable_expensive_passes": True}
 
 
-def enable_compilation_cache(path: str | os.PathLike | None = None) -> Path:
+def enable_compilation_cache(path: str | os.PathLike | None = None, min_compile_time_s: float = 0.0) -> Path | None:
     """Turn on JAX's persistent compilation cache, so a new process reuses compiled kernels.
 
     Parameters
@@ -75,21 +79,49 @@ def enable_compilation_cache(path: str | os.PathLike | None = None) -> Path:
     path : path, optional
         Cache folder (created if missing).  Default: ``$JAXABC_COMPILATION_CACHE``, else
         ``~/.cache/jaxabc/xla``.
+    min_compile_time_s : float
+        Programs that compiled faster than this are not stored (JAX's own default is 1 s).
 
     Returns
     -------
-    pathlib.Path
-        The folder in use.  Entries are keyed by JAX on the program, the JAX version and the
+    pathlib.Path or None
+        The folder in use; ``None`` (cache left off) when no ``path`` is given and
+        ``JAXABC_COMPILATION_CACHE`` is ``off``.  Entries are keyed by JAX on the program, the JAX version and the
         device, so a stale entry is never used; delete the folder to reclaim space.
     """
-    folder = Path(path or os.environ.get(CACHE_ENV) or Path.home() / ".cache" / "jaxabc" / "xla")
+    env = os.environ.get(CACHE_ENV, "")
+    if path is None and env.lower() in _CACHE_OFF:
+        return None
+    folder = Path(path or env or Path.home() / ".cache" / "jaxabc" / "xla")
     folder.mkdir(parents=True, exist_ok=True)
     jax.config.update("jax_compilation_cache_dir", str(folder))
     # ABC kernels compile in well under JAX's default one-second floor, and those are the
-    # ones a cold run pays for many times over: cache everything.
-    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
+    # ones a cold run pays for many times over: by default cache everything.
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", float(min_compile_time_s))
     jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
+    # JAX decides once per process, at its first compilation, whether the cache is in use;
+    # a program compiled before this call (the user's own data set-up) would lock it off.
+    from jax.experimental.compilation_cache import compilation_cache
+
+    compilation_cache.reset_cache()
     return folder
+
+
+def _default_compilation_cache() -> None:
+    """Turn the persistent cache on for :func:`run_fused` unless the user chose otherwise.
+
+    Left alone when ``JAXABC_COMPILATION_CACHE`` says ``off`` or when JAX already has a cache
+    folder (the user's own, or one set earlier); a folder that cannot be created leaves the
+    cache off rather than failing the run.
+    """
+    if os.environ.get(CACHE_ENV, "x").lower() in _CACHE_OFF or getattr(jax.config, "jax_compilation_cache_dir", None):
+        return
+    try:
+        # The floor keeps the rest of the user's process (small jitted helpers, 10-50 ms to
+        # compile) out of the cache, and lets the fused programs (1-5 s) in.
+        enable_compilation_cache(min_compile_time_s=0.25)
+    except OSError:
+        pass
 
 
 class _Carry(NamedTuple):
@@ -350,8 +382,7 @@ def _run_fused_body(
         raise ValueError(f"max_failure_fraction must lie in (0, 1], got {max_failure_fraction}")
     if not callable(simulate):
         raise TypeError("simulate must be a callable simulate(key, theta) -> summaries")
-    if os.environ.get(CACHE_ENV):
-        enable_compilation_cache()
+    _default_compilation_cache()
     obs = validate_observed(observed)
     prior = cast_prior(prior, jdtype)
     if isinstance(algorithm, ABCAlgorithm):

@@ -114,18 +114,58 @@ def test_fused_rejects_untraceable_simulator(problem):
         jaxabc.run_fused("apmcabc", _simulate, prior, observed, num_particles=50, chunk_size=0)
 
 
-def test_enable_compilation_cache(tmp_path):
-    """The opt-in persistent cache writes compiled programs to the folder (fresh process, so
-    the setting does not leak into other tests)."""
-    code = (
-        "import jax, jax.numpy as jnp, jaxabc; "
-        f"jaxabc.enable_compilation_cache({str(tmp_path / 'xla')!r}); "
-        "jax.jit(lambda x: jnp.sin(x) * 2)(jnp.ones(3)).block_until_ready()"
-    )
+def _fresh_process(code: str, **env: str) -> None:
+    """Run ``code`` in a new interpreter, so that JAX's cache settings do not leak into other tests."""
     subprocess.run(
         [sys.executable, "-c", code],
         check=True,
         timeout=300,
-        env={**os.environ, "JAX_PLATFORMS": "cpu", "PYTHONPATH": str(ROOT)},
+        env={**os.environ, "JAX_PLATFORMS": "cpu", "PYTHONPATH": str(ROOT), **env},
+    )
+
+
+def test_enable_compilation_cache(tmp_path):
+    """The explicit call stores compiled programs in the folder, even after JAX has already
+    compiled something in the process (JAX decides at its first compilation)."""
+    _fresh_process(
+        "import jax, jax.numpy as jnp, jaxabc; "
+        "jax.jit(lambda x: x + 1)(jnp.ones(2)).block_until_ready(); "
+        f"jaxabc.enable_compilation_cache({str(tmp_path / 'xla')!r}); "
+        "jax.jit(lambda x: jnp.sin(x) * 2)(jnp.ones(3)).block_until_ready()"
     )
     assert any((tmp_path / "xla").iterdir())
+
+
+_FUSED_RUN = (
+    "import jax, numpy as np, jaxabc; "
+    "hits = []; "
+    "jax.monitoring.register_event_listener("
+    "lambda name, **kw: hits.append(1) if name == '/jax/compilation_cache/cache_hits' else None); "
+    "jaxabc.run_fused('apmcabc', lambda k, t: t + jax.random.normal(k, t.shape), "
+    "jaxabc.Uniform([-5.0], [5.0]), np.zeros(1), num_particles=64, num_steps=2); "
+    "print('hits', len(hits))"
+)
+
+
+def _fused_cache_hits(home, **env: str) -> int:
+    base = {k: v for k, v in os.environ.items() if k != "JAXABC_COMPILATION_CACHE"}
+    out = subprocess.run(
+        [sys.executable, "-c", _FUSED_RUN],
+        check=True,
+        timeout=300,
+        capture_output=True,
+        text=True,
+        env={**base, "JAX_PLATFORMS": "cpu", "PYTHONPATH": str(ROOT), "HOME": str(home), **env},
+    )
+    return int(out.stdout.split("hits")[-1])
+
+
+def test_run_fused_caches_its_programs_by_default(tmp_path):
+    """Without any setting, a fused run stores its compiled programs under ~/.cache/jaxabc/xla
+    and the next process loads them instead of compiling; ``JAXABC_COMPILATION_CACHE=off``
+    keeps the cache off."""
+    assert _fused_cache_hits(tmp_path / "on") == 0
+    assert any((tmp_path / "on" / ".cache" / "jaxabc" / "xla").iterdir())
+    assert _fused_cache_hits(tmp_path / "on") >= 2  # the start and chunk programs
+    assert _fused_cache_hits(tmp_path / "off", JAXABC_COMPILATION_CACHE="off") == 0
+    assert not (tmp_path / "off" / ".cache" / "jaxabc").exists()
