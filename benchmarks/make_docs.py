@@ -998,6 +998,53 @@ def page_criticism_fluids() -> str:
     return "\n".join(parts)
 
 
+def page_surrogate_peers() -> str:
+    d = load("surrogate_peers")
+    title = "# Surrogate against BOLFI and pyABC"
+    if d is None:
+        return f"{title}\n\nNot saved yet: run `python benchmarks/surrogate_peers.py`.\n"
+    labels = {"jaxabc_surrogate": "jaxabc surrogate", "bolfi": "ELFI BOLFI", "pyabc_abcsmc": "pyABC ABC-SMC"}
+    rows = []
+    for r in d["rows"]:
+        for key, label in labels.items():
+            o = r.get(key, {})
+            if "error" in o or not o:
+                rows.append([r["budget"], r["seed"], label, "-", o.get("error", "not run"), "", "", "", "", ""])
+                continue
+            note = o.get("version", "")
+            if "validated" in o:
+                note = "validated" if o["validated"] else "NOT validated"
+            if "generations" in o:
+                note = f"{o['generations']} generations"
+            rows.append(
+                [
+                    r["budget"],
+                    r["seed"],
+                    label,
+                    o["num_simulations"],
+                    f(o["energy_distance"], 4),
+                    f(o["mean_error_in_sd"], 2),
+                    " / ".join(f(v, 2) for v in o["sd_ratio"]),
+                    f(o["correlation"], 2),
+                    f"{o['run_s']:.0f}",
+                ]
+                + ([note] if note else [""])
+            )
+    header = ["budget", "seed", "method", "simulations", "energy distance", "mean error (sd)", "sd / exact sd"]
+    return f"""{title}
+
+The same exact problem ({d["problem"]}; observed {d["observed"]}) and the same simulation budgets for
+the GP surrogate and for the peers a user would pick instead: ELFI's BOLFI and pyABC's ABC-SMC, each
+in its own environment.  Accuracy against the exact posterior: energy distance to exact draws (0 for
+equal laws), the posterior mean's error in exact-posterior sd, each sd over the exact sd (1), the
+correlation (exact 0.8).  Wall seconds are the run alone (imports excluded).  Goal: {d["goal"]}.
+
+{source("surrogate_peers")}
+
+{table([*header, "corr", "wall s", "notes"], rows)}
+"""
+
+
 def page_index() -> str:
     rows = []
     for e in REGISTRY:
@@ -1021,7 +1068,7 @@ every benchmark's quick mode reproduces its saved numbers.
 - [Helium Table 1](helium_table1.md) and [the choice of the CPU preset](helium_identifiability.md)
 - [Engine throughput](engine_throughput.md) and [agreement with LAMMPS](lammps_agreement.md)
 - [Coverage of credible regions](coverage.md) and [of the surrogate posterior](surrogate_coverage.md)
-- [Surrogate against APMCABC on helium](surrogate_helium.md)
+- [Surrogate against APMCABC on helium](surrogate_helium.md) and [against BOLFI and pyABC](surrogate_peers.md)
 - [Speedup and scheduling](speedup.md)
 - [Cost of an ABC step](abc_overhead.md)
 - [Water calibrations](water_calibrations.md) and [the quick preset's density relaxation](water_density_relaxation.md)
@@ -1043,6 +1090,7 @@ PAGES: dict[str, Callable[[], str]] = {
     "coverage.md": page_coverage,
     "surrogate_coverage.md": page_surrogate_coverage,
     "surrogate_helium.md": page_surrogate_helium,
+    "surrogate_peers.md": page_surrogate_peers,
     "speedup.md": page_speedup,
     "abc_overhead.md": page_abc_overhead,
     "water_calibrations.md": page_water,

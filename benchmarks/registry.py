@@ -158,6 +158,15 @@ REGISTRY: tuple[Entry, ...] = (
         "APMCABC reference posterior, in one run",
     ),
     Entry(
+        "surrogate_peers",
+        f"{R}/surrogate_peers.json",
+        "python benchmarks/surrogate_peers.py",
+        quick="python benchmarks/surrogate_peers.py --quick",
+        quick_output=f"{Q}/surrogate_peers.json",
+        estimated_cost_s=1200.0,
+        note="GP surrogate against ELFI's BOLFI and pyABC at equal simulation budgets on an exact problem",
+    ),
+    Entry(
         "engine_throughput",
         f"{R}/engine_throughput.json",
         "python benchmarks/engine_throughput.py",
