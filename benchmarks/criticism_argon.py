@@ -18,4 +18,5 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from criticism_neon import main
 
 if __name__ == "__main__":
-    main(fluid="argon")
+    # Through argv, so that the result records a command that reruns argon.
+    main(["--fluid", "argon", *sys.argv[1:]])
