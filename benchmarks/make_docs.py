@@ -985,8 +985,12 @@ def page_criticism_fluids() -> str:
         gain = d.get("gain") or {}
         if ext:
             phys = "-" if ext["physical"] is None else g(ext["physical"], 3)
+            refit = d.get("budget", {}).get("refit", "apmcabc")
+            sims = (d.get("extension") or {}).get("num_simulations")
+            how = "GP surrogate" if refit == "surrogate" else "APMCABC"
             parts.append(
-                f"Refit with `{ext['effect']}`: {g(ext['estimate'], 3)} [{g(ext['ci95'][0], 3)}, "
+                f"Refit with `{ext['effect']}` ({how}, {sims} simulations): "
+                f"{g(ext['estimate'], 3)} [{g(ext['ci95'][0], 3)}, "
                 f"{g(ext['ci95'][1], 3)}] (95 %); physical value {phys} "
                 f"({'inside' if ext['physical_inside_ci95'] else 'outside'} the interval).  "
                 f"Conversion: {ext['conversion']}.\n"
