@@ -1044,6 +1044,9 @@ the GP surrogate and for the peers a user would pick instead: ELFI's BOLFI and p
 in its own environment.  Accuracy against the exact posterior: energy distance to exact draws (0 for
 equal laws), the posterior mean's error in exact-posterior sd, each sd over the exact sd (1), the
 correlation (exact 0.8).  Wall seconds are the run alone (imports excluded).  Goal: {d["goal"]}.
+BOLFI's posterior is its own approximation, an ABC posterior at the GP's minimum discrepancy,
+wider than the exact one by construction; pyABC checks its budget at generation ends and can
+overshoot it (the simulations column counts what each method ran).
 
 {source("surrogate_peers")}
 
