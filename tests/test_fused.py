@@ -114,14 +114,19 @@ def test_fused_rejects_untraceable_simulator(problem):
         jaxabc.run_fused("apmcabc", _simulate, prior, observed, num_particles=50, chunk_size=0)
 
 
-def _fresh_process(code: str, **env: str) -> None:
-    """Run ``code`` in a new interpreter, so that JAX's cache settings do not leak into other tests."""
-    subprocess.run(
+def _fresh_process(code: str, **env: str) -> str:
+    """Run ``code`` in a new interpreter (JAX's cache settings must not leak into other tests),
+    without the user's ``JAXABC_COMPILATION_CACHE``; its standard output."""
+    base = {k: v for k, v in os.environ.items() if k != "JAXABC_COMPILATION_CACHE"}
+    out = subprocess.run(
         [sys.executable, "-c", code],
         check=True,
         timeout=300,
-        env={**os.environ, "JAX_PLATFORMS": "cpu", "PYTHONPATH": str(ROOT), **env},
+        capture_output=True,
+        text=True,
+        env={**base, "JAX_PLATFORMS": "cpu", "PYTHONPATH": str(ROOT), **env},
     )
+    return out.stdout
 
 
 def test_enable_compilation_cache(tmp_path):
@@ -148,16 +153,7 @@ _FUSED_RUN = (
 
 
 def _fused_cache_hits(home, **env: str) -> int:
-    base = {k: v for k, v in os.environ.items() if k != "JAXABC_COMPILATION_CACHE"}
-    out = subprocess.run(
-        [sys.executable, "-c", _FUSED_RUN],
-        check=True,
-        timeout=300,
-        capture_output=True,
-        text=True,
-        env={**base, "JAX_PLATFORMS": "cpu", "PYTHONPATH": str(ROOT), "HOME": str(home), **env},
-    )
-    return int(out.stdout.split("hits")[-1])
+    return int(_fresh_process(_FUSED_RUN, HOME=str(home), **env).split("hits")[-1])
 
 
 def test_run_fused_caches_its_programs_by_default(tmp_path):
