@@ -117,8 +117,8 @@ def _default_compilation_cache() -> None:
     if os.environ.get(CACHE_ENV, "x").lower() in _CACHE_OFF or getattr(jax.config, "jax_compilation_cache_dir", None):
         return
     try:
-        # The floor keeps the rest of the user's process (small jitted helpers, 10-50 ms to
-        # compile) out of the cache, and lets the fused programs (1-5 s) in.
+        # The floor keeps the rest of the user's process (small jitted helpers) out of the
+        # cache and lets the fused programs, which take seconds to compile, in.
         enable_compilation_cache(min_compile_time_s=0.25)
     except OSError:
         pass
