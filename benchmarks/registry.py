@@ -388,8 +388,7 @@ REGISTRY: tuple[Entry, ...] = (
         long=True,
         estimated_cost_s=2700.0,
         requires=("gmx",),
-        note="the saved JSON was re-analysed (--add-constant-to) after its simulations, which ran at "
-        "commit 1c29b34: rerun the full command to record the simulations' own provenance",
+        note="NVT, fixed box: U/N, S1..S9 over seeds; the NPT density is water_jaxmd_density",
     ),
     Entry(
         "criticism_neon",

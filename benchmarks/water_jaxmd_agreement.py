@@ -118,20 +118,7 @@ def main() -> None:
     parser.add_argument("--seeds", type=int, default=3)
     parser.add_argument("--quick", action="store_true", help="2 seeds, 1 ps equilibration, 2 ps analysed")
     parser.add_argument("--output", default=None)
-    parser.add_argument(
-        "--add-constant-to",
-        default=None,
-        help="a saved result whose jax-md U/N lacks GROMACS's constant RF term: add it and rewrite",
-    )
     args = parser.parse_args()
-    if args.add_constant_to:
-        import json
-
-        saved = json.loads(Path(args.add_constant_to).read_text())
-        jax_rows = np.array(saved["jax_md_rows"])
-        jax_rows[:, 0] += gromacs_constant_per_molecule()
-        write(jax_rows, np.array(saved["gromacs_rows"]), args.quick, args.add_constant_to)
-        return
     overrides = {"equilibration_steps": 500, "num_frames": 10} if args.quick else {}
     seeds = 2 if args.quick else args.seeds
     jax_rows = run_jax(seeds, overrides)

@@ -376,3 +376,63 @@ def test_engine_neighbor_list_matches_all_pairs():
             assert int(status) == 0
             energies.append(np.asarray(frames.potential_kj_mol))
     np.testing.assert_allclose(energies[1], energies[0], rtol=1e-4, atol=0.05)
+
+
+def test_the_batched_host_path_climbs_the_neighbour_list_ladder():
+    """64 lattice molecules (r_c 0.3 nm, a box too small for S1..S8: status NO_EXTREMUM), a list
+    with no headroom: every run overflows at the first list and none after one reallocation."""
+    from md.lj.npt import jax_md_float32
+    from md.water.jaxmd.engine import STATUS_NEIGHBOR_OVERFLOW
+    from md.water.jaxmd.simulator import STATUS_NO_EXTREMUM, make_simulator
+
+    with jax_md_float32():
+        simulator = make_simulator(
+            "tiny",
+            start="lattice",
+            lattice_molecules=64,
+            lattice_box_nm=1.86824 * (64 / 216) ** (1 / 3),
+            cutoff_nm=0.3,
+            neighbor_list=True,
+            neighbor_extra_capacity=0,
+            neighbor_capacity_multiplier=1.0,
+            frame_interval_steps=20,
+        )
+        keys = jax.random.split(jax.random.PRNGKey(0), 2)
+        thetas = jnp.array([[0.315365, 0.648520], [0.31, 0.70]])
+        _, first = simulator._batch(keys, thetas, simulator._neighbors(0))
+        assert np.all(np.asarray(first) & STATUS_NEIGHBOR_OVERFLOW)
+        _, status = simulator.batch(keys, thetas)
+    np.testing.assert_array_equal(status, STATUS_NO_EXTREMUM)
+    assert simulator.neighbor_reallocations == 2
+    assert simulator._neighbors(1).idx.shape[1] > simulator._neighbors(0).idx.shape[1]
+
+
+@pytest.mark.slow  # three compilations of the 216-molecule engine with a list
+def test_an_overflowing_neighbour_list_is_reallocated_and_rerun(tip4p_box):
+    """A list sized exactly to the start (no headroom) overflows in the liquid; the host paths
+    rerun the run with the next list of the ladder, so the result is that list's run, whatever
+    ran before, and a run out of reallocations fails with the reason."""
+    from jaxabc.errors import SimulationFailure
+    from md.lj.npt import jax_md_float32
+    from md.water.jaxmd.engine import STATUS_NEIGHBOR_OVERFLOW
+    from md.water.jaxmd.simulator import make_simulator
+
+    tight = {"cutoff_nm": 0.5, "neighbor_list": True, "neighbor_extra_capacity": 0, "neighbor_capacity_multiplier": 1.0}
+    key, theta = jax.random.PRNGKey(0), jnp.array([0.315365, 0.648520])
+    with jax_md_float32():
+        simulator = make_simulator("tiny", **tight)
+        _, status = simulator._frames(key, theta, simulator._neighbors(0))
+        assert int(status) & STATUS_NEIGHBOR_OVERFLOW
+        summaries = simulator(key, theta)
+        assert simulator.neighbor_reallocations >= 1 and np.all(np.isfinite(summaries))
+        level = simulator.neighbor_reallocations
+        expected, expected_status = simulator._finish(*simulator._frames(key, theta, simulator._neighbors(level)))
+        assert int(expected_status) == 0
+        np.testing.assert_array_equal(summaries, np.asarray(expected, np.float64))
+        # the batched host path climbs the same ladder: same numbers for the same key
+        batched, batched_status = simulator.batch(key[None], theta[None])
+        assert int(batched_status[0]) == 0
+        np.testing.assert_allclose(batched[0], summaries, rtol=1e-3, atol=1e-4)
+        stuck = make_simulator("tiny", neighbor_reallocations=0, **tight)
+        with pytest.raises(SimulationFailure, match="neighbour list overflowed"):
+            stuck(key, theta)

@@ -230,3 +230,98 @@ def test_bad_settings_are_refused():
     body = engine.bodies(lattice_configuration(8, 3.0, TIP4P))
     with pytest.raises(ValueError, match="production_moves >= 1"):
         barostat.run(jax.random.PRNGKey(0), TIP4P, body, 1, 0)
+
+
+# --------------------------------------------------------------------------------------------
+# NPT in the simulator (``make_simulator(..., ensemble="npt")``)
+# --------------------------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def npt_simulator():
+    """The ``tiny`` preset at 1 bar from GROMACS's tip4p.gro: 4 equilibration moves, 8 frames
+    of 2 moves (25 steps each)."""
+    from md.water.gromacs import find_gmx
+    from md.water.jaxmd.simulator import make_simulator
+
+    try:
+        find_gmx()
+    except FileNotFoundError as error:
+        pytest.skip(f"needs GROMACS's tip4p.gro: {error}")
+    with jax_md_float32():
+        yield make_simulator("tiny", ensemble="npt")
+
+
+def test_npt_simulator_summaries_equal_the_host_pipeline_on_fluctuating_boxes(npt_simulator):
+    """Frames carry each frame's (isotropically scaled) box; S1..S9 from them in JAX equal the
+    GROMACS plugin's numpy pipeline (per-frame 1/V normalisation, von Buelow unwrapping)."""
+    from md.water import analysis, statistics
+
+    simulator = npt_simulator
+    theta = jnp.array([0.315365, 0.648520])
+    with jax_md_float32():
+        frames, status = simulator._frames(jax.random.PRNGKey(3), theta)
+        summaries, final = simulator._finish(frames, status)
+    assert int(status) == 0 and int(final) == 0
+    box = np.asarray(frames.box_nm, np.float64)
+    assert box.shape == (8, 3) and np.ptp(box[:, 0]) > 0  # the barostat moved the box
+    np.testing.assert_allclose(box / box[:, :1], 1.0, rtol=1e-6)  # isotropic
+    assert np.min(box) > 2 * simulator.preset.cutoff_nm
+    density = np.asarray(simulator.density_kg_m3(frames))
+    np.testing.assert_allclose(density, density_kg_m3(np.prod(box, axis=1), 216), rtol=1e-5)
+    num_frames = box.shape[0]
+    trajectory = analysis.WaterTrajectory(
+        time_ps=simulator.preset.frame_interval_ps * np.arange(num_frames),
+        oxygen_nm=np.asarray(frames.oxygen_nm),
+        hydrogen_nm=np.asarray(frames.hydrogen_nm),
+        box_nm=box,
+    )
+    host = statistics.summary_statistics(analysis.compute_curves(trajectory, "robust"), "robust")
+    assert np.all(np.isfinite(host))
+    np.testing.assert_allclose(np.asarray(summaries, np.float64), host, rtol=2e-4, atol=1e-5)
+
+
+def test_npt_simulator_is_a_function_of_key_and_theta_and_reports_density_failures(npt_simulator, monkeypatch):
+    from jaxabc.errors import SimulationFailure
+    from md.water.jaxmd.simulator import (
+        STATUS_COLLAPSED,
+        STATUS_VAPORISED,
+        JaxWaterPreset,
+        failure_reason,
+        make_simulator,
+    )
+
+    simulator = npt_simulator
+    key, theta = jax.random.PRNGKey(3), (0.315365, 0.648520)
+    with jax_md_float32():
+        first = simulator(key, theta)
+        np.testing.assert_array_equal(simulator(key, theta), first)
+        frames, status = simulator._frames(key, jnp.asarray(theta))
+        mean_density = float(np.mean(np.asarray(simulator.density_kg_m3(frames))))
+        # The same frames judged against a density band that excludes them.
+        bands = {
+            STATUS_VAPORISED: JaxWaterPreset("low", ensemble="npt", min_density_kg_m3=mean_density + 1),
+            STATUS_COLLAPSED: JaxWaterPreset("high", ensemble="npt", max_density_kg_m3=mean_density - 1),
+        }
+        for bit, band in bands.items():
+            judge = make_simulator(band, equilibration_steps=100, frame_interval_steps=50, num_frames=8)
+            bad, bad_status = judge.finish(frames, status)
+            assert int(bad_status) == bit and np.all(np.isnan(np.asarray(bad)))
+            monkeypatch.setattr(judge, "_frames", lambda *unused, frames=frames, status=status: (frames, status))
+            with pytest.raises(SimulationFailure, match=failure_reason(bit).split(":")[-1].strip()):
+                judge(key, theta)
+    assert "vaporised" in failure_reason(STATUS_VAPORISED) and "collapsed" in failure_reason(STATUS_COLLAPSED)
+
+
+def test_npt_presets_refuse_what_they_cannot_do():
+    from md.water.jaxmd.simulator import PRESETS, JaxWaterPreset
+
+    assert PRESETS["quick_npt"].ensemble == "npt" and PRESETS["quick"].ensemble == "nvt"
+    with pytest.raises(ValueError, match="divide"):
+        JaxWaterPreset("x", ensemble="npt", frame_interval_steps=30)
+    with pytest.raises(ValueError, match="all pairs"):
+        JaxWaterPreset("x", ensemble="npt", neighbor_list=True)
+    with pytest.raises(ValueError, match="ensemble must be"):
+        JaxWaterPreset("x", ensemble="nph")
+    with pytest.raises(ValueError, match="min_density"):
+        JaxWaterPreset("x", ensemble="npt", min_density_kg_m3=1600.0)

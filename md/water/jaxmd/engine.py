@@ -155,12 +155,15 @@ class Frames(NamedTuple):
         Hydrogens of molecule i at rows 2i and 2i + 1.
     potential_kj_mol : jax.Array, shape (num_frames,)
     kinetic_kj_mol : jax.Array, shape (num_frames,)
+    box_nm : jax.Array, shape (num_frames, 3)
+        The box of each frame (constant in NVT, the barostat's in NPT).
     """
 
     oxygen_nm: Array
     hydrogen_nm: Array
     potential_kj_mol: Array
     kinetic_kj_mol: Array
+    box_nm: Array
 
 
 class RigidWater:
@@ -184,6 +187,8 @@ class RigidWater:
         pairs cost O(N^2) but cannot overflow.
     skin_nm : float
         Neighbour-list skin (nm).
+    capacity_multiplier : float
+        jax-md's headroom of a list over the occupancy it is allocated at (default 1.25).
     dtype : numpy dtype
         ``float32`` (default) or ``float64`` (needs ``jax.config.update("jax_enable_x64", True)``
         or the ``jax.enable_x64`` context around tracing and running).
@@ -204,6 +209,7 @@ class RigidWater:
         neighbor_list: bool | None = None,
         skin_nm: float = 0.1,
         dtype=jnp.float32,
+        capacity_multiplier: float = 1.25,
     ) -> None:
         box = np.broadcast_to(np.asarray(box_nm, dtype=np.float64), (3,)).copy()
         settings.validate(box)
@@ -244,6 +250,7 @@ class RigidWater:
                 self.list_cutoff_nm,
                 dr_threshold=skin_nm,
                 format=partition.NeighborListFormat.Dense,
+                capacity_multiplier=capacity_multiplier,
                 # jax-md's cell list needs at least three cells per edge.
                 disable_cell_list=float(box.min()) < 3 * (self.list_cutoff_nm + skin_nm),
             )
@@ -281,11 +288,18 @@ class RigidWater:
 
         return energy
 
-    def allocate_neighbors(self, body: rigid_body.RigidBody, capacity_multiplier: float = 1.5):
-        """A neighbour list for ``body`` (host code: its capacity is fixed here), or None."""
+    def allocate_neighbors(self, body: rigid_body.RigidBody, extra_capacity: int = 6):
+        """A neighbour list for ``body``, or None without a list.
+
+        Host code: the capacity is fixed here, ``capacity_multiplier`` times the largest
+        occupancy in ``body`` plus ``extra_capacity`` slots; a run that outgrows it reports
+        ``STATUS_NEIGHBOR_OVERFLOW`` (the simulator then reallocates and reruns).
+        """
         if self.neighbor_fn is None:
             return None
-        return self.neighbor_fn.allocate(body.center, extra_capacity=int(capacity_multiplier * 4))
+        if extra_capacity < 0:
+            raise ValueError(f"extra_capacity must be >= 0, got {extra_capacity}")
+        return self.neighbor_fn.allocate(body.center, extra_capacity=int(extra_capacity))
 
     # -- integrators --------------------------------------------------------------------------
 
@@ -393,6 +407,7 @@ class RigidWater:
                 wrapped[:, 1:3].reshape(-1, 3),
                 energy(state.position, neighbor=nbrs),
                 self.kinetic_energy(state),
+                self.box_nm,
             )
             return carry, record
 

@@ -54,7 +54,7 @@ import numpy as np
 from jax_md import rigid_body, simulate
 
 from md.units import AMU_IN_KG, BAR_IN_KJ_MOL_NM3, BOLTZMANN_KJ_MOL_K
-from md.water.jaxmd.engine import STATUS_NONFINITE_ENERGY, RigidWater
+from md.water.jaxmd.engine import STATUS_NONFINITE_ENERGY, Frames, RigidWater
 from md.water.jaxmd.forcefield import HYDROGEN_MASS_AMU, OXYGEN_MASS_AMU, WaterModel, energy_terms
 
 __all__ = [
@@ -377,25 +377,10 @@ class MonteCarloBarostat:
                 f"need production_moves >= 1 and equilibration_moves >= 0, got {production_moves}, "
                 f"{equilibration_moves}"
             )
-        key_init, key_equilibrate, key_produce = jax.random.split(key, 3)
-        state = self.init(key_init, model, body, box_nm)
-
-        def moves(state, key, count, adapt):
-            def one(state, move_key):
-                return self.move(move_key, state, model, adapt)
-
-            return jax.lax.scan(one, state, jax.random.split(key, count))
-
-        fits_equilibration = jnp.asarray(True)
-        if equilibration_moves:
-            state, info = moves(state, key_equilibrate, equilibration_moves, True)
-            fits_equilibration = jnp.all(info.fits)
-        state, info = moves(state, key_produce, production_moves, False)
+        key_produce, state, fits_equilibration = self._equilibrate(key, model, body, equilibration_moves, box_nm)
+        state, info = self._moves(state, model, key_produce, production_moves, False)
         num_molecules = self.engine.num_molecules
-        finite = jnp.all(jnp.isfinite(info.potential_kj_mol)) & jnp.all(jnp.isfinite(state.nvt.position.center))
-        status = jnp.where(finite, 0, STATUS_NONFINITE_ENERGY) | jnp.where(
-            fits_equilibration & jnp.all(info.fits), 0, STATUS_BOX_AT_CUTOFF_LIMIT
-        )
+        status = self._status(info.potential_kj_mol, state, fits_equilibration & jnp.all(info.fits))
         return NPTRun(
             density_kg_m3(info.volume_nm3, num_molecules),
             info.volume_nm3,
@@ -405,3 +390,79 @@ class MonteCarloBarostat:
             status.astype(jnp.int32),
             state,
         )
+
+    def run_frames(
+        self,
+        key: Array,
+        model: WaterModel,
+        body: rigid_body.RigidBody,
+        equilibration_moves: int,
+        num_frames: int,
+        moves_per_frame: int,
+        box_nm: Array | None = None,
+    ) -> tuple[Frames, Array]:
+        """NPT equilibration as :meth:`run`, then ``num_frames`` frames ``moves_per_frame`` moves apart.
+
+        The counterpart of :meth:`RigidWater.run_nvt` for the simulator: same key use as
+        :meth:`run` (velocities, equilibration, production), pure JAX, static counts.
+
+        Returns
+        -------
+        frames : Frames
+            Wrapped O and H positions, potential and kinetic energy and the box of each frame;
+            frame k is taken after ``equilibration_moves + (k + 1) moves_per_frame`` moves.
+        status : jax.Array, int32 scalar
+            Bitwise OR of ``STATUS_NONFINITE_ENERGY`` and ``STATUS_BOX_AT_CUTOFF_LIMIT``; 0 if fine.
+        """
+        if num_frames < 1 or moves_per_frame < 1 or equilibration_moves < 0:
+            raise ValueError(
+                f"need num_frames >= 1, moves_per_frame >= 1 and equilibration_moves >= 0, got {num_frames}, "
+                f"{moves_per_frame}, {equilibration_moves}"
+            )
+        key_produce, state, fits_equilibration = self._equilibrate(key, model, body, equilibration_moves, box_nm)
+        engine = self.engine
+
+        def frame(carry, frame_key):
+            state, fits = carry
+            state, info = self._moves(state, model, frame_key, moves_per_frame, False)
+            wrapped = jnp.mod(engine.sites(state.nvt.position, model), state.box_nm)
+            record = Frames(
+                wrapped[:, 0],
+                wrapped[:, 1:3].reshape(-1, 3),
+                info.potential_kj_mol[-1],
+                engine.kinetic_energy(state.nvt),
+                state.box_nm,
+            )
+            return (state, fits & jnp.all(info.fits)), record
+
+        (state, fits), frames = jax.lax.scan(
+            frame, (state, fits_equilibration), jax.random.split(key_produce, num_frames)
+        )
+        finite = jnp.all(jnp.isfinite(frames.oxygen_nm))
+        return frames, self._status(frames.potential_kj_mol, state, fits) | jnp.where(
+            finite, 0, STATUS_NONFINITE_ENERGY
+        ).astype(jnp.int32)
+
+    # -- shared pieces ------------------------------------------------------------------------
+
+    def _moves(self, state: NPTState, model: WaterModel, key: Array, count: int, adapt: bool):
+        def one(state, move_key):
+            return self.move(move_key, state, model, adapt)
+
+        return jax.lax.scan(one, state, jax.random.split(key, count))
+
+    def _equilibrate(self, key, model, body, equilibration_moves, box_nm):
+        """``(production key, state after equilibration, whether every proposal fitted)``."""
+        key_init, key_equilibrate, key_produce = jax.random.split(key, 3)
+        state = self.init(key_init, model, body, box_nm)
+        fits = jnp.asarray(True)
+        if equilibration_moves:
+            state, info = self._moves(state, model, key_equilibrate, equilibration_moves, True)
+            fits = jnp.all(info.fits)
+        return key_produce, state, fits
+
+    @staticmethod
+    def _status(potential: Array, state: NPTState, fits: Array) -> Array:
+        finite = jnp.all(jnp.isfinite(potential)) & jnp.all(jnp.isfinite(state.nvt.position.center))
+        status = jnp.where(finite, 0, STATUS_NONFINITE_ENERGY) | jnp.where(fits, 0, STATUS_BOX_AT_CUTOFF_LIMIT)
+        return status.astype(jnp.int32)

@@ -1,8 +1,9 @@
 """``simulate(key, theta) -> S1..S9`` for rigid TIP4P on jax-md, pure JAX and batched by ``vmap``.
 
 One simulation: rigid bodies fitted to the starting configuration, Nose-Hoover NVT at the
-preset's temperature (velocities drawn from ``key``), equilibration, then frames every
-``frame_interval_steps``; from the recorded O and H positions g_OO, the intermolecular g_OH and
+preset's temperature (velocities drawn from ``key``) in a fixed box, or NPT with the Monte
+Carlo barostat of :mod:`md.water.jaxmd.npt` (``ensemble="npt"``), equilibration, then frames
+every ``frame_interval_steps``; from the recorded O and H positions g_OO, the intermolecular g_OH and
 the oxygen MSD are computed in JAX by the GROMACS plugin's own kernels
 (:mod:`md.water.analysis`: ``_pair_histogram``, ``unwrap``, ``_msd``) and S1..S8 by the
 ``robust`` statistics kernels of :mod:`md.water.statistics` (their jitted array functions,
@@ -13,8 +14,16 @@ device and no file is written.
 Failures are data: :meth:`JaxWaterSimulator.pure` returns a status bitmask with the summaries
 (NaN where it is not 0); the host-side ``__call__`` raises :class:`jaxabc.errors.SimulationFailure`
 with the reason, as :class:`md.water.simulator.TIP4PSimulator` does, so executors record it.
-A fixed box cannot vaporise or collapse, so the plugin's density checks have no counterpart;
-the box is checked against twice the cut-off when the simulator is built.
+In NVT the box is fixed and checked against twice the cut-off when the simulator is built; in
+NPT the plugin's checks apply in JAX: mean density over the frames outside
+``[min_density_kg_m3, max_density_kg_m3]`` (vapour, collapse) and a box edge proposed at twice
+the cut-off are failures.
+
+Neighbour lists (large boxes, NVT only) have a capacity fixed on the host.  A run that outgrows
+it is rerun from the start with a larger list (a fixed ladder of capacities, so a simulation's
+result is a function of its key and theta alone, whatever ran before); :meth:`pure` cannot
+reallocate and reports ``STATUS_NEIGHBOR_OVERFLOW``, the host paths (``__call__``, :meth:`batch`)
+do, and count it in ``neighbor_reallocations``.
 """
 
 from __future__ import annotations
@@ -22,6 +31,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from pathlib import Path
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -30,10 +40,13 @@ import numpy as np
 from jaxabc.errors import SimulationFailure
 from md.water.jaxmd.engine import STATUS_NEIGHBOR_OVERFLOW, STATUS_NONFINITE_ENERGY, Frames, RigidWater
 from md.water.jaxmd.forcefield import ReactionField, WaterModel, get_model
+from md.water.jaxmd.npt import STATUS_BOX_AT_CUTOFF_LIMIT, MonteCarloBarostat, density_kg_m3
 
 __all__ = [
     "PRESETS",
+    "STATUS_COLLAPSED",
     "STATUS_NO_EXTREMUM",
+    "STATUS_VAPORISED",
     "JaxWaterPreset",
     "JaxWaterSimulator",
     "failure_reason",
@@ -44,11 +57,17 @@ __all__ = [
 
 #: Status bit: a g(r) had no first peak or minimum inside its search window (S1..S8 NaN).
 STATUS_NO_EXTREMUM = 4
+#: Status bits (NPT): mean density over the frames below / above the preset's band.
+STATUS_VAPORISED = 16
+STATUS_COLLAPSED = 32
 
 _REASONS = {
     STATUS_NONFINITE_ENERGY: "non-finite energy or positions (the integration blew up)",
-    STATUS_NEIGHBOR_OVERFLOW: "the neighbour list overflowed (more neighbours than allocated)",
+    STATUS_NEIGHBOR_OVERFLOW: "the neighbour list overflowed, after every reallocation",
     STATUS_NO_EXTREMUM: "no first peak/minimum of g_OO or g_OH in its search window",
+    STATUS_BOX_AT_CUTOFF_LIMIT: "the barostat proposed a box edge at twice the cut-off (the box collapsed)",
+    STATUS_VAPORISED: "mean density below the preset's minimum: the liquid vaporised",
+    STATUS_COLLAPSED: "mean density above the preset's maximum: the liquid collapsed",
 }
 # 1 nm^2/ps = 1e-2 cm^2/s = 1e3 x (1e-5 cm^2/s), as in md.water.statistics.
 _NM2_PER_PS_IN_1E5_CM2_PER_S = 1e3
@@ -82,7 +101,25 @@ class JaxWaterPreset:
     bin_width_nm : float
         g(r) histogram bins (``gmx rdf``'s 0.002 nm).
     neighbor_list : bool or None
-        See :class:`~md.water.jaxmd.engine.RigidWater` (``None``: by box size).
+        See :class:`~md.water.jaxmd.engine.RigidWater` (``None``: by box size; all pairs in NPT).
+    neighbor_extra_capacity : int
+        Spare slots of the first neighbour list; the k-th reallocation gets
+        ``(neighbor_extra_capacity + 8) 2^k - 8``.
+    neighbor_reallocations : int
+        How many larger lists a run that overflows is retried with before it fails.
+    neighbor_capacity_multiplier : float
+        jax-md's headroom over the starting occupancy.
+    ensemble : {"nvt", "npt"}
+        Fixed box, or the Monte Carlo barostat (:class:`~md.water.jaxmd.npt.MonteCarloBarostat`,
+        all pairs, proposal width adapted in equilibration only).
+    pressure_bar : float
+        NPT target pressure.
+    barostat_interval_steps : int
+        NPT: MD steps between volume moves; must divide ``equilibration_steps`` and
+        ``frame_interval_steps``.
+    min_density_kg_m3, max_density_kg_m3 : float
+        NPT: the band of the mean density over the frames outside which a run fails (the
+        GROMACS plugin's defaults).
     """
 
     name: str
@@ -99,12 +136,37 @@ class JaxWaterPreset:
     tau_t_ps: float = 0.1
     bin_width_nm: float = 0.002
     neighbor_list: bool | None = None
+    neighbor_extra_capacity: int = 6
+    neighbor_reallocations: int = 3
+    neighbor_capacity_multiplier: float = 1.25
+    ensemble: str = "nvt"
+    pressure_bar: float = 1.0
+    barostat_interval_steps: int = 25
+    min_density_kg_m3: float = 500.0
+    max_density_kg_m3: float = 1500.0
 
     def __post_init__(self) -> None:
         if self.start not in ("gromacs", "lattice"):
             raise ValueError(f"start must be 'gromacs' or 'lattice', got {self.start!r}")
         if self.num_frames < 8 or self.frame_interval_steps < 1 or self.equilibration_steps < 0:
             raise ValueError("need num_frames >= 8 (the MSD fit), frame_interval_steps >= 1, equilibration_steps >= 0")
+        if self.neighbor_extra_capacity < 0 or self.neighbor_reallocations < 0 or self.neighbor_capacity_multiplier < 1:
+            raise ValueError(
+                "need neighbor_extra_capacity >= 0, neighbor_reallocations >= 0 and neighbor_capacity_multiplier >= 1"
+            )
+        if self.ensemble not in ("nvt", "npt"):
+            raise ValueError(f"ensemble must be 'nvt' or 'npt', got {self.ensemble!r}")
+        if self.ensemble == "npt":
+            interval = self.barostat_interval_steps
+            if interval < 1 or self.frame_interval_steps % interval or self.equilibration_steps % interval:
+                raise ValueError(
+                    f"NPT: barostat_interval_steps ({interval}) must be >= 1 and divide frame_interval_steps "
+                    f"({self.frame_interval_steps}) and equilibration_steps ({self.equilibration_steps})"
+                )
+            if self.neighbor_list:
+                raise ValueError("NPT uses all pairs (the box changes): leave neighbor_list as None or False")
+            if not (math.isfinite(self.pressure_bar) and 0 < self.min_density_kg_m3 < self.max_density_kg_m3):
+                raise ValueError("NPT: need a finite pressure_bar and 0 < min_density_kg_m3 < max_density_kg_m3")
 
     @property
     def frame_interval_ps(self) -> float:
@@ -114,9 +176,12 @@ class JaxWaterPreset:
 #: ``quick``: the GROMACS ``quick`` preset's box, cut-off, frame spacing and analysis window
 #: (216 molecules from ``tip4p.gro``, 0.85 nm, frames every 0.2 ps, 5 ps equilibration then 15 ps
 #: analysed), at a fixed box with reaction field instead of NPT with PME.
+#: ``quick_npt``: the same at 1 bar with the Monte Carlo barostat (a volume move every 25
+#: steps), like the GROMACS preset's NPT.
 #: ``tiny``: for tests: the same box, 0.2 ps equilibration and 8 frames 0.1 ps apart.
 PRESETS: dict[str, JaxWaterPreset] = {
     "quick": JaxWaterPreset("quick"),
+    "quick_npt": JaxWaterPreset("quick_npt", ensemble="npt"),
     "tiny": JaxWaterPreset("tiny", equilibration_steps=100, frame_interval_steps=50, num_frames=8),
 }
 
@@ -148,7 +213,11 @@ def _start(preset: JaxWaterPreset, geometry: WaterModel, gmx: str | None) -> tup
 
 
 def summaries_from_frames(
-    frames: Frames, box_nm: jax.Array | np.ndarray, frame_interval_ps: float, bin_width_nm: float = 0.002
+    frames: Frames,
+    box_nm: jax.Array | np.ndarray,
+    frame_interval_ps: float,
+    bin_width_nm: float = 0.002,
+    r_max_nm: float | None = None,
 ) -> jax.Array:
     """Robust S1..S9 of recorded frames, in JAX (traceable, vmappable).
 
@@ -156,10 +225,14 @@ def summaries_from_frames(
     ----------
     frames : Frames
         ``oxygen_nm (num_frames, N, 3)``, ``hydrogen_nm (num_frames, 2N, 3)``, wrapped.
-    box_nm : array, shape (3,)
-        The fixed box.
+    box_nm : array, shape (3,) or (num_frames, 3)
+        The fixed box, or each frame's (NPT; the g(r) normalisation sums 1 / V over frames, as
+        :func:`md.water.analysis.radial_distribution`).
     frame_interval_ps : float
         Static.
+    r_max_nm : float, optional
+        Static histogram range; default half the smallest edge of ``box_nm`` (then ``box_nm``
+        must be concrete).  NPT passes the cut-off, below half of every frame's box.
 
     Returns
     -------
@@ -174,11 +247,13 @@ def summaries_from_frames(
     dtype = oxygen.dtype
     boxes = jnp.broadcast_to(jnp.asarray(box_nm, dtype), (num_frames, 3))
     molecules = jnp.arange(num_molecules)
-    num_bins = math.floor(0.5 * float(np.min(np.asarray(box_nm))) / bin_width_nm + 1e-9)
+    if r_max_nm is None:
+        r_max_nm = 0.5 * float(np.min(np.asarray(box_nm)))
+    num_bins = math.floor(r_max_nm / bin_width_nm + 1e-9)
     edges = bin_width_nm * np.arange(num_bins + 1, dtype=np.float64)
     shell = jnp.asarray(4.0 / 3.0 * np.pi * np.diff(edges**3), dtype)
     centres = jnp.asarray(0.5 * (edges[1:] + edges[:-1]), dtype)
-    inverse_volume_sum = num_frames / jnp.prod(jnp.asarray(box_nm, dtype))
+    inverse_volume_sum = jnp.sum(1.0 / jnp.prod(boxes, axis=1))
 
     def rdf(positions_b, molecule_b, num_pairs):
         counts = analysis._pair_histogram(
@@ -226,7 +301,7 @@ class JaxWaterSimulator:
     Parameters
     ----------
     preset : str or JaxWaterPreset
-        ``"quick"`` or ``"tiny"`` (see :data:`PRESETS`).
+        ``"quick"``, ``"quick_npt"`` or ``"tiny"`` (see :data:`PRESETS`).
     statistics : {"robust"}
         Only the robust variant: the ``paper`` variant needs ``gmx rdf``'s intramolecular g_OH.
     observed_kind : {"simulated", "neutron", "xray"}
@@ -238,7 +313,12 @@ class JaxWaterSimulator:
     gmx : str, optional
         GROMACS executable, used only to find ``tip4p.gro`` for ``start="gromacs"``.
     **preset_overrides
-        Fields of :class:`JaxWaterPreset`.
+        Fields of :class:`JaxWaterPreset` (e.g. ``ensemble="npt"``).
+
+    Attributes
+    ----------
+    neighbor_reallocations : int
+        Runs rerun with a larger neighbour list so far (host paths).
     """
 
     THETA_NAMES = ("sigma_ow_nm", "epsilon_ow_kj_mol", "charge_h_e", "om_distance_nm")
@@ -272,19 +352,32 @@ class JaxWaterSimulator:
         self._observed = jnp.asarray(OBSERVED_KINDS[observed_kind])
         self.base_model = get_model(model)
         self.dtype = dtype
-        atoms, box = _start(self.preset, self.base_model, gmx)
+        p = self.preset
+        npt = p.ensemble == "npt"
+        atoms, box = _start(p, self.base_model, gmx)
         self.engine = RigidWater(
             atoms.shape[0],
             box,
             self.base_model,
-            ReactionField(self.preset.cutoff_nm, self.preset.epsilon_rf),
-            dt_ps=self.preset.timestep_ps,
-            neighbor_list=self.preset.neighbor_list,
+            ReactionField(p.cutoff_nm, p.epsilon_rf),
+            dt_ps=p.timestep_ps,
+            neighbor_list=False if npt else p.neighbor_list,
             dtype=dtype,
+            capacity_multiplier=p.neighbor_capacity_multiplier,
         )
+        self.barostat = None
+        if npt:
+            self.barostat = MonteCarloBarostat(
+                self.engine, p.pressure_bar, p.temperature_k, p.barostat_interval_steps, tau_t_ps=p.tau_t_ps
+            )
+        # g(r) range: half the fixed box in NVT; in NPT the cut-off, which the barostat keeps
+        # below half of every box edge.
+        self._r_max_nm = p.cutoff_nm if npt else 0.5 * float(np.min(box))
         self.initial_body = self.engine.bodies(atoms, box)
-        self.initial_neighbors = self.engine.allocate_neighbors(self.initial_body)
-        self._batch = jax.jit(jax.vmap(self.pure))
+        self._neighbor_ladder: dict[int, Any] = {}
+        self.initial_neighbors = self._neighbors(0)
+        self.neighbor_reallocations = 0
+        self._batch = jax.jit(jax.vmap(self.pure, in_axes=(0, 0, None)))
         # The host path runs the trajectory and the analysis as two compiled programs, so code
         # that needs only the frames (checks, criticism) reuses the first.
         self._frames = jax.jit(self.frames)
@@ -292,8 +385,9 @@ class JaxWaterSimulator:
 
     def __repr__(self) -> str:
         return (
-            f"JaxWaterSimulator(preset={self.preset.name!r}, observed_kind={self.observed_kind!r}, "
-            f"molecules={self.engine.num_molecules}, neighbor_list={self.engine.use_neighbor_list})"
+            f"JaxWaterSimulator(preset={self.preset.name!r}, ensemble={self.preset.ensemble!r}, "
+            f"observed_kind={self.observed_kind!r}, molecules={self.engine.num_molecules}, "
+            f"neighbor_list={self.engine.use_neighbor_list})"
         )
 
     def model(self, theta: jax.Array) -> WaterModel:
@@ -301,9 +395,29 @@ class JaxWaterSimulator:
         base = WaterModel(*(jnp.asarray(v, self.dtype) for v in self.base_model))
         return base.with_theta(jnp.asarray(theta, self.dtype))
 
-    def frames(self, key: jax.Array, theta: jax.Array) -> tuple[Frames, jax.Array]:
-        """The recorded frames and the engine's status for one parameter vector (pure JAX)."""
+    def _neighbors(self, level: int) -> Any:
+        """The neighbour list of reallocation ``level`` (host; None without a list)."""
+        if level not in self._neighbor_ladder:
+            extra = (self.preset.neighbor_extra_capacity + 8) * 2**level - 8
+            self._neighbor_ladder[level] = self.engine.allocate_neighbors(self.initial_body, extra_capacity=extra)
+        return self._neighbor_ladder[level]
+
+    def frames(self, key: jax.Array, theta: jax.Array, neighbor=None) -> tuple[Frames, jax.Array]:
+        """The recorded frames and the engine's status for one parameter vector (pure JAX).
+
+        ``neighbor``: the list to run with (default the first of the ladder).
+        """
         p = self.preset
+        if self.barostat is not None:
+            interval = p.barostat_interval_steps
+            return self.barostat.run_frames(
+                key,
+                self.model(theta),
+                self.initial_body,
+                p.equilibration_steps // interval,
+                p.num_frames,
+                p.frame_interval_steps // interval,
+            )
         return self.engine.run_nvt(
             key,
             self.model(theta),
@@ -313,24 +427,49 @@ class JaxWaterSimulator:
             steps_per_frame=p.frame_interval_steps,
             equilibration_steps=p.equilibration_steps,
             tau_t_ps=p.tau_t_ps,
-            neighbor=self.initial_neighbors,
+            neighbor=self.initial_neighbors if neighbor is None else neighbor,
         )
 
-    def pure(self, key: jax.Array, theta: jax.Array) -> tuple[jax.Array, jax.Array]:
+    def pure(self, key: jax.Array, theta: jax.Array, neighbor=None) -> tuple[jax.Array, jax.Array]:
         """``(summaries (9,), status ())``, pure JAX: jit it, ``vmap`` it over keys and thetas.
 
         Summaries are NaN where ``status != 0``; unobserved ones (``observed_kind="xray"``) are 0.
+        An overflowing neighbour list is reported, not reallocated (that needs the host).
         """
-        return self.finish(*self.frames(key, theta))
+        return self.finish(*self.frames(key, theta, neighbor))
 
     def finish(self, frames: Frames, status: jax.Array) -> tuple[jax.Array, jax.Array]:
         """Summaries and final status of recorded frames (the second half of :meth:`pure`)."""
         p = self.preset
-        summaries = summaries_from_frames(frames, self.engine.box_nm, p.frame_interval_ps, p.bin_width_nm)
+        if self.barostat is not None:
+            density = jnp.mean(self.density_kg_m3(frames))
+            status = (
+                status
+                | jnp.where(density < p.min_density_kg_m3, STATUS_VAPORISED, 0)
+                | jnp.where(density > p.max_density_kg_m3, STATUS_COLLAPSED, 0)
+            )
+        summaries = summaries_from_frames(frames, frames.box_nm, p.frame_interval_ps, p.bin_width_nm, self._r_max_nm)
         no_extremum = ~jnp.all(jnp.isfinite(summaries))
         status = status | jnp.where(no_extremum & (status == 0), STATUS_NO_EXTREMUM, 0)
         summaries = jnp.where(status == 0, summaries, jnp.nan)
         return jnp.where(self._observed, summaries, 0.0), status.astype(jnp.int32)
+
+    def density_kg_m3(self, frames: Frames) -> jax.Array:
+        """Mass density of each frame (kg/m^3), shape (num_frames,)."""
+        return density_kg_m3(jnp.prod(frames.box_nm, axis=-1), self.engine.num_molecules)
+
+    def _run_host(self, keys: jax.Array, thetas: jax.Array) -> tuple[np.ndarray, np.ndarray]:
+        """Batched runs, each rerun up the neighbour-list ladder while it overflows."""
+        summaries, status = (np.asarray(a) for a in self._batch(keys, thetas, self._neighbors(0)))
+        summaries, status = np.array(summaries, np.float64), np.array(status)
+        for level in range(1, self.preset.neighbor_reallocations + 1):
+            redo = np.flatnonzero(status & STATUS_NEIGHBOR_OVERFLOW) if self.engine.use_neighbor_list else []
+            if len(redo) == 0:
+                break
+            self.neighbor_reallocations += len(redo)
+            again, again_status = self._batch(keys[redo], thetas[redo], self._neighbors(level))
+            summaries[redo], status[redo] = np.asarray(again, np.float64), np.asarray(again_status)
+        return summaries, status
 
     def batch(self, keys: jax.Array, thetas: jax.Array) -> tuple[np.ndarray, np.ndarray]:
         """Many parameter vectors at once (one compiled ``vmap``).
@@ -344,13 +483,13 @@ class JaxWaterSimulator:
         -------
         summaries : np.ndarray, shape (b, 9)
         status : np.ndarray of int32, shape (b,)
-            0 where fine; else bits (see :func:`failure_reason`).
+            0 where fine; else bits (see :func:`failure_reason`).  Members whose neighbour
+            list overflowed are rerun with larger lists first.
         """
         thetas = jnp.asarray(thetas, self.dtype)
         if thetas.ndim != 2 or not 2 <= thetas.shape[1] <= 4:
             raise ValueError(f"thetas must have shape (batch, 2..4), got {thetas.shape}")
-        summaries, status = self._batch(keys, thetas)
-        return np.asarray(summaries, np.float64), np.asarray(status)
+        return self._run_host(jnp.asarray(keys), thetas)
 
     def __call__(self, key: jax.Array, theta) -> np.ndarray:
         """S1..S9 for one particle, shape (9,), float64; raises SimulationFailure with the reason."""
@@ -360,7 +499,13 @@ class JaxWaterSimulator:
                 "theta must hold 2 to 4 finite numbers (sigma_OW nm, epsilon_OW kJ/mol[, q_H e"
                 f"[, d_OM nm]]), got {theta}"
             )
-        summaries, status = self._finish(*self._frames(jnp.asarray(key), jnp.asarray(theta, self.dtype)))
+        theta_j = jnp.asarray(theta, self.dtype)
+        for level in range(self.preset.neighbor_reallocations + 1):
+            summaries, status = self._finish(*self._frames(jnp.asarray(key), theta_j, self._neighbors(level)))
+            if not (self.engine.use_neighbor_list and int(status) & STATUS_NEIGHBOR_OVERFLOW):
+                break
+            if level < self.preset.neighbor_reallocations:
+                self.neighbor_reallocations += 1
         if int(status):
             raise SimulationFailure(f"{failure_reason(int(status))} (theta={theta.tolist()})")
         return np.asarray(summaries, np.float64)
