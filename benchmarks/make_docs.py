@@ -821,6 +821,7 @@ the commit that saved it:
 
 {predate or "- (none)"}
 """
+    out += _water_surrogate_section()
     if validation:
         out += (
             "\n## Validation properties (the paper's Table 2)\n\n"
@@ -831,6 +832,66 @@ the commit that saved it:
             + "\n"
         )
     return out
+
+
+_SURROGATE_HEADER = [
+    "data",
+    "statistics",
+    "sigma_OW (nm)",
+    "epsilon_OW (kJ/mol)",
+    "corr.",
+    "GROMACS runs (failed)",
+    "validated",
+    "held-out cov. / MSSE",
+    "truth in 50 % HPD",
+    "wall time",
+]
+
+
+def _water_surrogate_section() -> str:
+    """The GP-surrogate calibrations (``--algorithm surrogate``) beside the APMCABC ones."""
+    rows, sources = [], []
+    for data in ("simulated", "xray", "neutron"):
+        d = load(f"water_{data}_surrogate")
+        for stats, e in (d or {}).items():
+            if stats not in ("robust", "paper") or not e:
+                continue
+            ci, sur = e["credible_interval_95"], e["surrogate"]
+            truth = ""
+            if "truth_in_50pct_hpd" in e:
+                truth = f"{'yes' if e['truth_in_50pct_hpd'] else 'no'} (credibility {f(e['truth_credibility'], 2)})"
+            rows.append(
+                [
+                    WATER_LABELS[data],
+                    stats,
+                    f"{f(e['bayes_estimate'][0], 4)} [{f(ci[0][0], 4)}, {f(ci[0][1], 4)}]",
+                    f"{f(e['bayes_estimate'][1])} [{f(ci[1][0])}, {f(ci[1][1])}]",
+                    f(e["correlation"], 3),
+                    f"{e['num_simulations']} ({e['num_failures']})",
+                    "yes" if sur["validated"] else "**no**",
+                    f"{f(sur['holdout_coverage_95'], 2)} / {f(sur['holdout_mean_squared_error'], 2)}",
+                    truth or "-",
+                    format_cost(e["wall_time_s"]),
+                ]
+            )
+            sources.append(f"- {source(f'water_{data}_surrogate', stats, d)}")
+    if not rows:
+        return ""
+    return f"""
+## GP-surrogate calibrations
+
+`--algorithm surrogate`: `jaxabc.run("surrogate", ...)` (a GP emulator of S1..S9, sequential
+design, a success classifier for the runs that vaporise or collapse, held-out runs checked
+before a posterior is reported; see the [surrogate coverage study](surrogate_coverage.md)), same
+prior, same GROMACS preset.  Bayes estimate [95 % interval] from the emulator's synthetic
+likelihood; real GROMACS runs (failed); whether the held-out check passed, with the held-out 95 %
+coverage / mean squared standardised error; for simulated data whether TIP4P's own parameters lie
+in the 50 % HPD region.
+
+{table(_SURROGATE_HEADER, rows)}
+
+{chr(10).join(sources)}
+"""
 
 
 def page_criticism() -> str:

@@ -272,6 +272,17 @@ REGISTRY: tuple[Entry, ...] = (
         quick_output=f"{Q}/water_simulated.json",
     ),
     Entry(
+        "water_simulated_surrogate:robust",
+        f"{R}/water_simulated_surrogate.json",
+        "python benchmarks/water_calibration.py --data simulated --statistics robust --algorithm surrogate "
+        "--max-simulations 300 --workers 2 --checkpoint-dir /tmp/wsur_ckpt --no-progress",
+        part="robust",
+        long=True,
+        estimated_cost_s=3600.0,
+        requires=("gmx",),
+        note="GP surrogate within 300 GROMACS runs (issue 13); resumable with --resume",
+    ),
+    Entry(
         "water_xray:robust",
         f"{R}/water_xray.json",
         "python benchmarks/water_calibration.py --data xray --statistics robust --workers 2 --predictive 20 "

@@ -436,3 +436,27 @@ def test_an_overflowing_neighbour_list_is_reallocated_and_rerun(tip4p_box):
         stuck = make_simulator("tiny", neighbor_reallocations=0, **tight)
         with pytest.raises(SimulationFailure, match="neighbour list overflowed"):
             stuck(key, theta)
+
+
+@pytest.mark.slow  # compiles a batch of 216-molecule runs
+def test_the_simulator_runs_under_jaxabc_on_the_vmap_executor_and_serially(tip4p_box):
+    """``jaxabc.run`` takes the in-process water simulator as any other: one compiled batch per
+    population through ``simulate_batch`` (vmap executor), or one run at a time (serial), with
+    the same draws and the same summaries for a seed."""
+    import jaxabc
+    from md.lj.npt import jax_md_float32
+    from md.water.jaxmd.simulator import make_simulator
+
+    prior = jaxabc.Uniform([0.31, 0.60], [0.32, 0.70])
+    with jax_md_float32():
+        simulate = make_simulator("tiny", equilibration_steps=0, frame_interval_steps=10, num_frames=8)
+        observed = simulate(jax.random.PRNGKey(7), (0.315365, 0.648520))
+        runs = [
+            jaxabc.run("rejection", simulate, prior, observed, num_particles=2, quantile=0.5, executor=executor)
+            for executor in (jaxabc.VmapExecutor(), "serial")
+        ]
+    vmapped, serial = (r.records for r in runs)
+    assert runs[0].num_simulations == runs[1].num_simulations == 4
+    assert np.all(vmapped["status"] == 0) and np.all(serial["status"] == 0)
+    np.testing.assert_array_equal(vmapped["theta"], serial["theta"])
+    np.testing.assert_allclose(vmapped["summaries"], serial["summaries"], rtol=1e-3, atol=1e-4)

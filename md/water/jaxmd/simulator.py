@@ -491,6 +491,16 @@ class JaxWaterSimulator:
             raise ValueError(f"thetas must have shape (batch, 2..4), got {thetas.shape}")
         return self._run_host(jnp.asarray(keys), thetas)
 
+    def simulate_batch(self, keys: jax.Array, thetas: jax.Array) -> tuple[np.ndarray, np.ndarray]:
+        """``(summaries (b, 9), ok (b,))``: :meth:`batch` in the form ``jaxabc``'s vmap executor calls.
+
+        With ``executor=jaxabc.VmapExecutor()`` every algorithm runs a population as one
+        compiled batch (with neighbour-list reallocation); the failure bits behind ``ok`` are in
+        :meth:`batch`'s status, and the host path (``__call__``) raises with the reason.
+        """
+        summaries, status = self.batch(keys, thetas)
+        return summaries, status == 0
+
     def __call__(self, key: jax.Array, theta) -> np.ndarray:
         """S1..S9 for one particle, shape (9,), float64; raises SimulationFailure with the reason."""
         theta = np.asarray(theta, dtype=np.float64).reshape(-1)
