@@ -13,7 +13,7 @@ height (S7) and position (S8), and the self-diffusion coefficient (S9, 1e-5 cm^2
 keeps every statistic S1..S9 of every seed and the difference in units of the combined
 standard error.
 
-Run: ``nice -n 15 python benchmarks/water_jaxmd_agreement.py [--seeds 3] [--quick]``.
+Run: ``nice -n 15 python benchmarks/water_jaxmd_agreement.py [--seeds 6] [--quick]``.
 """
 
 from __future__ import annotations
@@ -115,7 +115,7 @@ def run_gromacs(seed: int, preset) -> np.ndarray:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
-    parser.add_argument("--seeds", type=int, default=3)
+    parser.add_argument("--seeds", type=int, default=6)
     parser.add_argument("--quick", action="store_true", help="2 seeds, 1 ps equilibration, 2 ps analysed")
     parser.add_argument("--output", default=None)
     args = parser.parse_args()
