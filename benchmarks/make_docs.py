@@ -984,16 +984,20 @@ def page_water_jaxmd() -> str:
         table(["engine", "device", "steps", "ns/day/core", "ms/step/system", "mean U/N (kJ/mol)"], rows) + "\n",
         f"GROMACS is {d['ratio_gromacs_over_jax_batch1']:.1f}x faster per core than one jax-md system.\n",
     ]
-    agreement = load("water_jaxmd_agreement")
-    if agreement is not None:
+    for name in ("water_jaxmd_agreement", "water_jaxmd_agreement_1fs"):
+        agreement = load(name)
+        if agreement is None:
+            continue
         rows = engine_comparison_rows(agreement, 4)
+        step_fs = 1000 * agreement.get("timestep_ps", 0.002)
         parts += [
-            "## Same state point against GROMACS\n",
+            f"## Same state point against GROMACS, {step_fs:g} fs steps\n",
             f"{agreement['state_point']}; `quick` timing (5 ps equilibration, 15 ps analysed); mean +- "
-            f"standard error over {agreement['seeds']} seeds per engine; robust S1..S9 (S9 = D in "
+            f"standard error over {agreement['seeds']} seeds per engine; T is the kinetic temperature "
+            "(6N - 3 degrees of freedom); robust S1..S9 (S9 = D in "
             "1e-5 cm^2/s; jax-md's U/N includes GROMACS's constant reaction-field terms of excluded pairs).  "
             "The last column is (jax-md - GROMACS) / combined standard error.\n",
-            source("water_jaxmd_agreement") + "\n",
+            source(name) + "\n",
             table(["statistic", "jax-md", "GROMACS", "difference / s.e."], rows) + "\n",
         ]
     density = load("water_jaxmd_density")

@@ -18,6 +18,8 @@ __all__ = ["CACHES", "REGISTRY", "TIMING_KEYS", "Entry", "by_name"]
 TIMING_KEYS = (
     "*seconds*",
     "*_s",
+    "*_s_mean",
+    "*_s_sd",
     "*time*",
     "*per_second*",
     "*per_core*",
@@ -400,6 +402,15 @@ REGISTRY: tuple[Entry, ...] = (
         estimated_cost_s=2700.0,
         requires=("gmx",),
         note="NVT, fixed box: U/N, S1..S9 over seeds; the NPT density is water_jaxmd_density",
+    ),
+    Entry(
+        "water_jaxmd_agreement_1fs",
+        f"{R}/water_jaxmd_agreement_1fs.json",
+        "python benchmarks/water_jaxmd_agreement.py --timestep-ps 0.001 --output water_jaxmd_agreement_1fs",
+        long=True,
+        estimated_cost_s=1800.0,
+        requires=("gmx",),
+        note="the agreement at 1 fs: separates the integrators' time-step error from the model",
     ),
     Entry(
         "criticism_neon",

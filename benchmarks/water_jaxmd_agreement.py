@@ -8,12 +8,15 @@ every 0.2 ps).  jax-md: :func:`md.water.jaxmd.make_simulator` (``quick``), one v
 of seeds.  GROMACS: ``gmx mdrun`` with SETTLE and leap-frog Nose-Hoover, its trajectory analysed
 by the plugin's own reader and statistics (:mod:`md.water.analysis`, ``robust``).
 
-Compared, as mean +- standard error over seeds: potential energy per molecule, g_OO first-peak
-height (S7) and position (S8), and the self-diffusion coefficient (S9, 1e-5 cm^2/s); the JSON
-keeps every statistic S1..S9 of every seed and the difference in units of the combined
-standard error.
+Compared, as mean +- standard error over seeds: potential energy per molecule, the kinetic
+temperature (6N - 3 degrees of freedom in both), g_OO first-peak height (S7) and position (S8),
+and the self-diffusion coefficient (S9, 1e-5 cm^2/s); the JSON keeps every statistic S1..S9 of
+every seed and the difference in units of the combined standard error.  ``--timestep-ps`` runs
+both engines at another step with the same times (5 ps, frames every 0.2 ps, 15 ps), which
+separates integrator error from a difference in the model.
 
-Run: ``nice -n 15 python benchmarks/water_jaxmd_agreement.py [--seeds 6] [--quick]``.
+Run: ``nice -n 15 python benchmarks/water_jaxmd_agreement.py [--seeds 6] [--timestep-ps 0.001
+--output water_jaxmd_agreement_1fs] [--quick]``.
 """
 
 from __future__ import annotations
@@ -37,6 +40,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 import _common
 
 from md.lj.npt import jax_md_float32
+from md.units import BOLTZMANN_KJ_MOL_K
 from md.water import analysis, statistics
 from md.water.gromacs import _gmx_data_dir, find_gmx
 from md.water.jaxmd import PRESETS, make_simulator
@@ -44,11 +48,11 @@ from md.water.jaxmd.forcefield import MODELS, ReactionField, body_frame, intramo
 from md.water.jaxmd.reference import rerun_mdp_text
 from md.water.topology import topology_text
 
-NAMES = ("U/N kJ/mol", *(f"S{i}" for i in range(1, 10)))
+NAMES = ("U/N kJ/mol", "T K", *(f"S{i}" for i in range(1, 10)))
 
 
 def run_jax(seeds: int, overrides: dict) -> np.ndarray:
-    """Rows (seed) of [U/N, S1..S9]."""
+    """Rows (seed) of [U/N, T, S1..S9]."""
     with jax_md_float32():
         simulator = make_simulator("quick", **overrides)
         keys = jax.random.split(jax.random.PRNGKey(2026), seeds)
@@ -57,8 +61,11 @@ def run_jax(seeds: int, overrides: dict) -> np.ndarray:
         summaries, status = jax.jit(jax.vmap(simulator.finish))(frames, status)
     if np.any(np.asarray(status)):
         raise RuntimeError(f"jax-md runs failed: status {np.asarray(status)}")
-    energy = np.asarray(frames.potential_kj_mol).mean(axis=1) / simulator.engine.num_molecules
-    return np.column_stack([energy + gromacs_constant_per_molecule(), np.asarray(summaries, np.float64)])
+    num_molecules = simulator.engine.num_molecules
+    energy = np.asarray(frames.potential_kj_mol, np.float64).mean(axis=1) / num_molecules
+    kinetic = np.asarray(frames.kinetic_kj_mol, np.float64).mean(axis=1)
+    temperature = 2 * kinetic / (BOLTZMANN_KJ_MOL_K * (6 * num_molecules - 3))
+    return np.column_stack([energy + gromacs_constant_per_molecule(), temperature, np.asarray(summaries, np.float64)])
 
 
 def gromacs_constant_per_molecule() -> float:
@@ -97,37 +104,50 @@ def run_gromacs(seed: int, preset) -> np.ndarray:
         for args, stdin in (
             (["grompp", "-f", "md.mdp", "-c", "conf.gro", "-p", "topol.top", "-o", "md.tpr"], None),
             (["mdrun", "-deffnm", "md", "-ntmpi", "1", "-ntomp", "1", "-pin", "off"], None),
-            (["energy", "-f", "md.edr", "-o", "energy.xvg"], "Potential\n\n"),
+            (["energy", "-f", "md.edr", "-o", "energy.xvg"], "Potential\nTemperature\n\n"),
         ):
             done = subprocess.run([gmx, *args], cwd=work, capture_output=True, text=True, input=stdin, env=env)
             if done.returncode:
                 raise RuntimeError(f"gmx {args[0]} failed:\n{done.stdout[-1500:]}{done.stderr[-1500:]}")
         start_ps = preset.equilibration_steps * preset.timestep_ps
         rows = [line.split() for line in (work / "energy.xvg").read_text().splitlines() if line[:1] not in "@#"]
-        energy = np.array([[float(v) for v in r[:2]] for r in rows if r])
+        energy = np.array([[float(v) for v in r[:3]] for r in rows if r])
         # frames after equilibration, as the jax-md frames (first one a frame interval later)
-        analysed = energy[energy[:, 0] > start_ps + 1e-6, 1]
+        analysed = energy[energy[:, 0] > start_ps + 1e-6]
         trajectory = analysis.load_trajectory(work / "md.xtc", start_ps=start_ps + preset.frame_interval_ps)
         curves = analysis.compute_curves(trajectory, "robust")
         summaries = statistics.summary_statistics(curves, "robust")
-    return np.concatenate([[analysed.mean() / 216], summaries])
+    return np.concatenate([[analysed[:, 1].mean() / 216, analysed[:, 2].mean()], summaries])
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
     parser.add_argument("--seeds", type=int, default=6)
     parser.add_argument("--quick", action="store_true", help="2 seeds, 1 ps equilibration, 2 ps analysed")
+    parser.add_argument("--timestep-ps", type=float, default=PRESETS["quick"].timestep_ps)
     parser.add_argument("--output", default=None)
     args = parser.parse_args()
     overrides = {"equilibration_steps": 500, "num_frames": 10} if args.quick else {}
+    base = PRESETS["quick"]
+    if args.timestep_ps != base.timestep_ps:
+        # The same times at another step: equilibration, frame spacing and window in ps.
+        ratio = base.timestep_ps / args.timestep_ps
+        if abs(ratio - round(ratio)) > 1e-9:
+            raise SystemExit(f"--timestep-ps must divide {base.timestep_ps} ps")
+        steps = overrides.get("equilibration_steps", base.equilibration_steps)
+        overrides |= {
+            "timestep_ps": args.timestep_ps,
+            "equilibration_steps": round(steps * ratio),
+            "frame_interval_steps": round(base.frame_interval_steps * ratio),
+        }
     seeds = 2 if args.quick else args.seeds
     jax_rows = run_jax(seeds, overrides)
     preset = dataclasses.replace(PRESETS["quick"], **overrides)
     gromacs_rows = np.array([run_gromacs(seed + 1, preset) for seed in range(seeds)])
-    write(jax_rows, gromacs_rows, args.quick, args.output)
+    write(jax_rows, gromacs_rows, args.quick, args.output, args.timestep_ps)
 
 
-def write(jax_rows: np.ndarray, gromacs_rows: np.ndarray, quick: bool, output: str | None) -> None:
+def write(jax_rows: np.ndarray, gromacs_rows: np.ndarray, quick: bool, output: str | None, timestep_ps: float) -> None:
     seeds = jax_rows.shape[0]
     comparison = {}
     for k, name in enumerate(NAMES):
@@ -144,6 +164,7 @@ def write(jax_rows: np.ndarray, gromacs_rows: np.ndarray, quick: bool, output: s
         print(f"{name:>12}: jax-md {a.mean():.4g} +- {se_a:.2g}   GROMACS {b.mean():.4g} +- {se_b:.2g}")
     payload = {
         "state_point": "216 TIP4P, 1.86824 nm (tip4p.gro), 298 K NVT Nose-Hoover, reaction field r_c 0.85 nm",
+        "timestep_ps": timestep_ps,
         "seeds": seeds,
         "statistic_names": list(NAMES),
         "jax_md_rows": jax_rows,
