@@ -25,6 +25,11 @@ def _failure_text(state: Any, max_emulator_ratio: float) -> str:
             "fitted noise far above the replicate scatter: the GP cannot represent the "
             "simulator (a discontinuity or a phase change?)"
         )
+    if not bool(state.joint_ok):
+        parts.append(
+            f"held-out joint (Mahalanobis) error {float(state.joint_mean_squared_error):.2f} per output, "
+            "too large for the modelled noise correlation: the summaries' joint noise is not captured"
+        )
     if np.isfinite(state.coverage):
         parts.append(
             f"held-out 95 % coverage {float(state.coverage):.2f}, mean squared standardised "
@@ -34,20 +39,25 @@ def _failure_text(state: Any, max_emulator_ratio: float) -> str:
 
 
 def _noise_correlation(residuals: np.ndarray) -> np.ndarray:
-    """Correlation ``(q, q)`` of leave-one-out residuals ``(n, q)``, entries below three standard
-    errors (``3 / sqrt(n)``) set to zero: a spurious correlation tilts the posterior, a missed
-    weak one costs little."""
+    """Correlation ``(q, q)`` of leave-one-out residuals ``(n, q)``, Ledoit-Wolf shrunk.
+
+    Summaries of one trajectory (RDF features) are strongly correlated, so the synthetic
+    likelihood needs their joint noise.  A sample correlation of ~100 residuals in ~10 outputs
+    has spuriously small eigenvalues, along which the likelihood becomes far too sharp (water,
+    2026-11-24: held-out Mahalanobis distances 5x their chi-square mean).  Shrinkage towards the
+    identity with the Ledoit-Wolf intensity (scikit-learn) keeps it well conditioned.
+    """
     n, q = residuals.shape
     if q == 1 or n < 5:
         return np.eye(q)
-    corr = np.corrcoef(residuals.T)
-    corr = np.where(np.isfinite(corr) & (np.abs(corr) >= 3.0 / np.sqrt(n)), corr, 0.0)
-    np.fill_diagonal(corr, 1.0)
-    # Thresholding can break positive definiteness: clip the spectrum and renormalise.
-    w, v = np.linalg.eigh(corr)
-    corr = (v * np.maximum(w, 1e-3)) @ v.T
-    s = np.sqrt(np.diag(corr))
-    return corr / np.outer(s, s)
+    from sklearn.covariance import ledoit_wolf
+
+    sd = residuals.std(axis=0)
+    if np.any(~np.isfinite(sd)) or np.any(sd <= 0):
+        return np.eye(q)
+    cov, _ = ledoit_wolf(residuals / sd)
+    s = np.sqrt(np.diag(cov))
+    return cov / np.outer(s, s)
 
 
 @jax.jit

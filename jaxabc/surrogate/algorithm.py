@@ -80,6 +80,9 @@ class SurrogateState(NamedTuple):
     coverage, mean_squared_error, emulator_ratio : array, shape ()
         Held-out 95 % coverage and mean squared standardised error; posterior mean of
         ``mean_j var_j / noise_j^2`` at the last fit.
+    joint_mean_squared_error, joint_ok : array, shape ()
+        Held-out Mahalanobis distance per output under the fitted noise correlation, and
+        whether it passed (:func:`.diagnostics.holdout_check`).
     rhat : array, shape (d,)
         Split-R-hat of the NUTS chains (NaN before, and in ABC mode).
     abc_threshold, abc_generations, abc_emulated : array, shape ()
@@ -110,10 +113,19 @@ class SurrogateState(NamedTuple):
     abc_threshold: Any
     abc_generations: Any
     abc_emulated: Any
+    joint_mean_squared_error: Any
+    joint_ok: Any
 
 
 # Fields added after the first release: a checkpoint without them restores with these values.
-_LATER_FIELDS = (".log_weights", ".abc_threshold", ".abc_generations", ".abc_emulated")
+_LATER_FIELDS = (
+    ".log_weights",
+    ".abc_threshold",
+    ".abc_generations",
+    ".abc_emulated",
+    ".joint_mean_squared_error",
+    ".joint_ok",
+)
 
 
 def _single_threaded_blas() -> contextlib.AbstractContextManager:
@@ -328,6 +340,8 @@ def build(
             abc_threshold=np.float64(np.nan),
             abc_generations=np.int64(0),
             abc_emulated=np.int64(0),
+            joint_mean_squared_error=np.float64(np.nan),
+            joint_ok=np.bool_(True),
         )
 
     def initial_proposal(key: jax.Array) -> Proposal:
@@ -531,11 +545,13 @@ def build(
         )
 
     def validate(key: jax.Array, state: SurrogateState) -> SurrogateState:
-        _, emu, _, z_all = fit(state)
+        _, emu, model, z_all = fit(state)
         rows = np.flatnonzero((state.role == ROLE_HOLDOUT) & state.ok)
         mean, var = emulator.predict(emu, jnp.asarray(to_unit(state.thetas[rows])))
         noise_var = np.exp(2 * np.asarray(emu.log_noise))
-        check = diagnostics.holdout_check(z_all[rows], np.asarray(mean), np.asarray(var), noise_var)
+        chol = np.asarray(model.noise_chol, np.float64)
+        check = diagnostics.holdout_check(z_all[rows], np.asarray(mean), np.asarray(var), noise_var, chol @ chol.T)
+        joint_ok = not check.joint_mean_squared > check.mean_squared_max
         rep_var, df = diagnostics.replicate_variance(z_all, state.group, state.ok & (state.role == ROLE_DESIGN))
         lof_ok, _ = diagnostics.lack_of_fit(noise_var, rep_var, df)
         errors = np.full((num_holdout, q), np.nan)
@@ -547,6 +563,8 @@ def build(
             coverage=np.float64(check.coverage),
             mean_squared_error=np.float64(check.mean_squared),
             lack_of_fit_ok=np.bool_(lof_ok is not False),
+            joint_mean_squared_error=np.float64(check.joint_mean_squared),
+            joint_ok=np.bool_(joint_ok),
         )
         if passed:
             return state._replace(validated=np.bool_(True), phase=np.int64(DONE), num_pending=np.int64(0))
@@ -567,7 +585,9 @@ def build(
 
     def info_of(state: SurrogateState) -> Info:
         done = int(state.phase) == DONE
-        trusted = bool(state.lack_of_fit_ok) and float(state.emulator_ratio) <= max_emulator_ratio
+        trusted = (
+            bool(state.lack_of_fit_ok) and bool(state.joint_ok) and float(state.emulator_ratio) <= max_emulator_ratio
+        )
         threshold = float(state.mean_squared_error) if trusted else np.inf
         return Info(
             generation_done=np.bool_(True),
@@ -636,6 +656,7 @@ def build(
             "design_role": state.role[:c].tolist(),
             "holdout_coverage_95": float(state.coverage),
             "holdout_mean_squared_error": float(state.mean_squared_error),
+            "holdout_joint_mean_squared_error": float(state.joint_mean_squared_error),
             # numpy's stubs reject None as the fill (an object array, which is what JSON needs).
             "holdout_errors": np.where(np.isfinite(state.holdout_errors), state.holdout_errors, None).tolist(),  # pyright: ignore[reportAttributeAccessIssue]
             "lack_of_fit_ok": bool(state.lack_of_fit_ok),

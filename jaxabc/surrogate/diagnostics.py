@@ -11,7 +11,10 @@ Two checks, both in emulated-output coordinates:
 * held-out simulations at posterior draws: standardised errors
   ``e_ij = (z_ij - mu_j) / sqrt(var_j + s_j^2)`` must be N(0, 1): the fraction inside +-1.96
   must reach 0.95 minus three binomial standard errors and the mean of ``e^2`` must stay below
-  the 0.999 chi-square quantile (per degree of freedom).
+  the 0.999 chi-square quantile (per degree of freedom).  With the noise correlation ``R``
+  given, the joint errors ``m_i = d_i' (D R D + diag(var_i))^-1 d_i`` (``d_i`` the residual
+  vector of run ``i``) must also have their mean per output below that quantile: marginal
+  errors can look right while the correlation, and with it the posterior's width, is wrong.
 """
 
 from __future__ import annotations
@@ -66,7 +69,9 @@ class HoldoutCheck(NamedTuple):
     mean_squared : float
         Mean of ``e^2``.
     coverage_min, mean_squared_max : float
-        The pass bounds.
+        The pass bounds (``mean_squared_max`` also bounds ``joint_mean_squared``).
+    joint_mean_squared : float
+        Mean over runs of the Mahalanobis distance per output (NaN without a noise correlation).
     passed : bool
     """
 
@@ -75,6 +80,7 @@ class HoldoutCheck(NamedTuple):
     mean_squared: float
     coverage_min: float
     mean_squared_max: float
+    joint_mean_squared: float
     passed: bool
 
 
@@ -83,12 +89,28 @@ def holdout_bounds(n: int) -> tuple[float, float]:
     return 0.95 - 3.0 * np.sqrt(0.95 * 0.05 / n), float(scipy.stats.chi2.ppf(0.999, n) / n)
 
 
-def holdout_check(z: np.ndarray, mean: np.ndarray, var: np.ndarray, noise_var: np.ndarray) -> HoldoutCheck:
-    """Standardised errors of held-out runs ``z (h, q)`` against predictions ``mean, var (h, q)``."""
+def holdout_check(
+    z: np.ndarray,
+    mean: np.ndarray,
+    var: np.ndarray,
+    noise_var: np.ndarray,
+    noise_corr: np.ndarray | None = None,
+) -> HoldoutCheck:
+    """Standardised errors of held-out runs ``z (h, q)`` against predictions ``mean, var (h, q)``,
+    noise variances ``noise_var (q,)`` and, optionally, the noise correlation ``(q, q)``."""
     e = (z - mean) / np.sqrt(var + noise_var)
     if e.size == 0:
-        return HoldoutCheck(e, np.nan, np.nan, np.nan, np.nan, False)
+        return HoldoutCheck(e, np.nan, np.nan, np.nan, np.nan, np.nan, False)
     cov_min, msq_max = holdout_bounds(e.size)
     coverage = float(np.mean(np.abs(e) <= 1.96))
     msq = float(np.mean(e**2))
-    return HoldoutCheck(e, coverage, msq, cov_min, msq_max, bool(coverage >= cov_min and msq <= msq_max))
+    joint = np.nan
+    if noise_corr is not None:
+        sd = np.sqrt(noise_var)
+        noise_cov = sd[:, None] * noise_corr * sd[None, :]
+        d = z - mean
+        joint = float(
+            np.mean([r @ np.linalg.solve(noise_cov + np.diag(v), r) for r, v in zip(d, var, strict=True)]) / z.shape[1]
+        )
+    passed = coverage >= cov_min and msq <= msq_max and not joint > msq_max
+    return HoldoutCheck(e, coverage, msq, cov_min, msq_max, joint, bool(passed))
