@@ -285,6 +285,17 @@ REGISTRY: tuple[Entry, ...] = (
         note="GP surrogate within 300 GROMACS runs (issue 13); resumable with --resume",
     ),
     Entry(
+        "water_xray_surrogate:robust",
+        f"{R}/water_xray_surrogate.json",
+        "python benchmarks/water_calibration.py --data xray --statistics robust --algorithm surrogate "
+        "--max-simulations 300 --workers 2 --predictive 20 --checkpoint-dir /tmp/wxsur_ckpt --no-progress",
+        part="robust",
+        long=True,
+        estimated_cost_s=3600.0,
+        requires=("gmx",),
+        note="X-ray g_OO through the GP surrogate within 300 GROMACS runs; resumable with --resume",
+    ),
+    Entry(
         "water_xray:robust",
         f"{R}/water_xray.json",
         "python benchmarks/water_calibration.py --data xray --statistics robust --workers 2 --predictive 20 "
