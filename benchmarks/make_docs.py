@@ -859,7 +859,9 @@ def _water_surrogate_section() -> str:
             ci, sur = e["credible_interval_95"], e["surrogate"]
             truth = ""
             if "truth_in_50pct_hpd" in e:
-                truth = f"{'yes' if e['truth_in_50pct_hpd'] else 'no'} (credibility {f(e['truth_credibility'], 2)})"
+                level = e["truth_credibility"]
+                level = level["hpd_level"] if isinstance(level, dict) else level
+                truth = f"{'yes' if e['truth_in_50pct_hpd'] else 'no'} (HPD level {f(level, 2)})"
             rows.append(
                 [
                     WATER_LABELS[data],
