@@ -296,6 +296,17 @@ REGISTRY: tuple[Entry, ...] = (
         note="X-ray g_OO through the GP surrogate within 300 GROMACS runs; resumable with --resume",
     ),
     Entry(
+        "water_neutron_surrogate:robust",
+        f"{R}/water_neutron_surrogate.json",
+        "python benchmarks/water_calibration.py --data neutron --statistics robust --algorithm surrogate "
+        "--max-simulations 300 --workers 2 --predictive 20 --checkpoint-dir /tmp/wnsur_ckpt --no-progress",
+        part="robust",
+        long=True,
+        estimated_cost_s=3600.0,
+        requires=("gmx",),
+        note="neutron g_OO/g_OH/g_HH through the GP surrogate within 300 GROMACS runs; resumable",
+    ),
+    Entry(
         "water_xray:robust",
         f"{R}/water_xray.json",
         "python benchmarks/water_calibration.py --data xray --statistics robust --workers 2 --predictive 20 "
