@@ -307,6 +307,28 @@ REGISTRY: tuple[Entry, ...] = (
         note="neutron g_OO/g_OH/g_HH through the GP surrogate within 300 GROMACS runs; resumable",
     ),
     Entry(
+        "water_xray_surrogate:paper",
+        f"{R}/water_xray_surrogate.json",
+        "python benchmarks/water_calibration.py --data xray --statistics paper --algorithm surrogate "
+        "--max-simulations 300 --workers 2 --predictive 20 --checkpoint-dir /tmp/wxpsur_ckpt --no-progress",
+        part="paper",
+        long=True,
+        estimated_cost_s=3600.0,
+        requires=("gmx",),
+        note="the paper's summaries through the GP surrogate within 300 GROMACS runs; resumable",
+    ),
+    Entry(
+        "water_neutron_surrogate:paper",
+        f"{R}/water_neutron_surrogate.json",
+        "python benchmarks/water_calibration.py --data neutron --statistics paper --algorithm surrogate "
+        "--max-simulations 300 --workers 2 --predictive 20 --checkpoint-dir /tmp/wnpsur_ckpt --no-progress",
+        part="paper",
+        long=True,
+        estimated_cost_s=3600.0,
+        requires=("gmx",),
+        note="the paper's summaries through the GP surrogate within 300 GROMACS runs; resumable",
+    ),
+    Entry(
         "water_xray:robust",
         f"{R}/water_xray.json",
         "python benchmarks/water_calibration.py --data xray --statistics robust --workers 2 --predictive 20 "
