@@ -38,32 +38,36 @@ def _failure_text(state: Any, max_emulator_ratio: float) -> str:
     return "; ".join(parts)
 
 
-def _noise_correlation(residuals: np.ndarray) -> np.ndarray:
+def _noise_correlation(residuals: np.ndarray, active: np.ndarray | None = None) -> np.ndarray:
     """Correlation ``(q, q)`` of leave-one-out residuals ``(n, q)``, Ledoit-Wolf shrunk.
 
     Summaries of one trajectory (RDF features) are strongly correlated, so the synthetic
     likelihood needs their joint noise.  A sample correlation of ~100 residuals in ~10 outputs
     has spuriously small eigenvalues, along which the likelihood becomes far too sharp (water,
     2026-11-24: held-out Mahalanobis distances 5x their chi-square mean).  Shrinkage towards the
-    identity with the Ledoit-Wolf intensity (scikit-learn) keeps it well conditioned.
+    identity with the Ledoit-Wolf intensity (scikit-learn) keeps it well conditioned.  Only the
+    ``active`` outputs (default all) are correlated; the others get identity rows.
     """
     n, q = residuals.shape
-    if q == 1 or n < 5:
-        return np.eye(q)
+    out = np.eye(q)
+    keep = np.ones(q, bool) if active is None else np.asarray(active, bool)
+    sd = residuals.std(axis=0)
+    # An output whose residuals do not vary (a constant summary) has no correlation to estimate.
+    keep = keep & np.isfinite(sd) & (sd > 0)
+    if keep.sum() < 2 or n < 5:
+        return out
     from sklearn.covariance import ledoit_wolf
 
-    sd = residuals.std(axis=0)
-    if np.any(~np.isfinite(sd)) or np.any(sd <= 0):
-        return np.eye(q)
-    cov, _ = ledoit_wolf(residuals / sd)
+    cov, _ = ledoit_wolf(residuals[:, keep] / sd[keep])
     s = np.sqrt(np.diag(cov))
-    return cov / np.outer(s, s)
+    out[np.ix_(keep, keep)] = cov / np.outer(s, s)
+    return out
 
 
 @jax.jit
 def _evaluate_jit(model: sampling.LikelihoodModel, x: jax.Array) -> tuple[jax.Array, jax.Array]:
     loglik, ratio = sampling.log_likelihood_terms(model, x)
-    return loglik + jnp.log(jnp.maximum(sampling.feasibility(model.feasible, x), 1e-300)), ratio
+    return loglik + sampling.log_feasibility_term(model, x), ratio
 
 
 def _evaluate(model: sampling.LikelihoodModel, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

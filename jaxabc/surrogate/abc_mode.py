@@ -39,7 +39,7 @@ from jaxabc.algorithms.base import make_jax_step
 from jaxabc.distances import get_distance
 from jaxabc.priors import Uniform
 from jaxabc.surrogate.emulator import Emulator, OutputTransform, predict
-from jaxabc.surrogate.sampling import Feasibility, feasibility
+from jaxabc.surrogate.sampling import Feasibility, feasibility, log_feasibility
 
 __all__ = ["ABCPosterior", "EmulatedSimulator", "emulated_simulator", "emulated_summaries", "run_abc"]
 
@@ -59,6 +59,9 @@ class EmulatedSimulator(NamedTuple):
         Pseudo-inverse of the transform's rotation (identity without PCA).
     low, high : array, shape (d,)
         The prior box.
+    log_min_feasibility : float or array, shape ()
+        Where ``log p_feasible`` is below this, every emulated run fails (the posterior's
+        constraint, see :mod:`.sampling`).
     """
 
     emulator: Emulator
@@ -69,6 +72,7 @@ class EmulatedSimulator(NamedTuple):
     back_rotation: jax.Array
     low: jax.Array
     high: jax.Array
+    log_min_feasibility: jax.Array | float = float("-inf")
 
 
 class ABCPosterior(NamedTuple):
@@ -104,6 +108,7 @@ def emulated_simulator(
     feasible: Feasibility,
     low: np.ndarray,
     high: np.ndarray,
+    min_feasibility: float = 0.0,
 ) -> EmulatedSimulator:
     """Bundle a fitted emulator and its output transform into an :class:`EmulatedSimulator`."""
     back = jnp.linalg.pinv(transform.rotation)
@@ -116,6 +121,7 @@ def emulated_simulator(
         back,
         jnp.asarray(low),
         jnp.asarray(high),
+        jnp.asarray(np.log(min_feasibility) if min_feasibility > 0 else -np.inf),
     )
 
 
@@ -135,6 +141,7 @@ def emulated_summaries(model: EmulatedSimulator, key: jax.Array, theta: jax.Arra
     )
     y = model.summary_mean + model.summary_scale * (z @ model.back_rotation)
     ok = jax.random.uniform(k_fail, (), mean.dtype) < feasibility(model.feasible, x[None, :])[0]
+    ok = ok & (log_feasibility(model.feasible, x[None, :])[0] >= model.log_min_feasibility)
     return jnp.where(ok, y, jnp.nan)
 
 

@@ -177,6 +177,7 @@ def build(
     num_warmup: int = 200,
     thin: int = 2,
     max_emulator_ratio: float = 1.0,
+    min_feasibility: float = 0.01,
     on_failure: str = "flag",
     mode: str = "synthetic_likelihood",
     abc_distance: str | Any = "mean_abs",
@@ -219,6 +220,12 @@ def build(
         Validation also fails when the posterior mean of ``mean_j var_j / noise_j^2`` stays
         above this: the posterior would then describe the emulator's ignorance, not the data
         (a simulator too rough for the GP, e.g. chaotic or discontinuous, or a budget too small).
+    min_feasibility : float
+        The posterior is cut off where the fitted chance that a run succeeds is below this
+        (0: never).  Failed runs teach the emulator nothing, so where runs fail its variance
+        stays at its prior level; with data no parameter reproduces within the noise (a
+        misspecified model) that variance would otherwise pull the posterior, and every new
+        run, into the failing region (see :mod:`.sampling`).
     on_failure : {"flag", "raise"}
         When validation fails with the budget spent: stop with an unvalidated, flagged result
         and a warning, or raise :class:`EmulatorFailure`.
@@ -262,6 +269,9 @@ def build(
         raise ValueError(
             f"num_particles must be >= 1000 and a multiple of num_chains={num_chains}, got {num_particles}"
         )
+    if not 0.0 <= min_feasibility < 1.0:
+        raise ValueError(f"min_feasibility must be in [0, 1), got {min_feasibility}")
+    log_min_feasibility = jnp.asarray(np.log(min_feasibility) if min_feasibility > 0 else -np.inf)
     if on_failure not in ("flag", "raise"):
         raise ValueError(f"on_failure must be 'flag' or 'raise', got {on_failure!r}")
     if num_replicates < 0 or batch_size < 1 or num_holdout < 5:
@@ -296,6 +306,7 @@ def build(
         "on_failure": on_failure,
         "observed_size": k,
         "max_emulator_ratio": float(max_emulator_ratio),
+        "min_feasibility": float(min_feasibility),
     }
     if abc:
         # Only in ABC mode, so that synthetic-likelihood checkpoints keep their fingerprints.
@@ -389,10 +400,15 @@ def build(
         x_all = to_unit(state.thetas)
         emu = emulator.fit(x_all, z_all, design_rows)
         loo = np.asarray(emulator.loo_residuals(emu))[design_rows]
-        corr = _noise_correlation(loo)
+        # An output constant over the design (a summary the data set does not measure, zeroed
+        # by the simulator) carries no information about theta: out of the likelihood.
+        active = np.std(z_all[design_rows], axis=0) > 1e-9
+        corr = _noise_correlation(loo, active)
         feas = sampling.fit_feasibility(x_all[used], state.ok[used])
         z_obs = transform.apply(jnp.asarray(obs.reshape(-1)))
-        model = sampling.LikelihoodModel(emu, z_obs, jnp.linalg.cholesky(jnp.asarray(corr)), feas)
+        model = sampling.LikelihoodModel(
+            emu, z_obs, jnp.linalg.cholesky(jnp.asarray(corr)), feas, jnp.asarray(active), log_min_feasibility
+        )
         return transform, emu, model, z_all
 
     def importance_posterior(rng: np.random.Generator, model: sampling.LikelihoodModel):
@@ -507,7 +523,9 @@ def build(
 
     def start_abc_validation(key, state, transform, model) -> SurrogateState:
         """ABC mode: APMCABC on the emulated simulator, then held-out points resampled from it."""
-        emulated = abc_mode.emulated_simulator(model.emulator, transform, model.noise_chol, model.feasible, low, high)
+        emulated = abc_mode.emulated_simulator(
+            model.emulator, transform, model.noise_chol, model.feasible, low, high, min_feasibility
+        )
         post = abc_mode.run_abc(
             jax.random.fold_in(key, 4),
             emulated,
@@ -550,12 +568,21 @@ def build(
         mean, var = emulator.predict(emu, jnp.asarray(to_unit(state.thetas[rows])))
         noise_var = np.exp(2 * np.asarray(emu.log_noise))
         chol = np.asarray(model.noise_chol, np.float64)
-        check = diagnostics.holdout_check(z_all[rows], np.asarray(mean), np.asarray(var), noise_var, chol @ chol.T)
+        # Only the outputs in the likelihood are checked: a constant one would score 0 and
+        # dilute the errors of the others.
+        on = np.asarray(model.active)
+        check = diagnostics.holdout_check(
+            z_all[rows][:, on],
+            np.asarray(mean)[:, on],
+            np.asarray(var)[:, on],
+            noise_var[on],
+            (chol @ chol.T)[np.ix_(on, on)],
+        )
         joint_ok = not check.joint_mean_squared > check.mean_squared_max
         rep_var, df = diagnostics.replicate_variance(z_all, state.group, state.ok & (state.role == ROLE_DESIGN))
-        lof_ok, _ = diagnostics.lack_of_fit(noise_var, rep_var, df)
+        lof_ok, _ = diagnostics.lack_of_fit(noise_var[on], rep_var[on], df)
         errors = np.full((num_holdout, q), np.nan)
-        errors[: len(rows)] = check.errors
+        errors[: len(rows), on] = check.errors
         resolved = float(state.emulator_ratio) <= max_emulator_ratio
         passed = check.passed and lof_ok is not False and resolved
         state = state._replace(

@@ -5,8 +5,18 @@
 latent mean and variance, ``Sigma_noise`` the simulator's noise covariance (the fitted nuggets
 with the correlation of the leave-one-out residuals), and ``p_feasible`` the probability that a
 simulation at ``theta`` succeeds (:func:`feasibility`).  Adding the emulator's own variance
-keeps the posterior honest where the design is thin.  NUTS runs on ``u = logit(x)`` with ``x``
-the unit-box coordinates, so draws never leave the prior's support.
+keeps the posterior honest where the design is thin.  Outputs that never varied over the design
+are left out (they say nothing about ``theta``).
+
+Where ``p_feasible`` is below ``min_feasibility`` the posterior is cut off (a probabilistic
+constraint, as in constrained Bayesian optimisation, Gelbart et al. 2014).  Failed runs teach
+the emulator nothing, so its variance stays at its prior level where runs fail; when no
+parameter reproduces the data to within the simulator's noise (measured data, a misspecified
+model), that variance makes the infeasible region look like the best fit, and a soft factor
+``p_feasible`` (a few nats even after hundreds of failures) cannot outweigh it.
+
+NUTS runs on ``u = logit(x)`` with ``x`` the unit-box coordinates, so draws never leave the
+prior's support.
 """
 
 from __future__ import annotations
@@ -23,7 +33,17 @@ import scipy.special
 
 from jaxabc.surrogate.emulator import Emulator, predict
 
-__all__ = ["Feasibility", "LikelihoodModel", "feasibility", "fit_feasibility", "log_posterior", "nuts", "split_rhat"]
+__all__ = [
+    "Feasibility",
+    "LikelihoodModel",
+    "feasibility",
+    "fit_feasibility",
+    "log_feasibility",
+    "log_feasibility_term",
+    "log_posterior",
+    "nuts",
+    "split_rhat",
+]
 
 
 class Feasibility(NamedTuple):
@@ -46,6 +66,11 @@ class Feasibility(NamedTuple):
     active: jax.Array
 
 
+#: Default L2 penalty of :func:`fit_feasibility`: a Gaussian prior of sd 100 on the weights,
+#: steep enough for the sharp boundaries of deterministic failures (a phase change).
+FEASIBILITY_PENALTY = 1e-4
+
+
 def _features(x: jax.Array) -> jax.Array:
     c = x - 0.5
     d = x.shape[-1]
@@ -53,7 +78,7 @@ def _features(x: jax.Array) -> jax.Array:
     return jnp.concatenate([jnp.ones((*x.shape[:-1], 1)), c, c[..., i] * c[..., j]], axis=-1)
 
 
-def fit_feasibility(x: np.ndarray, ok: np.ndarray, penalty: float = 0.01) -> Feasibility:
+def fit_feasibility(x: np.ndarray, ok: np.ndarray, penalty: float = FEASIBILITY_PENALTY) -> Feasibility:
     """Fit :class:`Feasibility` to unit-box inputs ``x (n, d)`` and outcomes ``ok (n,)``.
 
     An L2 penalty on the non-constant weights keeps a perfectly separable design (the usual
@@ -80,6 +105,11 @@ def feasibility(model: Feasibility, x: jax.Array) -> jax.Array:
     return jnp.where(model.active, jax.nn.sigmoid(_features(x) @ model.weights), 1.0)
 
 
+def log_feasibility(model: Feasibility, x: jax.Array) -> jax.Array:
+    """``log p_feasible`` at unit-box points ``x (n, d)``: array (n,), finite where p underflows."""
+    return jnp.where(model.active, jax.nn.log_sigmoid(_features(x) @ model.weights), 0.0)
+
+
 class LikelihoodModel(NamedTuple):
     """Everything the synthetic likelihood needs (a pytree).
 
@@ -91,12 +121,24 @@ class LikelihoodModel(NamedTuple):
     noise_chol : array, shape (q, q)
         Cholesky factor of the noise correlation (``Sigma_noise = D R D``, ``D`` the nuggets).
     feasible : Feasibility
+    active : array of bool, shape (q,)
+        Outputs in the likelihood (those that varied over the design).
+    log_min_feasibility : array, shape ()
+        ``log`` of the constraint level; below it the log density drops by
+        ``_CUT_SLOPE`` per nat.
     """
 
     emulator: Emulator
     z_obs: jax.Array
     noise_chol: jax.Array
     feasible: Feasibility
+    active: jax.Array
+    log_min_feasibility: jax.Array
+
+
+#: Slope of the constraint below ``min_feasibility`` (per nat of log p): finite and linear, so
+#: NUTS keeps usable gradients, and steep enough that one nat outside costs 1000.
+_CUT_SLOPE = 1000.0
 
 
 def log_likelihood_terms(model: LikelihoodModel, x: jax.Array) -> tuple[jax.Array, jax.Array]:
@@ -107,21 +149,32 @@ def log_likelihood_terms(model: LikelihoodModel, x: jax.Array) -> tuple[jax.Arra
     corr = model.noise_chol @ model.noise_chol.T
     cov = noise_sd[:, None] * corr * noise_sd[None, :]
 
+    active = model.active
+    # Inactive outputs drop out: unit variance, no correlation, zero residual.
+    both = active[:, None] & active[None, :]
+    cov = jnp.where(both, cov, jnp.eye(cov.shape[0], dtype=cov.dtype))
+
     def one(m, v):
-        c = cov + jnp.diag(v)
+        c = cov + jnp.diag(jnp.where(active, v, 0.0))
         chol = jnp.linalg.cholesky(c)
-        r = jax.scipy.linalg.solve_triangular(chol, model.z_obs - m, lower=True)
+        r = jax.scipy.linalg.solve_triangular(chol, jnp.where(active, model.z_obs - m, 0.0), lower=True)
         return -0.5 * jnp.sum(r * r) - jnp.sum(jnp.log(jnp.diag(chol)))
 
     loglik = jax.vmap(one)(mean, var)
-    ratio = jnp.mean(var / noise_sd**2, axis=1)
+    ratio = jnp.sum(jnp.where(active, var / noise_sd**2, 0.0), axis=1) / jnp.maximum(jnp.sum(active), 1)
     return loglik, ratio
+
+
+def log_feasibility_term(model: LikelihoodModel, x: jax.Array) -> jax.Array:
+    """``log p_feasible`` plus the constraint below ``min_feasibility``, at ``x (n, d)``: (n,)."""
+    lf = log_feasibility(model.feasible, x)
+    return lf - _CUT_SLOPE * jnp.maximum(model.log_min_feasibility - lf, 0.0)
 
 
 def log_posterior(model: LikelihoodModel, x: jax.Array) -> jax.Array:
     """Unnormalised log posterior at unit-box points ``x (n, d)`` (uniform prior on the box)."""
     loglik, _ = log_likelihood_terms(model, x)
-    return loglik + jnp.log(jnp.maximum(feasibility(model.feasible, x), 1e-300))
+    return loglik + log_feasibility_term(model, x)
 
 
 def _logdensity_u(model: LikelihoodModel, u: jax.Array) -> jax.Array:
