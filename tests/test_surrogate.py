@@ -174,6 +174,48 @@ def test_failed_simulations_inform_the_design():
     assert np.mean(particles[:, 0] > 0.6) > 0.2  # truncated, not pushed away
 
 
+def test_a_misspecified_model_does_not_chase_the_failing_region():
+    """Data no feasible theta reproduces (s0 = 5 needs theta0 ~ 4.4, where runs fail): the
+    emulator knows nothing beyond the boundary, and without the feasibility cut its variance
+    there outbid every liquid-side fit and drew the design into failures (water on X-ray data,
+    200 of 240 runs).  With it the posterior and the design stay on the feasible side."""
+    observed = np.array([5.0, -0.7])
+    algorithm = build(PRIOR, 1000, observed=observed, max_simulations=120, batch_size=4)
+    state, info, num_sims, proposals = _drive(
+        algorithm, failing_for_large_theta0, VmapExecutor(), max_iterations=60, observed=observed
+    )
+    assert bool(info.stop) and num_sims <= 120
+    # Without the cut (and with the old, soft classifier) every run after the start went to
+    # theta0 in 1.5-4 and the posterior mean to 3.3.  Now runs probe the boundary, no further:
+    # the classifier's 1 % level lies a little beyond the last success.
+    start = len(proposals[0])
+    later = np.asarray(state.thetas[start : int(state.count)])
+    assert np.all(later[:, 0] < 1.5), later
+    particles, _ = algorithm.posterior(state)
+    assert np.mean(particles[:, 0] > 1.5) < 0.01
+    assert 0.5 < particles[:, 0].mean() < 1.3  # the best feasible fit, at the boundary
+
+
+def constant_extra_summary(key, theta):
+    # A third summary the "data set does not measure": the simulator zeroes it, as the water
+    # plugin zeroes g_OH statistics for X-ray data.
+    return jnp.concatenate([linear_gaussian(key, theta), jnp.zeros(1)])
+
+
+def test_a_constant_summary_changes_nothing_and_is_not_checked():
+    observed = np.concatenate([OBSERVED, [0.0]])
+    algorithm = build(PRIOR, 2000, observed=observed, max_simulations=200)
+    state, info, _, _ = _drive(algorithm, constant_extra_summary, VmapExecutor(), observed=observed)
+    assert bool(info.stop) and bool(state.validated)
+    particles, _ = algorithm.posterior(state)
+    mean, cov = exact_posterior()
+    sd = np.sqrt(np.diag(cov))
+    assert np.all(np.abs(particles.mean(axis=0) - mean) < 0.2 * sd), (particles.mean(axis=0), mean)
+    assert np.all(np.abs(particles.std(axis=0) / sd - 1) < 0.15), (particles.std(axis=0), sd)
+    errors = np.asarray(state.holdout_errors)
+    assert np.all(np.isnan(errors[:, 2])) and np.all(np.isfinite(errors[:, :2]))
+
+
 def test_lack_of_fit_accepts_a_smooth_simulator_and_rejects_an_inflated_nugget():
     rng = np.random.default_rng(0)
     x, group = design.initial_design(0, 2, 40, 8)
@@ -239,6 +281,7 @@ def test_the_joint_holdout_check_catches_a_wrong_noise_correlation():
     [
         ({"max_simulations": 30}, "no room for validation"),
         ({"max_simulations": 200, "on_failure": "ignore"}, "on_failure"),
+        ({"max_simulations": 200, "min_feasibility": 1.0}, "min_feasibility"),
     ],
 )
 def test_bad_settings_are_refused(options, match):
