@@ -39,7 +39,7 @@ from jaxabc.algorithms.base import make_jax_step
 from jaxabc.distances import get_distance
 from jaxabc.priors import Uniform
 from jaxabc.surrogate.emulator import Emulator, OutputTransform, predict
-from jaxabc.surrogate.sampling import Feasibility, feasibility, log_feasibility
+from jaxabc.surrogate.sampling import Feasibility, feasibility, log_feasibility, nearest_runs_succeed
 
 __all__ = ["ABCPosterior", "EmulatedSimulator", "emulated_simulator", "emulated_summaries", "run_abc"]
 
@@ -142,6 +142,7 @@ def emulated_summaries(model: EmulatedSimulator, key: jax.Array, theta: jax.Arra
     y = model.summary_mean + model.summary_scale * (z @ model.back_rotation)
     ok = jax.random.uniform(k_fail, (), mean.dtype) < feasibility(model.feasible, x[None, :])[0]
     ok = ok & (log_feasibility(model.feasible, x[None, :])[0] >= model.log_min_feasibility)
+    ok = ok & (nearest_runs_succeed(model.feasible, x[None, :])[0] | ~model.feasible.active)
     return jnp.where(ok, y, jnp.nan)
 
 

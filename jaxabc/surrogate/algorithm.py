@@ -404,7 +404,7 @@ def build(
         # by the simulator) carries no information about theta: out of the likelihood.
         active = np.std(z_all[design_rows], axis=0) > 1e-9
         corr = _noise_correlation(loo, active)
-        feas = sampling.fit_feasibility(x_all[used], state.ok[used])
+        feas = sampling.fit_feasibility(x_all[used], state.ok[used], size=M)
         z_obs = transform.apply(jnp.asarray(obs.reshape(-1)))
         model = sampling.LikelihoodModel(
             emu, z_obs, jnp.linalg.cholesky(jnp.asarray(corr)), feas, jnp.asarray(active), log_min_feasibility
