@@ -196,6 +196,24 @@ def test_a_misspecified_model_does_not_chase_the_failing_region():
     assert 0.5 < particles[:, 0].mean() < 1.3  # the best feasible fit, at the boundary
 
 
+def test_the_nearest_run_cut_is_sharp_for_a_failing_phase_and_blind_to_random_failures():
+    from jaxabc.surrogate import sampling
+
+    rng = np.random.default_rng(0)
+    x = rng.uniform(size=(400, 2))
+    band = (x[:, 0] > 0.3) & (x[:, 0] < 0.45)  # a narrow band of success between two phases
+    grid = rng.uniform(size=(2000, 2))
+    inside = (grid[:, 0] > 0.3) & (grid[:, 0] < 0.45)
+    keep = np.asarray(sampling.nearest_runs_succeed(sampling.fit_feasibility(x, band, size=500), grid))
+    # Cut outside the band (but for a margin of about a run spacing), kept inside it.
+    margin = (np.abs(grid[:, 0] - 0.3) < 0.05) | (np.abs(grid[:, 0] - 0.45) < 0.05)
+    assert np.mean(keep[inside & ~margin]) > 0.99 and np.mean(keep[~inside & ~margin]) < 0.01
+    # 15 % of runs failing at random anywhere: P(>= 4 of 5 nearest failed) ~ 2e-3.
+    random_ok = rng.uniform(size=400) > 0.15
+    keep = np.asarray(sampling.nearest_runs_succeed(sampling.fit_feasibility(x, random_ok), grid))
+    assert np.mean(keep) > 0.98
+
+
 def constant_extra_summary(key, theta):
     # A third summary the "data set does not measure": the simulator zeroes it, as the water
     # plugin zeroes g_OH statistics for X-ray data.
