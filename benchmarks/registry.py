@@ -93,6 +93,23 @@ class Entry:
 R = "benchmarks/results"
 Q = "benchmarks/results/quick"
 
+
+def _water_surrogate(data: str, statistics: str, checkpoint: str, what: str, predictive: bool = True) -> Entry:
+    """A quick-preset water calibration through the GP surrogate (``--algorithm surrogate``)."""
+    return Entry(
+        f"water_{data}_surrogate:{statistics}",
+        f"{R}/water_{data}_surrogate.json",
+        f"python benchmarks/water_calibration.py --data {data} --statistics {statistics} --algorithm surrogate "
+        f"--max-simulations 300 --workers 2{' --predictive 20' if predictive else ''} "
+        f"--checkpoint-dir /tmp/{checkpoint}_ckpt --no-progress",
+        part=statistics,
+        long=True,
+        estimated_cost_s=3600.0,
+        requires=("gmx",),
+        note=f"{what}; resumable with --resume",
+    )
+
+
 REGISTRY: tuple[Entry, ...] = (
     Entry(
         "helium_table1",
@@ -273,60 +290,18 @@ REGISTRY: tuple[Entry, ...] = (
         quick="python benchmarks/water_calibration.py --quick --data simulated --statistics robust --workers 2",
         quick_output=f"{Q}/water_simulated.json",
     ),
-    Entry(
-        "water_simulated_surrogate:robust",
-        f"{R}/water_simulated_surrogate.json",
-        "python benchmarks/water_calibration.py --data simulated --statistics robust --algorithm surrogate "
-        "--max-simulations 300 --workers 2 --checkpoint-dir /tmp/wsur_ckpt --no-progress",
-        part="robust",
-        long=True,
-        estimated_cost_s=3600.0,
-        requires=("gmx",),
-        note="GP surrogate within 300 GROMACS runs (issue 13); resumable with --resume",
+    _water_surrogate(
+        "simulated", "robust", "wsur", "GP surrogate within 300 GROMACS runs (issue 13)", predictive=False
     ),
-    Entry(
-        "water_xray_surrogate:robust",
-        f"{R}/water_xray_surrogate.json",
-        "python benchmarks/water_calibration.py --data xray --statistics robust --algorithm surrogate "
-        "--max-simulations 300 --workers 2 --predictive 20 --checkpoint-dir /tmp/wxsur_ckpt --no-progress",
-        part="robust",
-        long=True,
-        estimated_cost_s=3600.0,
-        requires=("gmx",),
-        note="X-ray g_OO through the GP surrogate within 300 GROMACS runs; resumable with --resume",
+    _water_surrogate("xray", "robust", "wxsur", "X-ray g_OO through the GP surrogate within 300 GROMACS runs"),
+    _water_surrogate(
+        "neutron", "robust", "wnsur", "neutron g_OO/g_OH/g_HH through the GP surrogate within 300 GROMACS runs"
     ),
-    Entry(
-        "water_neutron_surrogate:robust",
-        f"{R}/water_neutron_surrogate.json",
-        "python benchmarks/water_calibration.py --data neutron --statistics robust --algorithm surrogate "
-        "--max-simulations 300 --workers 2 --predictive 20 --checkpoint-dir /tmp/wnsur_ckpt --no-progress",
-        part="robust",
-        long=True,
-        estimated_cost_s=3600.0,
-        requires=("gmx",),
-        note="neutron g_OO/g_OH/g_HH through the GP surrogate within 300 GROMACS runs; resumable",
+    _water_surrogate(
+        "xray", "paper", "wxpsur", "the paper's summaries through the GP surrogate within 300 GROMACS runs"
     ),
-    Entry(
-        "water_xray_surrogate:paper",
-        f"{R}/water_xray_surrogate.json",
-        "python benchmarks/water_calibration.py --data xray --statistics paper --algorithm surrogate "
-        "--max-simulations 300 --workers 2 --predictive 20 --checkpoint-dir /tmp/wxpsur_ckpt --no-progress",
-        part="paper",
-        long=True,
-        estimated_cost_s=3600.0,
-        requires=("gmx",),
-        note="the paper's summaries through the GP surrogate within 300 GROMACS runs; resumable",
-    ),
-    Entry(
-        "water_neutron_surrogate:paper",
-        f"{R}/water_neutron_surrogate.json",
-        "python benchmarks/water_calibration.py --data neutron --statistics paper --algorithm surrogate "
-        "--max-simulations 300 --workers 2 --predictive 20 --checkpoint-dir /tmp/wnpsur_ckpt --no-progress",
-        part="paper",
-        long=True,
-        estimated_cost_s=3600.0,
-        requires=("gmx",),
-        note="the paper's summaries through the GP surrogate within 300 GROMACS runs; resumable",
+    _water_surrogate(
+        "neutron", "paper", "wnpsur", "the paper's summaries through the GP surrogate within 300 GROMACS runs"
     ),
     Entry(
         "water_xray:robust",
