@@ -178,7 +178,7 @@ def test_a_misspecified_model_does_not_chase_the_failing_region():
     """Data no feasible theta reproduces (s0 = 5 needs theta0 ~ 4.4, where runs fail): the
     emulator knows nothing beyond the boundary, and without the feasibility cut its variance
     there outbid every liquid-side fit and drew the design into failures (water on X-ray data,
-    200 of 240 runs).  With it the posterior and the design stay on the feasible side."""
+    most of its runs).  With it the posterior and the design stay on the feasible side."""
     observed = np.array([5.0, -0.7])
     algorithm = build(PRIOR, 1000, observed=observed, max_simulations=120, batch_size=4)
     state, info, num_sims, proposals = _drive(
