@@ -74,7 +74,8 @@ class ModelChoiceResult:
         error 0): a 95% upper bound on its probability; NaN for the others.
     model_prior : numpy.ndarray, shape (K,)
     threshold : float
-        The final shared tolerance, in distance units.
+        The final shared tolerance, in distance units (NaN for surrogate evidence, which has
+        none; ``thresholds`` then holds one NaN).
     thresholds : numpy.ndarray, shape (g,)
         The shared tolerance of each generation (``inf`` for the prior sample).
     probability_history, standard_error_history : numpy.ndarray, shape (g, K)
@@ -144,10 +145,15 @@ class ModelChoiceResult:
 
     def summary(self) -> str:
         """A few lines for a terminal: probabilities with errors, evidence, cost per model."""
+        if np.isnan(self.threshold):
+            head = f"surrogate evidence: {len(self.names)} models, {self.num_simulations} simulations"
+        else:
+            head = (
+                f"ABC model choice: {len(self.names)} models, {self.num_simulations} simulations, "
+                f"{len(self.thresholds)} steps, shared tolerance {self.threshold:.4g}"
+            )
         lines = [
-            f"ABC model choice: {len(self.names)} models, {self.num_simulations} simulations, "
-            f"{len(self.thresholds)} steps, shared tolerance {self.threshold:.4g}, "
-            f"stopped: {self.stop_reason}, {self.wall_time:.1f} s",
+            f"{head}, stopped: {self.stop_reason}, {self.wall_time:.1f} s",
             f"  {'model':>16s}  {'probability':>18s}  {'log evidence':>17s}  {'simulations':>11s}  {'ESS':>7s}",
         ]
         for i, name in enumerate(self.names):
@@ -170,7 +176,7 @@ class ModelChoiceResult:
             "log_evidence_errors": [_finite_or_none(v) for v in self.log_evidence_errors],
             "probability_upper_bounds": [_finite_or_none(v) for v in self.probability_upper_bounds],
             "model_prior": self.model_prior.tolist(),
-            "threshold": self.threshold,
+            "threshold": _finite_or_none(self.threshold),
             "thresholds": [_finite_or_none(v) for v in self.thresholds],
             "probability_history": self.probability_history.tolist(),
             "standard_error_history": self.standard_error_history.tolist(),
@@ -238,7 +244,9 @@ def load_model_choice(folder: str | Path) -> ModelChoiceResult:
 
     log_z = np.array([-np.inf if v is None else v for v in data["log_evidence"]], np.float64)
     log_z_err = np.array([np.inf if v is None else v for v in data["log_evidence_errors"]], np.float64)
-    thresholds = np.array([np.inf if v is None else v for v in data["thresholds"]], np.float64)
+    # None is an infinite tolerance (the prior sample), or no tolerance at all (surrogate evidence).
+    missing = np.nan if data["threshold"] is None else np.inf
+    thresholds = np.array([missing if v is None else v for v in data["thresholds"]], np.float64)
     return ModelChoiceResult(
         names=tuple(data["names"]),
         probabilities=floats(data["probabilities"]),
@@ -247,7 +255,7 @@ def load_model_choice(folder: str | Path) -> ModelChoiceResult:
         log_evidence_errors=log_z_err,
         probability_upper_bounds=floats(data["probability_upper_bounds"]),
         model_prior=floats(data["model_prior"]),
-        threshold=float(data["threshold"]),
+        threshold=float(missing if data["threshold"] is None else data["threshold"]),
         thresholds=thresholds,
         probability_history=np.asarray(data["probability_history"], np.float64),
         standard_error_history=np.asarray(data["standard_error_history"], np.float64),
