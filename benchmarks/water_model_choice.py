@@ -7,7 +7,16 @@ measured summaries of :mod:`md.water.joint_data` (g(r) statistics of the X-ray o
 self-diffusion, enthalpy of vaporisation); only the summaries the data file marks *fitted*
 enter the distance, the held-out ones (the density) stay in the cache for criticism.
 
-Method: :func:`jaxabc.run` over the five ``(name, simulate, prior)`` models
+Method ``--method surrogate`` (the default): :func:`jaxabc.run` over the five models with
+``method="surrogate"``: one GP-surrogate calibration per model on ``--budget-per-model`` GROMACS
+runs, model probabilities from the synthetic-likelihood evidences
+(:mod:`jaxabc.surrogate.evidence`).  The stated measurement errors of the data (self-diffusion,
+enthalpy of vaporisation) are added to every simulation (:class:`jaxabc.noise.MeasurementError`,
+Wilkinson 2013), so a summary is fitted within its measurement error, not within the
+simulation's much smaller noise.  Each model checkpoints to ``--checkpoint-dir/<model>``;
+``--resume`` continues model by model.
+
+Method ``--method abc_smc``: :func:`jaxabc.run` over the five ``(name, simulate, prior)`` models
 (:mod:`jaxabc.model_choice`), each simulation one GROMACS run
 (:class:`md.water.model_simulator.WaterModelSimulator`) in a process pool; distance: mean
 absolute difference of the fitted summaries, each scaled by its median absolute deviation
@@ -22,11 +31,13 @@ cache and continues where it stopped.
 Usage (from the repository root)::
 
     python benchmarks/water_model_choice.py --data xray --workers 2          # hours of GROMACS
+    python benchmarks/water_model_choice.py --data xray --resume             # continue it
     python benchmarks/water_model_choice.py --tiny                           # smoke test, minutes
 
-``--tiny`` runs 2 ps simulations, 3 pilot runs and 4 particles per model for 2 generations and
-writes ``benchmarks/results/quick/water_model_choice.json``: it shows that the pipeline starts
-and saves, its probabilities mean nothing.
+``--tiny`` runs 2 ps simulations (the surrogate on 50 per model; ABC-SMC on 3 pilot runs and
+4 particles per model for 2 generations) and writes
+``benchmarks/results/quick/water_model_choice.json``: it shows that the pipeline starts and
+saves, its probabilities mean nothing.
 """
 
 from __future__ import annotations
@@ -47,6 +58,7 @@ import jax.numpy as jnp  # noqa: E402
 
 import jaxabc  # noqa: E402
 from jaxabc.model_choice import Model  # noqa: E402
+from jaxabc.noise import MeasurementError  # noqa: E402
 from md.water.joint_data import JOINT_DATA_FILE, joint_observed, joint_record  # noqa: E402
 from md.water.model_simulator import CachedSummaries, WaterModelSimulator  # noqa: E402
 from md.water.models import MODELS, model_prior, polarisation_correction_kj_mol  # noqa: E402
@@ -63,6 +75,10 @@ DATA_FILES = {
 def parse_arguments(argv=None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(description=(__doc__ or "").split("\n\n")[0])
     parser.add_argument("--data", choices=("xray", "neutron"), default="xray")
+    parser.add_argument("--method", choices=("surrogate", "abc_smc"), default="surrogate")
+    parser.add_argument("--budget-per-model", type=int, default=200, help="surrogate: GROMACS runs per model")
+    parser.add_argument("--checkpoint-dir", type=Path, default=None, help="surrogate: default runs/.../surrogate")
+    parser.add_argument("--resume", action="store_true", help="surrogate: continue from --checkpoint-dir")
     parser.add_argument("--preset", choices=("quick", "paper"), default="quick")
     parser.add_argument("--particles", type=int, default=100, help="accepted particles per model and generation")
     parser.add_argument("--steps", type=int, default=8, help="maximum generations, the prior sample included")
@@ -80,8 +96,10 @@ def parse_arguments(argv=None) -> argparse.Namespace:
     if args.tiny:
         args.particles, args.steps, args.pilot = 4, 2, 3
         args.md_steps = args.md_steps or 1000
+        args.budget_per_model = 50
     suffix = f"{args.data}_{args.preset}" + ("_tiny" if args.tiny else "")
     args.cache_dir = args.cache_dir or ROOT / "runs" / "water_model_choice" / suffix
+    args.checkpoint_dir = args.checkpoint_dir or args.cache_dir / "surrogate"
     return args
 
 
@@ -127,6 +145,72 @@ def scaled_mean_abs(scale: np.ndarray):
     return distance
 
 
+def measurement_sd(data) -> np.ndarray:
+    """Stated measurement errors of the fitted summaries (0 where the data state none)."""
+    errors = np.asarray(data.errors, np.float64)[data.fitted]
+    return np.where(np.isfinite(errors), errors, 0.0)
+
+
+def run_surrogate(args, data, models: list[Model], executor):
+    """Model choice by surrogate evidence, the measurement errors added to every simulation."""
+    sd = measurement_sd(data)
+    noisy = [Model(m.name, MeasurementError(m.simulate, sd), m.prior) for m in models]
+    return jaxabc.run(
+        noisy,
+        observed=data.observed[data.fitted],
+        method="surrogate",
+        max_simulations=args.budget_per_model * len(noisy),
+        num_particles=2000,
+        seed=args.seed,
+        executor=executor,
+        checkpoint_dir=args.checkpoint_dir,
+        resume=args.resume,
+        simulator_id=f"water_model_choice:{args.data}:{args.preset}:{args.md_steps}",
+        progress=not args.no_progress,
+        batch_size=2 * args.workers,
+    )
+
+
+def run_abc_smc(args, data, models: list[Model], executor):
+    scales, pilot = pilot_scales(args, models, executor)
+    result = jaxabc.run(
+        models,
+        observed=data.observed[data.fitted],
+        num_particles=args.particles,
+        num_steps=args.steps,
+        distance=scaled_mean_abs(scales),
+        seed=args.seed,
+        executor=executor,
+        quantile=args.quantile,
+        max_simulations=args.max_simulations,
+        max_wall_time=None if args.max_hours is None else 3600.0 * args.max_hours,
+        progress=not args.no_progress,
+        dtype="float64",
+    )
+    return result, scales, pilot
+
+
+def model_rows(result) -> dict:
+    """Per model: posterior against the published pair, cost, and (surrogate) validation."""
+    rows = {}
+    for name, post in zip(result.names, result.posteriors, strict=True):
+        diag = post.diagnostics
+        rows[name] = {
+            "bayes_estimate": post.bayes_estimate().tolist(),
+            "credible_interval_95": post.credible_interval(0.95).tolist(),
+            "correlation": float(post.correlation()[0, 1]),
+            "num_simulations": post.num_simulations,
+            "num_failures": post.num_failures,
+            "validated": diag.get("validated"),
+            "validation_failure": diag.get("failure"),
+            "holdout_coverage_95": diag.get("holdout_coverage_95"),
+            "holdout_mean_squared_error": diag.get("holdout_mean_squared_error"),
+            "log_evidence_importance_se": diag.get("log_evidence_importance_se"),
+            "log_evidence_jackknife_se": diag.get("log_evidence_jackknife_se"),
+        }
+    return rows
+
+
 def main(argv=None) -> None:
     args = parse_arguments(argv)
     start = time.perf_counter()
@@ -134,22 +218,12 @@ def main(argv=None) -> None:
     models = make_models(args, data.fitted)
     timeout_s = models[0].simulate.simulate.protocol.timeout_s + 60
     executor = jaxabc.ProcessPoolExecutor(max_workers=args.workers, timeout=timeout_s)
+    scales, pilot = None, None
     try:
-        scales, pilot = pilot_scales(args, models, executor)
-        result = jaxabc.run(
-            models,
-            observed=data.observed[data.fitted],
-            num_particles=args.particles,
-            num_steps=args.steps,
-            distance=scaled_mean_abs(scales),
-            seed=args.seed,
-            executor=executor,
-            quantile=args.quantile,
-            max_simulations=args.max_simulations,
-            max_wall_time=None if args.max_hours is None else 3600.0 * args.max_hours,
-            progress=not args.no_progress,
-            dtype="float64",
-        )
+        if args.method == "surrogate":
+            result = run_surrogate(args, data, models, executor)
+        else:
+            result, scales, pilot = run_abc_smc(args, data, models, executor)
     finally:
         executor.close()
     print(result.summary())
@@ -158,7 +232,9 @@ def main(argv=None) -> None:
         "data": args.data,
         "preset": args.preset,
         "tiny": args.tiny,
+        "method": args.method,
         "settings": {
+            "budget_per_model": args.budget_per_model if args.method == "surrogate" else None,
             "particles": args.particles,
             "steps": args.steps,
             "pilot_per_model": args.pilot,
@@ -173,7 +249,12 @@ def main(argv=None) -> None:
             "stated_errors": [None if np.isnan(e) else float(e) for e in data.errors],
             "fitted": fitted_names,
             "held_out": [n for n, h in zip(data.names, data.held_out, strict=True) if h],
-            "distance_scales": dict(zip(fitted_names, np.asarray(scales).tolist(), strict=True)),
+            "distance_scales": None
+            if scales is None
+            else dict(zip(fitted_names, np.asarray(scales).tolist(), strict=True)),
+            "measurement_sd_added": dict(zip(fitted_names, measurement_sd(data).tolist(), strict=True))
+            if args.method == "surrogate"
+            else None,
         },
         "data_record": joint_record(),
         "pilot": pilot,
@@ -192,6 +273,7 @@ def main(argv=None) -> None:
             for m in MODELS.values()
         },
         "model_choice": result.to_dict(),
+        "per_model": model_rows(result),
         "cache_dir": os.path.relpath(args.cache_dir, ROOT),
         "wall_time_s": time.perf_counter() - start,
     }
