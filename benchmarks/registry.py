@@ -379,12 +379,16 @@ REGISTRY: tuple[Entry, ...] = (
     Entry(
         "water_model_choice",
         f"{R}/water_model_choice.json",
-        "python benchmarks/water_model_choice.py --data xray --workers 2",
+        "python benchmarks/water_model_choice.py --data xray --workers 2 --no-progress --resume "
+        f"--cache-dir {R}/water_model_choice/xray_quick",
         long=True,
         requires=("gmx",),
         quick="python benchmarks/water_model_choice.py --tiny --workers 2 --no-progress",
         quick_output=f"{Q}/water_model_choice.json",
-        note="ABC model choice over five rigid water models; not run yet (hours of GROMACS)",
+        estimated_cost_s=9000.0,
+        note="model choice over five rigid water models by surrogate evidence (200 GROMACS runs each); "
+        "its simulations and checkpoints are kept under benchmarks/results/water_model_choice, so the "
+        "same command continues an interrupted run",
     ),
     Entry(
         "water_density_relaxation",

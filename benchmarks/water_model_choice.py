@@ -193,9 +193,12 @@ def run_abc_smc(args, data, models: list[Model], executor):
 def model_rows(result) -> dict:
     """Per model: posterior against the published pair, cost, and (surrogate) validation."""
     rows = {}
-    for name, post in zip(result.names, result.posteriors, strict=True):
+    intervals = result.metadata.get("probability_interval_95")
+    for i, (name, post) in enumerate(zip(result.names, result.posteriors, strict=True)):
         diag = post.diagnostics
         rows[name] = {
+            "probability": float(result.probabilities[i]),
+            "probability_interval_95": None if intervals is None else intervals[i],
             "bayes_estimate": post.bayes_estimate().tolist(),
             "credible_interval_95": post.credible_interval(0.95).tolist(),
             "correlation": float(post.correlation()[0, 1]),

@@ -25,12 +25,22 @@ import numpy as np
 from jaxabc._model_choice_result import ModelChoiceResult, _file_stem, probabilities_with_errors
 from jaxabc.seeding import seed_from_key
 
-__all__ = ["METHOD", "run_model_choice_surrogate"]
+__all__ = ["METHOD", "probability_intervals", "run_model_choice_surrogate"]
 
 METHOD = (
     "GP-surrogate synthetic likelihood per model, evidence by importance sampling over the prior "
     "box (jaxabc.surrogate.evidence); standard errors by the delta method"
 )
+
+
+def probability_intervals(
+    log_z: np.ndarray, log_z_se: np.ndarray, model_prior: np.ndarray, rng: np.random.Generator, draws: int = 20_000
+) -> np.ndarray:
+    """2.5 and 97.5 % points ``(K, 2)`` of each model probability, every ``log Z_m`` drawn from
+    ``N(log_z_m, log_z_se_m^2)`` independently (NaN for a model with a NaN evidence)."""
+    sample = log_z + np.nan_to_num(log_z_se, nan=0.0) * rng.standard_normal((draws, log_z.size))
+    probs, _ = probabilities_with_errors(sample, np.zeros_like(sample), model_prior)
+    return np.nanpercentile(probs, [2.5, 97.5], axis=0).T
 
 
 def run_model_choice_surrogate(
@@ -85,7 +95,10 @@ def run_model_choice_surrogate(
     ModelChoiceResult
         ``threshold`` is NaN (there is no ABC tolerance), one history row; each posterior's
         ``diagnostics`` holds its validation and ``log_evidence_se``; ``metadata["validated"]``
-        lists per model whether its emulator passed validation.  A model whose emulator failed
+        lists per model whether its emulator passed validation, and
+        ``metadata["probability_interval_95"]`` (K, 2) the probabilities' 2.5 and 97.5 %
+        points with each ``log Z`` drawn from its normal error (the delta-method
+        ``standard_errors`` understate once those errors approach 1).  A model whose emulator failed
         is flagged in ``stop_reason``: its evidence is not trustworthy.
 
     Raises
@@ -156,6 +169,7 @@ def run_model_choice_surrogate(
     log_z = np.array([np.nan if p.log_evidence is None else p.log_evidence for p in posteriors], np.float64)
     log_z_se = np.array([p.diagnostics["log_evidence_se"] for p in posteriors], np.float64)
     probs, ses = probabilities_with_errors(log_z, log_z_se, prior_m)
+    interval = probability_intervals(log_z, log_z_se, prior_m, np.random.default_rng(seed))
     validated = [bool(p.diagnostics.get("validated", False)) for p in posteriors]
     failed = [m.name for m, v in zip(ms, validated, strict=True) if not v]
     stop = "every model's emulator validated on held-out simulations"
@@ -180,5 +194,10 @@ def run_model_choice_surrogate(
         seed=int(seed),
         stop_reason=stop,
         wall_time=time.perf_counter() - t0,
-        metadata={"method": METHOD, "validated": validated, **(metadata or {})},
+        metadata={
+            "method": METHOD,
+            "validated": validated,
+            "probability_interval_95": interval.tolist(),
+            **(metadata or {}),
+        },
     )

@@ -58,6 +58,8 @@ def test_surrogate_evidence_matches_the_analytic_evidence_and_resumes(tmp_path):
     log_b, log_b_se = np.log(result.bayes_factor("steep", "shallow")[0]), result.bayes_factor("steep", "shallow")[1]
     assert abs(log_b - (exact[0] - exact[1])) <= 4.0 * log_b_se
     assert np.isclose(result.probabilities.sum(), 1.0)
+    low, high = np.asarray(result.metadata["probability_interval_95"]).T
+    assert np.all((low <= result.probabilities) & (result.probabilities <= high))
     for post in result.posteriors:
         assert post.particles.shape[0] >= 1000
         assert post.diagnostics["validated"]
@@ -122,3 +124,16 @@ def test_surrogate_model_choice_refuses_models_whose_likelihoods_use_other_summa
             method="surrogate",
             max_simulations=120,
         )
+
+
+def test_probability_intervals_follow_the_evidence_errors():
+    from jaxabc._model_choice_surrogate import probability_intervals
+
+    rng = np.random.default_rng(0)
+    # Equal evidences known to +-0.1: P near 1/2 with delta-method sd 0.1 / sqrt(2) / 2.
+    low, high = probability_intervals(np.zeros(2), np.full(2, 0.1), np.full(2, 0.5), rng)[0]
+    half = 1.96 * 0.5 * 0.5 * np.sqrt(2) * 0.1
+    assert abs(low - (0.5 - half)) < 0.01 and abs(high - (0.5 + half)) < 0.01
+    # Errors of several nats: the interval spans nearly all of [0, 1].
+    low, high = probability_intervals(np.zeros(2), np.full(2, 5.0), np.full(2, 0.5), rng)[0]
+    assert low < 0.01 and high > 0.99
