@@ -756,3 +756,23 @@ def test_engine_hidden_measurement_effect(tmp_path):
     top = report.causes[0]
     assert top.name == "qmax_ripple" and top.significant, report.causes
     report.write(tmp_path / "engine_report")
+
+
+@pytest.mark.slow
+def test_surrogate_refits_keep_their_draws_and_still_find_the_hidden_effect(tmp_path):
+    # The refits through the GP surrogate (a few hundred simulations each, thousands of draws):
+    # the route for simulators too expensive for ABC refits, e.g. GROMACS water.
+    effect = "qmax_ripple"
+    seed = zlib.crc32(effect.encode()) % 10_000
+    theta, eta, _, where = hidden_case(effect, seed)
+    obs = observe(theta, seed)
+    res = fit_base(obs, seed)
+    options = dict(
+        CRITIQUE_OPTIONS, extend_options=dict(algorithm="surrogate", num_particles=1000, max_simulations=200)
+    )
+    report = critique(res, SETUP.simulate, obs, CATALOGUE, held_out=HELD_OUT, seed=seed, **options)
+    assert report.extension is not None
+    for refit in (report.extension, report.base_refit):
+        assert refit.algorithm == "surrogate" and refit.num_simulations <= 200
+        assert refit.effective_sample_size() >= 100
+    assert_found_named_recovered_and_gains(report, effect, eta, SETUP.groups, where, tmp_path / "report")
