@@ -16,7 +16,8 @@ __all__ = ["WaterSimulatorWithEffects", "make_water_simulator_with_effects", "wa
 
 
 def water_catalogue() -> Catalogue:
-    """The water catalogue: q_H scaling, M-site shift, O-H contamination of X-ray g_OO."""
+    """The water catalogue: q_H scaling, M-site shift, effective temperature (nuclear quantum
+    proxy), the finite-box diffusion correction, O-H contamination of X-ray g_OO."""
     return Catalogue(
         [
             Effect(
@@ -43,6 +44,32 @@ def water_catalogue() -> Catalogue:
                 ("charge_scale",),
             ),
             Effect(
+                "temperature_offset",
+                -10.0,
+                30.0,
+                0.0,
+                "K",
+                "Thermostat T -> T + eta.  A proxy, not a model, for nuclear quantum effects on "
+                "structure: a classical rigid model run warmer has the lower, broader first g_OO peak "
+                "that path-integral simulations give; it does not mimic quantum effects on dynamics or "
+                "energetics.  Also the X-ray data's 295 K against the simulated 298 K (eta = -3 K).",
+                "physical",
+                "D and the enthalpy of vaporisation move with T much more than with the quantum proxy",
+                ("charge_scale",),
+            ),
+            Effect(
+                "finite_box_diffusion",
+                0.0,
+                3.0,
+                0.0,
+                "1/(mPa s)",
+                "Yeh-Hummer finite-box correction of D, D_inf = D_box + xi k_B T / (6 pi eta_m L), as "
+                "the model's fluidity 1/eta_m (TIP4P about 1/0.494 = 2.0; real water 1.12): the "
+                "simulated D is that of a periodic box, the measured one of bulk water.",
+                "measurement",
+                "runs in two box sizes (the correction scales as 1/L)",
+            ),
+            Effect(
                 "oh_contamination",
                 0.0,
                 0.1,
@@ -63,13 +90,16 @@ def water_catalogue() -> Catalogue:
 
 
 class WaterSimulatorWithEffects:
-    """Picklable host simulator ``simulate(key, theta_full (5,)) -> S1..S9`` for criticism.
+    """Picklable host simulator ``simulate(key, theta_full (7,)) -> S1..S9`` for criticism.
 
-    ``theta_full = (sigma_OW, epsilon_OW, charge_scale, msite_shift, oh_contamination)``; returns
-    S1..S9 and, with ``with_density``, the mean density (kg/m^3) as a tenth summary.  The
-    physical effects go to :func:`md.water.make_simulator`'s 4-entry theta (sigma, epsilon, q_H,
-    d_OM); the contamination mixes the simulated g_OH into g_OO before S4..S8 are computed.
-    Run it with ``executor="process_pool"`` (GROMACS is a host program).
+    ``theta_full = (sigma_OW, epsilon_OW, charge_scale, msite_shift, temperature_offset,
+    finite_box_diffusion, oh_contamination)`` (the catalogue's order); returns S1..S9 and, with
+    ``with_density``, the mean density (kg/m^3) as a tenth summary.  The charge and M-site
+    effects go to :func:`md.water.make_simulator`'s 4-entry theta (sigma, epsilon, q_H, d_OM);
+    the temperature offset to the thermostat (and the generated velocities); the fluidity adds
+    the Yeh-Hummer shift for the run's own mean box edge to S9; the contamination mixes the
+    simulated g_OH into g_OO before S4..S8 are computed.  Run it with
+    ``executor="process_pool"`` (GROMACS is a host program).
     """
 
     def __init__(
@@ -83,6 +113,8 @@ class WaterSimulatorWithEffects:
         from md.water import make_simulator
 
         self.inner = make_simulator(preset, statistics, observed_kind, **options)
+        self._make = (statistics, observed_kind, options)
+        self._at_temperature: dict[float, Any] = {}
         self.statistics = statistics
         self.observed_kind = observed_kind
         self.with_density = with_density
@@ -114,17 +146,51 @@ class WaterSimulatorWithEffects:
             base.charge_h_e * (1.0 + theta_full[2]),
             base.om_distance_nm + theta_full[3],
         ]
-        out = self.inner.run(key, theta)
-        w = float(theta_full[4])
+        out = self._simulator(float(theta_full[4])).run(key, theta)
+        w = float(theta_full[6])
         stats = out.statistics
         if w != 0.0:
             c: WaterCurves = out.curves
             g_oh = np.interp(c.r_oo_nm, c.r_oh_nm, c.g_oh)
             stats = summary_statistics(c._replace(g_oo=(1.0 - w) * c.g_oo + w * g_oh), self.statistics)
+        fluidity = float(theta_full[5])
+        if fluidity != 0.0:
+            stats = stats.copy()
+            stats[8] += self.diffusion_shift(
+                out.run.num_molecules, out.curves.density_kg_m3, fluidity, float(theta_full[4])
+            )
         stats = np.where(OBSERVED_KINDS[self.observed_kind], stats, 0.0)
         if self.with_density:
             stats = np.append(stats, out.curves.density_kg_m3)
         return stats
+
+    def _simulator(self, offset_k: float) -> Any:
+        """The inner simulator with its thermostat at the protocol's temperature + ``offset_k``."""
+        if offset_k == 0.0:
+            return self.inner
+        if offset_k not in self._at_temperature:
+            from dataclasses import replace
+
+            from md.water import make_simulator
+
+            statistics, observed_kind, options = self._make
+            protocol = replace(self.inner.protocol, temperature_k=self.inner.protocol.temperature_k + offset_k)
+            self._at_temperature[offset_k] = make_simulator(protocol, statistics, observed_kind, **options)
+        return self._at_temperature[offset_k]
+
+    def diffusion_shift(
+        self, num_molecules: int, density_kg_m3: float, fluidity_per_mpa_s: float, offset_k: float = 0.0
+    ) -> float:
+        """The Yeh-Hummer shift of S9 for a cubic box of ``num_molecules`` at the run's mean
+        density, in S9's units (robust: D in 1e-5 cm^2/s; paper: the MSD slope in nm^2/ps, 6 D)."""
+        from md.water.joint_data import yeh_hummer_shift
+
+        protocol = self.inner.protocol
+        mass_kg = num_molecules * 18.01528e-3 / 6.02214076e23
+        box_nm = (mass_kg / density_kg_m3) ** (1.0 / 3.0) * 1e9
+        shift = yeh_hummer_shift(box_nm, 1.0 / fluidity_per_mpa_s, protocol.temperature_k + offset_k)
+        # 1e-5 cm^2/s is 1e-3 nm^2/ps; the paper's S9 is the MSD slope, 6 D.
+        return shift if self.statistics == "robust" else 6.0 * shift * 1e-3
 
 
 def make_water_simulator_with_effects(
