@@ -230,6 +230,9 @@ def main(argv=None) -> None:
     finally:
         executor.close()
     print(result.summary())
+    # The per-model posteriors (npz) beside the simulations: the criticism of the preferred
+    # model starts from them (benchmarks/criticism_water_joint.py).
+    saved = result.save(args.cache_dir / "result", overwrite=True)
     fitted_names = [n for n, f in zip(data.names, data.fitted, strict=True) if f]
     payload = {
         "data": args.data,
@@ -278,6 +281,7 @@ def main(argv=None) -> None:
         "model_choice": result.to_dict(),
         "per_model": model_rows(result),
         "cache_dir": os.path.relpath(args.cache_dir, ROOT),
+        "saved_result": os.path.relpath(saved.parent, ROOT),
         "wall_time_s": time.perf_counter() - start,
     }
     path = write_result(
