@@ -68,3 +68,46 @@ def test_temperature_offset_moves_the_thermostat_and_fluidity_shifts_d_by_yeh_hu
     paper, _ = simulator("paper", monkeypatch)
     shift = paper(np.zeros(2, np.uint32), [0.315, 0.65, 0.0, 0.0, 0.0, 2.0, 0.0])[8] - STATS[8]
     np.testing.assert_allclose(shift, 6e-3 * yeh_hummer_shift(box_nm, 0.5, sim.inner.protocol.temperature_k))
+
+
+def test_joint_catalogue_drops_the_m_site_for_three_site_models():
+    from md.water.joint_criticism import joint_catalogue
+
+    assert "msite_shift" in [e.name for e in joint_catalogue("TIP4P/2005")]
+    spce = [e.name for e in joint_catalogue("SPC/E")]
+    assert spce == ["charge_scale", "temperature_offset", "finite_box_diffusion", "oh_contamination"]
+    assert all("msite_shift" not in e.confusable_with for e in joint_catalogue("SPC/E"))
+
+
+def test_joint_simulator_applies_the_effects_to_model_protocol_and_summaries(monkeypatch):
+    from md.water import model_simulator
+    from md.water.joint_criticism import WaterModelWithEffects
+
+    calls: list = []
+
+    def run(self, key, theta):
+        calls.append((self.model, self.protocol.temperature_k, list(theta)))
+        curves = SimpleNamespace(density_kg_m3=DENSITY)
+        return SimpleNamespace(
+            statistics=STATS.copy(),
+            density_kg_m3=DENSITY,
+            hvap_kj_mol=44.0,
+            curves=curves,
+            run=SimpleNamespace(num_molecules=216),
+        )
+
+    monkeypatch.setattr(model_simulator.WaterModelSimulator, "run", run)
+    sim = WaterModelWithEffects("TIP4P/2005", "quick", "robust", "neutron")
+    assert sim.effects == [e.name for e in sim.catalogue]
+    key = np.zeros(2, np.uint32)
+    nulls = sim(key, [0.3159, 0.77, 0.0, 0.0, 0.0, 0.0, 0.0])
+    np.testing.assert_array_equal(nulls, np.concatenate([STATS, [DENSITY, 44.0]]))
+    assert calls[-1][0] == sim.model and calls[-1][1] == sim.base.protocol.temperature_k
+
+    sim(key, [0.3159, 0.77, 0.05, 0.001, 10.0, 0.0, 0.0])
+    model, temperature, theta = calls[-1]
+    assert model.charge_h_e == sim.model.charge_h_e * 1.05
+    assert model.om_distance_nm == sim.model.om_distance_nm + 0.001
+    assert temperature == sim.base.protocol.temperature_k + 10.0 and theta == [0.3159, 0.77]
+    with pytest.raises(ValueError, match="theta_full must hold"):
+        sim(key, [0.3159, 0.77, 0.0])

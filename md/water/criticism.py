@@ -89,6 +89,20 @@ def water_catalogue() -> Catalogue:
     )
 
 
+def diffusion_shift(
+    num_molecules: int, density_kg_m3: float, fluidity_per_mpa_s: float, temperature_k: float, statistics: str
+) -> float:
+    """The Yeh-Hummer shift of S9 for a cubic box of ``num_molecules`` at ``density_kg_m3``, in
+    S9's units (``robust``: D in 1e-5 cm^2/s; ``paper``: the MSD slope in nm^2/ps, 6 D)."""
+    from md.water.joint_data import yeh_hummer_shift
+
+    mass_kg = num_molecules * 18.01528e-3 / 6.02214076e23
+    box_nm = (mass_kg / density_kg_m3) ** (1.0 / 3.0) * 1e9
+    shift = yeh_hummer_shift(box_nm, 1.0 / fluidity_per_mpa_s, temperature_k)
+    # 1e-5 cm^2/s is 1e-3 nm^2/ps; the paper's S9 is the MSD slope, 6 D.
+    return shift if statistics == "robust" else 6.0 * shift * 1e-3
+
+
 class WaterSimulatorWithEffects:
     """Picklable host simulator ``simulate(key, theta_full (7,)) -> S1..S9`` for criticism.
 
@@ -156,8 +170,9 @@ class WaterSimulatorWithEffects:
         fluidity = float(theta_full[5])
         if fluidity != 0.0:
             stats = stats.copy()
-            stats[8] += self.diffusion_shift(
-                out.run.num_molecules, out.curves.density_kg_m3, fluidity, float(theta_full[4])
+            temperature = self.inner.protocol.temperature_k + float(theta_full[4])
+            stats[8] += diffusion_shift(
+                out.run.num_molecules, out.curves.density_kg_m3, fluidity, temperature, self.statistics
             )
         stats = np.where(OBSERVED_KINDS[self.observed_kind], stats, 0.0)
         if self.with_density:
@@ -177,20 +192,6 @@ class WaterSimulatorWithEffects:
             protocol = replace(self.inner.protocol, temperature_k=self.inner.protocol.temperature_k + offset_k)
             self._at_temperature[offset_k] = make_simulator(protocol, statistics, observed_kind, **options)
         return self._at_temperature[offset_k]
-
-    def diffusion_shift(
-        self, num_molecules: int, density_kg_m3: float, fluidity_per_mpa_s: float, offset_k: float = 0.0
-    ) -> float:
-        """The Yeh-Hummer shift of S9 for a cubic box of ``num_molecules`` at the run's mean
-        density, in S9's units (robust: D in 1e-5 cm^2/s; paper: the MSD slope in nm^2/ps, 6 D)."""
-        from md.water.joint_data import yeh_hummer_shift
-
-        protocol = self.inner.protocol
-        mass_kg = num_molecules * 18.01528e-3 / 6.02214076e23
-        box_nm = (mass_kg / density_kg_m3) ** (1.0 / 3.0) * 1e9
-        shift = yeh_hummer_shift(box_nm, 1.0 / fluidity_per_mpa_s, protocol.temperature_k + offset_k)
-        # 1e-5 cm^2/s is 1e-3 nm^2/ps; the paper's S9 is the MSD slope, 6 D.
-        return shift if self.statistics == "robust" else 6.0 * shift * 1e-3
 
 
 def make_water_simulator_with_effects(
