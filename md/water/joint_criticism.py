@@ -72,6 +72,11 @@ class WaterModelWithEffects:
     def __repr__(self) -> str:
         return f"WaterModelWithEffects({self.base!r}, effects={self.effects})"
 
+    @property
+    def protocol(self) -> Any:
+        """The protocol at the effects' nulls (for caches keyed on it)."""
+        return self.base.protocol
+
     def simulator_for(self, eta: dict[str, float]) -> Any:
         """The WaterModelSimulator with the charge, M-site and temperature effects applied."""
         from md.water.model_simulator import WaterModelSimulator
