@@ -63,6 +63,8 @@ def test_surrogate_evidence_matches_the_analytic_evidence_and_resumes(tmp_path):
     for post in result.posteriors:
         assert post.particles.shape[0] >= 1000
         assert post.diagnostics["validated"]
+        # Both models reproduce these data: the predictive check must not reject them.
+        assert post.diagnostics["observed_misfit"]["p_value"] > 1e-3
 
     again = jaxabc.run(
         models,
@@ -95,6 +97,10 @@ def test_surrogate_model_choice_picks_the_model_that_made_the_data():
     p, se = result.probability("same")
     assert result.best == "same"
     assert p - 4.0 * se > 0.99
+    # The wrong model cannot reproduce the data; the predictive check says so, the right one passes.
+    wrong = result.posterior("mirror").diagnostics["observed_misfit"]
+    assert wrong["p_value"] < 1e-6 and wrong["dof"] == 2
+    assert result.posterior("same").diagnostics["observed_misfit"]["p_value"] > 1e-3
 
 
 def test_surrogate_model_choice_refuses_what_its_evidence_cannot_use():

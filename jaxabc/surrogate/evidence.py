@@ -44,7 +44,7 @@ import numpy as np
 from jaxabc.surrogate import design, emulator, sampling
 from jaxabc.surrogate._support import _evaluate, _noise_correlation
 
-__all__ = ["Evidence", "evidence_from_state", "likelihood_from_state", "with_evidence"]
+__all__ = ["Evidence", "evidence_from_state", "likelihood_from_state", "observed_misfit", "with_evidence"]
 
 # Roles of the rows of a SurrogateState (as in .algorithm, which imports this module's users).
 _ROLE_EMPTY, _ROLE_HOLDOUT = -1, 1
@@ -152,13 +152,15 @@ def evidence_from_state(
     rng: np.random.Generator,
     num_samples: int = NUM_SAMPLES,
     num_groups: int = NUM_GROUPS,
+    fitted: tuple[emulator.OutputTransform, sampling.LikelihoodModel] | None = None,
 ) -> Evidence:
     """``log Z`` of the raw observed summaries for a finished run, with its standard error.
 
     NaN (standard error NaN) when the summaries were projected (PCA): the projected likelihood
-    is not a density of the raw summaries.
+    is not a density of the raw summaries.  ``fitted``: the run's refitted
+    :func:`likelihood_from_state`, when the caller has it already.
     """
-    transform, model = likelihood_from_state(state, low, high, observed, settings)
+    transform, model = fitted or likelihood_from_state(state, low, high, observed, settings)
     active = np.asarray(model.active, bool)
     if transform.rotation.shape[0] != transform.rotation.shape[1]:
         return Evidence(float("nan"), float("nan"), float("nan"), float("nan"), active, 0)
@@ -183,12 +185,55 @@ def evidence_from_state(
     return Evidence(log_z, float(np.hypot(is_se, jk_se)), is_se, jk_se, active, len(points.x))
 
 
+def observed_misfit(
+    model: sampling.LikelihoodModel, transform: emulator.OutputTransform, x_draws: np.ndarray
+) -> dict[str, Any]:
+    """How far the observed summaries lie from the posterior predictive of the emulated model.
+
+    ``x_draws (P, d)``: posterior draws in the unit box.  The predictive covariance is the
+    simulator's noise plus the emulator's variance plus the spread of the emulated mean over
+    the draws, so the check includes the parameters' uncertainty.  Returns the posterior mean
+    of each output's standardised residual ``(z_obs - mu) / sqrt(noise^2 + var)`` (``None``
+    for outputs left out; in summary order unless the outputs were projected), the squared
+    Mahalanobis distance of the observed summaries over the active outputs, its degrees of
+    freedom and the chi-square tail probability: a small ``p_value`` says no parameter value
+    reproduces the data within the noise (misspecification, or a measurement error missing).
+    """
+    from scipy.stats import chi2
+
+    active = np.asarray(model.active, bool)
+    means, variances = [], []
+    for i in range(0, len(x_draws), _CHUNK):
+        m, v = emulator.predict(model.emulator, jnp.asarray(x_draws[i : i + _CHUNK]))
+        means.append(np.asarray(m, np.float64))
+        variances.append(np.asarray(v, np.float64))
+    mean, var = np.concatenate(means), np.concatenate(variances)
+    noise_sd = np.exp(np.asarray(model.emulator.log_noise, np.float64))
+    z_obs = np.asarray(model.z_obs, np.float64)
+    r = np.mean((z_obs - mean) / np.sqrt(noise_sd**2 + var), axis=0)
+    chol = np.asarray(model.noise_chol, np.float64)
+    cov = noise_sd[:, None] * (chol @ chol.T) * noise_sd[None, :] + np.diag(var.mean(axis=0))
+    cov += np.atleast_2d(np.cov(mean, rowvar=False))
+    e = (z_obs - mean.mean(axis=0))[active]
+    c = cov[np.ix_(active, active)]
+    d2 = float(e @ np.linalg.solve(c, e))
+    dof = int(active.sum())
+    return {
+        "standardised_residuals": [float(v) if a else None for v, a in zip(r, active, strict=True)],
+        "projected": bool(transform.rotation.shape[0] != transform.rotation.shape[1]),
+        "mahalanobis_squared": d2,
+        "dof": dof,
+        "p_value": float(chi2.sf(d2, dof)),
+    }
+
+
 def with_evidence(algorithm: Any, prior: Any, observed: Any, seed: int = 0) -> Any:
     """The surrogate ``algorithm`` whose ``finalize`` also reports the evidence.
 
     The driver puts ``log_evidence`` on the result (``result.log_evidence``); its standard
     error, the summaries in the likelihood and the sample size go to ``result.diagnostics``
-    (``log_evidence_se``, ``evidence_active``, ``evidence_samples``).  Only for
+    (``log_evidence_se``, ``evidence_active``, ``evidence_samples``), with the posterior
+    predictive check of the observed summaries (``observed_misfit``, :func:`observed_misfit`).  Only for
     ``mode="synthetic_likelihood"``; the posterior and the checkpoints are unchanged, apart
     from the fingerprint's ``evidence_seed`` setting.
     """
@@ -204,7 +249,11 @@ def with_evidence(algorithm: Any, prior: Any, observed: Any, seed: int = 0) -> A
     def finalize_with_evidence(state: Any) -> dict:
         out = finalize(state)
         with jax.enable_x64(True):
-            ev = evidence_from_state(state, low, high, obs, settings, np.random.default_rng(seed))
+            transform, model = likelihood_from_state(state, low, high, obs, settings)
+            rng = np.random.default_rng(seed)
+            ev = evidence_from_state(state, low, high, obs, settings, rng, fitted=(transform, model))
+            x = (np.asarray(state.draws, np.float64) - low) / (high - low)
+            misfit = observed_misfit(model, transform, x)
         out["log_evidence"] = ev.log_z
         out["diagnostics"] = dict(out["diagnostics"]) | {
             "log_evidence_se": ev.log_z_se,
@@ -212,6 +261,7 @@ def with_evidence(algorithm: Any, prior: Any, observed: Any, seed: int = 0) -> A
             "log_evidence_jackknife_se": ev.jackknife_se,
             "evidence_active": ev.active.tolist(),
             "evidence_samples": ev.num_samples,
+            "observed_misfit": misfit,
         }
         return out
 
