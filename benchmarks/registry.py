@@ -391,6 +391,18 @@ REGISTRY: tuple[Entry, ...] = (
         "same command continues an interrupted run",
     ),
     Entry(
+        "criticism_water_joint",
+        f"{R}/criticism_water_joint.json",
+        "python benchmarks/criticism_water_joint.py --data xray --workers 2",
+        long=True,
+        requires=("gmx",),
+        quick="python benchmarks/criticism_water_joint.py --tiny --workers 2",
+        quick_output=f"{Q}/criticism_water_joint.json",
+        estimated_cost_s=7200.0,
+        note="criticism of the model-choice winner on the joint data, surrogate refits; needs "
+        "water_model_choice first; its simulations are cached, so the same command continues",
+    ),
+    Entry(
         "water_density_relaxation",
         f"{R}/water_density_relaxation.json",
         "python benchmarks/water_density_relaxation.py --workers 2",
