@@ -24,6 +24,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import RESULTS, ROOT
+from _docs_model_choice import page_water_model_choice
 from registry import REGISTRY
 from status import format_cost, status_of
 
@@ -1292,7 +1293,7 @@ every benchmark's quick mode reproduces its saved numbers.
 - [Speedup and scheduling](speedup.md)
 - [Cost of an ABC step](abc_overhead.md)
 - [Water calibrations](water_calibrations.md) and [the quick preset's density relaxation](water_density_relaxation.md)
-- [Model criticism of water](criticism.md)
+- [Model criticism of water](criticism.md) and [which water model the data prefer](water_model_choice.md)
 - [Model criticism of neon and argon](criticism_fluids.md)
 
 Status when these pages were generated:
@@ -1318,6 +1319,7 @@ PAGES: dict[str, Callable[[], str]] = {
     "criticism.md": page_criticism,
     "water_jaxmd.md": page_water_jaxmd,
     "criticism_fluids.md": page_criticism_fluids,
+    "water_model_choice.md": lambda: page_water_model_choice(load, source, table, f, misfit_rows, cause_rows),
 }
 
 

@@ -210,6 +210,7 @@ def model_rows(result) -> dict:
             "holdout_mean_squared_error": diag.get("holdout_mean_squared_error"),
             "log_evidence_importance_se": diag.get("log_evidence_importance_se"),
             "log_evidence_jackknife_se": diag.get("log_evidence_jackknife_se"),
+            "observed_misfit": diag.get("observed_misfit"),
         }
     return rows
 

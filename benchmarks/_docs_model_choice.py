@@ -1,0 +1,100 @@
+"""Results page of the water model choice and the criticism of its winner (issue 17)."""
+
+from __future__ import annotations
+
+from typing import Any
+
+
+def page_water_model_choice(load, source, table, f, misfit_rows, cause_rows) -> str:
+    """``docs/results/water_model_choice.md`` from ``water_model_choice.json`` and
+    ``criticism_water_joint.json`` (the helpers are make_docs's)."""
+    parts = [
+        "# Which rigid water model do the measured data prefer?\n",
+        "Five published rigid water models, each with its O-O Lennard-Jones pair calibrated by the GP "
+        "surrogate on the joint measured summaries, compared by their synthetic-likelihood evidence "
+        "(`benchmarks/water_model_choice.py`); then the criticism of the most probable one "
+        "(`benchmarks/criticism_water_joint.py`).  GROMACS quick preset.\n",
+    ]
+    d = load("water_model_choice")
+    if d is None:
+        parts.append(
+            "Not run yet: `python benchmarks/water_model_choice.py --data xray --workers 2 --resume "
+            "--cache-dir benchmarks/results/water_model_choice/xray_quick` (hours of GROMACS; the same "
+            "command continues an interrupted run).\n"
+        )
+        return "\n".join(parts)
+    summaries = d["summaries"]
+    added = summaries.get("measurement_sd_added") or {}
+    parts += [
+        source("water_model_choice", data=d) + "\n",
+        f"Data: {d['data']}; fitted summaries {', '.join(summaries['fitted'])}; held out "
+        f"{', '.join(summaries['held_out'])}; measurement errors added to every simulation: "
+        + ", ".join(f"{k} {f(v, 3)}" for k, v in added.items() if v)
+        + f"; method: {d['model_choice']['metadata'].get('method', d['method'])}.\n",
+        f"Stopped: {d['model_choice']['stop_reason']}.\n",
+        table(_HEADER, [_row(name, row, d["models"][name]) for name, row in d["per_model"].items()]) + "\n",
+        "Probability: delta-method error, and the 2.5-97.5 % points with each log evidence drawn from "
+        "its error (importance sampling and the design jackknife).  Misfit p: the chi-square check of the "
+        "observed summaries against each model's emulated posterior predictive; a small value says the "
+        "model does not reproduce the data within the noise, whatever its probability.\n",
+    ]
+    c = load("criticism_water_joint")
+    if c is not None:
+        parts += _criticism(c, source, table, f, misfit_rows, cause_rows)
+    return "\n".join(parts)
+
+
+_HEADER = [
+    "model",
+    "probability",
+    "95 % interval",
+    "sigma_OO nm: estimate [95 %] / published",
+    "epsilon_OO kJ/mol: estimate [95 %] / published",
+    "runs (failed)",
+    "validated",
+    "misfit p",
+]
+
+
+def _row(name: str, row: dict[str, Any], model: dict[str, Any]) -> list[str]:
+    est, ci, pub = row["bayes_estimate"], row["credible_interval_95"], model["published_lj"]
+    lo, hi = row["probability_interval_95"] or (float("nan"), float("nan"))
+    misfit = row.get("observed_misfit") or {}
+    p = misfit.get("p_value")
+    return [
+        name,
+        f"{row['probability']:.3g}",
+        f"[{lo:.3g}, {hi:.3g}]",
+        f"{est[0]:.4f} [{ci[0][0]:.4f}, {ci[0][1]:.4f}] / {pub[0]:.4f}",
+        f"{est[1]:.3f} [{ci[1][0]:.3f}, {ci[1][1]:.3f}] / {pub[1]:.3f}",
+        f"{row['num_simulations']} ({row['num_failures']})",
+        "yes" if row["validated"] else f"no: {row['validation_failure']}",
+        "-" if p is None else f"{p:.2g}",
+    ]
+
+
+def _criticism(c: dict[str, Any], source, table, f, misfit_rows, cause_rows) -> list[str]:
+    refits = ", ".join(
+        f"{label} {r['num_simulations']} runs, ESS {r['ess']:.0f}" for label, r in c["refits"].items() if r
+    )
+    lines = [
+        f"## What {c['model']} still gets wrong\n",
+        source("criticism_water_joint", data=c) + "\n",
+        f"Held out: {', '.join(c['summaries']['held_out'])}; catalogue: {', '.join(c['catalogue'])}.\n",
+        f"Verdict: {c['verdict']}\n",
+    ]
+    misfits, causes = misfit_rows(c, 8), cause_rows(c)
+    if misfits:
+        lines.append(table(["misfit", "observed", "predictive 90 % band", "z", "adjusted p", ""], misfits) + "\n")
+    if causes:
+        lines.append(table(["cause", "score", "explains", "adjusted p", "ambiguous", "note"], causes) + "\n")
+    gain = c.get("gain")
+    if gain:
+        lines.append(
+            f"Refits through the surrogate ({refits}).  Held-out delta log predictive density "
+            f"{f(gain['delta_lpd'], 2)} +- {f(gain['delta_lpd_se'], 2)}.\n"
+        )
+    return lines
+
+
+__all__ = ["page_water_model_choice"]
