@@ -213,6 +213,13 @@ def parse_arguments(argv=None) -> argparse.Namespace:
     parser.add_argument("--checkpoint-dir", type=Path, default=None)
     parser.add_argument("--resume", action="store_true")
     parser.add_argument(
+        "--continue",
+        dest="continue_run",
+        action="store_true",
+        help="resume when --checkpoint-dir holds a checkpoint, else start (one command for a run "
+        "that spans several sittings)",
+    )
+    parser.add_argument(
         "--quick",
         action="store_true",
         help="reproduction check: 30 particles, 2 steps, 5 ps MD runs, unscaled distance (a pilot "
@@ -246,6 +253,11 @@ def observed_vector(args, simulate) -> np.ndarray:
     if args.data == "simulated":
         return simulate(np.array([0, OBSERVED_KEY], np.uint32), TIP4P_THETA)
     return datasets.observed_statistics(args.data, args.statistics, args.diffusion)
+
+
+def _has_checkpoint(args) -> bool:
+    """``--continue`` and a checkpoint to continue from."""
+    return bool(args.continue_run and args.checkpoint_dir and (args.checkpoint_dir / "checkpoint.npz").exists())
 
 
 def pilot_scales(args, simulate, prior, executor) -> np.ndarray:
@@ -722,7 +734,7 @@ def main(argv=None) -> dict:
                 max_simulations=args.max_simulations,
                 max_failure_fraction=args.max_failure_fraction,
                 checkpoint_dir=args.checkpoint_dir,
-                resume=args.resume,
+                resume=args.resume or _has_checkpoint(args),
                 stop_after_iterations=args.stop_after_iterations,
                 simulator_id=simulator_identity(simulate, None),
                 progress=not args.no_progress,
