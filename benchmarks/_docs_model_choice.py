@@ -16,13 +16,6 @@ def page_water_model_choice(load, source, table, f, misfit_rows, cause_rows) -> 
         "(`benchmarks/criticism_water_joint.py`).  GROMACS quick preset.\n",
     ]
     d = load("water_model_choice")
-    if d is None:
-        parts.append(
-            "Not run yet: `python benchmarks/water_model_choice.py --data xray --workers 2 --resume "
-            "--cache-dir benchmarks/results/water_model_choice/xray_quick` (hours of GROMACS; the same "
-            "command continues an interrupted run).\n"
-        )
-        return "\n".join(parts)
     summaries = d["summaries"]
     added = summaries.get("measurement_sd_added") or {}
     parts += [
