@@ -79,6 +79,7 @@ def parse_arguments(argv=None) -> argparse.Namespace:
     parser.add_argument("--budget-per-model", type=int, default=200, help="surrogate: GROMACS runs per model")
     parser.add_argument("--checkpoint-dir", type=Path, default=None, help="surrogate: default runs/.../surrogate")
     parser.add_argument("--resume", action="store_true", help="surrogate: continue from --checkpoint-dir")
+    parser.add_argument("--predictive", type=int, default=20, help="posterior-predictive runs per model (0: none)")
     parser.add_argument("--preset", choices=("quick", "paper"), default="quick")
     parser.add_argument("--particles", type=int, default=100, help="accepted particles per model and generation")
     parser.add_argument("--steps", type=int, default=8, help="maximum generations, the prior sample included")
@@ -96,7 +97,7 @@ def parse_arguments(argv=None) -> argparse.Namespace:
     if args.tiny:
         args.particles, args.steps, args.pilot = 4, 2, 3
         args.md_steps = args.md_steps or 1000
-        args.budget_per_model = 50
+        args.budget_per_model, args.predictive = 50, 2
     suffix = f"{args.data}_{args.preset}" + ("_tiny" if args.tiny else "")
     args.cache_dir = args.cache_dir or ROOT / "runs" / "water_model_choice" / suffix
     args.checkpoint_dir = args.checkpoint_dir or args.cache_dir / "surrogate"
@@ -215,6 +216,100 @@ def model_rows(result) -> dict:
     return rows
 
 
+def _predictive_run(task) -> dict | None:
+    """Worker: one posterior-predictive run of a model (cached in ``path``; None if it failed)."""
+    name, preset, data, overrides, seed, theta, path = task
+    path = Path(path)
+    if path.is_file():
+        with np.load(path) as stored:
+            return None if bool(stored["failed"]) else {k: stored[k] for k in stored.files if k != "failed"}
+    from jaxabc.errors import SimulationFailure
+    from md.water.model_simulator import WaterModelSimulator
+    from md.water.statistics import ROBUST_GRID_NM
+
+    simulate = WaterModelSimulator(name, preset, "robust", data, **overrides)
+    try:
+        out = simulate.run(np.array([3, seed], np.uint32), theta)
+    except SimulationFailure:
+        np.savez(path.with_suffix(".tmp.npz"), failed=True)
+        os.replace(path.with_suffix(".tmp.npz"), path)
+        return None
+    c = out.curves
+    values = {
+        "g_oo": np.interp(ROBUST_GRID_NM, c.r_oo_nm, c.g_oo),
+        "g_oh": np.interp(ROBUST_GRID_NM, c.r_oh_nm, c.g_oh),
+        "scalars": np.array([out.statistics[8], out.density_kg_m3, out.hvap_kj_mol]),
+    }
+    np.savez(path.with_suffix(".tmp.npz"), failed=False, **values)
+    os.replace(path.with_suffix(".tmp.npz"), path)
+    return values
+
+
+#: The predictive's scalar summaries (robust statistics), in the worker's order.
+PREDICTIVE_SCALARS = ("S9 self-diffusion 1e-5 cm2/s", "density kg/m3", "hvap kJ/mol")
+
+
+def predictive_bands(args, result) -> dict:
+    """Per model: 5/25/50/75/95 % points of g_OO, g_OH and the scalars over ``--predictive``
+    runs at posterior draws (the simulated quantities, without measurement error)."""
+    import concurrent.futures
+    import multiprocessing
+
+    from md.water.statistics import ROBUST_GRID_NM
+
+    folder = args.cache_dir / "predictive"
+    folder.mkdir(parents=True, exist_ok=True)
+    tasks, owners = [], []
+    for name, post in zip(result.names, result.posteriors, strict=True):
+        draws = post.resample(args.predictive, seed=args.seed)
+        stem = name.replace("/", "_")
+        for i, theta in enumerate(draws):
+            path = folder / f"{stem}-{args.seed}-{i}.npz"
+            tasks.append((name, args.preset, args.data, protocol_overrides(args), i, theta, str(path)))
+            owners.append(name)
+    context = multiprocessing.get_context("spawn")
+    with concurrent.futures.ProcessPoolExecutor(args.workers, mp_context=context) as pool:
+        outputs = list(pool.map(_predictive_run, tasks))
+    levels = [0.05, 0.25, 0.5, 0.75, 0.95]
+    bands = {"r_nm": ROBUST_GRID_NM.tolist(), "levels": levels, "scalar_names": list(PREDICTIVE_SCALARS), "models": {}}
+    for name in result.names:
+        runs = [o for o, owner in zip(outputs, owners, strict=True) if owner == name and o is not None]
+        entry = {"num_runs": len(runs), "num_failed": owners.count(name) - len(runs)}
+        if runs:
+            for key in ("g_oo", "g_oh", "scalars"):
+                entry[key] = np.quantile(np.array([r[key] for r in runs]), levels, axis=0).tolist()
+        bands["models"][name] = entry
+    return bands
+
+
+def plot_predictive(bands: dict, data: str, path: Path) -> None:
+    """g_OO median and 5-95 % band per model over the measured curve."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from md.water import datasets
+
+    r = np.array(bands["r_nm"])
+    fig, ax = plt.subplots(figsize=(7, 4.5))
+    for i, (name, entry) in enumerate(bands["models"].items()):
+        if "g_oo" not in entry:
+            continue
+        q = np.array(entry["g_oo"])
+        ax.fill_between(r, q[0], q[-1], color=f"C{i}", alpha=0.2)
+        ax.plot(r, q[2], color=f"C{i}", lw=1, label=name)
+    curve = datasets.xray_goo() if data == "xray" else datasets.neutron_curves()["OO"]
+    ax.plot(curve.r_nm, curve.g, "k-", lw=1.5, label=f"measured ({data})")
+    ax.set_xlim(0.22, 0.8)
+    ax.set_xlabel("r [nm]")
+    ax.set_ylabel("g_OO(r)")
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
 def main(argv=None) -> None:
     args = parse_arguments(argv)
     start = time.perf_counter()
@@ -234,6 +329,9 @@ def main(argv=None) -> None:
     # The per-model posteriors (npz) beside the simulations: the criticism of the preferred
     # model starts from them (benchmarks/criticism_water_joint.py).
     saved = result.save(args.cache_dir / "result", overwrite=True)
+    bands = predictive_bands(args, result) if args.predictive else None
+    if bands is not None:
+        plot_predictive(bands, args.data, saved.parent / "predictive_goo.png")
     fitted_names = [n for n, f in zip(data.names, data.fitted, strict=True) if f]
     payload = {
         "data": args.data,
@@ -281,6 +379,7 @@ def main(argv=None) -> None:
         },
         "model_choice": result.to_dict(),
         "per_model": model_rows(result),
+        "predictive": bands,
         "cache_dir": os.path.relpath(args.cache_dir, ROOT),
         "saved_result": os.path.relpath(saved.parent, ROOT),
         "wall_time_s": time.perf_counter() - start,
