@@ -31,6 +31,21 @@ def page_water_model_choice(load, source, table, f, misfit_rows, cause_rows) -> 
         "observed summaries against each model's emulated posterior predictive; a small value says the "
         "model does not reproduce the data within the noise, whatever its probability.\n",
     ]
+    bands = d.get("predictive")
+    if bands:
+        observed = dict(zip(summaries["names"], summaries["observed"], strict=True))
+        measured = [observed.get("S9"), observed.get("density_kg_m3"), observed.get("hvap_kj_mol")]
+        rows = [["measured", *(f(v, 4) for v in measured), "-"]]
+        for name, entry in bands["models"].items():
+            q = entry.get("scalars")
+            cells = [f"{q[2][j]:.4g} [{q[0][j]:.4g}, {q[-1][j]:.4g}]" for j in range(3)] if q else ["-", "-", "-"]
+            rows.append([name, *cells, f"{entry['num_runs']} ({entry['num_failed']} failed)"])
+        parts += [
+            "Posterior predictive (median [5 %, 95 %] over runs at posterior draws; simulated values, "
+            "without the measurement error):\n",
+            table(["model", *bands["scalar_names"], "runs"], rows) + "\n",
+            f"g_OO bands of every model over the measured curve: `{d['saved_result']}/predictive_goo.png`.\n",
+        ]
     c = load("criticism_water_joint")
     if c is not None:
         parts += _criticism(c, source, table, f, misfit_rows, cause_rows)
