@@ -143,3 +143,17 @@ def test_probability_intervals_follow_the_evidence_errors():
     # Errors of several nats: the interval spans nearly all of [0, 1].
     low, high = probability_intervals(np.zeros(2), np.full(2, 5.0), np.full(2, 0.5), rng)[0]
     assert low < 0.01 and high > 0.99
+
+
+def test_evidence_is_nan_for_projected_summaries_and_refused_in_abc_mode():
+    from jaxabc.surrogate import build
+    from jaxabc.surrogate.evidence import with_evidence
+
+    observed = np.array([1.05, 1.25])
+    with pytest.raises(ValueError, match="synthetic-likelihood mode only"):
+        with_evidence(build(PRIOR, 1000, observed=observed, max_simulations=100, mode="abc"), PRIOR, observed)
+    # One principal component of two summaries: the likelihood is of a projection, not a density
+    # of the summaries, so no evidence comparable across models exists.
+    algo = with_evidence(build(PRIOR, 1000, observed=observed, max_simulations=80, max_outputs=1), PRIOR, observed)
+    result = jaxabc.run(algo, linear(5.0, 0.0, 0.2), PRIOR, observed, max_simulations=80, dtype="float64")
+    assert np.isnan(result.log_evidence) and np.isnan(result.diagnostics["log_evidence_se"])
