@@ -219,11 +219,14 @@ class ABCResult:
 
         Kish's ``1 / sum w^2`` for weighted independent particles; for an ABCsubsim population
         of Markov chains the autocorrelation- and lineage-aware estimate in ``ess[-1]``
-        (never more than the distinct particles).
+        (never more than the distinct particles); for the surrogate's NUTS draws (equal
+        weights, correlated) the chains' ESS its algorithm reported in ``ess[-1]``.
         """
         kish = float(1.0 / np.sum(self.weights**2))
         if self._is_chain_population() and "ess" in self.diagnostics:
             return min(kish, float(self.diagnostics["ess"]))
+        if self.algorithm == "surrogate" and np.size(self.ess) and np.isfinite(self.ess[-1]):
+            return min(kish, float(self.ess[-1]))
         return kish
 
     def mcse(self) -> np.ndarray:

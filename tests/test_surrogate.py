@@ -514,3 +514,38 @@ def test_too_few_successes_explore_where_runs_succeed():
     # No point repeats a run already made.
     gaps = np.linalg.norm(batch[:, None] - np.asarray(proposal.thetas)[None], axis=-1)
     assert gaps.min() > 0.05
+
+
+def test_a_two_mode_posterior_is_weighed_by_its_mass_not_by_where_chains_start():
+    import jaxabc
+
+    # s = theta^2 + noise with s_obs = 1: modes at theta = -1 and +1 of equal mass.  NUTS chains
+    # do not cross the valley at 0, so the reported draws must come from the importance sample,
+    # and the result's ESS must be that of those draws, not the 2000 rows.
+    prior = Uniform(np.array([-2.0]), np.array([2.0]))
+
+    def simulate(key, theta):
+        return theta[0] ** 2 + 0.05 * jax.random.normal(key, (2,))
+
+    result = jaxabc.run("surrogate", simulate, prior, np.array([1.0, 1.0]), max_simulations=150, seed=0)
+    assert result.diagnostics["posterior_sampler"].startswith("importance resampling")
+    ess = result.effective_sample_size()
+    assert 50 <= ess <= len(result.weights) and ess == pytest.approx(float(result.ess[-1]))
+    x, w = result.particles[:, 0], result.weights
+    assert np.all(np.abs(np.abs(x) - 1.0) < 0.2)
+    # Equal masses: the share of +1 is 1/2 up to its Monte Carlo error at this ESS.
+    assert abs(w[x > 0].sum() - 0.5) < 4.0 * np.sqrt(0.25 / ess)
+
+
+def test_the_result_ess_of_nuts_draws_is_the_chains_not_the_rows():
+    import jaxabc
+
+    prior = Uniform(np.array([-3.0]), np.array([3.0]))
+
+    def simulate(key, theta):
+        return theta[0] + 0.2 * jax.random.normal(key, (2,))
+
+    result = jaxabc.run("surrogate", simulate, prior, np.array([0.3, 0.5]), max_simulations=100, seed=1)
+    assert result.diagnostics["posterior_sampler"] == "NUTS"
+    assert result.effective_sample_size() == pytest.approx(float(result.ess[-1]))
+    assert result.effective_sample_size() < len(result.weights)

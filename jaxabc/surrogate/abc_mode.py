@@ -39,7 +39,7 @@ from jaxabc.algorithms.base import make_jax_step
 from jaxabc.distances import get_distance
 from jaxabc.priors import Uniform
 from jaxabc.surrogate.emulator import Emulator, OutputTransform, predict
-from jaxabc.surrogate.sampling import Feasibility, feasibility, log_feasibility, nearest_runs_succeed
+from jaxabc.surrogate.sampling import Feasibility, feasibility, log_feasibility, log_level, nearest_runs_cut
 
 __all__ = ["ABCPosterior", "EmulatedSimulator", "emulated_simulator", "emulated_summaries", "run_abc"]
 
@@ -121,7 +121,7 @@ def emulated_simulator(
         back,
         jnp.asarray(low),
         jnp.asarray(high),
-        jnp.asarray(np.log(min_feasibility) if min_feasibility > 0 else -np.inf),
+        log_level(min_feasibility),
     )
 
 
@@ -141,8 +141,9 @@ def emulated_summaries(model: EmulatedSimulator, key: jax.Array, theta: jax.Arra
     )
     y = model.summary_mean + model.summary_scale * (z @ model.back_rotation)
     ok = jax.random.uniform(k_fail, (), mean.dtype) < feasibility(model.feasible, x[None, :])[0]
+    # The cuts of the synthetic likelihood (sampling.log_feasibility_term), as hard failures.
     ok = ok & (log_feasibility(model.feasible, x[None, :])[0] >= model.log_min_feasibility)
-    ok = ok & (nearest_runs_succeed(model.feasible, x[None, :])[0] | ~model.feasible.active)
+    ok = ok & ~nearest_runs_cut(model.feasible, x[None, :])[0]
     return jnp.where(ok, y, jnp.nan)
 
 

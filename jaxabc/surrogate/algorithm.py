@@ -29,14 +29,14 @@ from jax.tree_util import keystr, tree_flatten_with_path
 from jaxabc.algorithms.base import ABCAlgorithm, Info, Proposal
 from jaxabc.distances import get_distance
 from jaxabc.surrogate import abc_mode, design, diagnostics, emulator, sampling
-from jaxabc.surrogate._support import _FLAG, _evaluate, _failure_text, _noise_correlation
+from jaxabc.surrogate._fit import ROLE_DESIGN, ROLE_EMPTY, ROLE_FAILED_HOLDOUT, ROLE_HOLDOUT, fit_likelihood
+from jaxabc.surrogate._support import _FLAG, _evaluate, _failure_text
 
 __all__ = ["MODES", "EmulatorFailure", "SurrogateState", "build"]
 
 MODES = ("synthetic_likelihood", "abc")
 
 DESIGN, VALIDATING, DONE = 0, 1, 2
-ROLE_EMPTY, ROLE_DESIGN, ROLE_HOLDOUT, ROLE_FAILED_HOLDOUT = -1, 0, 1, 2
 
 
 class EmulatorFailure(RuntimeError):
@@ -144,12 +144,26 @@ def kish_ess(log_weights: np.ndarray) -> float:
     return float(w.sum() ** 2 / np.sum(w**2))
 
 
+#: Split R-hat above which the NUTS chains are taken not to agree (e.g. in different modes of
+#: a multimodal posterior); the reported draws are then importance-resampled instead.
+RHAT_MAX = 1.05
+#: Also when the chains' mean is this many importance-sample posterior sds from the importance
+#: sample's mean (all chains in one of several modes passes R-hat).
+MAX_MEAN_SHIFT = 0.5
+#: Importance-sample points per posterior draw in that case.
+_IS_POOL = 16
+
+
 def posterior_ess(state: Any, num_chains: int, abc: bool) -> float:
     """ESS of the reported draws: Kish's of the weights in ABC mode (and before NUTS has run),
     ArviZ's multi-chain ESS of the NUTS chains otherwise -- equal weights say nothing of the
     chains' autocorrelation."""
     draws = np.asarray(state.draws, np.float64)
-    if abc or not np.all(np.isfinite(np.asarray(state.rhat))) or len(draws) % num_chains:
+    rhat = np.asarray(state.rhat)
+    resampled = np.any(np.asarray(state.log_weights) != 0)
+    if abc or not np.all(np.isfinite(rhat)) or resampled or len(draws) % num_chains:
+        # Weighted draws: APMCABC's population, the design phase's importance sample, or the
+        # importance resample that replaced chains which did not mix.
         return kish_ess(state.log_weights)
     from jaxabc.diagnostics import chain_ess
 
@@ -269,9 +283,7 @@ def build(
         raise ValueError(
             f"num_particles must be >= 1000 and a multiple of num_chains={num_chains}, got {num_particles}"
         )
-    if not 0.0 <= min_feasibility < 1.0:
-        raise ValueError(f"min_feasibility must be in [0, 1), got {min_feasibility}")
-    log_min_feasibility = jnp.asarray(np.log(min_feasibility) if min_feasibility > 0 else -np.inf)
+    log_min_feasibility = sampling.log_level(min_feasibility)
     if on_failure not in ("flag", "raise"):
         raise ValueError(f"on_failure must be 'flag' or 'raise', got {on_failure!r}")
     if num_replicates < 0 or batch_size < 1 or num_holdout < 5:
@@ -388,43 +400,40 @@ def build(
 
     def fit(state: SurrogateState):
         """Emulator on the design rows; returns (transform, emulator, likelihood model, z_all)."""
-        used = state.role != ROLE_EMPTY
-        design_rows = used & state.ok & (state.role != ROLE_HOLDOUT)
-        if design_rows.sum() < 3:
-            raise RuntimeError(
-                f"surrogate: only {int(design_rows.sum())} of {int(used.sum())} simulations succeeded; "
-                "the emulator needs at least 3. Check the simulator or narrow the prior"
-            )
-        transform = emulator.fit_transform(state.summaries[design_rows], max_outputs)
-        z_all = np.asarray(transform.apply(jnp.asarray(np.nan_to_num(state.summaries))))
-        x_all = to_unit(state.thetas)
-        emu = emulator.fit(x_all, z_all, design_rows)
-        loo = np.asarray(emulator.loo_residuals(emu))[design_rows]
-        # An output constant over the design (a summary the data set does not measure, zeroed
-        # by the simulator) carries no information about theta: out of the likelihood.
-        active = np.std(z_all[design_rows], axis=0) > 1e-9
-        corr = _noise_correlation(loo, active)
-        feas = sampling.fit_feasibility(x_all[used], state.ok[used], size=M)
-        z_obs = transform.apply(jnp.asarray(obs.reshape(-1)))
-        model = sampling.LikelihoodModel(
-            emu, z_obs, jnp.linalg.cholesky(jnp.asarray(corr)), feas, jnp.asarray(active), log_min_feasibility
-        )
-        return transform, emu, model, z_all
+        return fit_likelihood(state, low, high, obs, max_outputs, M, log_min_feasibility)
 
-    def importance_posterior(rng: np.random.Generator, model: sampling.LikelihoodModel):
-        """Candidate points with self-normalised importance weights of the surrogate posterior."""
+    def evaluate(model: sampling.LikelihoodModel, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        # In chunks of the candidate count: one compiled shape, bounded memory.
+        out = [_evaluate(model, x[i : i + num_candidates]) for i in range(0, len(x), num_candidates)]
+        return np.concatenate([o[0] for o in out]), np.concatenate([o[1] for o in out])
+
+    def importance_posterior(rng: np.random.Generator, model: sampling.LikelihoodModel, size: int | None = None):
+        """Candidate points with self-normalised importance weights of the surrogate posterior
+        (``size`` of them in the second, local pass; default ``num_candidates``)."""
         cand = design.candidates(rng, d, num_candidates)
         lp, ratio = _evaluate(model, cand.x)
         w = np.exp(lp - cand.log_q - np.max(lp - cand.log_q))
         w /= w.sum()
         mean = w @ cand.x
         cov = (cand.x - mean).T @ ((cand.x - mean) * w[:, None])
-        cand = design.candidates(rng, d, num_candidates, mean, cov)
-        lp, ratio = _evaluate(model, cand.x)
+        cand = design.candidates(rng, d, size or num_candidates, mean, cov)
+        lp, ratio = evaluate(model, cand.x)
         logw = lp - cand.log_q
         w = np.exp(logw - np.max(logw))
         w /= w.sum()
         return cand.x, lp, ratio, w
+
+    def importance_draws(rng: np.random.Generator, model: sampling.LikelihoodModel) -> tuple[np.ndarray, np.ndarray]:
+        """``num_particles`` draws resampled from a large importance sample, as distinct points
+        with their counts as weights (log; ``-inf`` pads): duplicates are not counted twice in
+        the ESS.  For posteriors the NUTS chains do not mix over (several modes)."""
+        x, _, _, w = importance_posterior(rng, model, _IS_POOL * num_particles)
+        unique, counts = np.unique(rng.choice(len(x), size=num_particles, p=w), return_counts=True)
+        draws = np.repeat(x[unique[:1]], num_particles, axis=0)
+        draws[: len(unique)] = x[unique]
+        log_weights = np.full(num_particles, -np.inf)
+        log_weights[: len(unique)] = np.log(counts)
+        return draws, log_weights
 
     def explore_step(key: jax.Array, state: SurrogateState, num_ok: int) -> SurrogateState:
         """Too few successful runs for an emulator (most of the box fails, as water's prior
@@ -508,13 +517,27 @@ def build(
             step_size /= 2
         rhat = np.asarray(sampling.split_rhat(draws))
         flat = np.asarray(draws).reshape(-1, d)
+        log_weights = np.zeros(num_particles)
         # Held-out points spread over the whole sample (one from each chain in turn).
         pick = np.asarray(draws)[:, :: max(1, draws.shape[1] * num_chains // num_holdout)].transpose(1, 0, 2)
         pick = pick.reshape(-1, d)[:num_holdout]
+        sd_is = np.sqrt(w @ (x - w @ x) ** 2)
+        shift = np.abs(flat.mean(axis=0) - w @ x) / np.maximum(sd_is, 1e-12)
+        if not np.all(rhat <= RHAT_MAX) or np.any(shift > MAX_MEAN_SHIFT):
+            # The chains disagree with each other or with the importance sample (chains in
+            # different modes, or all in one of several): their draws would weigh the modes by
+            # where the chains started.  An importance sample weighs them right in a low-
+            # dimensional box; R-hat stays in the diagnostics.
+            flat, log_weights = importance_draws(rng, model)
+            keep = np.flatnonzero(np.isfinite(log_weights))
+            pick = flat[
+                rng.choice(keep, size=num_holdout, p=np.exp(log_weights[keep]) / np.exp(log_weights[keep]).sum())
+            ]
         pending = np.zeros((B, d))
         pending[:num_holdout] = to_theta(pick)
         return state._replace(
             draws=to_theta(flat),
+            log_weights=log_weights,
             rhat=rhat,
             pending=pending,
             num_pending=np.int64(num_holdout),
@@ -692,6 +715,9 @@ def build(
             "amplitude_standardised": np.exp(state.hyper[:, 0]).tolist(),
             "noise_sd_standardised": np.exp(state.hyper[:, -1]).tolist(),
             "nuts_split_rhat": state.rhat.tolist(),
+            "posterior_sampler": "importance resampling (the NUTS chains disagreed)"
+            if not abc and np.any(np.asarray(state.log_weights) != 0)
+            else ("APMCABC on the emulator" if abc else "NUTS"),
             "rounds": int(state.round),
         }
         if abc:

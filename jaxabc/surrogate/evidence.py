@@ -42,12 +42,11 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxabc.surrogate import design, emulator, sampling
-from jaxabc.surrogate._support import _evaluate, _noise_correlation
+from jaxabc.surrogate._fit import ROLE_EMPTY, ROLE_HOLDOUT, fit_likelihood
+from jaxabc.surrogate._support import _evaluate
 
 __all__ = ["Evidence", "evidence_from_state", "likelihood_from_state", "observed_misfit", "with_evidence"]
 
-# Roles of the rows of a SurrogateState (as in .algorithm, which imports this module's users).
-_ROLE_EMPTY, _ROLE_HOLDOUT = -1, 1
 #: Points per importance-sampling pass and per chunk of emulator evaluations.
 NUM_SAMPLES = 1 << 14
 #: Groups of the delete-a-group jackknife over the design.
@@ -76,34 +75,18 @@ def likelihood_from_state(
 
     ``state`` is the run's :class:`~jaxabc.surrogate.SurrogateState`; ``settings`` its
     algorithm's settings (``max_outputs``, ``max_simulations``, ``min_feasibility``).  The
-    refit uses the same rows (successful, not held out) as the run's last fit, so it is the
-    same deterministic optimisation on the same data; ``drop`` (bool, shape (M,)) leaves rows
-    out (the jackknife).
+    refit is the run's own last fit (:func:`._fit.fit_likelihood`, a deterministic
+    optimisation on the same rows); ``drop`` (bool, shape (M,)) leaves rows out (the jackknife).
     """
-    thetas, summaries = np.asarray(state.thetas, np.float64), np.asarray(state.summaries, np.float64)
-    role, ok = np.asarray(state.role), np.asarray(state.ok, bool)
-    used = role != _ROLE_EMPTY
-    if drop is not None:
-        used = used & ~drop
-    rows = used & ok & (role != _ROLE_HOLDOUT)
-    if rows.sum() < 3:
-        raise ValueError(f"only {int(rows.sum())} successful design runs: no emulator to integrate")
-    transform = emulator.fit_transform(summaries[rows], int(settings["max_outputs"]))
-    z_all = np.asarray(transform.apply(jnp.asarray(np.nan_to_num(summaries))))
-    x_all = (thetas - low) / (high - low)
-    emu = emulator.fit(x_all, z_all, rows)
-    loo = np.asarray(emulator.loo_residuals(emu))[rows]
-    active = np.std(z_all[rows], axis=0) > 1e-9
-    corr = _noise_correlation(loo, active)
-    feas = sampling.fit_feasibility(x_all[used], ok[used], size=int(settings["max_simulations"]))
-    m = float(settings["min_feasibility"])
-    model = sampling.LikelihoodModel(
-        emu,
-        transform.apply(jnp.asarray(np.asarray(observed, np.float64).reshape(-1))),
-        jnp.linalg.cholesky(jnp.asarray(corr)),
-        feas,
-        jnp.asarray(active),
-        jnp.asarray(np.log(m) if m > 0 else -np.inf),
+    transform, _, model, _ = fit_likelihood(
+        state,
+        low,
+        high,
+        observed,
+        int(settings["max_outputs"]),
+        int(settings["max_simulations"]),
+        sampling.log_level(float(settings["min_feasibility"])),
+        drop,
     )
     return transform, model
 
@@ -169,7 +152,7 @@ def evidence_from_state(
     # Delete-a-group jackknife over the design rows (Efron & Tibshirani 1993, ch. 11): every
     # refit re-estimates the noise, the correlation and the hyper-parameters.
     role = np.asarray(state.role)
-    design_rows = np.flatnonzero((role != _ROLE_EMPTY) & (role != _ROLE_HOLDOUT))
+    design_rows = np.flatnonzero((role != ROLE_EMPTY) & (role != ROLE_HOLDOUT))
     labels = rng.permutation(design_rows.size) % num_groups
     replicates = []
     for g in range(num_groups):

@@ -40,7 +40,9 @@ __all__ = [
     "fit_feasibility",
     "log_feasibility",
     "log_feasibility_term",
+    "log_level",
     "log_posterior",
+    "nearest_runs_cut",
     "nearest_runs_succeed",
     "nuts",
     "split_rhat",
@@ -144,6 +146,19 @@ def nearest_runs_succeed(model: Feasibility, x: jax.Array) -> jax.Array:
     return failed < min(KNN_MAX_FAILED, k)
 
 
+def log_level(min_feasibility: float) -> jax.Array:
+    """``log min_feasibility`` as the array the models carry (``-inf`` for 0: never cut)."""
+    if not 0.0 <= min_feasibility < 1.0:
+        raise ValueError(f"min_feasibility must be in [0, 1), got {min_feasibility}")
+    return jnp.asarray(np.log(min_feasibility) if min_feasibility > 0 else -np.inf)
+
+
+def nearest_runs_cut(model: Feasibility, x: jax.Array) -> jax.Array:
+    """True where the nearest-run rule cuts ``x (n, d)`` off: most of its nearest runs failed
+    (never while no run has failed, ``model.active`` False)."""
+    return model.active & ~nearest_runs_succeed(model, x)
+
+
 def log_feasibility(model: Feasibility, x: jax.Array) -> jax.Array:
     """``log p_feasible`` at unit-box points ``x (n, d)``: array (n,), finite where p underflows."""
     return jnp.where(model.active, jax.nn.log_sigmoid(_features(x) @ model.weights), 0.0)
@@ -210,7 +225,7 @@ def log_feasibility_term(model: LikelihoodModel, x: jax.Array) -> jax.Array:
     """``log p_feasible`` plus the constraints (below ``min_feasibility``; where the nearest runs
     failed), at ``x (n, d)``: (n,)."""
     lf = log_feasibility(model.feasible, x)
-    cut = jnp.where(nearest_runs_succeed(model.feasible, x) | ~model.feasible.active, 0.0, _KNN_CUT)
+    cut = jnp.where(nearest_runs_cut(model.feasible, x), _KNN_CUT, 0.0)
     return lf - _CUT_SLOPE * jnp.maximum(model.log_min_feasibility - lf, 0.0) - cut
 
 
