@@ -15,7 +15,7 @@ likelihood (Gaussian summaries within the simulator's noise), not of an ABC tole
 from __future__ import annotations
 
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -25,7 +25,7 @@ import numpy as np
 from jaxabc._model_choice_result import ModelChoiceResult, _file_stem, probabilities_with_errors
 from jaxabc.seeding import seed_from_key
 
-__all__ = ["METHOD", "probability_intervals", "run_model_choice_surrogate"]
+__all__ = ["METHOD", "probability_intervals", "run_from_driver", "run_model_choice_surrogate"]
 
 METHOD = (
     "GP-surrogate synthetic likelihood per model, evidence by importance sampling over the prior "
@@ -58,6 +58,7 @@ def run_model_choice_surrogate(
     simulator_id: str | None = None,
     progress: bool = False,
     metadata: dict | None = None,
+    driver: Callable[..., Any] | None = None,
     **surrogate_options: Any,
 ) -> ModelChoiceResult:
     """Posterior probabilities of competing models from their surrogate evidences.
@@ -86,6 +87,9 @@ def run_model_choice_surrogate(
         model whose folder holds a checkpoint continues (or, finished, returns at once).
     simulator_id : str, optional
         Prefix of each model's simulator identity in its checkpoint (``<id>:<model name>``).
+    driver : callable, optional
+        :func:`jaxabc.run`, which calibrates each model (``jaxabc.run`` passes itself; the
+        default imports it).
     **surrogate_options
         Passed to :func:`jaxabc.surrogate.build` (not ``mode``, ``max_outputs`` or
         ``observed``: the evidence needs the synthetic likelihood on the raw summaries).
@@ -108,7 +112,10 @@ def run_model_choice_surrogate(
         summary constant over one model's design but not another's): their evidences would be
         densities of different data.
     """
-    import jaxabc
+    import importlib
+
+    # By name at call time when not given: the driver imports this module, not the other way.
+    calibrate: Callable[..., Any] = driver if driver is not None else importlib.import_module("jaxabc.run").run
     from jaxabc.model_choice import _model_prior, as_models
     from jaxabc.surrogate import build
     from jaxabc.surrogate.evidence import with_evidence
@@ -142,7 +149,7 @@ def run_model_choice_surrogate(
         ckpt = None if folder is None else folder / _file_stem(model.name)
         model_resume = bool(resume and ckpt is not None and (ckpt / "checkpoint.npz").exists())
         posteriors.append(
-            jaxabc.run(
+            calibrate(
                 algo,
                 model.simulate,
                 model.prior,
@@ -200,4 +207,50 @@ def run_model_choice_surrogate(
             "probability_interval_95": interval.tolist(),
             **(metadata or {}),
         },
+    )
+
+
+def run_from_driver(arguments: dict[str, Any], driver: Callable[..., Any]) -> Any:
+    """``jaxabc.run(models, observed=..., method="surrogate", max_simulations=N)`` (its
+    ``locals()`` and the function itself): ``N`` split evenly over the models."""
+    from jaxabc.model_choice import as_models
+
+    models = arguments["algorithm"]
+    if arguments["simulate"] is not None or arguments["prior"] is not None:
+        raise TypeError(
+            "model choice takes the models as the first argument and the data by keyword: "
+            "jaxabc.run(models, observed=data, method='surrogate', max_simulations=...)"
+        )
+    if arguments["observed"] is None:
+        raise TypeError("model choice needs the data: jaxabc.run(models, observed=data, ...)")
+    options = dict(arguments["algorithm_options"])
+    options.pop("method")
+    unsupported = [
+        k
+        for k in ("num_steps", "final_threshold", "max_wall_time", "stop_after_iterations")
+        if arguments[k] is not None
+    ]
+    if arguments["distance"] != "mean_abs":
+        unsupported.append("distance")
+    if unsupported:
+        raise TypeError(f"model choice with method='surrogate' does not take {unsupported}")
+    total = arguments["max_simulations"]
+    if total is None:
+        raise TypeError("method='surrogate' needs max_simulations (the total, split evenly over the models)")
+    num_models = len(as_models(models))
+    return run_model_choice_surrogate(
+        models,
+        arguments["observed"],
+        int(total) // max(num_models, 1),
+        2000 if arguments["num_particles"] is None else arguments["num_particles"],
+        arguments["seed"],
+        executor=arguments["executor"],
+        checkpoint_dir=arguments["checkpoint_dir"],
+        resume=arguments["resume"],
+        overwrite=arguments["overwrite"],
+        simulator_id=arguments["simulator_id"],
+        progress=arguments["progress"],
+        metadata=arguments["metadata"],
+        driver=driver,
+        **options,
     )

@@ -600,8 +600,6 @@ def run_from_driver(arguments: dict[str, Any]) -> Any:
         raise TypeError("model choice needs the data: jaxabc.run(models, observed=data, ...)")
     options = dict(arguments["algorithm_options"])
     method = options.pop("method", "abc_smc")
-    if method == "surrogate":
-        return _surrogate_from_driver(models, arguments, options)
     if method != "abc_smc":
         raise ValueError(f"model choice method must be 'abc_smc' or 'surrogate', got {method!r}")
     unknown = sorted(set(options) - set(_OPTIONS))
@@ -615,40 +613,5 @@ def run_from_driver(arguments: dict[str, Any]) -> Any:
         1000 if num_particles is None else num_particles,
         stop_after_generations=arguments["stop_after_iterations"],
         **passed,
-        **options,
-    )
-
-
-def _surrogate_from_driver(models: Any, arguments: dict[str, Any], options: dict[str, Any]) -> Any:
-    """``jaxabc.run(models, observed=..., method="surrogate", max_simulations=N)``: ``N`` split
-    evenly over the models (:func:`jaxabc._model_choice_surrogate.run_model_choice_surrogate`)."""
-    from jaxabc._model_choice_surrogate import run_model_choice_surrogate
-
-    unsupported = [
-        k
-        for k in ("num_steps", "final_threshold", "max_wall_time", "stop_after_iterations")
-        if arguments[k] is not None
-    ]
-    if arguments["distance"] != "mean_abs":
-        unsupported.append("distance")
-    if unsupported:
-        raise TypeError(f"model choice with method='surrogate' does not take {unsupported}")
-    total = arguments["max_simulations"]
-    if total is None:
-        raise TypeError("method='surrogate' needs max_simulations (the total, split evenly over the models)")
-    num_models = len(models)
-    return run_model_choice_surrogate(
-        models,
-        arguments["observed"],
-        int(total) // max(num_models, 1),
-        2000 if arguments["num_particles"] is None else arguments["num_particles"],
-        arguments["seed"],
-        executor=arguments["executor"],
-        checkpoint_dir=arguments["checkpoint_dir"],
-        resume=arguments["resume"],
-        overwrite=arguments["overwrite"],
-        simulator_id=arguments["simulator_id"],
-        progress=arguments["progress"],
-        metadata=arguments["metadata"],
         **options,
     )

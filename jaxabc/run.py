@@ -403,6 +403,12 @@ def run(
     """
     if type(algorithm) in (list, tuple) or type(simulate) in (list, tuple):
         # Model choice, imported here so that a calibration never loads it.
+        if algorithm_options.get("method") == "surrogate":
+            # One surrogate calibration per model, each through this function (passed, not
+            # imported, so that model choice does not import the driver back).
+            from jaxabc._model_choice_surrogate import run_from_driver as surrogate_choice
+
+            return surrogate_choice(dict(locals()), run)
         from jaxabc.model_choice import run_from_driver
 
         return run_from_driver(dict(locals()))

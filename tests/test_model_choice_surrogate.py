@@ -105,7 +105,7 @@ def test_surrogate_model_choice_picks_the_model_that_made_the_data():
 
 def test_surrogate_model_choice_refuses_what_its_evidence_cannot_use():
     observed = np.array([0.1, 0.2])
-    models = [linear(1.0, 0.0, 0.1), linear(2.0, 0.0, 0.1)]
+    models = [("a", linear(1.0, 0.0, 0.1), PRIOR), ("b", linear(2.0, 0.0, 0.1), PRIOR)]
     with pytest.raises(TypeError, match="needs max_simulations"):
         jaxabc.run(models, observed=observed, method="surrogate")
     with pytest.raises(TypeError, match="distance"):
