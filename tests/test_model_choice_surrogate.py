@@ -116,6 +116,7 @@ def test_surrogate_model_choice_refuses_what_its_evidence_cannot_use():
         jaxabc.run(models, observed=observed, method="bolfi", max_simulations=200)
 
 
+@pytest.mark.slow
 def test_surrogate_model_choice_refuses_models_whose_likelihoods_use_other_summaries():
     # The second model never varies its second summary, so its likelihood leaves it out: the
     # two evidences would be densities of different data.
