@@ -213,16 +213,9 @@ def run_model_choice_surrogate(
 def run_from_driver(arguments: dict[str, Any], driver: Callable[..., Any]) -> Any:
     """``jaxabc.run(models, observed=..., method="surrogate", max_simulations=N)`` (its
     ``locals()`` and the function itself): ``N`` split evenly over the models."""
-    from jaxabc.model_choice import as_models
+    from jaxabc.model_choice import as_models, check_driver_arguments
 
-    models = arguments["algorithm"]
-    if arguments["simulate"] is not None or arguments["prior"] is not None:
-        raise TypeError(
-            "model choice takes the models as the first argument and the data by keyword: "
-            "jaxabc.run(models, observed=data, method='surrogate', max_simulations=...)"
-        )
-    if arguments["observed"] is None:
-        raise TypeError("model choice needs the data: jaxabc.run(models, observed=data, ...)")
+    models = check_driver_arguments(arguments)
     options = dict(arguments["algorithm_options"])
     options.pop("method")
     unsupported = [

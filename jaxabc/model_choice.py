@@ -579,12 +579,9 @@ _PASSED_ON = (
 _OPTIONS = ("quantile", "model_prior", "covariance_factor", "defensive_fraction")
 
 
-def run_from_driver(arguments: dict[str, Any]) -> Any:
-    """:func:`jaxabc.run`'s arguments (its ``locals()``) when it was given a list of models.
-
-    Returns a :class:`ModelChoiceResult`; typed ``Any`` because ``jaxabc.run`` is annotated to
-    return an ``ABCResult`` (call :func:`run_model_choice` for the precise type).
-    """
+def check_driver_arguments(arguments: dict[str, Any]) -> Any:
+    """The models of a model-choice call of :func:`jaxabc.run` (its ``locals()``), after
+    refusing a call shaped like a calibration or one without data."""
     models, simulate, prior = arguments["algorithm"], arguments["simulate"], arguments["prior"]
     if type(models) not in (list, tuple):
         raise TypeError(
@@ -598,6 +595,16 @@ def run_from_driver(arguments: dict[str, Any]) -> Any:
         )
     if arguments["observed"] is None:
         raise TypeError("model choice needs the data: jaxabc.run(models, observed=data, ...)")
+    return models
+
+
+def run_from_driver(arguments: dict[str, Any]) -> Any:
+    """:func:`jaxabc.run`'s arguments (its ``locals()``) when it was given a list of models.
+
+    Returns a :class:`ModelChoiceResult`; typed ``Any`` because ``jaxabc.run`` is annotated to
+    return an ``ABCResult`` (call :func:`run_model_choice` for the precise type).
+    """
+    models = check_driver_arguments(arguments)
     options = dict(arguments["algorithm_options"])
     method = options.pop("method", "abc_smc")
     if method != "abc_smc":
