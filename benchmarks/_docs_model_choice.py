@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from typing import Any
 
+from md.water.models import PAPER_TIP4P_ESTIMATES
+
 
 def page_water_model_choice(load, source, table, f, misfit_rows, cause_rows) -> str:
     """``docs/results/water_model_choice.md`` from ``water_model_choice.json`` and
@@ -26,6 +28,8 @@ def page_water_model_choice(load, source, table, f, misfit_rows, cause_rows) -> 
         + f"; method: {d['model_choice']['metadata'].get('method', d['method'])}.\n",
         f"Stopped: {d['model_choice']['stop_reason']}.\n",
         table(_HEADER, [_row(name, row, d["models"][name]) for name, row in d["per_model"].items()]) + "\n",
+        "Side by side with the published parameters and the paper's TIP4P calibration:\n",
+        side_by_side(d, table) + "\n",
         "Probability: delta-method error, and the 2.5-97.5 % points with each log evidence drawn from "
         "its error (importance sampling and the design jackknife).  Misfit p: the chi-square check of the "
         "observed summaries against each model's emulated posterior predictive; a small value says the "
@@ -50,6 +54,31 @@ def page_water_model_choice(load, source, table, f, misfit_rows, cause_rows) -> 
     if c is not None:
         parts += _criticism(c, source, table, f, misfit_rows, cause_rows)
     return "\n".join(parts)
+
+
+def side_by_side(d: dict[str, Any], table) -> str:
+    """Markdown table: each model's published (sigma, epsilon), its calibration here, and the
+    TIP4P Bayes estimates of Dutta et al. (2018) on the same kind of data (g_OO alone, APMCABC)."""
+    header = ["", "sigma_OO (nm)", "epsilon_OO (kJ/mol)", "correlation", "probability"]
+    rows = []
+    paper = PAPER_TIP4P_ESTIMATES.get(d["data"])
+    if paper:
+        est = paper["bayes_estimate"]
+        label = f"paper, TIP4P ({d['data']} g_OO only)"
+        rows.append([label, f"{est[0]:.4f}", f"{est[1]:.3f}", paper["correlation"], "-"])
+    for name, row in d["per_model"].items():
+        pub, est, ci = d["models"][name]["published_lj"], row["bayes_estimate"], row["credible_interval_95"]
+        rows.append([f"{name}, published", f"{pub[0]:.4f}", f"{pub[1]:.3f}", "-", "-"])
+        rows.append(
+            [
+                f"{name}, calibrated here",
+                f"{est[0]:.4f} [{ci[0][0]:.4f}, {ci[0][1]:.4f}]",
+                f"{est[1]:.3f} [{ci[1][0]:.3f}, {ci[1][1]:.3f}]",
+                f"{row['correlation']:.2f}",
+                f"{row['probability']:.3g}",
+            ]
+        )
+    return table(header, rows)
 
 
 _HEADER = [
@@ -105,4 +134,4 @@ def _criticism(c: dict[str, Any], source, table, f, misfit_rows, cause_rows) -> 
     return lines
 
 
-__all__ = ["page_water_model_choice"]
+__all__ = ["page_water_model_choice", "side_by_side"]

@@ -24,7 +24,9 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import RESULTS, ROOT
-from _docs_model_choice import page_water_model_choice
+
+sys.path.insert(0, str(ROOT))  # md.water.models, for the paper's TIP4P estimates
+from _docs_model_choice import page_water_model_choice, side_by_side
 from registry import REGISTRY
 from status import format_cost, status_of
 
@@ -1354,8 +1356,36 @@ if (RESULTS / "water_model_choice.json").is_file():
     PAGES["water_model_choice.md"] = lambda: page_water_model_choice(load, source, table, f, misfit_rows, cause_rows)
 
 
+def block_water_model_choice() -> str:
+    """The side-by-side table of the water model choice, for ``md/water/README.md``."""
+    d = load("water_model_choice")
+    if d is None:
+        return "Not run yet: `python benchmarks/regenerate.py --only water_model_choice --budget 4h`."
+    return "\n\n".join([source("water_model_choice", data=d), side_by_side(d, table)])
+
+
+#: Generated blocks inside hand-written Markdown: ``<!-- generated: NAME -->`` ... ``<!-- /generated -->``.
+BLOCKS: dict[str, tuple[str, Callable[[], str]]] = {
+    "water_model_choice": ("md/water/README.md", block_water_model_choice),
+}
+
+
+def fill_blocks(text: str, path: str) -> str:
+    """``text`` with every generated block of ``path`` re-rendered (ValueError: a marker is missing)."""
+    for name, (where, render) in BLOCKS.items():
+        if where != path:
+            continue
+        start, end = f"<!-- generated: {name} -->", "<!-- /generated -->"
+        i = text.find(start)
+        j = text.find(end, i + 1)
+        if i < 0 or j < 0:
+            raise ValueError(f"{path} lacks the markers of the generated block {name!r}")
+        text = text[: i + len(start)] + "\n" + render().rstrip() + "\n" + text[j:]
+    return text
+
+
 def main(argv: list[str] | None = None) -> int:
-    """Write (or with ``--check`` compare) every page; exit 1 when a checked page differs."""
+    """Write (or with ``--check`` compare) every page and generated block; exit 1 when one differs."""
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--check", action="store_true", help="compare instead of writing")
     parser.add_argument("--out", type=Path, default=DOCS)
@@ -1370,6 +1400,15 @@ def main(argv: list[str] | None = None) -> int:
             continue
         path.parent.mkdir(parents=True, exist_ok=True)
         path.write_text(text)
+    for rel in sorted({where for where, _ in BLOCKS.values()}) if args.out == DOCS else []:
+        path = ROOT / rel
+        old = path.read_text()
+        new = fill_blocks(old, rel)
+        if args.check:
+            if new != old:
+                differ.append(rel)
+        elif new != old:
+            path.write_text(new)
     if differ:
         print(f"out of date: {', '.join(differ)} (run python benchmarks/make_docs.py)")
         return 1

@@ -415,14 +415,16 @@ REGISTRY: tuple[Entry, ...] = (
     Entry(
         "criticism_water_joint",
         f"{R}/criticism_water_joint.json",
-        "python benchmarks/criticism_water_joint.py --data xray --workers 2",
+        "python benchmarks/criticism_water_joint.py --data xray --workers 2 "
+        f"--cache-dir {R}/criticism_water_joint/xray_quick",
         long=True,
         requires=("gmx",),
         quick="python benchmarks/criticism_water_joint.py --tiny --workers 2",
         quick_output=f"{Q}/criticism_water_joint.json",
         estimated_cost_s=7200.0,
         note="criticism of the model-choice winner on the joint data, surrogate refits; needs "
-        "water_model_choice first; its simulations are cached, so the same command continues",
+        "water_model_choice first; its simulations are kept under benchmarks/results/"
+        "criticism_water_joint, so the same command continues an interrupted run",
     ),
     Entry(
         "water_density_relaxation",

@@ -77,6 +77,7 @@ import jax.numpy as jnp  # noqa: E402
 import jaxabc  # noqa: E402
 from md.water import datasets, make_simulator  # noqa: E402
 from md.water.gromacs import TIP4P_PARAMETERS, find_gmx  # noqa: E402
+from md.water.models import PAPER_TIP4P_ESTIMATES  # noqa: E402
 from md.water.statistics import ROBUST_GRID_NM, STATISTIC_NAMES, STATISTIC_UNITS  # noqa: E402
 
 sys.path.insert(0, str(ROOT / "benchmarks"))
@@ -86,11 +87,7 @@ from jaxabc.checkpoint import simulator_identity  # noqa: E402
 
 TIP4P_THETA = np.array([TIP4P_PARAMETERS.sigma_ow_nm, TIP4P_PARAMETERS.epsilon_ow_kj_mol])
 PRIOR_LOW, PRIOR_HIGH = (0.281, 0.2), (0.53, 0.9)
-PAPER = {  # Bayes estimate (sigma nm, epsilon kJ/mol) and posterior correlation, Dutta et al.
-    "simulated": {"bayes_estimate": [0.3153, 0.646], "correlation": -0.994},
-    "neutron": {"bayes_estimate": [0.319, 0.614], "correlation": -0.95},
-    "xray": {"bayes_estimate": [0.326, 0.607], "correlation": -0.99},
-}
+PAPER = PAPER_TIP4P_ESTIMATES  # Dutta et al. 2018, by dataset
 # Experimental values at 298 K and 1 bar, as in the paper's Table 2 (Vega & Abascal 2011).
 EXPERIMENT_298K = {
     "density_kg_m3": 997.0,

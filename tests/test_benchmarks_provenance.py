@@ -242,3 +242,16 @@ def test_results_pages_render_and_name_their_sources() -> None:
         if name != "index.md":
             assert "Source: `benchmarks/results/" in text, f"{name} does not name its JSON"
             assert "commit `" in text, f"{name} does not name the commit of its JSON"
+
+
+def test_generated_blocks_have_markers_and_name_their_source() -> None:
+    import make_docs
+
+    for name, (rel, render) in make_docs.BLOCKS.items():
+        text = (ROOT / rel).read_text()
+        filled = make_docs.fill_blocks(text, rel)
+        assert f"<!-- generated: {name} -->" in filled, name
+        body = render()
+        assert "Source: `benchmarks/results/" in body or body.startswith("Not run yet"), name
+    with pytest.raises(ValueError, match="lacks the markers"):
+        make_docs.fill_blocks("no markers here", "md/water/README.md")

@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, replace
+from typing import Any
 
 import numpy as np
 
@@ -37,6 +38,7 @@ from md.water.topology import TIP4PParameters, topology_text
 __all__ = [
     "MODELS",
     "MODEL_NAMES",
+    "PAPER_TIP4P_ESTIMATES",
     "WaterModel",
     "get_model",
     "model_prior",
@@ -208,6 +210,14 @@ MODELS: dict[str, WaterModel] = {
     )
 }
 MODEL_NAMES: tuple[str, ...] = tuple(MODELS)
+
+#: TIP4P calibrations of Dutta, Brotzakis & Mira (2018), Figs. 5-7: Bayes estimate
+#: (sigma_OO nm, epsilon_OO kJ/mol) and posterior correlation, by dataset.
+PAPER_TIP4P_ESTIMATES: dict[str, dict[str, Any]] = {
+    "simulated": {"bayes_estimate": [0.3153, 0.646], "correlation": -0.994},
+    "neutron": {"bayes_estimate": [0.319, 0.614], "correlation": -0.95},
+    "xray": {"bayes_estimate": [0.326, 0.607], "correlation": -0.99},
+}
 
 
 def get_model(name: str | WaterModel) -> WaterModel:
