@@ -50,6 +50,9 @@ def page_water_model_choice(load, source, table, f, misfit_rows, cause_rows) -> 
             table(["model", *bands["scalar_names"], "runs"], rows) + "\n",
             f"g_OO bands of every model over the measured curve: `{d['saved_result']}/predictive_goo.png`.\n",
         ]
+    check = load("water_model_paper_check")
+    if check is not None:
+        parts += _paper_check(check, source, table, f)
     c = load("criticism_water_joint")
     if c is not None:
         parts += _criticism(c, source, table, f, misfit_rows, cause_rows)
@@ -107,6 +110,44 @@ def _row(name: str, row: dict[str, Any], model: dict[str, Any]) -> list[str]:
         f"{row['num_simulations']} ({row['num_failures']})",
         "yes" if row["validated"] else f"no: {row['validation_failure']}",
         "-" if p is None else f"{p:.2g}",
+    ]
+
+
+def _paper_check(c: dict[str, Any], source, table, f) -> list[str]:
+    sets, shift, summaries = c["sets"], c["preset_shift"], c["summaries"]
+
+    def cell(stats: dict[str, Any], j: int) -> str:
+        if stats["mean"] is None:
+            return "-"
+        sd = "" if stats["sd"] is None else f" +- {stats['sd'][j]:.3g}"
+        return f"{stats['mean'][j]:.4g}{sd}"
+
+    rows = []
+    for j, name in enumerate(summaries["names"]):
+        observed = summaries["observed"][j]
+        if observed == 0.0:
+            continue  # not measured in these data
+        d = "-" if shift["se"] is None else f"{shift['mean'][j]:+.3g} +- {shift['se'][j]:.2g}"
+        rows.append(
+            [
+                name + (" (held out)" if name in summaries["held_out"] else ""),
+                f"{observed:.4g}",
+                cell(sets["calibrated_quick"], j),
+                cell(sets["calibrated_paper"], j),
+                d,
+                cell(sets["published_paper"], j),
+            ]
+        )
+    header = ["summary", "measured", "calibrated, quick", "calibrated, paper", "shift paper - quick"]
+    header.append("published, paper")
+    return [
+        f"## Does {c['model']}'s calibration hold in the paper preset?\n",
+        source("water_model_paper_check", data=c) + "\n",
+        f"{sets['calibrated_paper']['num_runs']} posterior draws run in both presets with the same keys "
+        f"(mean +- sd over runs; the shift is paired, +- its SE), and "
+        f"{sets['published_paper']['num_runs']} runs at the published parameters in the paper preset "
+        f"({c['check_preset']}).\n",
+        table(header, rows) + "\n",
     ]
 
 

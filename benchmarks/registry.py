@@ -413,6 +413,19 @@ REGISTRY: tuple[Entry, ...] = (
         "same command continues an interrupted run",
     ),
     Entry(
+        "water_model_paper_check",
+        f"{R}/water_model_paper_check.json",
+        "python benchmarks/water_model_paper_check.py --data xray --workers 2",
+        long=True,
+        requires=("gmx",),
+        quick="python benchmarks/water_model_paper_check.py --tiny --workers 2",
+        quick_output=f"{Q}/water_model_paper_check.json",
+        estimated_cost_s=1200.0,
+        note="the model-choice winner's posterior draws in the paper preset beside the quick one, and its "
+        "published parameters; needs water_model_choice first; runs cached under "
+        "benchmarks/results/water_model_choice/paper_check",
+    ),
+    Entry(
         "criticism_water_joint",
         f"{R}/criticism_water_joint.json",
         "python benchmarks/criticism_water_joint.py --data xray --workers 2 "

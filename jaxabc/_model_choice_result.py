@@ -152,14 +152,21 @@ class ModelChoiceResult:
                 f"ABC model choice: {len(self.names)} models, {self.num_simulations} simulations, "
                 f"{len(self.thresholds)} steps, shared tolerance {self.threshold:.4g}"
             )
+        # Where the log evidences carry large errors the delta-method SE of a probability can
+        # exceed 1; the interval drawn from those errors (surrogate evidence) is then shown.
+        interval = self.metadata.get("probability_interval_95")
         lines = [
             f"{head}, stopped: {self.stop_reason}, {self.wall_time:.1f} s",
             f"  {'model':>16s}  {'probability':>18s}  {'log evidence':>17s}  {'simulations':>11s}  {'ESS':>7s}",
         ]
         for i, name in enumerate(self.names):
             post = self.posteriors[i]
+            if interval is None:
+                probability = f"{self.probabilities[i]:8.4f} +- {self.standard_errors[i]:6.4f}"
+            else:
+                probability = f"{self.probabilities[i]:.3f} [{interval[i][0]:.2f}, {interval[i][1]:.2f}]"
             lines.append(
-                f"  {name:>16s}  {self.probabilities[i]:8.4f} +- {self.standard_errors[i]:6.4f}"
+                f"  {name:>16s}  {probability:>18s}"
                 f"  {self.log_evidence[i]:8.3f} +- {self.log_evidence_errors[i]:5.3f}"
                 f"  {post.num_simulations:11d}  {post.effective_sample_size():7.1f}"
             )
