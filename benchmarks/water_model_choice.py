@@ -10,8 +10,9 @@ enter the distance, the held-out ones (the density) stay in the cache for critic
 Method ``--method surrogate`` (the default): :func:`jaxabc.run` over the five models with
 ``method="surrogate"``: one GP-surrogate calibration per model on ``--budget-per-model`` GROMACS
 runs, model probabilities from the synthetic-likelihood evidences
-(:mod:`jaxabc.surrogate.evidence`).  The stated measurement errors of the data (self-diffusion,
-enthalpy of vaporisation) are added to every simulation (:class:`jaxabc.noise.MeasurementError`,
+(:mod:`jaxabc.surrogate.evidence`).  The stated measurement errors of the data (the g(r)
+statistics' from the curves' pointwise errors, :func:`md.water.datasets.statistic_errors`;
+self-diffusion; enthalpy of vaporisation) are added to every simulation (:class:`jaxabc.noise.MeasurementError`,
 Wilkinson 2013), so a summary is fitted within its measurement error, not within the
 simulation's much smaller noise.  Each model checkpoints to ``--checkpoint-dir/<model>``;
 ``--resume`` continues model by model.

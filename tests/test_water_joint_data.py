@@ -60,3 +60,25 @@ def test_yeh_hummer_shift_by_hand():
     assert yeh_hummer_shift(1.0, 0.5, 300.0) == pytest.approx(4 * expected, rel=1e-12)
     with pytest.raises(ValueError, match="finite and > 0"):
         yeh_hummer_shift(0.0, 1.0)
+
+
+@pytest.mark.parametrize("kind", ["xray", "neutron"])
+def test_curve_errors_propagate_to_the_statistics(kind):
+    adopted, by_assumption = datasets.statistic_errors(kind)
+    data = joint_observed(kind)
+    measured = slice(3, 8) if kind == "xray" else slice(0, 8)
+    np.testing.assert_array_equal(data.errors[measured], adopted[measured])
+    assert np.all(np.isfinite(adopted[measured])) and np.all(adopted[measured] > 0)
+    assert np.all(adopted[measured] >= by_assumption[:, measured].max(axis=0))
+    if kind == "xray":
+        assert np.all(np.isnan(data.errors[:3]))
+    # S4 (mean of g_OO over the window) is linear in g: under one common shift z * error its
+    # sd is |S4(g + error) - S4(g)| exactly; 400 draws estimate an sd within ~3.5 % (1 SE).
+    curve = datasets.xray_goo() if kind == "xray" else datasets.neutron_curves()["OO"]
+    from md.water.statistics import robust_oo_statistics
+
+    exact = abs(
+        float(robust_oo_statistics(curve.r_nm, curve.g + curve.error)[0] - robust_oo_statistics(curve.r_nm, curve.g)[0])
+    )
+    common = datasets.ERROR_CORRELATION_LENGTHS_NM.index(float("inf"))
+    assert by_assumption[common, 3] == pytest.approx(exact, rel=4 * 0.035)

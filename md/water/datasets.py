@@ -54,6 +54,7 @@ from md.water.statistics import (
 __all__ = [
     "DATA_DIR",
     "DIFFUSION_298K_CM2_S",
+    "ERROR_CORRELATION_LENGTHS_NM",
     "NEUTRON_STORED_ORDER",
     "PAPER_DIFFUSION_CM2_S",
     "PAPER_STORED_SLOPE_NM2_PS",
@@ -65,6 +66,7 @@ __all__ = [
     "observed_statistics",
     "published_posterior",
     "published_statistics",
+    "statistic_errors",
     "xray_goo",
 ]
 
@@ -264,3 +266,64 @@ def _from_curves(kind: str, oh_statistics, oo_statistics) -> np.ndarray:
         vector[0:3] = oh_statistics(curves["OH"].r_nm, curves["OH"].g)
         vector[3:8] = oo_statistics(curves["OO"].r_nm, curves["OO"].g)
     return vector
+
+
+#: Correlation lengths (nm) of the curves' pointwise errors that :func:`statistic_errors` tries:
+#: independent points, errors correlated over about a tenth of the first peak, one common shift.
+ERROR_CORRELATION_LENGTHS_NM: tuple[float, ...] = (0.0, 0.01, float("inf"))
+
+
+@cache
+def statistic_errors(kind: str, num_draws: int = 400, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """Errors of the robust S1..S8 propagated from the measured curves' stated pointwise errors.
+
+    The sources state an error per point but not how the points' errors are correlated, and
+    the statistics respond very differently (a common shift moves S4 and S7, independent
+    noise moves the extrema's positions).  So the curves are redrawn ``num_draws`` times as
+    ``g + error * z`` under each correlation of :data:`ERROR_CORRELATION_LENGTHS_NM` (Gaussian
+    kernel in r; z standard normal) and, per statistic, the largest of the resulting standard
+    deviations is adopted: a conservative error, not a measured one.
+
+    Parameters
+    ----------
+    kind : {"xray", "neutron"}
+    num_draws : int
+    seed : int
+        Fixed: the errors are part of the data definition.
+
+    Returns
+    -------
+    adopted : np.ndarray, shape (9,)
+        NaN where the data measure nothing (S1..S3 of X-ray) and for S9 (not from a curve).
+    by_assumption : np.ndarray, shape (len(ERROR_CORRELATION_LENGTHS_NM), 9)
+    """
+    if kind not in ("xray", "neutron"):
+        raise ValueError(f"kind must be 'xray' or 'neutron', got {kind!r}")
+    rng = np.random.default_rng(seed)
+    curves = {"OO": xray_goo()} if kind == "xray" else neutron_curves()
+    targets = [("OO", slice(3, 8), robust_oo_statistics)]
+    if kind == "neutron":
+        targets.append(("OH", slice(0, 3), robust_oh_statistics))
+    by_assumption = np.full((len(ERROR_CORRELATION_LENGTHS_NM), 9), np.nan)
+    for a, length in enumerate(ERROR_CORRELATION_LENGTHS_NM):
+        for pair, where, statistics in targets:
+            curve = curves[pair]
+            z = _correlated_normals(rng, curve.r_nm, length, num_draws)
+            values = np.array([np.asarray(statistics(curve.r_nm, curve.g + curve.error * zi)) for zi in z])
+            by_assumption[a, where] = np.nanstd(values, axis=0, ddof=1)
+    return np.max(by_assumption, axis=0), by_assumption
+
+
+def _correlated_normals(rng: np.random.Generator, r_nm: np.ndarray, length: float, n: int) -> np.ndarray:
+    """(n, len(r)) standard normals, correlated with a Gaussian kernel of ``length`` nm in r
+    (0: independent; inf: one value per draw), on the window the statistics read."""
+    if length == 0.0:
+        return rng.standard_normal((n, len(r_nm)))
+    if np.isinf(length):
+        return np.repeat(rng.standard_normal((n, 1)), len(r_nm), axis=1)
+    window = np.flatnonzero((r_nm >= 0.15) & (r_nm <= 0.85))
+    x = r_nm[window]
+    kernel = np.exp(-0.5 * ((x[:, None] - x[None, :]) / length) ** 2) + 1e-6 * np.eye(len(x))
+    z = np.zeros((n, len(r_nm)))
+    z[:, window] = rng.standard_normal((n, len(x))) @ np.linalg.cholesky(kernel).T
+    return z

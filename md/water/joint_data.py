@@ -19,7 +19,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from md.water.datasets import DATA_DIR, observed_statistics
+from md.water.datasets import DATA_DIR, observed_statistics, statistic_errors
 
 __all__ = [
     "JOINT_DATA_FILE",
@@ -47,8 +47,9 @@ class JointData(NamedTuple):
     observed : np.ndarray, shape (11,)
         Unused entries (S1..S3 for X-ray) are 0.0, as the simulator returns them.
     errors : np.ndarray, shape (11,)
-        Stated error of density, S9 and the enthalpy; NaN where the file states none (the
-        g(r) summaries, whose error is not propagated).
+        Stated error of density, S9 and the enthalpy; for S1..S8, the curves' stated pointwise
+        errors propagated by :func:`md.water.datasets.statistic_errors` (conservative); NaN
+        where the data measure nothing.
     fitted, held_out : np.ndarray of bool, shape (11,)
         Disjoint masks, from the data file's ``roles``.
     """
@@ -90,6 +91,7 @@ def joint_observed(kind: str = "xray", path: str | Path = JOINT_DATA_FILE) -> Jo
     statistics[8] = d["value"]
     observed = np.concatenate([statistics, [scalars["density_kg_m3"]["value"], scalars["hvap_kj_mol"]["value"]]])
     errors = np.full(len(JOINT_NAMES), np.nan)
+    errors[:8] = statistic_errors(kind)[0][:8]
     errors[8] = d["error"]
     errors[9] = scalars["density_kg_m3"]["error"]
     errors[10] = scalars["hvap_kj_mol"]["error"]
