@@ -44,6 +44,7 @@ saves, its probabilities mean nothing.
 from __future__ import annotations
 
 import argparse
+import hashlib
 import os
 import sys
 import time
@@ -265,7 +266,9 @@ def predictive_bands(args, result) -> dict:
         draws = post.resample(args.predictive, seed=args.seed)
         stem = name.replace("/", "_")
         for i, theta in enumerate(draws):
-            path = folder / f"{stem}-{args.seed}-{i}.npz"
+            # Keyed by theta too: a rerun with another posterior must not replay these runs.
+            digest = hashlib.sha256(np.asarray(theta, np.float64).tobytes()).hexdigest()[:12]
+            path = folder / f"{stem}-{args.seed}-{i}-{digest}.npz"
             tasks.append((name, args.preset, args.data, protocol_overrides(args), i, theta, str(path)))
             owners.append(name)
     context = multiprocessing.get_context("spawn")
