@@ -25,12 +25,15 @@ import numpy as np
 from jaxabc._model_choice_result import ModelChoiceResult, _file_stem, probabilities_with_errors
 from jaxabc.seeding import seed_from_key
 
-__all__ = ["METHOD", "probability_intervals", "run_from_driver", "run_model_choice_surrogate"]
+__all__ = ["METHOD", "MISFIT_ALPHA", "probability_intervals", "run_from_driver", "run_model_choice_surrogate"]
 
 METHOD = (
     "GP-surrogate synthetic likelihood per model, evidence by importance sampling over the prior "
     "box (jaxabc.surrogate.evidence); standard errors by the delta method"
 )
+
+#: Level of the observed-data misfit check below which a model counts as not reproducing the data.
+MISFIT_ALPHA = 0.01
 
 
 def probability_intervals(
@@ -103,7 +106,10 @@ def run_model_choice_surrogate(
         ``metadata["probability_interval_95"]`` (K, 2) the probabilities' 2.5 and 97.5 %
         points with each ``log Z`` drawn from its normal error (the delta-method
         ``standard_errors`` understate once those errors approach 1).  A model whose emulator failed
-        is flagged in ``stop_reason``: its evidence is not trustworthy.
+        is flagged in ``stop_reason``: its evidence is not trustworthy.  When every model fails
+        the observed-data misfit check (:func:`jaxabc.surrogate.evidence.observed_misfit`,
+        p < :data:`MISFIT_ALPHA`), ``metadata["misspecified"]`` is True and ``stop_reason`` says
+        so: the probabilities then rank misfits.
 
     Raises
     ------
@@ -182,6 +188,14 @@ def run_model_choice_surrogate(
     stop = "every model's emulator validated on held-out simulations"
     if failed:
         stop = f"UNTRUSTED: the emulator of {failed} failed validation, so its evidence is not trustworthy"
+    misfit_p = [(p.diagnostics.get("observed_misfit") or {}).get("p_value") for p in posteriors]
+    misspecified = bool(all(v is not None and v < MISFIT_ALPHA for v in misfit_p))
+    if misspecified:
+        stop += (
+            f"; MISSPECIFIED: no model reproduces the observed summaries within the noise (misfit p < "
+            f"{MISFIT_ALPHA} for every model), so the probabilities rank misfits, not models that could "
+            "have made the data"
+        )
     sims = np.array([[p.num_simulations for p in posteriors]])
     return ModelChoiceResult(
         names=tuple(m.name for m in ms),
@@ -205,6 +219,8 @@ def run_model_choice_surrogate(
             "method": METHOD,
             "validated": validated,
             "probability_interval_95": interval.tolist(),
+            "misfit_p_values": misfit_p,
+            "misspecified": misspecified,
             **(metadata or {}),
         },
     )

@@ -51,6 +51,7 @@ def test_surrogate_evidence_matches_the_analytic_evidence_and_resumes(tmp_path):
     )
     assert result.num_simulations <= 300
     assert result.stop_reason.startswith("every model's emulator validated")
+    assert not result.metadata["misspecified"] and "MISSPECIFIED" not in result.stop_reason
     exact = np.array([analytic_log_evidence(observed, *p) for p in MODELS.values()])
     se = result.log_evidence_errors
     assert np.all(se > 0) and np.all(np.isfinite(se))
@@ -101,6 +102,24 @@ def test_surrogate_model_choice_picks_the_model_that_made_the_data():
     wrong = result.posterior("mirror").diagnostics["observed_misfit"]
     assert wrong["p_value"] < 1e-6 and wrong["dof"] == 2
     assert result.posterior("same").diagnostics["observed_misfit"]["p_value"] > 1e-3
+    assert not result.metadata["misspecified"]
+
+
+def test_surrogate_model_choice_says_when_no_model_fits():
+    # Data s = (0.8, 0): "same" (s_2 = s_1) and "mirror" (s_2 = -s_1) both miss by ~4 noise sd
+    # per summary at their best fit, so the probabilities rank misfits and the result says so.
+    def mirror(key, theta):
+        return np.array([1.0, -1.0]) * theta[0] + 0.1 * jax.random.normal(key, (2,))
+
+    result = jaxabc.run(
+        [("same", linear(1.0, 0.0, 0.1), PRIOR), ("mirror", mirror, PRIOR)],
+        observed=np.array([0.8, 0.0]),
+        method="surrogate",
+        max_simulations=160,
+    )
+    assert result.metadata["misspecified"]
+    assert all(p < 1e-4 for p in result.metadata["misfit_p_values"])
+    assert "MISSPECIFIED" in result.stop_reason
 
 
 def test_surrogate_model_choice_refuses_what_its_evidence_cannot_use():
