@@ -153,7 +153,9 @@ def _paper_check(c: dict[str, Any], source, table, f) -> list[str]:
 
 def _criticism(c: dict[str, Any], source, table, f, misfit_rows, cause_rows) -> list[str]:
     refits = ", ".join(
-        f"{label} {r['num_simulations']} runs, ESS {r['ess']:.0f}" for label, r in c["refits"].items() if r
+        f"{label} {r['num_simulations']} runs, ESS {r['ess']:.0f}" + (f" ({r['source']})" if r.get("source") else "")
+        for label, r in c["refits"].items()
+        if r
     )
     lines = [
         f"## What {c['model']} still gets wrong\n",
@@ -169,7 +171,7 @@ def _criticism(c: dict[str, Any], source, table, f, misfit_rows, cause_rows) -> 
     gain = c.get("gain")
     if gain:
         lines.append(
-            f"Refits through the surrogate ({refits}).  Held-out delta log predictive density "
+            f"Surrogate posteriors ({refits}).  Held-out delta log predictive density "
             f"{f(gain['delta_lpd'], 2)} +- {f(gain['delta_lpd_se'], 2)}.\n"
         )
     return lines
