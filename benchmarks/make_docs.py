@@ -269,7 +269,38 @@ def page_engine() -> str:
                 f"{ps['lammps_core_seconds_per_simulation'] / ps['jax_md_core_seconds_per_simulation']:.1f}x in "
                 "jax-md's favour.\n"
             )
+    d = load("engine_throughput_small_system")
+    if d is not None:
+        parts += _small_system(d)
     return "\n".join(parts)
+
+
+def _small_system(d: dict[str, Any]) -> list[str]:
+    """The 32-atom ``cpu`` preset against LAMMPS, and the main job's wall and CPU time."""
+    lmp = d.get("lammps") or {}
+    rows = [["LAMMPS", "this", 1, f"{lmp['system_steps_per_second']:.3e}", "1.00"]] if lmp else []
+    for tree, rates in d["jax_md"].items():
+        for r in rates:
+            ratio = r.get("ratio_to_lammps_same_run")
+            rows.append(["jax-md", tree, r["batch"], f"{r['system_steps_per_second']:.3e}", f(ratio, 2)])
+    parts = [
+        "## Small systems: the 32-atom CPU preset of every calibration\n",
+        source("engine_throughput_small_system") + "\n",
+        table(["engine", "tree", "batch", "system-steps per CPU-s", "x LAMMPS (same run)"], rows) + "\n",
+    ]
+    jobs = d.get("main_job") or {}
+    job_rows = []
+    for tree, job in jobs.items():
+        runs = job if "cold" in job else {"single run": job}
+        for label, r in runs.items():
+            job_rows.append([tree, label, f(r["wall_seconds"], 1), f(r["cpu_seconds"], 1), r["exit_status"]])
+    if job_rows:
+        parts += [
+            "The main job, `jaxabc example helium`: `cold` with an empty compilation cache (a fresh "
+            "machine), `warm` the next run with the programs the job cached.\n",
+            table(["tree", "run", "wall s", "CPU s", "exit"], job_rows) + "\n",
+        ]
+    return parts
 
 
 def page_lammps() -> str:

@@ -55,7 +55,7 @@ from jaxabc.errors import TooManyFailures
 from jaxabc.priors import Uniform
 from jaxabc.results import ABCResult, versions
 
-__all__ = ["enable_compilation_cache", "run_fused"]
+__all__ = ["default_compilation_cache", "enable_compilation_cache", "run_fused"]
 
 #: Environment variable naming a folder for JAX's persistent compilation cache; ``off``
 #: (or ``0``, ``false``, ``no``) keeps :func:`run_fused` from turning the cache on.
@@ -107,8 +107,9 @@ def enable_compilation_cache(path: str | os.PathLike | None = None, min_compile_
     return folder
 
 
-def _default_compilation_cache() -> None:
-    """Turn the persistent cache on for :func:`run_fused` unless the user chose otherwise.
+def default_compilation_cache() -> None:
+    """Turn the persistent cache on (for :func:`run_fused` and the examples' jobs) unless the
+    user chose otherwise.
 
     Left alone when ``JAXABC_COMPILATION_CACHE`` says ``off`` or when JAX already has a cache
     folder (the user's own, or one set earlier); a folder that cannot be created leaves the
@@ -382,7 +383,7 @@ def _run_fused_body(
         raise ValueError(f"max_failure_fraction must lie in (0, 1], got {max_failure_fraction}")
     if not callable(simulate):
         raise TypeError("simulate must be a callable simulate(key, theta) -> summaries")
-    _default_compilation_cache()
+    default_compilation_cache()
     obs = validate_observed(observed)
     prior = cast_prior(prior, jdtype)
     if isinstance(algorithm, ABCAlgorithm):

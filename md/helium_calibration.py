@@ -21,6 +21,7 @@ import jax
 import numpy as np
 
 import jaxabc
+from jaxabc.fused import default_compilation_cache
 from jaxabc.results import write_outputs
 from md import helium
 
@@ -87,6 +88,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--quick", action="store_true", help="100 particles, 3 steps (a minute)")
     args = parser.parse_args(argv)
     n, steps = (100, 3) if args.quick else (args.num_particles, args.num_steps)
+    # The job (not calibrate(), a library call) keeps its compiled programs between runs:
+    # seconds of every later start (JAXABC_COMPILATION_CACHE=off turns it off).
+    default_compilation_cache()
     t0 = time.perf_counter()
     result = calibrate(args.algorithm, args.preset, n, steps, args.seed, args.output, args.resume)
     est = result.bayes_estimate()

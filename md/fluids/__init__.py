@@ -19,6 +19,8 @@ from pathlib import Path
 
 import numpy as np
 
+from md import _lazy_jax_md  # noqa: F401  (defers jax_md.rigid_body before md.fluids.simulator loads jax_md)
+
 __all__ = ["LITERATURE_LJ", "FluidData", "load"]
 
 DATA = Path(__file__).with_name("data")

@@ -14,6 +14,7 @@ NPT box of jax-md's Nose-Hoover-chain barostat.
   its neighbour lists (allocation and re-allocation after an overflow on the host).
 """
 
+from md import _lazy_jax_md  # noqa: F401  (first: defers jax_md.rigid_body before jax_md loads)
 from md.lj.config import (
     ENSEMBLES,
     NEIGHBOR_FORMATS,

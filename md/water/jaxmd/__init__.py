@@ -12,6 +12,7 @@ reference   GROMACS ``grompp`` + ``mdrun -rerun`` on one configuration, for the 
 Nothing in :mod:`md.water` imports this package, so the GROMACS plugin does not depend on it.
 """
 
+from md import _lazy_jax_md  # noqa: F401  (first: defers jax_md.rigid_body before jax_md loads)
 from md.water.jaxmd.forcefield import MODELS, ReactionField, WaterModel, get_model
 from md.water.jaxmd.simulator import PRESETS, JaxWaterPreset, JaxWaterSimulator, make_simulator
 
