@@ -38,8 +38,10 @@ thermostat absorbs the energy not conserved across the step, and the summaries s
 
 from __future__ import annotations
 
+import concurrent.futures
 import dataclasses
 import functools
+import os
 from collections.abc import Callable
 from typing import Any
 
@@ -323,6 +325,7 @@ def make_batch_simulator(
     num_samples: int | None = None,
     samples_per_chunk: int | None = None,
     max_reallocations: int = 6,
+    threads: int | None = None,
     **overrides: Any,
 ) -> Callable[[jax.Array, jax.Array], tuple[np.ndarray, np.ndarray]]:
     """Build the host-side batched simulator ``simulate_batch(keys, thetas) -> (f_B, ok)``.
@@ -343,6 +346,9 @@ def make_batch_simulator(
         Samples between host checks; default 10% of the series (at least 1).
     max_reallocations : int
         Give up (mark the group failed) after this many re-allocations of one chunk.
+    threads : int, optional
+        Groups of ``batch_size`` run concurrently on this many threads (default: the CPU
+        count) when the engine has no neighbour list; results do not depend on it.
     **overrides
         Fields of :class:`HeliumPreset`.
 
@@ -358,6 +364,8 @@ def make_batch_simulator(
     engine = make_engine(preset)
     n = preset.num_samples if num_samples is None else int(num_samples)
     chunk = samples_per_chunk or max(1, n // 10)
+    # A neighbour-list re-allocation changes the shared engine: groups then run one at a time.
+    workers = 1 if engine.neighbor_fn is not None else int(threads or os.cpu_count() or 1)
     observe = _f_b_observer(engine)
     width = preset.vmap_width
 
@@ -406,7 +414,7 @@ def make_batch_simulator(
         if keys.shape[0] != b:
             raise ValueError(f"got {keys.shape[0]} keys for {b} parameter vectors")
         size = preset.batch_size
-        out_f, out_ok = [], []
+        groups = []
         for start in range(0, b, size):
             k = keys[start : start + size]
             t = thetas[start : start + size]
@@ -414,9 +422,16 @@ def make_batch_simulator(
             if m < size:  # pad with copies of the last member: one compiled shape
                 k = jnp.concatenate([k, jnp.repeat(k[-1:], size - m, axis=0)])
                 t = jnp.concatenate([t, jnp.repeat(t[-1:], size - m, axis=0)])
-            f, ok = run_group(k, t)
-            out_f.append(f[:m])
-            out_ok.append(ok[:m])
+            groups.append((k, t, m))
+        if workers > 1 and len(groups) > 1:
+            # XLA runs one small-system batch on one core; groups are independent, and JAX
+            # releases the GIL while a program runs, so threads keep every core busy.
+            with concurrent.futures.ThreadPoolExecutor(min(workers, len(groups))) as pool:
+                outs = list(pool.map(lambda g: run_group(g[0], g[1]), groups))
+        else:
+            outs = [run_group(k, t) for k, t, _ in groups]
+        out_f = [f[:m] for (f, _), (_, _, m) in zip(outs, groups, strict=True)]
+        out_ok = [ok[:m] for (_, ok), (_, _, m) in zip(outs, groups, strict=True)]
         return np.concatenate(out_f), np.concatenate(out_ok)
 
     simulate_batch.preset = preset  # type: ignore[attr-defined]

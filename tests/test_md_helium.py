@@ -180,3 +180,14 @@ def test_agrees_with_lammps():
         assert abs(q["z"]) < 4.0, (name, q)
     cross, seed = np.asarray(result["kl_cross"]), np.asarray(result["kl_jax_md_seed_to_seed"])
     assert np.median(cross) <= np.max(seed), (cross, seed)
+
+
+def test_batch_groups_on_threads_give_the_same_series():
+    # Groups of batch_size run concurrently (one per core); each group's program is the same,
+    # so the series cannot depend on the number of threads.
+    keys = jax.random.split(jax.random.PRNGKey(3), 9)
+    thetas = jnp.asarray(np.column_stack([np.linspace(0.24, 0.27, 9), np.linspace(0.12, 0.16, 9)]), jnp.float32)
+    one = helium.make_batch_simulator("cpu", batch_size=4, threads=1, **TINY)(keys, thetas)
+    three = helium.make_batch_simulator("cpu", batch_size=4, threads=3, **TINY)(keys, thetas)
+    np.testing.assert_array_equal(one[0], three[0])
+    np.testing.assert_array_equal(one[1], three[1])
