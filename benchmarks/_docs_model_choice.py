@@ -143,6 +143,7 @@ def _paper_check(c: dict[str, Any], source, table, f) -> list[str]:
     return [
         f"## Does {c['model']}'s calibration hold in the paper preset?\n",
         source("water_model_paper_check", data=c) + "\n",
+        f"Model: {c['model']}, {c.get('model_selected_as', 'the most probable model')}.\n",
         f"{sets['calibrated_paper']['num_runs']} posterior draws run in both presets with the same keys "
         f"(mean +- sd over runs; the shift is paired, +- its SE), and "
         f"{sets['published_paper']['num_runs']} runs at the published parameters in the paper preset "
@@ -160,6 +161,9 @@ def _criticism(c: dict[str, Any], source, table, f, misfit_rows, cause_rows) -> 
     lines = [
         f"## What {c['model']} still gets wrong\n",
         source("criticism_water_joint", data=c) + "\n",
+        f"Model: {c['model']}, {c.get('model_selected_as', 'the most probable model')}"
+        + ("; the model choice found no model that reproduces the data." if c.get("model_choice_misspecified") else ".")
+        + "\n",
         f"Held out: {', '.join(c['summaries']['held_out'])}; catalogue: {', '.join(c['catalogue'])}.\n",
         f"Verdict: {c['verdict']}\n",
     ]
