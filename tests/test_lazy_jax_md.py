@@ -34,8 +34,8 @@ def test_importing_the_engines_defers_rigid_body_until_use() -> None:
 
 
 def test_nothing_changes_once_jax_md_is_imported() -> None:
-    from md import _lazy_jax_md
-
     import jax_md  # noqa: F401
+
+    from md import _lazy_jax_md
 
     assert _lazy_jax_md.defer_rigid_body() is False
