@@ -415,27 +415,27 @@ REGISTRY: tuple[Entry, ...] = (
     Entry(
         "water_model_paper_check",
         f"{R}/water_model_paper_check.json",
-        "python benchmarks/water_model_paper_check.py --data xray --workers 2",
+        "python benchmarks/water_model_paper_check.py --data xray --model TIP4P --workers 2",
         long=True,
         requires=("gmx",),
         quick="python benchmarks/water_model_paper_check.py --tiny --workers 2",
         quick_output=f"{Q}/water_model_paper_check.json",
         estimated_cost_s=1200.0,
-        note="the model-choice winner's posterior draws in the paper preset beside the quick one, and its "
+        note="TIP4P's model-choice posterior draws in the paper preset beside the quick one, and its "
         "published parameters; needs water_model_choice first; runs cached under "
         "benchmarks/results/water_model_choice/paper_check",
     ),
     Entry(
         "criticism_water_joint",
         f"{R}/criticism_water_joint.json",
-        "python benchmarks/criticism_water_joint.py --data xray --workers 2 "
+        "python benchmarks/criticism_water_joint.py --data xray --model TIP4P --workers 2 "
         f"--cache-dir {R}/criticism_water_joint/xray_quick",
         long=True,
         requires=("gmx",),
         quick="python benchmarks/criticism_water_joint.py --tiny --workers 2",
         quick_output=f"{Q}/criticism_water_joint.json",
         estimated_cost_s=7200.0,
-        note="criticism of the model-choice winner on the joint data, surrogate refits; needs "
+        note="criticism of TIP4P on the joint data, surrogate refits; needs "
         "water_model_choice first; its simulations are kept under benchmarks/results/"
         "criticism_water_joint, so the same command continues an interrupted run",
     ),
