@@ -232,6 +232,30 @@ def provenance(
     }
 
 
+def model_selection_record(choice: Any, name: str, given: bool, choice_folder: Path) -> dict[str, Any]:
+    """The header saying which model of a model choice a result is about, and why.
+
+    Parameters
+    ----------
+    choice
+        The :class:`jaxabc.ModelChoiceResult` the model came from.
+    name
+        The model the result is about.
+    given
+        Whether the user named the model (``--model``) rather than taking the most probable one.
+    choice_folder
+        The folder the model choice was loaded from.
+    """
+    return {
+        "model": name,
+        "model_selected_as": "given (--model)" if given else "the most probable model of the model choice",
+        "model_choice_misspecified": bool(choice.metadata.get("misspecified", False)),
+        "model_choice_stop_reason": choice.stop_reason,
+        "model_probability": choice.probability(name),
+        "model_choice": relative(choice_folder),
+    }
+
+
 # ----------------------------------------------------------------------------- writing
 
 

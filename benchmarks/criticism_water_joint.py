@@ -50,7 +50,7 @@ from md.water.joint_data import JOINT_DATA_FILE, joint_observed, joint_record  #
 from md.water.model_simulator import CachedSummaries  # noqa: E402
 
 sys.path.insert(0, str(ROOT / "benchmarks"))
-from _common import QUICK_RESULTS, RESULTS, command_line, write_result  # noqa: E402
+from _common import QUICK_RESULTS, RESULTS, command_line, model_selection_record, write_result  # noqa: E402
 
 GROUPS = {
     "g_OH (S1-S3)": [0, 1, 2],
@@ -161,12 +161,7 @@ def main(argv=None) -> dict:
     payload = {
         "benchmark": "criticism_water_joint",
         "data": args.data,
-        "model": name,
-        "model_selected_as": "given (--model)" if args.model else "the most probable model of the model choice",
-        "model_choice_misspecified": bool(choice.metadata.get("misspecified", False)),
-        "model_choice_stop_reason": choice.stop_reason,
-        "model_probability": choice.probability(name),
-        "model_choice": str(args.model_choice.relative_to(ROOT)),
+        **model_selection_record(choice, name, bool(args.model), args.model_choice),
         "preset": "quick" + (" (tiny smoke: 2 ps runs, numbers meaningless)" if args.tiny else ""),
         "summaries": {
             "names": list(data.names),

@@ -41,7 +41,7 @@ from md.water.model_simulator import CachedSummaries, WaterModelSimulator  # noq
 from md.water.models import get_model  # noqa: E402
 
 sys.path.insert(0, str(ROOT / "benchmarks"))
-from _common import QUICK_RESULTS, RESULTS, command_line, write_result  # noqa: E402
+from _common import QUICK_RESULTS, RESULTS, command_line, model_selection_record, write_result  # noqa: E402
 
 
 def parse_args(argv=None) -> argparse.Namespace:
@@ -138,12 +138,7 @@ def main(argv=None) -> dict:
     payload = {
         "benchmark": "water_model_paper_check",
         "data": args.data,
-        "model": name,
-        "model_selected_as": "given (--model)" if args.model else "the most probable model of the model choice",
-        "model_choice_misspecified": bool(choice.metadata.get("misspecified", False)),
-        "model_choice_stop_reason": choice.stop_reason,
-        "model_probability": choice.probability(name),
-        "model_choice": str(args.model_choice.relative_to(ROOT)),
+        **model_selection_record(choice, name, bool(args.model), args.model_choice),
         "check_preset": check_preset + (" (tiny smoke: 2 ps runs, numbers meaningless)" if args.tiny else ""),
         "published_lj": list(model.lj),
         "posterior_draws": draws.tolist(),
