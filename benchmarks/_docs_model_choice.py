@@ -181,4 +181,41 @@ def _criticism(c: dict[str, Any], source, table, f, misfit_rows, cause_rows) -> 
     return lines
 
 
-__all__ = ["page_water_model_choice", "side_by_side"]
+def misfit_table(d: dict[str, Any], table) -> str:
+    """Markdown table: each model's standardised residual (observed - predictive) / sd per fitted
+    summary, with the misfit chi-square, its degrees of freedom and p-value."""
+    fitted = d["summaries"]["fitted"]
+    rows = []
+    for name, row in d["per_model"].items():
+        m = row.get("observed_misfit") or {}
+        z = m.get("standardised_residuals") or [float("nan")] * len(fitted)
+        chi2, dof, p = m.get("mahalanobis_squared"), m.get("dof"), m.get("p_value")
+        rows.append(
+            [
+                name,
+                *(f"{v:+.1f}" for v in z),
+                "-" if chi2 is None else f"{chi2:.0f} / {dof}",
+                "-" if p is None else f"{p:.1g}",
+            ]
+        )
+    return table(["model", *fitted, "chi-square / dof", "p"], rows)
+
+
+def outcome(d: dict[str, Any], check: dict[str, Any] | None, crit: dict[str, Any] | None, table, f) -> str:
+    """The README block under the side-by-side table: the model choice's verdict, the misfit of
+    every model per summary, the paper-preset check and the criticism's held-out gain."""
+    parts = [f"Verdict of the model choice: {d['model_choice']['stop_reason']}.", misfit_table(d, table)]
+    if check is not None:
+        parts += _paper_check(check, lambda *a, **k: "", table, f)[2:]
+    if crit is not None:
+        gain = crit.get("gain")
+        parts.append(f"Criticism of {crit['model']}: {crit['verdict']}")
+        if gain:
+            parts.append(
+                f"Held-out delta log predictive density of the extension: "
+                f"{f(gain['delta_lpd'], 2)} +- {f(gain['delta_lpd_se'], 2)}."
+            )
+    return "\n\n".join(p.strip() for p in parts if p.strip())
+
+
+__all__ = ["misfit_table", "outcome", "page_water_model_choice", "side_by_side"]

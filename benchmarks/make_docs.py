@@ -26,7 +26,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import RESULTS, ROOT
 
 sys.path.insert(0, str(ROOT))  # md.water.models, for the paper's TIP4P estimates
-from _docs_model_choice import page_water_model_choice, side_by_side
+from _docs_model_choice import outcome, page_water_model_choice, side_by_side
 from registry import REGISTRY
 from status import format_cost, status_of
 
@@ -1407,9 +1407,18 @@ def block_water_model_choice() -> str:
     return "\n\n".join([source("water_model_choice", data=d), side_by_side(d, table)])
 
 
+def block_water_model_outcome() -> str:
+    """What the model choice, the paper-preset check and the criticism found, for ``md/water/README.md``."""
+    d = load("water_model_choice")
+    if d is None:
+        return "Not run yet."
+    return outcome(d, load("water_model_paper_check"), load("criticism_water_joint"), table, f)
+
+
 #: Generated blocks inside hand-written Markdown: ``<!-- generated: NAME -->`` ... ``<!-- /generated -->``.
 BLOCKS: dict[str, tuple[str, Callable[[], str]]] = {
     "water_model_choice": ("md/water/README.md", block_water_model_choice),
+    "water_model_outcome": ("md/water/README.md", block_water_model_outcome),
 }
 
 
