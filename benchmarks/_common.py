@@ -192,6 +192,14 @@ def git_state() -> dict[str, Any]:
     status = _git("status", "--porcelain", "--untracked-files=normal") or ""
     dirty = sorted(line[3:].strip() for line in status.splitlines() if line.strip())
     dirty = [f for f in dirty if not f.startswith(("benchmarks/results/", "docs/results/"))]
+    if commit is None and os.environ.get("JAXABC_SOURCE_COMMIT"):
+        # A copy of the tree without .git (e.g. on a lent GPU machine): the caller names the commit.
+        return {
+            "commit": os.environ["JAXABC_SOURCE_COMMIT"],
+            "tree_clean": None,
+            "dirty_files": [],
+            "copied_tree": True,
+        }
     return {
         "commit": commit.strip() if commit else None,
         "tree_clean": not dirty if commit else None,
