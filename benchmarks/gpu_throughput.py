@@ -154,6 +154,7 @@ def parse_args(argv=None) -> argparse.Namespace:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--part", required=True, help="name of this backend's part of the JSON, e.g. gpu or cpu")
     p.add_argument("--quick", action="store_true", help="fewer batch sizes and population sizes")
+    p.add_argument("--fused-sizes", type=int, nargs="+", default=None, help="population sizes of the fused loop")
     p.add_argument("--smoke", action="store_true", help="tiny sizes, to check the script itself")
     p.add_argument("--skip-main-job", action="store_true")
     p.add_argument("--main-job-timeout", type=float, default=240.0)
@@ -167,6 +168,7 @@ def main(argv=None) -> dict:
     small = [1, 64, 512] if args.quick else [1, 64, 512, 4096]
     large = [1, 8] if args.quick else [1, 8, 32, 128]
     sizes = [1000, 5000] if args.quick else [1000, 5000, 50000]
+    sizes = args.fused_sizes or sizes
     blocks = (4, 2) if args.smoke else (200, 40)
     if args.smoke:
         small, large, sizes = [1, 4], [1], [200]
