@@ -201,15 +201,19 @@ def misfit_table(d: dict[str, Any], table) -> str:
     return table(["model", *fitted, "chi-square / dof", "p"], rows)
 
 
-def outcome(d: dict[str, Any], check: dict[str, Any] | None, crit: dict[str, Any] | None, table, f) -> str:
+def outcome(d: dict[str, Any], check: dict[str, Any] | None, crit: dict[str, Any] | None, source, table, f) -> str:
     """The README block under the side-by-side table: the model choice's verdict, the misfit of
     every model per summary, the paper-preset check and the criticism's held-out gain."""
-    parts = [f"Verdict of the model choice: {d['model_choice']['stop_reason']}.", misfit_table(d, table)]
+    parts = [
+        source("water_model_choice", data=d),
+        f"Verdict of the model choice: {d['model_choice']['stop_reason']}.",
+        misfit_table(d, table),
+    ]
     if check is not None:
-        parts += _paper_check(check, lambda *a, **k: "", table, f)[2:]
+        parts += _paper_check(check, source, table, f)[1:]
     if crit is not None:
         gain = crit.get("gain")
-        parts.append(f"Criticism of {crit['model']}: {crit['verdict']}")
+        parts += [source("criticism_water_joint", data=crit), f"Criticism of {crit['model']}: {crit['verdict']}"]
         if gain:
             parts.append(
                 f"Held-out delta log predictive density of the extension: "

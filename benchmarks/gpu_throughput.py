@@ -1,8 +1,8 @@
 """The batched helium engine, the fused ABC loop and the main job on JAX's default backend.
 
 Issue 15 asks for the batched engine and the fused ABC loop to be measured on a GPU where one
-is available, with the GPU named.  This script times, on whatever backend JAX picks (run it
-with ``JAX_PLATFORMS=cpu`` for a CPU baseline on the same machine):
+is available, with the GPU named.  This script times, on whatever backend JAX picks (``--cpu`` for a CPU
+baseline on the same machine):
 
 - the helium engine (``md.helium``, NPT, compiled segment timed on its second call) for the
   32-atom ``cpu`` preset and the 1000-atom ``paper`` preset over batch sizes, in system-steps
@@ -21,7 +21,7 @@ Every measurement that fails records its error instead of stopping the run.  Wri
 (``--part``), so GPU and CPU rows of the same machine sit side by side.
 
 Run: ``python benchmarks/gpu_throughput.py --part gpu`` on the GPU machine, then
-``JAX_PLATFORMS=cpu python benchmarks/gpu_throughput.py --part cpu --quick`` on the same one.
+``python benchmarks/gpu_throughput.py --part cpu --cpu --quick`` on the same one.
 """
 
 from __future__ import annotations
@@ -37,6 +37,8 @@ import traceback
 from pathlib import Path
 
 T_START = time.perf_counter()
+if "--cpu" in sys.argv:  # before JAX is imported
+    os.environ["JAX_PLATFORMS"] = "cpu"
 import jax  # noqa: E402
 import numpy as np  # noqa: E402
 
@@ -154,6 +156,7 @@ def main_job(timeout: float) -> dict:
 def parse_args(argv=None) -> argparse.Namespace:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--part", required=True, help="name of this backend's part of the JSON, e.g. gpu or cpu")
+    p.add_argument("--cpu", action="store_true", help="run on the CPU (JAX_PLATFORMS=cpu), for a baseline")
     p.add_argument("--quick", action="store_true", help="fewer batch sizes and population sizes")
     p.add_argument("--fused-sizes", type=int, nargs="+", default=None, help="population sizes of the fused loop")
     p.add_argument("--smoke", action="store_true", help="tiny sizes, to check the script itself")

@@ -272,7 +272,78 @@ def page_engine() -> str:
     d = load("engine_throughput_small_system")
     if d is not None:
         parts += _small_system(d)
+    d = load("gpu_throughput")
+    if d is not None:
+        parts += _gpu(d)
     return "\n".join(parts)
+
+
+def _gpu(d: dict[str, Any]) -> list[str]:
+    """The batched engine, the fused loop and the main job on a GPU and on the same machine's CPU."""
+    parts = d["parts"]
+    names = {k: f"{p['device']['device_kind']} ({p['device']['platform']})" for k, p in parts.items()}
+    rows = []
+    for key in ("gpu", "cpu"):
+        engine = (parts.get(key) or {}).get("engine") or {}
+        for setup, records in engine.items():
+            for r in records:
+                rate = r.get("system_steps_per_second")
+                rows.append(
+                    [
+                        names[key],
+                        setup.replace("_", " "),
+                        r.get("num_atoms", "-"),
+                        r["batch"],
+                        "error" if rate is None else f"{rate:.3e}",
+                        "error" if rate is None else f"{rate * r['num_atoms']:.3e}",
+                    ]
+                )
+    fused = []
+    for key in ("gpu", "cpu"):
+        for r in (parts.get(key) or {}).get("fused_pmcabc") or []:
+            first, second = r.get("first_run") or {}, r.get("second_run") or {}
+            fused.append(
+                [
+                    names[key],
+                    r["num_particles"],
+                    first.get("num_simulations", "-"),
+                    f(first.get("us_per_simulation"), 3),
+                    f(second.get("us_per_simulation"), 3),
+                ]
+            )
+    for r in d.get("first_attempt_cold_fused") or []:
+        fused.append(
+            [
+                names["gpu"] + ", cold cache",
+                r["num_particles"],
+                r["first_run"]["num_simulations"],
+                f(r["first_run"]["us_per_simulation"], 3),
+                f(r["second_run"]["us_per_simulation"], 3),
+            ]
+        )
+    jobs = [
+        [names[k], f(p["main_job"].get("wall_s"), 1), p["main_job"].get("returncode", p["main_job"].get("error"))]
+        for k, p in parts.items()
+        if k.endswith("main_job")
+    ]
+    out = [
+        "## On a GPU\n",
+        source("gpu_throughput", part="gpu") + "\n",
+        "Wall-clock rates on a lent GPU machine and, in the same session, on that machine's own CPU "
+        "(`--cpu`, every core XLA takes).  The `paper preset` maps over its members one at a time "
+        "(the CPU choice); `paper preset vmap all` puts the whole batch under one `vmap`.\n",
+        table(["device", "setup", "atoms", "batch", "system-steps/s", "atom-steps/s"], rows) + "\n",
+        "Fused PMC-ABC loop (`jaxabc.run_fused`, the 2-D Gaussian of `abc_overhead`): microseconds "
+        "per simulation, the first run in the process (compilation included) and the second.\n",
+        table(["device", "N", "simulations", "first run us/sim", "second run us/sim"], fused) + "\n",
+    ]
+    if jobs:
+        out += [
+            "The main job `jaxabc example helium` with an empty compilation cache:\n",
+            table(["device", "wall s", "exit"], jobs) + "\n",
+        ]
+    out += [f"- {n}" for n in d.get("notes", [])]
+    return out
 
 
 def _small_system(d: dict[str, Any]) -> list[str]:
@@ -1412,7 +1483,7 @@ def block_water_model_outcome() -> str:
     d = load("water_model_choice")
     if d is None:
         return "Not run yet."
-    return outcome(d, load("water_model_paper_check"), load("criticism_water_joint"), table, f)
+    return outcome(d, load("water_model_paper_check"), load("criticism_water_joint"), source, table, f)
 
 
 #: Generated blocks inside hand-written Markdown: ``<!-- generated: NAME -->`` ... ``<!-- /generated -->``.

@@ -91,6 +91,10 @@ class Entry:
 
 
 R = "benchmarks/results"
+_GPU_NOTE = (
+    "made on a lent GPU machine (the device tool) with the cpu parts on its own CPU; code fingerprints "
+    "there come from its Python's AST, so status shows these parts stale on this machine"
+)
 Q = "benchmarks/results/quick"
 
 
@@ -232,6 +236,23 @@ REGISTRY: tuple[Entry, ...] = (
         requires=("lmp",),
         note="the 32-atom CPU preset batched over parameters against LAMMPS, in system-steps per CPU "
         "second (robust to a shared machine); --baseline-tree DIR adds the speed-up over an earlier commit",
+    ),
+    *(
+        Entry(
+            f"gpu_throughput:{part}",
+            f"{R}/gpu_throughput.json",
+            f"python benchmarks/gpu_throughput.py --part {part}{flags}",
+            part=part,
+            estimated_cost_s=cost,
+            requires=("nvidia-smi",),
+            note=_GPU_NOTE,
+        )
+        for part, flags, cost in (
+            ("gpu", " --fused-sizes 1000 5000 --skip-main-job", 120.0),
+            ("cpu", " --cpu --quick --skip-main-job", 150.0),
+            ("gpu_main_job", " --main-job-only", 60.0),
+            ("cpu_main_job", " --cpu --main-job-only", 60.0),
+        )
     ),
     Entry(
         "imbalance:water",
