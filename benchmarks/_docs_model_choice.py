@@ -6,6 +6,9 @@ from typing import Any
 
 from md.water.models import PAPER_TIP4P_ESTIMATES
 
+#: Saved criticisms of models of the model choice, one result each.
+CRITICISMS = ("criticism_water_joint", "criticism_water_joint_tip3p")
+
 
 def page_water_model_choice(load, source, table, f, misfit_rows, cause_rows) -> str:
     """``docs/results/water_model_choice.md`` from ``water_model_choice.json`` and
@@ -53,9 +56,10 @@ def page_water_model_choice(load, source, table, f, misfit_rows, cause_rows) -> 
     check = load("water_model_paper_check")
     if check is not None:
         parts += _paper_check(check, source, table, f)
-    c = load("criticism_water_joint")
-    if c is not None:
-        parts += _criticism(c, source, table, f, misfit_rows, cause_rows)
+    for name in CRITICISMS:
+        c = load(name)
+        if c is not None:
+            parts += _criticism(name, c, source, table, f, misfit_rows, cause_rows)
     return "\n".join(parts)
 
 
@@ -152,7 +156,7 @@ def _paper_check(c: dict[str, Any], source, table, f) -> list[str]:
     ]
 
 
-def _criticism(c: dict[str, Any], source, table, f, misfit_rows, cause_rows) -> list[str]:
+def _criticism(name: str, c: dict[str, Any], source, table, f, misfit_rows, cause_rows) -> list[str]:
     refits = ", ".join(
         f"{label} {r['num_simulations']} runs, ESS {r['ess']:.0f}" + (f" ({r['source']})" if r.get("source") else "")
         for label, r in c["refits"].items()
@@ -160,7 +164,7 @@ def _criticism(c: dict[str, Any], source, table, f, misfit_rows, cause_rows) -> 
     )
     lines = [
         f"## What {c['model']} still gets wrong\n",
-        source("criticism_water_joint", data=c) + "\n",
+        source(name, data=c) + "\n",
         f"Model: {c['model']}, {c.get('model_selected_as', 'the most probable model')}"
         + ("; the model choice found no model that reproduces the data." if c.get("model_choice_misspecified") else ".")
         + "\n",
@@ -201,7 +205,7 @@ def misfit_table(d: dict[str, Any], table) -> str:
     return table(["model", *fitted, "chi-square / dof", "p"], rows)
 
 
-def outcome(d: dict[str, Any], check: dict[str, Any] | None, crit: dict[str, Any] | None, source, table, f) -> str:
+def outcome(d: dict[str, Any], check: dict[str, Any] | None, crits: dict[str, Any], source, table, f) -> str:
     """The README block under the side-by-side table: the model choice's verdict, the misfit of
     every model per summary, the paper-preset check and the criticism's held-out gain."""
     parts = [
@@ -211,9 +215,11 @@ def outcome(d: dict[str, Any], check: dict[str, Any] | None, crit: dict[str, Any
     ]
     if check is not None:
         parts += _paper_check(check, source, table, f)[1:]
-    if crit is not None:
+    for name, crit in crits.items():
+        if crit is None:
+            continue
         gain = crit.get("gain")
-        parts += [source("criticism_water_joint", data=crit), f"Criticism of {crit['model']}: {crit['verdict']}"]
+        parts += [source(name, data=crit), f"Criticism of {crit['model']}: {crit['verdict']}"]
         if gain:
             parts.append(
                 f"Held-out delta log predictive density of the extension: "
@@ -222,4 +228,4 @@ def outcome(d: dict[str, Any], check: dict[str, Any] | None, crit: dict[str, Any
     return "\n\n".join(p.strip() for p in parts if p.strip())
 
 
-__all__ = ["misfit_table", "outcome", "page_water_model_choice", "side_by_side"]
+__all__ = ["CRITICISMS", "misfit_table", "outcome", "page_water_model_choice", "side_by_side"]

@@ -24,6 +24,8 @@ Usage::
     python benchmarks/criticism_water_joint.py --data xray --workers 2    # hours of GROMACS
     python benchmarks/criticism_water_joint.py --tiny                     # plumbing smoke test
 
+``--model M --name criticism_water_joint_m`` criticises another model into its own result.
+
 ``--tiny`` uses 2 ps runs, a handful of draws and the tiny model-choice result
 (``water_model_choice.py --tiny``); its numbers mean nothing.
 """
@@ -79,6 +81,11 @@ def parse_args(argv=None) -> argparse.Namespace:
         help="also refit the base model (default: the model choice's own surrogate posterior is the base)",
     )
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument(
+        "--name",
+        default="criticism_water_joint",
+        help="result name: <name>.json and the report folder <name>_<data>/ (one per criticised model)",
+    )
     p.add_argument("--cache-dir", type=Path, default=None)
     p.add_argument("--tiny", action="store_true", help="smoke test: 2 ps runs, tiny budgets, quick JSON")
     args = p.parse_args(argv)
@@ -140,7 +147,7 @@ def main(argv=None) -> dict:
     finally:
         executor.close()
     folder = QUICK_RESULTS if args.tiny else RESULTS
-    out_dir = folder / f"criticism_water_joint_{args.data}"
+    out_dir = folder / f"{args.name}_{args.data}"
     report.write(out_dir)
     base_source = "refit by the criticism" if report.base_refit is not None else "the model choice's posterior"
     refits = {
@@ -159,7 +166,7 @@ def main(argv=None) -> dict:
         )
     }
     payload = {
-        "benchmark": "criticism_water_joint",
+        "benchmark": args.name,
         "data": args.data,
         **model_selection_record(choice, name, bool(args.model), args.model_choice),
         "preset": "quick" + (" (tiny smoke: 2 ps runs, numbers meaningless)" if args.tiny else ""),
@@ -189,7 +196,7 @@ def main(argv=None) -> dict:
         **report.to_dict(),
     }
     path = write_result(
-        folder / "criticism_water_joint.json",
+        folder / f"{args.name}.json",
         json.loads(json.dumps(payload, default=float)),
         inputs=[JOINT_DATA_FILE, args.model_choice / "model_choice.json"],
         command=command_line(argv),

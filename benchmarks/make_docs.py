@@ -26,7 +26,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import RESULTS, ROOT
 
 sys.path.insert(0, str(ROOT))  # md.water.models, for the paper's TIP4P estimates
-from _docs_model_choice import outcome, page_water_model_choice, side_by_side
+from _docs_model_choice import CRITICISMS, outcome, page_water_model_choice, side_by_side
 from registry import REGISTRY
 from status import format_cost, status_of
 
@@ -1483,7 +1483,8 @@ def block_water_model_outcome() -> str:
     d = load("water_model_choice")
     if d is None:
         return "Not run yet."
-    return outcome(d, load("water_model_paper_check"), load("criticism_water_joint"), source, table, f)
+    crits = {name: load(name) for name in CRITICISMS}
+    return outcome(d, load("water_model_paper_check"), crits, source, table, f)
 
 
 #: Generated blocks inside hand-written Markdown: ``<!-- generated: NAME -->`` ... ``<!-- /generated -->``.

@@ -461,6 +461,17 @@ REGISTRY: tuple[Entry, ...] = (
         "criticism_water_joint, so the same command continues an interrupted run",
     ),
     Entry(
+        "criticism_water_joint_tip3p",
+        f"{R}/criticism_water_joint_tip3p.json",
+        "python benchmarks/criticism_water_joint.py --data xray --model TIP3P --name criticism_water_joint_tip3p "
+        f"--workers 2 --cache-dir {R}/criticism_water_joint/xray_quick",
+        long=True,
+        requires=("gmx",),
+        estimated_cost_s=4000.0,
+        note="the same criticism of TIP3P, the model with the highest (unresolved) probability; its "
+        "simulations share the TIP4P criticism's cache folder (files are named by model)",
+    ),
+    Entry(
         "water_density_relaxation",
         f"{R}/water_density_relaxation.json",
         "python benchmarks/water_density_relaxation.py --workers 2",
