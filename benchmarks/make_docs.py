@@ -860,8 +860,54 @@ WATER_LABELS = {
 }
 
 
+_VALIDATION_HEADER = ["parameters", "density (kg/m3)", "kappa_T (1e-6/bar)", "C_p (J/mol/K)", "epsilon"]
+
+
+def _validation_rows() -> tuple[list[list[Any]], list[str]]:
+    """The paper's Table 2 properties at each calibration's estimate and at TIP4P, then experiment;
+    and the results they come from."""
+    rows: list[list[Any]] = []
+    names: list[str] = []
+    exp_row = None
+    for data in ("simulated", "xray", "neutron"):
+        d = load(f"water_{data}") or {}
+        for stats in ("robust", "paper"):
+            v = (d.get(stats) or {}).get("validation")
+            if not v:
+                continue
+            names.append(f"water_{data}")
+            for point in ("bayes_estimate", "tip4p"):
+                p = v[point]
+                rows.append(
+                    [
+                        f"{data} {stats} {point.replace('_', ' ')} ({f(p['theta'][0], 4)}, {f(p['theta'][1])})",
+                        f"{p['density_kg_m3']:.1f} +- {p['density_se']:.1f}",
+                        f"{p['compressibility_per_bar'] * 1e6:.0f} +- {p['compressibility_se'] * 1e6:.0f}",
+                        f"{p['heat_capacity_j_mol_k']:.1f} +- {p['heat_capacity_se']:.1f}",
+                        f"{p['dielectric_constant']:.0f}",
+                    ]
+                )
+            x = v["experiment"]
+            exp_row = [
+                "experiment (298 K)",
+                x["density_kg_m3"],
+                f"{x['compressibility_per_bar'] * 1e6:.1f}",
+                x["heat_capacity_j_mol_k"],
+                x["dielectric_constant"],
+            ]
+    return ([*rows, exp_row] if exp_row else rows), sorted(set(names))
+
+
+def block_water_validation() -> str:
+    """The validation properties, for ``md/water/README.md``."""
+    rows, names = _validation_rows()
+    if not rows:
+        return "Not run yet: `--validation-ps 500` with a calibration."
+    return "\n\n".join([*(source(n) for n in names), table(_VALIDATION_HEADER, rows)])
+
+
 def page_water() -> str:
-    rows, sources, validation = [], [], []
+    rows, sources = [], []
     saving_commits: set[str] = set()
     for data in ("simulated", "xray", "neutron"):
         d = load(f"water_{data}")
@@ -889,27 +935,6 @@ def page_water() -> str:
             sources.append(f"- {source(f'water_{data}', stats, d)}")
             if not d.get("provenance_parts", {}).get(stats):
                 saving_commits.add(_git("log", "-1", "--format=%h", "--", f"benchmarks/results/water_{data}.json"))
-            v = e.get("validation")
-            if v:
-                for point in ("bayes_estimate", "tip4p"):
-                    p = v[point]
-                    validation.append(
-                        [
-                            f"{data} {stats} {point.replace('_', ' ')} ({f(p['theta'][0], 4)}, {f(p['theta'][1])})",
-                            f"{p['density_kg_m3']:.1f} +- {p['density_se']:.1f}",
-                            f"{p['compressibility_per_bar'] * 1e6:.0f} +- {p['compressibility_se'] * 1e6:.0f}",
-                            f"{p['heat_capacity_j_mol_k']:.1f} +- {p['heat_capacity_se']:.1f}",
-                            f"{p['dielectric_constant']:.0f}",
-                        ]
-                    )
-                x = v["experiment"]
-                exp_row = [
-                    "experiment (298 K)",
-                    x["density_kg_m3"],
-                    f"{x['compressibility_per_bar'] * 1e6:.1f}",
-                    x["heat_capacity_j_mol_k"],
-                    x["dielectric_constant"],
-                ]
     # The oldest commit that saved one of these results: every later change to the water pipeline,
     # the criticism catalogue or the inference core is one that some of them predate.
     saved = sorted(c for c in saving_commits if c)
@@ -966,15 +991,9 @@ the commit that saved it:
 """
     out += _water_surrogate_section()
     out += _water_side_by_side()
+    validation, _ = _validation_rows()
     if validation:
-        out += (
-            "\n## Validation properties (the paper's Table 2)\n\n"
-            + table(
-                ["parameters", "density (kg/m3)", "kappa_T (1e-6/bar)", "C_p (J/mol/K)", "epsilon"],
-                [*validation, exp_row],
-            )
-            + "\n"
-        )
+        out += "\n## Validation properties (the paper's Table 2)\n\n" + table(_VALIDATION_HEADER, validation) + "\n"
     return out
 
 
@@ -1095,8 +1114,8 @@ _SIDE_BY_SIDE_HEADER = [
 ]
 
 
-def _water_side_by_side() -> str:
-    """The measured-data calibrations, APMCABC and surrogate side by side with the paper."""
+def _water_side_by_side_rows() -> tuple[list[list[Any]], list[list[Any]]]:
+    """Rows of the measured-data calibrations (APMCABC, surrogate, paper) and of their predictive peaks."""
     rows, peaks = [], []
     for data in ("xray", "neutron"):
         apmc, sur = load(f"water_{data}") or {}, load(f"water_{data}_surrogate") or {}
@@ -1104,10 +1123,10 @@ def _water_side_by_side() -> str:
         measured = np.loadtxt(ROOT / csv, delimiter=",", comments="#")
         _, r_m, g_m = _first_peak(measured[:, 0], measured[:, 1])
         for stats in ("robust", "paper"):
-            if not sur.get(stats):
+            if not sur.get(stats) and not apmc.get(stats):
                 continue
             first = True
-            for method, e, is_sur in (("APMCABC", apmc.get(stats), False), ("GP surrogate", sur[stats], True)):
+            for method, e, is_sur in (("APMCABC", apmc.get(stats), False), ("GP surrogate", sur.get(stats), True)):
                 if not e:
                     continue
                 paper = e["paper"]
@@ -1142,6 +1161,12 @@ def _water_side_by_side() -> str:
                 peaks.append(
                     [WATER_LABELS[data], stats, method, _predictive_peak(e), f"{f(r_m, 3)} nm, {f(g_m, 2)} ({label})"]
                 )
+    return rows, peaks
+
+
+def _water_side_by_side() -> str:
+    """The measured-data calibrations, APMCABC and surrogate side by side with the paper."""
+    rows, peaks = _water_side_by_side_rows()
     if not rows:
         return ""
     return f"""
@@ -1487,10 +1512,21 @@ def block_water_model_outcome() -> str:
     return outcome(d, load("water_model_paper_check"), crits, source, table, f)
 
 
+def block_water_calibrations() -> str:
+    """The measured-data calibrations beside the paper's, for ``md/water/README.md``."""
+    rows, _ = _water_side_by_side_rows()
+    if not rows:
+        return "Not run yet: `python benchmarks/regenerate.py --only water_xray water_neutron --budget 8h`."
+    names = [n for d in ("xray", "neutron") for n in (f"water_{d}", f"water_{d}_surrogate") if load(n)]
+    return "\n\n".join([*(source(n) for n in names), table(_SIDE_BY_SIDE_HEADER, rows)])
+
+
 #: Generated blocks inside hand-written Markdown: ``<!-- generated: NAME -->`` ... ``<!-- /generated -->``.
 BLOCKS: dict[str, tuple[str, Callable[[], str]]] = {
     "water_model_choice": ("md/water/README.md", block_water_model_choice),
     "water_model_outcome": ("md/water/README.md", block_water_model_outcome),
+    "water_calibrations": ("md/water/README.md", block_water_calibrations),
+    "water_validation": ("md/water/README.md", block_water_validation),
 }
 
 
