@@ -218,13 +218,10 @@ def outcome(d: dict[str, Any], check: dict[str, Any] | None, crits: dict[str, An
     for name, crit in crits.items():
         if crit is None:
             continue
-        gain = crit.get("gain")
-        parts += [source(name, data=crit), f"Criticism of {crit['model']}: {crit['verdict']}"]
-        if gain:
-            parts.append(
-                f"Held-out delta log predictive density of the extension: "
-                f"{f(gain['delta_lpd'], 2)} +- {f(gain['delta_lpd_se'], 2)}."
-            )
+        refits = ", ".join(
+            f"{k} ESS {r['ess']:.0f} from {r['num_simulations']} runs" for k, r in crit["refits"].items() if r
+        )
+        parts += [source(name, data=crit), f"Criticism of {crit['model']}: {crit['verdict']}  Posteriors: {refits}."]
     return "\n\n".join(p.strip() for p in parts if p.strip())
 
 
