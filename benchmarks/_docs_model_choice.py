@@ -51,7 +51,10 @@ def page_water_model_choice(load, source, table, f, misfit_rows, cause_rows) -> 
             "Posterior predictive (median [5 %, 95 %] over runs at posterior draws; simulated values, "
             "without the measurement error):\n",
             table(["model", *bands["scalar_names"], "runs"], rows) + "\n",
-            f"g_OO bands of every model over the measured curve: `{d['saved_result']}/predictive_goo.png`.\n",
+            f"g_OO bands of every model over the measured curve: `{d['saved_result']}/predictive_goo.png`; "
+            "g_OO and g_OH side by side, g_OH against Soper's neutron curve: "
+            "`benchmarks/results/water_model_choice/figure_water_model_choice.png` "
+            "(`paper_figures/figure_water_model_choice.py`).\n",
         ]
     check = load("water_model_paper_check")
     if check is not None:

@@ -30,6 +30,7 @@ SCRIPTS: dict[str, str] = {
     "figure5_helium_posterior": "fig:helium_sim (and table:compare_algo)",
     "figure_water_posteriors": "fig:md_apmcabc_sim, fig:neutron_data, fig:xray_data",
     "figure_water_predictive": "fig:pred_neutron_data, fig:pred_xray_data",
+    "figure_water_model_choice": "beyond the paper: the water model choice's predictive g_OO and g_OH",
 }
 
 

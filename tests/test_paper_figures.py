@@ -32,6 +32,7 @@ INPUTS: dict[str, list[list[str]]] = {
         [f"water_{d}.json", f"water_{d}_{v}.npz"] for d in ("simulated", "neutron", "xray") for v in ("robust", "paper")
     ],
     "figure_water_predictive": [[f"water_{d}.json"] for d in ("neutron", "xray")],
+    "figure_water_model_choice": [["water_model_choice.json"]],
 }
 
 
