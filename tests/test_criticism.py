@@ -286,6 +286,10 @@ def test_absent_cause_is_reported_unexplained_not_named():
     )
     assert "no catalogue effect accounts" in rep.verdict
     assert rep.to_dict()["unexplained"] is True
+    # The held-out gain's wording: a loss beyond 2 SE is named as such, not as "no gain".
+    for delta, se, words in ((-15.1, 1.0, "a loss"), (-0.3, 0.4, "does not exceed"), (3.0, 1.0, "exceeds its")):
+        rep.gain = {"delta_lpd": delta, "delta_lpd_se": se, "significant": delta > 2.0 * se, "counts": False}
+        assert words in rep.verdict, (delta, se, rep.verdict)
 
 
 def test_joint_test_keeps_only_the_effects_still_needed():

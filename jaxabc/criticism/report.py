@@ -111,6 +111,9 @@ class CritiqueReport:
                 if g.get("counts")
                 else "exceeds its uncertainty, but the new parameter is not learned away from its null"
                 if g.get("significant")
+                # The mirror of "significant" (gain.py): a loss beyond 2 SE is not a null result.
+                else "a loss: the extension predicts the held-out data worse than the base"
+                if g["delta_lpd"] < -2.0 * g["delta_lpd_se"]
                 else "does not exceed its uncertainty"
             )
             tail = (
