@@ -32,7 +32,9 @@ from status import format_cost, status_of
 
 DOCS = ROOT / "docs" / "results"
 #: Code whose later commits the pages list under a result without provenance.
-CODE_PATHS = ("jaxabc", "md")
+#: The code a result depends on: Python files only, so that a commit of generated docs under md/
+#: (md/water/README.md) does not count as a code change and re-stale its own generated blocks.
+CODE_PATHS = (":(glob)jaxabc/**/*.py", ":(glob)md/**/*.py")
 
 
 def load(name: str) -> dict[str, Any] | None:
@@ -66,7 +68,8 @@ def source(name: str, part: str | None = None, data: dict[str, Any] | None = Non
     later = _git("rev-list", "--count", f"{commit}..HEAD", "--", *CODE_PATHS) or "?"
     return (
         f"Source: {label}, saved at commit `{commit}` ({date}; no provenance recorded: the code "
-        f"version is that of the commit that saved it); {later} later commits changed `jaxabc/` or `md/`."
+        f"version is that of the commit that saved it); {later} later commits changed Python files under "
+        "`jaxabc/` or `md/`."
     )
 
 
