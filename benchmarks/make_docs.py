@@ -950,9 +950,10 @@ def page_water() -> str:
             "--date=short",
             f"{oldest}..HEAD",
             "--",
-            "md/water",
+            ":(glob)md/water/**/*.py",
+            "md/water/data",
             "md/criticism_catalogue.py",
-            "jaxabc",
+            ":(glob)jaxabc/**/*.py",
         )
     predate = "\n".join(line.rstrip() for line in predate.splitlines())
     out = f"""# Water calibrations (GROMACS TIP4P, quick preset)
