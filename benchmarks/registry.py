@@ -447,6 +447,17 @@ REGISTRY: tuple[Entry, ...] = (
         "benchmarks/results/water_model_choice/paper_check",
     ),
     Entry(
+        "water_model_paper_check_tip3p",
+        f"{R}/water_model_paper_check_tip3p.json",
+        "python benchmarks/water_model_paper_check.py --data xray --model TIP3P --name water_model_paper_check_tip3p "
+        "--workers 2",
+        long=True,
+        requires=("gmx",),
+        estimated_cost_s=1800.0,
+        note="the same paper-preset check for TIP3P, the model with the highest (unresolved) probability; "
+        "runs cached beside TIP4P's (files are named by model)",
+    ),
+    Entry(
         "criticism_water_joint",
         f"{R}/criticism_water_joint.json",
         "python benchmarks/criticism_water_joint.py --data xray --model TIP4P --workers 2 "

@@ -54,6 +54,7 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--workers", type=int, default=2)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--cache-dir", type=Path, default=None)
+    p.add_argument("--name", default="water_model_paper_check", help="result name: <name>.json (one per model)")
     p.add_argument("--tiny", action="store_true", help="smoke test: 2 ps quick-preset runs, quick JSON")
     args = p.parse_args(argv)
     suffix = f"{args.data}_quick" + ("_tiny" if args.tiny else "")
@@ -136,7 +137,7 @@ def main(argv=None) -> dict:
     }
     sets = {"calibrated_quick": describe(quick), "calibrated_paper": describe(paper), "published_paper": describe(pub)}
     payload = {
-        "benchmark": "water_model_paper_check",
+        "benchmark": args.name,
         "data": args.data,
         **model_selection_record(choice, name, bool(args.model), args.model_choice),
         "check_preset": check_preset + (" (tiny smoke: 2 ps runs, numbers meaningless)" if args.tiny else ""),
@@ -158,7 +159,7 @@ def main(argv=None) -> dict:
         "wall_time_s": time.perf_counter() - t0,
     }
     path = write_result(
-        (QUICK_RESULTS if args.tiny else RESULTS) / "water_model_paper_check.json",
+        (QUICK_RESULTS if args.tiny else RESULTS) / f"{args.name}.json",
         payload,
         inputs=[JOINT_DATA_FILE, args.model_choice / "model_choice.json"],
         command=command_line(argv),
