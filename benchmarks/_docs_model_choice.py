@@ -6,6 +6,8 @@ from typing import Any
 
 from md.water.models import PAPER_TIP4P_ESTIMATES
 
+#: Saved paper-preset checks of models of the model choice, one result each.
+PAPER_CHECKS = ("water_model_paper_check", "water_model_paper_check_tip3p")
 #: Saved criticisms of models of the model choice, one result each.
 CRITICISMS = ("criticism_water_joint", "criticism_water_joint_tip3p")
 
@@ -56,9 +58,10 @@ def page_water_model_choice(load, source, table, f, misfit_rows, cause_rows) -> 
             "`benchmarks/results/water_model_choice/figure_water_model_choice.png` "
             "(`paper_figures/figure_water_model_choice.py`).\n",
         ]
-    check = load("water_model_paper_check")
-    if check is not None:
-        parts += _paper_check(check, source, table, f)
+    for name in PAPER_CHECKS:
+        check = load(name)
+        if check is not None:
+            parts += _paper_check(name, check, source, table, f)
     for name in CRITICISMS:
         c = load(name)
         if c is not None:
@@ -120,7 +123,7 @@ def _row(name: str, row: dict[str, Any], model: dict[str, Any]) -> list[str]:
     ]
 
 
-def _paper_check(c: dict[str, Any], source, table, f) -> list[str]:
+def _paper_check(name: str, c: dict[str, Any], source, table, f) -> list[str]:
     sets, shift, summaries = c["sets"], c["preset_shift"], c["summaries"]
 
     def cell(stats: dict[str, Any], j: int) -> str:
@@ -149,7 +152,7 @@ def _paper_check(c: dict[str, Any], source, table, f) -> list[str]:
     header.append("published, paper")
     return [
         f"## Does {c['model']}'s calibration hold in the paper preset?\n",
-        source("water_model_paper_check", data=c) + "\n",
+        source(name, data=c) + "\n",
         f"Model: {c['model']}, {c.get('model_selected_as', 'the most probable model')}.\n",
         f"{sets['calibrated_paper']['num_runs']} posterior draws run in both presets with the same keys "
         f"(mean +- sd over runs; the shift is paired, +- its SE), and "
@@ -208,7 +211,7 @@ def misfit_table(d: dict[str, Any], table) -> str:
     return table(["model", *fitted, "chi-square / dof", "p"], rows)
 
 
-def outcome(d: dict[str, Any], check: dict[str, Any] | None, crits: dict[str, Any], source, table, f) -> str:
+def outcome(d: dict[str, Any], checks: dict[str, Any], crits: dict[str, Any], source, table, f) -> str:
     """The README block under the side-by-side table: the model choice's verdict, the misfit of
     every model per summary, the paper-preset check and the criticism's held-out gain."""
     parts = [
@@ -216,8 +219,9 @@ def outcome(d: dict[str, Any], check: dict[str, Any] | None, crits: dict[str, An
         f"Verdict of the model choice: {d['model_choice']['stop_reason']}.",
         misfit_table(d, table),
     ]
-    if check is not None:
-        parts += _paper_check(check, source, table, f)[1:]
+    for name, check in checks.items():
+        if check is not None:
+            parts += _paper_check(name, check, source, table, f)[1:]
     for name, crit in crits.items():
         if crit is None:
             continue
@@ -228,4 +232,4 @@ def outcome(d: dict[str, Any], check: dict[str, Any] | None, crits: dict[str, An
     return "\n\n".join(p.strip() for p in parts if p.strip())
 
 
-__all__ = ["CRITICISMS", "misfit_table", "outcome", "page_water_model_choice", "side_by_side"]
+__all__ = ["CRITICISMS", "PAPER_CHECKS", "misfit_table", "outcome", "page_water_model_choice", "side_by_side"]

@@ -26,7 +26,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import RESULTS, ROOT
 
 sys.path.insert(0, str(ROOT))  # md.water.models, for the paper's TIP4P estimates
-from _docs_model_choice import CRITICISMS, outcome, page_water_model_choice, side_by_side
+from _docs_model_choice import CRITICISMS, PAPER_CHECKS, outcome, page_water_model_choice, side_by_side
 from registry import REGISTRY
 from status import format_cost, status_of
 
@@ -1513,7 +1513,8 @@ def block_water_model_outcome() -> str:
     if d is None:
         return "Not run yet."
     crits = {name: load(name) for name in CRITICISMS}
-    return outcome(d, load("water_model_paper_check"), crits, source, table, f)
+    checks = {name: load(name) for name in PAPER_CHECKS}
+    return outcome(d, checks, crits, source, table, f)
 
 
 def block_water_calibrations() -> str:
