@@ -901,14 +901,6 @@ def _validation_rows() -> tuple[list[list[Any]], list[str]]:
     return ([*rows, exp_row] if exp_row else rows), sorted(set(names))
 
 
-def block_water_validation() -> str:
-    """The validation properties, for ``md/water/README.md``."""
-    rows, names = _validation_rows()
-    if not rows:
-        return "Not run yet: `--validation-ps 500` with a calibration."
-    return "\n\n".join([*(source(n) for n in names), table(_VALIDATION_HEADER, rows)])
-
-
 def page_water() -> str:
     rows, sources = [], []
     saving_commits: set[str] = set()
@@ -1523,7 +1515,20 @@ def block_water_calibrations() -> str:
     if not rows:
         return "Not run yet: `python benchmarks/regenerate.py --only water_xray water_neutron --budget 8h`."
     names = [n for d in ("xray", "neutron") for n in (f"water_{d}", f"water_{d}_surrogate") if load(n)]
-    return "\n\n".join([*(source(n) for n in names), table(_SIDE_BY_SIDE_HEADER, rows)])
+    return _sourced_table(names, _SIDE_BY_SIDE_HEADER, rows)
+
+
+def block_water_validation() -> str:
+    """The validation properties, for ``md/water/README.md``."""
+    rows, names = _validation_rows()
+    if not rows:
+        return "Not run yet: `--validation-ps 500` with a calibration."
+    return _sourced_table(names, _VALIDATION_HEADER, rows)
+
+
+def _sourced_table(names: Sequence[str], header: Sequence[str], rows: Sequence[Sequence[Any]]) -> str:
+    """A generated block: the source line of each result, then the table."""
+    return "\n\n".join([*(source(n) for n in names), table(header, rows)])
 
 
 #: Generated blocks inside hand-written Markdown: ``<!-- generated: NAME -->`` ... ``<!-- /generated -->``.
