@@ -154,6 +154,8 @@ def time_jax_md(preset: helium.HeliumPreset, batch: int, num_blocks: int) -> dic
         "atom_steps_per_second_per_core": batch * steps * preset.num_atoms / seconds / cores,
         "cores": cores,
         "vmap_width": width,
+        # The all-pairs kernel (md.lj.native or XLA's); trees before it had only XLA's.
+        "force_kernel": getattr(engine, "force_kernel", "xla"),
         "any_overflow_or_failure": bool(np.any(np.asarray(d.overflow | d.failed()))),
     }
 

@@ -27,5 +27,7 @@ PY=${PYTHON:-python3}
 # ruff, pyright (with a Node.js wheel, so no system node is needed) and pre-commit: what .ci/run uses.
 "$PY" -m pip install --quiet -e ".[dev]"
 "$PY" -c "import jax, jax_md, jaxabc; from importlib.metadata import version; print('setup: jax', jax.__version__, 'jax-md', version('jax-md'), 'jaxabc', jaxabc.__version__)"
+# The engine's compiled all-pairs kernel (md.lj.native): built now, not inside the first run.
+"$PY" -c "import sys; from md.lj.native import main; sys.exit(main())" || true
 # pyright's first run unpacks its bundled type checker; do it here, not inside the CI checks.
 command -v pyright >/dev/null 2>&1 && pyright --version >/dev/null 2>&1 || echo "setup: pyright is not usable; .ci/run needs it" >&2

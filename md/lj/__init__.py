@@ -10,6 +10,8 @@ NPT box of jax-md's Nose-Hoover-chain barostat.
   shifted LJ pair term, Axilrod-Teller three-body and Feynman-Hibbs corrections.
 - :mod:`md.lj.neighbor`: the cell-hashed neighbour list and its static capacities.
 - :mod:`md.lj.dense`: the all-pairs kernel for small boxes (no list), vmap-friendly layout.
+- :mod:`md.lj.native`: the same kernel compiled for CPU (an XLA FFI call, one system per SIMD
+  lane), used by default where it can run (``EngineConfig.force_kernel``).
 - :mod:`md.lj.engine`: :class:`LJEngine`, whose ``init``/``run`` are pure JAX and which owns
   its neighbour lists (allocation and re-allocation after an overflow on the host).
 """
@@ -17,6 +19,7 @@ NPT box of jax-md's Nose-Hoover-chain barostat.
 from md import _lazy_jax_md  # noqa: F401  (first: defers jax_md.rigid_body before jax_md loads)
 from md.lj.config import (
     ENSEMBLES,
+    FORCE_KERNELS,
     NEIGHBOR_FORMATS,
     REBUILD_POLICIES,
     Carry,
@@ -43,6 +46,7 @@ from md.lj.neighbor import (
 
 __all__ = [
     "ENSEMBLES",
+    "FORCE_KERNELS",
     "NEIGHBOR_FORMATS",
     "REBUILD_POLICIES",
     "Carry",

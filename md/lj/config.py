@@ -28,6 +28,7 @@ Array = jax.Array
 
 ENSEMBLES = ("npt", "nvt_nose_hoover", "nvt_langevin", "nve")
 NEIGHBOR_FORMATS = ("sparse", "dense")
+FORCE_KERNELS = ("auto", "native", "xla")
 REBUILD_POLICIES = ("every_block", "when_needed")
 
 
@@ -119,6 +120,12 @@ class EngineConfig:
         ``"sparse"`` (default): a half list of pairs, forces scattered once per pair; the
         cheapest for dilute systems.  ``"dense"``: (N, M) partners per atom (each pair twice);
         needed by the three-body term, which is given one automatically.
+    force_kernel : str
+        All-pairs forces (``use_neighbor_list=False``) from ``"native"``: the compiled CPU
+        kernel of :mod:`md.lj.native` (plain LJ, float32; an error where it cannot run),
+        ``"xla"``: the pure-JAX kernel of :mod:`md.lj.dense`, or ``"auto"`` (default): native
+        where it can run, else xla.  Both compute the same forces to float32 rounding;
+        ``LJEngine.force_kernel`` says which one an engine uses.
     """
 
     num_atoms: int
@@ -146,6 +153,7 @@ class EngineConfig:
     extra_capacity: int = 4
     allocation_box_fraction: float = 0.9
     neighbor_format: str = "sparse"
+    force_kernel: str = "auto"
 
     def __post_init__(self) -> None:
         if self.ensemble not in ENSEMBLES:
@@ -166,6 +174,8 @@ class EngineConfig:
             raise ValueError(f"neighbor_format must be one of {NEIGHBOR_FORMATS}, got {self.neighbor_format!r}")
         if self.rebuild_every < 1 or self.dt_ps <= 0.0:
             raise ValueError("rebuild_every must be >= 1 and dt_ps > 0")
+        if self.force_kernel not in FORCE_KERNELS:
+            raise ValueError(f"force_kernel must be one of {FORCE_KERNELS}, got {self.force_kernel!r}")
         if self.rebuild not in REBUILD_POLICIES:
             raise ValueError(f"rebuild must be one of {REBUILD_POLICIES}, got {self.rebuild!r}")
 

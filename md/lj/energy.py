@@ -13,9 +13,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from md.lj import native as native_kernel
 from md.lj.config import Array, LJParams
 from md.lj.dense import all_pairs_force_and_strain
-from md.lj.neighbor import HalfPairs, _neighbor_vectors
+from md.lj.neighbor import HalfPairs, _box_diagonal, _neighbor_vectors
 from md.units import HBAR_KJ_MOL_PS
 
 __all__ = [
@@ -99,6 +100,7 @@ def make_energy_fn(
     feynman_hibbs: bool = False,
     mass_amu: float = 1.0,
     kt_kj_mol: float = 1.0,
+    native: bool = False,
 ) -> Callable[..., Array]:
     """Build ``energy_fn(position, box, perturbation=None, idx=..., params=...) -> U`` (kJ/mol).
 
@@ -112,6 +114,9 @@ def make_energy_fn(
         Add the Axilrod-Teller / Feynman-Hibbs terms.
     mass_amu, kt_kj_mol : float
         Used by the Feynman-Hibbs term only.
+    native : bool
+        All-pairs forces (``idx=None``) from the compiled CPU kernel (:mod:`md.lj.native`);
+        plain LJ only (no Feynman-Hibbs term).  The caller checks it is available.
 
     Returns
     -------
@@ -121,7 +126,8 @@ def make_energy_fn(
         partners (N marks an empty slot) or :class:`HalfPairs`, ``params`` :class:`LJParams`.
         Returns U, shape ().  Attributes: ``pair_energy(r2, params)`` (the pair term inside
         r_c, shared by every path) and ``force_and_strain(position, box, idx, params)``
-        (analytic pair forces and dU/d(strain), no three-body term).
+        (analytic pair forces and dU/d(strain), no three-body term); with ``native``, also
+        ``energy_and_strain(position, box, params)`` (U and dU/d(strain), all pairs).
 
     Notes
     -----
@@ -184,6 +190,9 @@ def make_energy_fn(
         isotropic strain ``r -> (1 + eps) r``.
         """
         assert params is not None, "force_and_strain needs params=LJParams(...)"
+        if idx is None and native:
+            force, strain, _ = _native_all_pairs(position, box, params)
+            return force, strain
         if idx is None:
             # Small boxes: all pairs, one (N, N) array per component (see md.lj.dense).
             return all_pairs_force_and_strain(pair_energy, cutoff_nm, position, box, params)
@@ -208,8 +217,23 @@ def make_energy_fn(
             strain = jnp.sum(du * r2)  # every pair twice: 1/2 x 2 r^2 u'
         return force, strain
 
+    def _native_all_pairs(position: Array, box: Array, params: LJParams) -> tuple[Array, Array, Array]:
+        side = _box_diagonal(box)
+        return native_kernel.all_pairs(
+            position, side, params.sigma_nm, params.epsilon_kj_mol, cutoff_nm, truncation == "shifted"
+        )
+
+    def energy_and_strain(position: Array, box: Array, params: LJParams) -> tuple[Array, Array]:
+        """U and dU/d(strain) over all pairs from the compiled kernel (``native`` only)."""
+        _, strain, energy = _native_all_pairs(position, box, params)
+        return energy, strain
+
+    if native and (feynman_hibbs or three_body):
+        raise ValueError("the compiled all-pairs kernel covers the plain LJ pair term only")
     energy_fn.pair_energy = pair_energy  # type: ignore[attr-defined]
     energy_fn.force_and_strain = force_and_strain  # type: ignore[attr-defined]
+    if native:
+        energy_fn.energy_and_strain = energy_and_strain  # type: ignore[attr-defined]
     return energy_fn
 
 

@@ -33,6 +33,7 @@ import numpy as np
 from jax_md import simulate as jmd_simulate
 from jax_md import space
 
+from md.lj import native as native_kernel
 from md.lj.batch import _advance_batch, _init_batch, _rebuild_batch, batched
 from md.lj.config import Array, Carry, Diagnostics, EngineConfig, LJParams, Thermo
 from md.lj.energy import lattice_positions, make_energy_fn
@@ -48,6 +49,21 @@ from md.lj.npt import jax_md_float32, kinetic_energy, npt_step
 from md.units import BOLTZMANN_KJ_MOL_K
 
 __all__ = ["LJEngine", "batched"]
+
+
+def _resolve_force_kernel(c: EngineConfig) -> str:
+    """``"native"`` or ``"xla"`` for the all-pairs forces of ``c`` (see ``force_kernel``)."""
+    if c.force_kernel == "xla":
+        return "xla"
+    why = None
+    if c.use_neighbor_list or c.three_body or c.feynman_hibbs:
+        why = "it covers all-pairs plain LJ only (no neighbour list, three-body or Feynman-Hibbs term)"
+    why = why or native_kernel.unavailable_reason()
+    if why is None:
+        return "native"
+    if c.force_kernel == "native":
+        raise ValueError(f"force_kernel='native' cannot be used: {why}")
+    return "xla"
 
 
 class LJEngine:
@@ -71,8 +87,15 @@ class LJEngine:
         self.config = config
         c = config
         self.box0 = jnp.eye(3, dtype=jnp.float32) * c.box_nm
+        self.force_kernel = _resolve_force_kernel(c)
         self.energy_fn = make_energy_fn(
-            c.cutoff_nm, c.truncation, c.three_body, c.feynman_hibbs, c.mass_amu, c.kt_kj_mol
+            c.cutoff_nm,
+            c.truncation,
+            c.three_body,
+            c.feynman_hibbs,
+            c.mass_amu,
+            c.kt_kj_mol,
+            native=self.force_kernel == "native",
         )
         self.displacement_fn, self.shift_fn = space.periodic_general(self.box0, fractional_coordinates=True)
         # jax-md's Nose-Hoover chains count 3N degrees of freedom, but the total momentum is zero
@@ -508,7 +531,10 @@ class LJEngine:
         def energy(eps: Array) -> Array:
             return self.energy_fn(md.position, box, perturbation=1.0 + eps, idx=idx, params=params)
 
-        potential, d_energy = jax.value_and_grad(energy)(jnp.float32(0.0))
+        if self.force_kernel == "native":
+            potential, d_energy = self.energy_fn.energy_and_strain(md.position, box, params)
+        else:
+            potential, d_energy = jax.value_and_grad(energy)(jnp.float32(0.0))
         kinetic = kinetic_energy(md.momentum, md.mass)
         volume = jnp.abs(jnp.linalg.det(box))
         virial = -d_energy
