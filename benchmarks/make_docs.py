@@ -352,15 +352,17 @@ def _gpu(d: dict[str, Any]) -> list[str]:
 def _small_system(d: dict[str, Any]) -> list[str]:
     """The 32-atom ``cpu`` preset against LAMMPS, and the main job's wall and CPU time."""
     lmp = d.get("lammps") or {}
-    rows = [["LAMMPS", "this", 1, f"{lmp['system_steps_per_second']:.3e}", "1.00"]] if lmp else []
+    rows = [["LAMMPS", "this", "-", 1, f"{lmp['system_steps_per_second']:.3e}", "1.00"]] if lmp else []
     for tree, rates in d["jax_md"].items():
         for r in rates:
             ratio = r.get("ratio_to_lammps_same_run")
-            rows.append(["jax-md", tree, r["batch"], f"{r['system_steps_per_second']:.3e}", f(ratio, 2)])
+            kernel = r.get("force_kernel", "xla")
+            rows.append(["jax-md", tree, kernel, r["batch"], f"{r['system_steps_per_second']:.3e}", f(ratio, 2)])
     parts = [
         "## Small systems: the 32-atom CPU preset of every calibration\n",
         source("engine_throughput_small_system") + "\n",
-        table(["engine", "tree", "batch", "system-steps per CPU-s", "x LAMMPS (same run)"], rows) + "\n",
+        table(["engine", "tree", "force kernel", "batch", "system-steps per CPU-s", "x LAMMPS (same run)"], rows)
+        + "\n",
     ]
     jobs = d.get("main_job") or {}
     job_rows = []
