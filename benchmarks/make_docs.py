@@ -1005,7 +1005,8 @@ _SURROGATE_HEADER = [
     "validated",
     "held-out cov. / MSSE / joint",
     "truth in 50 % HPD",
-    "wall time",
+    "wall time (last sitting)",
+    "GROMACS time (sum over runs)",
 ]
 
 
@@ -1040,6 +1041,7 @@ def _water_surrogate_section() -> str:
                     ),
                     truth or "-",
                     format_cost(e["wall_time_s"]),
+                    _gromacs_seconds(data, stats),
                 ]
             )
             sources.append(f"- {source(f'water_{data}_surrogate', stats, d)}")
@@ -1087,6 +1089,17 @@ def _predictive_peak(e: dict[str, Any]) -> str:
         f"{f(r_peak, 3)} nm, {f(g_peak, 2)} [{f(bands['q25'][i], 2)}, {f(bands['q75'][i], 2)}] "
         f"({bands['num_curves']} runs)"
     )
+
+
+def _gromacs_seconds(data: str, stats: str) -> str:
+    """Summed wall time of a surrogate run's GROMACS runs, over every sitting (a resumed run's
+    own wall time covers only its last one)."""
+    path = RESULTS / f"water_{data}_{stats}_surrogate.npz"
+    if not path.exists():
+        return "-"
+    with np.load(path, allow_pickle=True) as z:
+        key = "record_wall_time"
+        return format_cost(float(np.nansum(z[key]))) if key in z.files else "-"
 
 
 def _posterior_draws(data: str, stats: str, surrogate: bool) -> str:
@@ -1144,11 +1157,13 @@ def _water_side_by_side_rows() -> tuple[list[list[Any]], list[list[Any]]]:
                     )
                     first = False
                 ci = e["credible_interval_95"]
+                # A surrogate posterior whose emulator failed its held-out check says so here.
+                validated = (e.get("surrogate") or {}).get("validated", True)
                 rows.append(
                     [
                         WATER_LABELS[data],
                         stats,
-                        method,
+                        method if validated else f"{method} (NOT VALIDATED: {e['surrogate'].get('failure', '')})",
                         f"{f(e['bayes_estimate'][0], 4)} [{f(ci[0][0], 4)}, {f(ci[0][1], 4)}]",
                         f"{f(e['bayes_estimate'][1])} [{f(ci[1][0])}, {f(ci[1][1])}]",
                         f(e["correlation"], 3),
