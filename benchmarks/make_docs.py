@@ -1091,10 +1091,15 @@ def _predictive_peak(e: dict[str, Any]) -> str:
     )
 
 
+def _water_npz(data: str, stats: str, surrogate: bool) -> Path:
+    """The saved posterior of a water calibration (``water_calibration.py`` names it so)."""
+    return RESULTS / f"water_{data}_{stats}{'_surrogate' if surrogate else ''}.npz"
+
+
 def _gromacs_seconds(data: str, stats: str) -> str:
     """Summed wall time of a surrogate run's GROMACS runs, over every sitting (a resumed run's
     own wall time covers only its last one)."""
-    path = RESULTS / f"water_{data}_{stats}_surrogate.npz"
+    path = _water_npz(data, stats, surrogate=True)
     if not path.exists():
         return "-"
     with np.load(path, allow_pickle=True) as z:
@@ -1104,7 +1109,7 @@ def _gromacs_seconds(data: str, stats: str) -> str:
 
 def _posterior_draws(data: str, stats: str, surrogate: bool) -> str:
     """Number of posterior draws and their effective sample size, from the saved result."""
-    path = RESULTS / f"water_{data}_{stats}{'_surrogate' if surrogate else ''}.npz"
+    path = _water_npz(data, stats, surrogate)
     if not path.exists():
         return "-"
     with np.load(path, allow_pickle=True) as z:

@@ -1,13 +1,13 @@
 """The compiled all-pairs LJ kernel for small boxes on CPU: an XLA FFI custom call.
 
 XLA's CPU code for the (N, N) all-pairs broadcast of :mod:`md.lj.dense` materialises every
-intermediate array and vectorises poorly, so a 32-atom system costs several microseconds per
-force evaluation.  ``kernels/lj_all_pairs.cc`` does the same arithmetic with one SIMD lane per
-system of the batch (:func:`jax.ffi.ffi_call` with ``vmap_method="broadcast_all"``, so it runs
-inside ``jit``, ``vmap`` and ``scan`` like any primitive).  It is compiled on first use with the
-machine's C++ compiler (``-O3 -march=native``, about 10 s) into ``~/.cache/jaxabc/native``
-(``$XDG_CACHE_HOME`` respected), keyed on the source, compiler, jax version and CPU flags;
-``scripts/setup.sh`` builds it ahead (``md.lj.native.main``).
+intermediate array and vectorises poorly (measured in ``engine_throughput_small_system.json``).
+``kernels/lj_all_pairs.cc`` does the same arithmetic with one SIMD lane per system of the batch
+(:func:`jax.ffi.ffi_call` with ``vmap_method="broadcast_all"``, so it runs inside ``jit``, ``vmap``
+and ``scan`` like any primitive). It is compiled on first use with the machine's C++ compiler
+(``-O3 -march=native``) into ``~/.cache/jaxabc/native`` (``$XDG_CACHE_HOME`` respected), keyed on the
+source, compiler, jax version and CPU flags; ``scripts/setup.sh`` builds it ahead
+(``md.lj.native.main``).
 
 Where it cannot be used (no compiler, a GPU backend, float64, or ``JAXABC_NATIVE_KERNELS=0``)
 the engine falls back to the pure-JAX kernel: :func:`unavailable_reason` says why, and
