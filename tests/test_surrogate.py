@@ -194,6 +194,48 @@ def test_a_misspecified_model_does_not_chase_the_failing_region():
     particles, _ = algorithm.posterior(state)
     assert np.mean(particles[:, 0] > 1.5) < 0.01
     assert 0.5 < particles[:, 0].mean() < 1.3  # the best feasible fit, at the boundary
+    # Against the boundary the posterior collapses; the penalty radius had collapsed with it
+    # and about half the later runs repeated an earlier failure (within 0.5 % of the box).
+    unit = (np.asarray(state.thetas[: int(state.count)]) - PRIOR.low) / (PRIOR.high - PRIOR.low)
+    failed = ~np.asarray(state.ok[: int(state.count)])
+    near = [
+        np.min(np.linalg.norm(unit[:i][failed[:i]] - unit[i], axis=1)) < 0.005
+        for i in range(start, int(state.count))
+        if failed[:i].any()
+    ]
+    assert np.mean(near) < 0.2, np.mean(near)
+
+
+def test_a_batch_is_spread_even_when_the_posterior_collapses_onto_one_point():
+    # Candidates: 50 copies of the best point, the rest a grid; a posterior sd of 0 would
+    # make the penalty radius 0 and the batch 4 copies of one point.
+    rng = np.random.default_rng(0)
+    x = np.concatenate([np.full((50, 2), 0.3), rng.uniform(size=(500, 2))])
+    acquisition = np.exp(-0.5 * np.sum(((x - 0.3) / 0.05) ** 2, axis=1))
+    ls = np.array([0.2, 0.4])
+    radius = design.penalty_radius(ls, np.zeros(2))
+    assert np.allclose(radius, design.MIN_RADIUS_FRACTION * ls)
+    assert np.allclose(design.penalty_radius(ls, np.array([0.1, 2.0])), [0.05, 0.4])
+    idx = design.select_batch(x, acquisition, radius, 4)
+    picked = x[idx]
+    gaps = np.linalg.norm(picked[:, None] - picked[None], axis=-1)[np.triu_indices(4, 1)]
+    assert np.all(gaps > 0.5 * radius.min()), gaps
+    # A failed run at the best point: no pick repeats it.
+    idx = design.select_batch(x, acquisition, radius, 4, avoid=np.array([[0.3, 0.3]]))
+    assert np.all(np.linalg.norm(x[idx] - 0.3, axis=1) > 0.5 * radius.min())
+
+
+def test_the_failure_text_counts_held_out_runs_that_failed():
+    from types import SimpleNamespace
+
+    from jaxabc.surrogate._support import _failure_text
+
+    errors = np.full((20, 3), np.nan)
+    errors[:5] = 0.1
+    state = SimpleNamespace(
+        emulator_ratio=0.0, lack_of_fit_ok=True, joint_ok=True, coverage=np.nan, holdout_errors=errors
+    )
+    assert "15 of 20 held-out runs failed" in _failure_text(state, 1.0)
 
 
 def test_the_nearest_run_cut_is_sharp_for_a_failing_phase_and_blind_to_random_failures():

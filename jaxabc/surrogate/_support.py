@@ -30,6 +30,10 @@ def _failure_text(state: Any, max_emulator_ratio: float) -> str:
             f"held-out joint (Mahalanobis) error {float(state.joint_mean_squared_error):.2f} per output, "
             "too large for the modelled noise correlation: the summaries' joint noise is not captured"
         )
+    errors = np.asarray(state.holdout_errors)
+    num_run = int(np.sum(np.any(np.isfinite(errors), axis=1)))
+    if num_run < errors.shape[0]:
+        parts.append(f"{errors.shape[0] - num_run} of {errors.shape[0]} held-out runs failed")
     if np.isfinite(state.coverage):
         parts.append(
             f"held-out 95 % coverage {float(state.coverage):.2f}, mean squared standardised "

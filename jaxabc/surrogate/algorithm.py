@@ -483,10 +483,13 @@ def build(
         acquisition = np.exp(lp - np.max(lp)) * np.sqrt(ratio) * p_ok
         # Penalise around each pick on the scale of the posterior (half its sd), or of the
         # emulator where that is shorter: GP length scales often exceed the posterior, and a
-        # penalty that wide would push the batch into the corners of the box.
+        # penalty that wide would push the batch into the corners of the box.  Failed runs are
+        # penalised too: the emulator learnt nothing there.
         post_sd = np.sqrt(w @ (x - w @ x) ** 2)
-        scale = np.minimum(np.exp(np.min(np.asarray(emu.log_ls), axis=0)), 0.5 * post_sd) + 1e-6
-        idx = design.select_batch(x, acquisition, scale, batch_size)
+        scale = design.penalty_radius(np.exp(np.min(np.asarray(emu.log_ls), axis=0)), post_sd)
+        used = state.role != ROLE_EMPTY
+        failed = to_unit(state.thetas[used & ~state.ok])
+        idx = design.select_batch(x, acquisition, scale, batch_size, avoid=failed)
         pending = np.zeros((B, d))
         pending[:batch_size] = to_theta(x[idx])
         return state._replace(pending=pending, num_pending=np.int64(batch_size), phase=np.int64(DESIGN))

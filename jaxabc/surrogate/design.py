@@ -11,6 +11,10 @@ succeeds at all, so regions where runs fail are avoided.  A batch is chosen
 greedily; each pick multiplies the acquisition by ``1 - exp(-|x - x_pick|^2_ell / 2)`` with
 ``ell`` half the posterior sd or the emulator's length scale where shorter (local
 penalisation, González et al. 2016), so that the workers of one batch explore different places.
+``ell`` never falls below a tenth of the length scale (:func:`penalty_radius`): two runs that
+close are near-replicates, and a posterior collapsed onto one candidate would otherwise repeat
+one point across the batch.  Runs that failed are penalised the same way before the first pick:
+they teach the emulator nothing, so its variance, and the acquisition, stays high right there.
 """
 
 from __future__ import annotations
@@ -18,7 +22,19 @@ from __future__ import annotations
 import numpy as np
 import scipy.stats
 
-__all__ = ["Candidates", "candidates", "initial_design", "replicate_groups", "select_batch"]
+__all__ = [
+    "MIN_RADIUS_FRACTION",
+    "Candidates",
+    "candidates",
+    "initial_design",
+    "penalty_radius",
+    "replicate_groups",
+    "select_batch",
+]
+
+#: Floor of the penalisation radius, in emulator length scales: a run 0.1 length scales from
+#: another is 99.5 % correlated with it under the squared-exponential kernel.
+MIN_RADIUS_FRACTION = 0.1
 
 
 def initial_design(seed: int, dim: int, num_points: int, num_replicates: int) -> tuple[np.ndarray, np.ndarray]:
@@ -83,7 +99,12 @@ class Candidates:
 def candidates(
     rng: np.random.Generator, dim: int, num: int, centre: np.ndarray | None = None, cov: np.ndarray | None = None
 ) -> Candidates:
-    """Draw ``num`` candidates; with ``centre``/``cov`` (unit-box coordinates) half are local."""
+    """Draw ``num`` candidates; with ``centre``/``cov`` (unit-box coordinates) half are local.
+
+    The local Gaussian is ``cov`` inflated twice, floored at the uniform half's spacing
+    ``num**(-1/d)``: a posterior narrower than that grid was seen by at most one uniform point,
+    and its weighted covariance is then near zero, not the posterior's.
+    """
     # seed= as in initial_design (scipy's decorator adds it; its annotations do not show it).
     sobol = scipy.stats.qmc.Sobol(dim, scramble=True, seed=rng)  # pyright: ignore[reportCallIssue]
     n_uniform = num if centre is None else num // 2
@@ -91,7 +112,8 @@ def candidates(
     if centre is None:
         return Candidates(xu, np.zeros(n_uniform))
     assert cov is not None, "a local proposal needs both centre and cov"
-    cov = 4.0 * cov + 1e-8 * np.eye(dim)
+    spacing = float(num) ** (-1.0 / dim)
+    cov = 4.0 * (cov + spacing**2 * np.eye(dim))
     draws = rng.multivariate_normal(centre, cov, size=4 * (num - n_uniform))
     inside = np.all((draws > 0) & (draws < 1), axis=1)
     frac_inside = max(inside.mean(), 1.0 / draws.shape[0])
@@ -104,12 +126,25 @@ def candidates(
     return Candidates(x, log_q)
 
 
-def select_batch(x: np.ndarray, acquisition: np.ndarray, lengthscales: np.ndarray, size: int) -> np.ndarray:
+def penalty_radius(emulator_ls: np.ndarray, posterior_sd: np.ndarray) -> np.ndarray:
+    """Penalisation radii (d,), unit-box widths: half the posterior sd, capped at the emulator's
+    length scale ``emulator_ls (d,)`` and floored at ``MIN_RADIUS_FRACTION`` of it."""
+    ls = np.asarray(emulator_ls, np.float64)
+    return np.maximum(np.minimum(ls, 0.5 * np.asarray(posterior_sd, np.float64)), MIN_RADIUS_FRACTION * ls)
+
+
+def select_batch(
+    x: np.ndarray, acquisition: np.ndarray, lengthscales: np.ndarray, size: int, avoid: np.ndarray | None = None
+) -> np.ndarray:
     """Greedy batch of ``size`` rows of ``x (n, d)`` maximising the locally penalised acquisition.
 
-    ``lengthscales (d,)``, the penalisation radii, are in unit-box widths.  Returns indices (size,).
+    ``lengthscales (d,)``, the penalisation radii, are in unit-box widths; the acquisition is
+    penalised around each row of ``avoid (m, d)`` (failed runs) before the first pick.  Returns
+    indices (size,).
     """
     a = np.where(np.isfinite(acquisition), acquisition, 0.0).copy()
+    for x0 in () if avoid is None else avoid:
+        a *= 1.0 - np.exp(-0.5 * np.sum(((x - x0) / lengthscales) ** 2, axis=1))
     chosen = []
     for _ in range(size):
         i = int(np.argmax(a))
