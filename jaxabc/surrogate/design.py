@@ -113,14 +113,14 @@ def candidates(
         return Candidates(xu, np.zeros(n_uniform))
     assert cov is not None, "a local proposal needs both centre and cov"
     spacing = float(num) ** (-1.0 / dim)
-    cov = 4.0 * (cov + spacing**2 * np.eye(dim))
-    draws = rng.multivariate_normal(centre, cov, size=4 * (num - n_uniform))
+    local_cov = 4.0 * (np.asarray(cov) + spacing**2 * np.eye(dim))
+    draws = rng.multivariate_normal(centre, local_cov, size=4 * (num - n_uniform))
     inside = np.all((draws > 0) & (draws < 1), axis=1)
     frac_inside = max(inside.mean(), 1.0 / draws.shape[0])
     xl = draws[inside][: num - n_uniform]
     x = np.concatenate([xu, xl])
     # scipy's unannotated multivariate_normal(mean=None, cov=1) makes pyright infer cov: int.
-    mvn = scipy.stats.multivariate_normal(centre, cov)  # pyright: ignore[reportArgumentType]
+    mvn = scipy.stats.multivariate_normal(centre, local_cov)  # pyright: ignore[reportArgumentType]
     local = mvn.logpdf(x).reshape(-1) - np.log(frac_inside)
     log_q = np.logaddexp(np.log(n_uniform / len(x)), np.log(len(xl) / len(x)) + local)
     return Candidates(x, log_q)
