@@ -1005,7 +1005,7 @@ _SURROGATE_HEADER = [
     "validated",
     "held-out cov. / MSSE / joint",
     "truth in 50 % HPD",
-    "wall time (last sitting)",
+    "wall time",
     "GROMACS time (sum over runs)",
 ]
 
@@ -1040,7 +1040,7 @@ def _water_surrogate_section() -> str:
                         else "-"
                     ),
                     truth or "-",
-                    format_cost(e["wall_time_s"]),
+                    _wall_time(e),
                     _gromacs_seconds(data, stats),
                 ]
             )
@@ -1094,6 +1094,14 @@ def _predictive_peak(e: dict[str, Any]) -> str:
 def _water_npz(data: str, stats: str, surrogate: bool) -> Path:
     """The saved posterior of a water calibration (``water_calibration.py`` names it so)."""
     return RESULTS / f"water_{data}_{stats}{'_surrogate' if surrogate else ''}.npz"
+
+
+def _wall_time(entry: dict) -> str:
+    """A water calibration's wall time: over every sitting where recorded, else its last one."""
+    if "sittings" not in entry:
+        return f"{format_cost(entry['wall_time_s'])} (last sitting)"
+    n = entry["sittings"]
+    return format_cost(entry["wall_time_s"]) + (f" ({n} sittings)" if n > 1 else "")
 
 
 def _gromacs_seconds(data: str, stats: str) -> str:

@@ -117,8 +117,9 @@ def _water_surrogate(data: str, statistics: str, checkpoint: str, what: str, pre
 def _water_paper_preset(data: str) -> Entry:
     """The paper's own protocol (515 molecules, 100 ps) through the surrogate: hours of GROMACS.
 
-    Its checkpoint lives in the results folder, so the same command continues it in a later
-    sitting (``--continue``), and the run is resumable after any interruption.
+    Its checkpoint and run cache live in the results folder, so the same command continues it in
+    a later sitting (``--continue``), replaying the finished runs of a batch that a sitting cut
+    short (``--run-cache``).
     """
     folder = f"{R}/water_paper_preset"
     return Entry(
@@ -126,7 +127,8 @@ def _water_paper_preset(data: str) -> Entry:
         f"{folder}/water_{data}_surrogate.json",
         f"python benchmarks/water_calibration.py --data {data} --statistics paper --preset paper "
         "--algorithm surrogate --max-simulations 200 --workers 2 --predictive 10 "
-        f"--checkpoint-dir {folder}/checkpoint_{data} --continue --out-dir {folder} --no-progress",
+        f"--checkpoint-dir {folder}/checkpoint_{data} --continue --run-cache {folder}/checkpoint_{data}/runs "
+        f"--out-dir {folder} --no-progress",
         part="paper",
         long=True,
         estimated_cost_s=36000.0,

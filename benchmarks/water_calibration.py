@@ -54,6 +54,8 @@ from __future__ import annotations
 import argparse
 import concurrent.futures
 import contextlib
+import datetime
+import hashlib
 import itertools
 import json
 import multiprocessing
@@ -81,9 +83,10 @@ from md.water.models import PAPER_TIP4P_ESTIMATES  # noqa: E402
 from md.water.statistics import ROBUST_GRID_NM, STATISTIC_NAMES, STATISTIC_UNITS  # noqa: E402
 
 sys.path.insert(0, str(ROOT / "benchmarks"))
-from _common import QUICK_RESULTS, command_line, declare_input, write_result  # noqa: E402
+from _common import QUICK_RESULTS, code_hash, command_line, declare_input, write_result  # noqa: E402
 
 from jaxabc.checkpoint import simulator_identity  # noqa: E402
+from jaxabc.errors import SimulationFailure  # noqa: E402
 
 TIP4P_THETA = np.array([TIP4P_PARAMETERS.sigma_ow_nm, TIP4P_PARAMETERS.epsilon_ow_kj_mol])
 PRIOR_LOW, PRIOR_HIGH = (0.281, 0.2), (0.53, 0.9)
@@ -154,6 +157,14 @@ def parse_arguments(argv=None) -> argparse.Namespace:
         help="stop (resumably, with --checkpoint-dir) after this many driver iterations",
     )
     parser.add_argument("--no-progress", action="store_true", help="no progress bars")
+    parser.add_argument(
+        "--run-cache",
+        type=Path,
+        default=None,
+        help="keep every finished GROMACS run here (summaries or failure reason, keyed on the "
+        "simulator, its code, the key and theta), so that a sitting cut short replays the runs of "
+        "an unfinished batch instead of repeating them",
+    )
     parser.add_argument(
         "--order",
         choices=("fifo", "longest_first"),
@@ -534,9 +545,27 @@ class CountingSimulator:
         The progress file (absolute; created by :class:`ProgressMonitor`).
     """
 
-    def __init__(self, simulate: Callable, path: str | os.PathLike):
+    def __init__(self, simulate: Callable, path: str | os.PathLike, cache_dir: str | os.PathLike | None = None):
         self.simulate = simulate
         self.path = str(Path(path).resolve())
+        self.cache_dir = None if cache_dir is None else str(Path(cache_dir).resolve())
+        if self.cache_dir is not None:
+            Path(self.cache_dir).mkdir(parents=True, exist_ok=True)
+            # Runs from other simulator code are never replayed.
+            code = sorted(str(f.relative_to(ROOT)) + code_hash(f) for f in (ROOT / "md" / "water").glob("*.py"))
+            self._identity = repr((simulate, getattr(simulate, "protocol", None), code))
+
+    def _cache_path(self, key: Any, theta: Any) -> Path | None:
+        if self.cache_dir is None:
+            return None
+        digest = hashlib.sha256(self._identity.encode())
+        try:
+            key_data = np.asarray(jax.random.key_data(key))
+        except (TypeError, ValueError):  # raw uint32 key data, as the executors pass
+            key_data = np.asarray(key)
+        digest.update(np.ascontiguousarray(key_data, dtype=np.uint32).tobytes())
+        digest.update(np.ascontiguousarray(np.asarray(theta, dtype=np.float64).reshape(-1)).tobytes())
+        return Path(self.cache_dir) / f"{digest.hexdigest()[:24]}.npz"
 
     def _mark(self, word: str) -> None:
         try:
@@ -549,19 +578,41 @@ class CountingSimulator:
             pass
 
     def __call__(self, key: Any, theta: Any) -> Any:
+        path = self._cache_path(key, theta)
+        if path is not None and path.is_file():
+            with np.load(path) as stored:
+                reason, out = str(stored["reason"]), np.array(stored["summaries"])
+            self._mark("failed" if reason or not np.all(np.isfinite(out)) else "ok")
+            if reason:
+                raise SimulationFailure(reason)
+            return out
         try:
             out = self.simulate(key, theta)
-        except BaseException:
+        except SimulationFailure as failure:
+            self._mark("failed")
+            self._store(path, np.zeros(0), str(failure) or type(failure).__name__)
+            raise
+        except BaseException:  # a crash or a timeout is not a property of (key, theta): not cached
             self._mark("failed")
             raise
         finite = bool(np.all(np.isfinite(np.asarray(out, dtype=np.float64))))
         self._mark("ok" if finite else "failed")
+        self._store(path, np.asarray(out), "")
         return out
+
+    @staticmethod
+    def _store(path: Path | None, summaries: np.ndarray, reason: str) -> None:
+        if path is None:
+            return
+        # Write then rename: a worker killed mid-write leaves no half file to replay.
+        partial = path.with_suffix(".tmp.npz")
+        np.savez(partial, summaries=summaries, reason=np.array(reason))
+        os.replace(partial, path)
 
     def __getattr__(self, name: str) -> Any:
         # Attributes of the wrapped simulator (protocol, run, ...) stay reachable; the guard
         # keeps unpickling (which looks up attributes before __init__ ran) from recursing.
-        if name in ("simulate", "path"):
+        if name in ("simulate", "path", "cache_dir", "_identity"):
             raise AttributeError(name)
         return getattr(self.simulate, name)
 
@@ -626,6 +677,54 @@ class ProgressMonitor:
         self._stop.set()
         if self._thread is not None:
             self._thread.join(timeout=10.0)
+
+
+class SittingClock:
+    """Wall time of a run that spans several sittings (``--continue``), kept in ``path``.
+
+    The file lists each sitting's start (UTC) and elapsed seconds; a thread rewrites the current
+    sitting's entry every ``interval_s``, so a sitting that is killed still counts up to its last
+    update.  ``fresh=True`` forgets earlier sittings (a run started over).
+    """
+
+    def __init__(self, path: Path, fresh: bool, interval_s: float = 30.0):
+        self.path = Path(path)
+        self.interval_s = float(interval_s)
+        earlier = [] if fresh or not self.path.exists() else json.loads(self.path.read_text())["sittings"]
+        self.sittings = [*earlier, {"started_utc": _utc_now(), "elapsed_s": 0.0}]
+        self._started = time.perf_counter()
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._tick, name="sitting-clock", daemon=True)
+
+    def _write(self) -> None:
+        self.sittings[-1]["elapsed_s"] = time.perf_counter() - self._started
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        partial = self.path.with_suffix(".tmp")
+        partial.write_text(json.dumps({"sittings": self.sittings}, indent=1))
+        os.replace(partial, self.path)
+
+    def _tick(self) -> None:
+        while not self._stop.wait(self.interval_s):
+            self._write()
+
+    def __enter__(self) -> SittingClock:
+        self._write()
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._stop.set()
+        self._thread.join(timeout=10.0)
+        self._write()
+
+    @property
+    def total_s(self) -> float:
+        """Seconds over every sitting, this one up to now."""
+        return sum(s["elapsed_s"] for s in self.sittings[:-1]) + time.perf_counter() - self._started
+
+
+def _utc_now() -> str:
+    return datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%dT%H:%M:%SZ")
 
 
 # ---------------------------------------------------------------------------- main
@@ -703,8 +802,14 @@ def main(argv=None) -> dict:
     args.out_dir.mkdir(parents=True, exist_ok=True)
     progress_file = args.out_dir / f".{stem}.progress"
     # Workers report each finished run to the progress file; results are those of `simulate`.
-    counted = CountingSimulator(simulate, progress_file)
+    counted = CountingSimulator(simulate, progress_file, args.run_cache)
     started = time.perf_counter()
+    resuming = args.resume or _has_checkpoint(args)
+    clock = (
+        SittingClock(args.checkpoint_dir / f"{stem}.sittings.json", fresh=not resuming)
+        if args.checkpoint_dir is not None
+        else contextlib.nullcontext()
+    )
     observed = observed_vector(args, simulate)
     monitor = (
         contextlib.nullcontext()
@@ -712,7 +817,7 @@ def main(argv=None) -> dict:
         else ProgressMonitor(progress_file, expected_simulations(args, scale_mode), f"{args.algorithm} GROMACS runs")
     )
     try:
-        with monitor:
+        with monitor, clock:
             if scale_mode == "pilot":
                 scale = pilot_scales(args, counted, prior, executor)
                 distance = scaled_mean_abs(scale)
@@ -731,7 +836,7 @@ def main(argv=None) -> dict:
                 max_simulations=args.max_simulations,
                 max_failure_fraction=args.max_failure_fraction,
                 checkpoint_dir=args.checkpoint_dir,
-                resume=args.resume or _has_checkpoint(args),
+                resume=resuming,
                 stop_after_iterations=args.stop_after_iterations,
                 simulator_id=simulator_identity(simulate, None),
                 progress=not args.no_progress,
@@ -776,7 +881,10 @@ def main(argv=None) -> dict:
         "num_simulations": int(result.num_simulations),
         "num_failures": int(failures.sum()),
         "failure_reasons": sorted({r for r, f in zip(result.records["reasons"], failures, strict=True) if f})[:20],
-        "wall_time_s": time.perf_counter() - started,
+        # Over every sitting of a resumed run (the calibration; predictive and validation runs of
+        # the last sitting follow).
+        "wall_time_s": clock.total_s if isinstance(clock, SittingClock) else time.perf_counter() - started,
+        "sittings": len(clock.sittings) if isinstance(clock, SittingClock) else 1,
         "stop_reason": result.stop_reason,
         "paper": PAPER[args.data],
     }
