@@ -988,6 +988,7 @@ the commit that saved it:
 {predate or "- (none)"}
 """
     out += _water_surrogate_section()
+    out += _water_paper_preset_section()
     out += _water_side_by_side()
     validation, _ = _validation_rows()
     if validation:
@@ -1063,6 +1064,68 @@ data whether TIP4P's own parameters lie in the 50 % HPD region.
 
 {chr(10).join(sources)}
 """
+
+
+def _water_paper_preset_section() -> str:
+    """The paper's own protocol through the surrogate: the result, or the progress of a run that
+    spans sittings (its checkpoint, run cache and sitting clock live in the results folder)."""
+    folder = RESULTS / "water_paper_preset"
+    d = load("water_paper_preset/water_xray_surrogate")
+    head = """
+## The paper's preset (515 molecules, 100 ps), X-ray data, paper statistics
+
+The calibration the paper itself made, through the GP surrogate (`water_xray_surrogate_paper_preset`
+in `benchmarks/registry.py`), resumable across sittings.
+"""
+    if d and d.get("paper"):
+        e = d["paper"]
+        ci, sur, paper = e["credible_interval_95"], e["surrogate"], e["paper"]
+        row = [
+            f"{f(e['bayes_estimate'][0], 4)} [{f(ci[0][0], 4)}, {f(ci[0][1], 4)}]",
+            f"{f(e['bayes_estimate'][1])} [{f(ci[1][0])}, {f(ci[1][1])}]",
+            f(e["correlation"], 3),
+            f"{e['num_simulations']} ({e['num_failures']})",
+            "yes" if sur["validated"] else "**no**",
+            _wall_time(e),
+            f"{f(paper['bayes_estimate'][0], 4)}, {f(paper['bayes_estimate'][1])}",
+        ]
+        header = [
+            "sigma_OW (nm)",
+            "epsilon_OW (kJ/mol)",
+            "corr.",
+            "GROMACS runs (failed)",
+            "validated",
+            "wall time",
+            "paper's estimate",
+        ]
+        return (
+            head
+            + "\n"
+            + table(header, [row])
+            + "\n\n- "
+            + source("water_paper_preset/water_xray_surrogate", "paper", d)
+            + "\n"
+        )
+    runs = sorted((folder / "checkpoint_xray" / "runs").glob("*.npz"))
+    clock = folder / "checkpoint_xray" / "water_xray_paper_surrogate.sittings.json"
+    if not runs and not clock.exists():
+        return head + "\nNot run yet.\n"
+    failed = 0
+    for path in runs:
+        with np.load(path) as z:
+            failed += bool(str(z["reason"])) or not bool(np.all(np.isfinite(z["summaries"])))
+    sittings = json.loads(clock.read_text())["sittings"] if clock.exists() else []
+    seconds = sum(s["elapsed_s"] for s in sittings)
+    checkpoint = (folder / "checkpoint_xray" / "checkpoint.npz").exists()
+    return (
+        head
+        + f"""
+In progress: {len(runs)} of at most 200 GROMACS runs finished ({failed} failed) in
+{len(sittings)} sitting(s), {format_cost(seconds)} of wall time;
+{"a checkpoint holds the design so far" if checkpoint else "no checkpoint yet (the first comes after the start batch)"}.
+`python benchmarks/regenerate.py --only water_xray_surrogate_paper_preset:paper --budget 12h` continues it.
+"""
+    )
 
 
 _MEASURED_GOO = {
