@@ -618,6 +618,40 @@ def page_surrogate_helium() -> str:
             f"APMCABC's in target `quantiles` (energy distance {f(bases['quantiles']['energy_distance'], 4)}).  "
             f"Criterion: {own['criterion']}.\n\n" + table([*header, "wall s", "notes"], rows) + f"\n\n{verdict}\n"
         )
+    noise = load("surrogate_helium_noise")
+    if noise:
+        lap, sur = noise["laplace_sd"], noise["surrogate"]
+        ratio = noise["noise_sd_model_over_posterior_mean"]
+        sites = noise["noise_sd_design_sites_over_posterior_mean"]
+        corr = noise["mean_abs_correlation"]
+
+        def pair(v: list[float]) -> str:
+            return " / ".join(g(x, 3) for x in v)
+
+        rows = [
+            ["surrogate posterior", pair(sur["posterior_sd"])],
+            ["Laplace, the model's covariance", pair(lap["model_covariance"])],
+            ["Laplace, replicate covariance at the posterior mean", pair(lap["empirical_at_posterior_mean"])],
+            ["Laplace, the model's sds, replicate correlations", pair(lap["model_sd_empirical_correlation"])],
+            ["Laplace, replicate sds, the model's correlations", pair(lap["empirical_sd_model_correlation"])],
+        ]
+        sections.append(
+            "## The noise model at the posterior\n\n"
+            "The synthetic likelihood assumes one noise covariance everywhere (GP nuggets over the "
+            "whole design, correlations from leave-one-out residuals).  With "
+            f"{noise['setup']['replicates_at_posterior_mean']} "
+            f"replicate runs at the posterior mean of a {sur['simulations']}-simulation surrogate run: the "
+            f"model's noise sd over the replicates' per quantile ranges {g(min(ratio), 2)}-{g(max(ratio), 2)}; "
+            f"at {len(sites)} design points the replicate sd over that at the posterior mean ranges "
+            f"{g(min(min(x) for x in sites), 2)}-{g(max(max(x) for x in sites), 2)} (the noise is "
+            f"heteroscedastic); mean absolute correlation: model {g(corr['model'], 2)}, posterior mean "
+            f"{g(corr['posterior_mean'], 2)}.  Posterior sd (sigma / epsilon), the surrogate's beside "
+            "Laplace approximations on the emulator's mean gradient:\n\n"
+            + table(["", "sd"], rows)
+            + "\n\nThe grid reference pools its covariance over a box around the posterior, where the "
+            "noise is larger than at its centre, so it is wider than a likelihood with the local "
+            "noise.\n\n" + source("surrogate_helium_noise") + "\n"
+        )
     body = "\n".join(sections)
     return f"""{title}
 

@@ -204,6 +204,15 @@ REGISTRY: tuple[Entry, ...] = (
         "APMCABC reference posterior, in one run",
     ),
     Entry(
+        "surrogate_helium_noise",
+        f"{R}/surrogate_helium_noise.json",
+        "python benchmarks/surrogate_helium_noise.py",
+        quick="python benchmarks/surrogate_helium_noise.py --quick",
+        quick_output=f"{Q}/surrogate_helium_noise.json",
+        estimated_cost_s=180.0,
+        note="the surrogate's constant noise model against replicate runs at its helium posterior",
+    ),
+    Entry(
         "surrogate_peers",
         f"{R}/surrogate_peers.json",
         "python benchmarks/surrogate_peers.py",

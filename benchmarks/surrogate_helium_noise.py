@@ -1,0 +1,178 @@
+"""Helium, CPU preset: the surrogate's noise model against replicate runs at its posterior.
+
+The surrogate's synthetic likelihood assumes one noise covariance everywhere: per-summary GP
+nuggets fitted over the whole design, and a correlation from the leave-one-out residuals.  The
+16 quantiles of helium's f_B series are heteroscedastic, so this checks what that assumption does
+at the posterior (same data, seed and summaries as ``surrogate_helium.py``):
+
+- replicate runs at the posterior mean and at design points give the noise there (sd per
+  summary, mean absolute correlation);
+- the posterior sd of a Laplace approximation (the emulator's mean gradient at the posterior
+  mean) under the model's covariance, under the empirical one at the posterior mean, and with
+  each one's sds and the other's correlations, beside the surrogate's posterior sd.
+
+It explains the width of the surrogate's posterior against ``surrogate_helium``'s grid reference,
+whose covariance is pooled over a box around the posterior.
+
+Usage::
+
+    python benchmarks/surrogate_helium_noise.py
+    python benchmarks/surrogate_helium_noise.py --quick     # plumbing check: results/quick/
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import tempfile
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+import jax  # noqa: E402
+import jax.numpy as jnp  # noqa: E402
+import numpy as np  # noqa: E402
+
+import jaxabc  # noqa: E402
+from jaxabc import checkpoint  # noqa: E402
+from jaxabc.surrogate import build, emulator, sampling  # noqa: E402
+from jaxabc.surrogate._fit import fit_likelihood  # noqa: E402
+from md import helium  # noqa: E402
+from md.helium_calibration import make_model  # noqa: E402
+
+sys.path.insert(0, str(ROOT / "benchmarks"))
+from _common import write_result  # noqa: E402
+from surrogate_helium import LEVELS  # noqa: E402
+
+
+def _mean_abs_corr(cov: np.ndarray) -> float:
+    sd = np.sqrt(np.diag(cov))
+    corr = cov / np.outer(sd, sd)
+    return float(np.mean(np.abs(corr[np.triu_indices(len(sd), 1)])))
+
+
+def main(argv: list[str] | None = None) -> dict:
+    parser = argparse.ArgumentParser(description=(__doc__ or "").split("\n\n")[0])
+    parser.add_argument("--budget", type=int, default=100, help="the surrogate's max_simulations")
+    parser.add_argument("--preset", default="cpu")
+    parser.add_argument("--seed", type=int, default=0, help="data and inference seed (as surrogate_helium.py)")
+    parser.add_argument("--draws", type=int, default=2000)
+    parser.add_argument("--replicates", type=int, default=600, help="runs at the posterior mean")
+    parser.add_argument("--design-sites", type=int, default=8, help="design points given replicates too")
+    parser.add_argument("--design-replicates", type=int, default=200)
+    parser.add_argument("--quick", action="store_true")
+    args = parser.parse_args(argv)
+    if args.quick:
+        args.budget, args.replicates, args.design_sites, args.design_replicates = 60, 100, 2, 50
+
+    simulate, prior = make_model(args.preset)
+    observed = helium.observed_series(jax.random.key(10_000 + args.seed), args.preset)
+    levels = jnp.asarray(LEVELS, jnp.float32)
+
+    def simulate_quantiles(key, theta):
+        return jnp.quantile(simulate(key, theta), levels)
+
+    observed_q = np.quantile(np.asarray(observed), LEVELS)
+    batched = jax.jit(jax.vmap(simulate_quantiles))
+
+    def replicates(theta: np.ndarray, count: int, seed: int) -> np.ndarray:
+        keys = jax.random.split(jax.random.key(seed), count)
+        return np.asarray(batched(keys, jnp.tile(jnp.asarray(theta, jnp.float32), (count, 1))), np.float64)
+
+    with tempfile.TemporaryDirectory() as folder:
+        result = jaxabc.run(
+            "surrogate",
+            simulate_quantiles,
+            prior,
+            observed_q,
+            max_simulations=args.budget,
+            num_particles=args.draws,
+            seed=args.seed,
+            checkpoint_dir=folder,
+        )
+        stored = checkpoint.load(Path(folder) / "checkpoint.npz")
+    algorithm = build(prior, args.draws, observed=observed_q, max_simulations=args.budget)
+    state = algorithm.restore_state(stored.state_leaves)
+    draws = np.asarray(result.particles, np.float64)
+    centre = draws.mean(axis=0)
+    low, high = np.asarray(prior.low, np.float64), np.asarray(prior.high, np.float64)
+
+    at_centre = replicates(centre, args.replicates, 1)
+    rng = np.random.default_rng(args.seed)
+    design = np.asarray(state.thetas)[np.asarray(state.ok) & (np.asarray(state.role) >= 0)]
+    sites = design[rng.choice(len(design), size=min(args.design_sites, len(design)), replace=False)]
+    at_sites = [replicates(s, args.design_replicates, 2 + i) for i, s in enumerate(sites)]
+
+    with jax.enable_x64(True):
+        transform, emu, model, _ = fit_likelihood(
+            state, low, high, observed_q, 16, args.budget, sampling.log_level(0.01)
+        )
+        noise_sd = np.exp(np.asarray(emu.log_noise, np.float64))
+        chol = np.asarray(model.noise_chol, np.float64)
+        corr_model = chol @ chol.T
+        cov_model = np.outer(noise_sd, noise_sd) * corr_model
+        cov_centre = np.cov(np.asarray(transform.apply(jnp.asarray(at_centre))).T)
+        cov_sites = [np.cov(np.asarray(transform.apply(jnp.asarray(r))).T) for r in at_sites]
+        # The emulator's mean gradient at the posterior mean, per parameter unit.
+        u, h = (centre - low) / (high - low), 1e-3
+        columns = []
+        for j in range(len(u)):
+            step = np.zeros_like(u)
+            step[j] = h
+            up, _ = emulator.predict(emu, jnp.asarray([u + step]))
+            down, _ = emulator.predict(emu, jnp.asarray([u - step]))
+            columns.append((np.asarray(up)[0] - np.asarray(down)[0]) / (2 * h * (high[j] - low[j])))
+        jac = np.stack(columns, axis=1)
+
+    sd_centre = np.sqrt(np.diag(cov_centre))
+    corr_centre = cov_centre / np.outer(sd_centre, sd_centre)
+
+    def laplace_sd(cov: np.ndarray) -> list[float]:
+        return np.sqrt(np.diag(np.linalg.inv(jac.T @ np.linalg.solve(cov, jac)))).tolist()
+
+    entry = {
+        "benchmark": "surrogate_helium_noise",
+        "description": (__doc__ or "").split("\n\n")[0],
+        "setup": {
+            "preset": args.preset,
+            "seed": args.seed,
+            "budget": args.budget,
+            "summaries": "16 quantiles of f_B, levels 0.03..0.97 (as surrogate_helium)",
+            "replicates_at_posterior_mean": args.replicates,
+            "design_sites": len(sites),
+            "replicates_per_design_site": args.design_replicates,
+            "coordinates": "the emulator's standardised outputs",
+        },
+        "surrogate": {
+            "simulations": int(result.num_simulations),
+            "validated": bool(result.diagnostics.get("validated", False)),
+            "posterior_mean": centre.tolist(),
+            "posterior_sd": draws.std(axis=0).tolist(),
+        },
+        "noise_sd_model_over_posterior_mean": (noise_sd / sd_centre).tolist(),
+        "noise_sd_design_sites_over_posterior_mean": [(np.sqrt(np.diag(c)) / sd_centre).tolist() for c in cov_sites],
+        "mean_abs_correlation": {
+            "model": _mean_abs_corr(cov_model),
+            "posterior_mean": _mean_abs_corr(cov_centre),
+            "design_sites": [_mean_abs_corr(c) for c in cov_sites],
+        },
+        "laplace_sd": {
+            "model_covariance": laplace_sd(cov_model),
+            "empirical_at_posterior_mean": laplace_sd(cov_centre),
+            "model_sd_empirical_correlation": laplace_sd(np.outer(noise_sd, noise_sd) * corr_centre),
+            "empirical_sd_model_correlation": laplace_sd(np.outer(sd_centre, sd_centre) * corr_model),
+        },
+    }
+    print(
+        f"surrogate sd {np.round(draws.std(axis=0), 5)}; Laplace sd, model covariance "
+        f"{np.round(entry['laplace_sd']['model_covariance'], 5)}, empirical at the posterior mean "
+        f"{np.round(entry['laplace_sd']['empirical_at_posterior_mean'], 5)}",
+        flush=True,
+    )
+    write_result("surrogate_helium_noise", entry, quick=args.quick)
+    return entry
+
+
+if __name__ == "__main__":
+    main()
