@@ -1157,7 +1157,7 @@ in `benchmarks/registry.py`), resumable across sittings.
             + source("water_paper_preset/water_xray_surrogate", "paper", d)
             + "\n"
         )
-    runs = sorted((folder / "checkpoint_xray" / "runs").glob("*.npz"))
+    runs = sorted((folder / "checkpoint_xray" / "run_cache").glob("*.npz"))
     clock = folder / "checkpoint_xray" / "water_xray_paper_surrogate.sittings.json"
     if not runs and not clock.exists():
         return head + "\nNot run yet.\n"

@@ -127,7 +127,7 @@ def _water_paper_preset(data: str) -> Entry:
         f"{folder}/water_{data}_surrogate.json",
         f"python benchmarks/water_calibration.py --data {data} --statistics paper --preset paper "
         "--algorithm surrogate --max-simulations 200 --workers 2 --predictive 10 "
-        f"--checkpoint-dir {folder}/checkpoint_{data} --continue --run-cache {folder}/checkpoint_{data}/runs "
+        f"--checkpoint-dir {folder}/checkpoint_{data} --continue --run-cache {folder}/checkpoint_{data}/run_cache "
         f"--out-dir {folder} --no-progress",
         part="paper",
         long=True,
