@@ -635,6 +635,8 @@ def page_surrogate_helium() -> str:
             ["Laplace, the model's sds, replicate correlations", pair(lap["model_sd_empirical_correlation"])],
             ["Laplace, replicate sds, the model's correlations", pair(lap["empirical_sd_model_correlation"])],
         ]
+        if sl:
+            rows.append(["grid synthetic-likelihood reference (covariance pooled over its box)", pair(sl["sd"])])
         sections.append(
             "## The noise model at the posterior\n\n"
             "The synthetic likelihood assumes one noise covariance everywhere (GP nuggets over the "
@@ -648,9 +650,11 @@ def page_surrogate_helium() -> str:
             f"{g(corr['posterior_mean'], 2)}.  Posterior sd (sigma / epsilon), the surrogate's beside "
             "Laplace approximations on the emulator's mean gradient:\n\n"
             + table(["", "sd"], rows)
-            + "\n\nThe grid reference pools its covariance over a box around the posterior, where the "
-            "noise is larger than at its centre, so it is wider than a likelihood with the local "
-            "noise.\n\n" + source("surrogate_helium_noise") + "\n"
+            + "\n\nWith the noise measured where the posterior lies, the likelihood is sharper than "
+            "the one the surrogate assumes: here the constant noise model errs on the wide side.  A "
+            "noise model that varies with theta would remove the difference (not built).\n\n"
+            + source("surrogate_helium_noise")
+            + "\n"
         )
     body = "\n".join(sections)
     return f"""{title}
