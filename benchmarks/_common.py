@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import ast
 import hashlib
+import importlib
 import json
 import os
 import platform
@@ -149,6 +150,54 @@ def imported_project_files() -> list[str]:
         if rel.split("/", 1)[0] in CODE_DIRS and rel != "benchmarks/_common.py" and (ROOT / rel).is_file():
             files.add(rel)
     return sorted(files)
+
+
+CODE_STAMP = "code_stamp.json"
+
+
+def guard_resume(folder: str | Path, resuming: bool, modules: Iterable[str] = ()) -> None:
+    """Refuse to resume checkpoints in ``folder`` that other code made; stamp this code there.
+
+    A run continued on changed code would mix two versions of the method while its result records
+    only the last, and a finished checkpoint would be "rerun" without computing anything.  The
+    stamp holds the AST hash of every project module loaded so far, after importing ``modules``
+    (those the run imports lazily, e.g. ``jaxabc.surrogate``).
+
+    Raises
+    ------
+    SystemExit
+        ``resuming``, ``folder`` holds a ``checkpoint.npz`` (at any depth), and the stamp is missing
+        or names other code: the message lists the files.
+    """
+    for module in modules:
+        importlib.import_module(module)
+    folder = Path(folder)
+    stamp = folder / CODE_STAMP
+    now = {f: code_hash(ROOT / f) for f in imported_project_files()}
+    # Nothing to resume (a first sitting with --resume): jaxabc.run says so itself.
+    if resuming and any(folder.rglob("checkpoint.npz")):
+        if not stamp.exists():
+            raise SystemExit(
+                f"{folder} holds checkpoints without a code stamp ({CODE_STAMP}): which code made them is "
+                "unknown. Start over (delete the checkpoints; cached simulations are kept), or, if you "
+                "know the code is the same, write the stamp with benchmarks/_common.py's stamp_code"
+            )
+        before = json.loads(stamp.read_text())["files"]
+        changed = sorted(f for f in set(before) | set(now) if before.get(f) != now.get(f) and f in now)
+        if changed:
+            raise SystemExit(
+                f"the checkpoints in {folder} were made by other code; changed since: {', '.join(changed)}. "
+                "Start over (delete the checkpoints; cached simulations are kept), or restore that code"
+            )
+    stamp_code(folder, now)
+
+
+def stamp_code(folder: str | Path, files: dict[str, str] | None = None) -> None:
+    """Write ``folder/code_stamp.json``: the AST hashes of the loaded project modules (or ``files``)."""
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    files = files if files is not None else {f: code_hash(ROOT / f) for f in imported_project_files()}
+    (folder / CODE_STAMP).write_text(json.dumps({"files": files}, indent=1, sort_keys=True) + "\n")
 
 
 def declare_input(*paths: str | Path) -> None:

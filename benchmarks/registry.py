@@ -433,7 +433,7 @@ REGISTRY: tuple[Entry, ...] = (
     Entry(
         "water_model_choice",
         f"{R}/water_model_choice.json",
-        "python benchmarks/water_model_choice.py --data xray --workers 2 --no-progress --resume "
+        "python benchmarks/water_model_choice.py --data xray --workers 2 --no-progress --continue "
         f"--cache-dir {R}/water_model_choice/xray_quick",
         long=True,
         requires=("gmx",),

@@ -83,7 +83,14 @@ from md.water.models import PAPER_TIP4P_ESTIMATES  # noqa: E402
 from md.water.statistics import ROBUST_GRID_NM, STATISTIC_NAMES, STATISTIC_UNITS  # noqa: E402
 
 sys.path.insert(0, str(ROOT / "benchmarks"))
-from _common import QUICK_RESULTS, code_hash, command_line, declare_input, write_result  # noqa: E402
+from _common import (  # noqa: E402
+    QUICK_RESULTS,
+    code_hash,
+    command_line,
+    declare_input,
+    guard_resume,
+    write_result,
+)
 
 from jaxabc.checkpoint import simulator_identity  # noqa: E402
 from jaxabc.errors import SimulationFailure  # noqa: E402
@@ -266,6 +273,11 @@ def observed_vector(args, simulate) -> np.ndarray:
 def _has_checkpoint(args) -> bool:
     """``--continue`` and a checkpoint to continue from."""
     return bool(args.continue_run and args.checkpoint_dir and (args.checkpoint_dir / "checkpoint.npz").exists())
+
+
+def _has_cached_runs(args) -> bool:
+    """``--run-cache`` holds finished runs (a run started over replays them)."""
+    return bool(args.run_cache and any(Path(args.run_cache).glob("*.npz")))
 
 
 def pilot_scales(args, simulate, prior, executor) -> np.ndarray:
@@ -805,8 +817,11 @@ def main(argv=None) -> dict:
     counted = CountingSimulator(simulate, progress_file, args.run_cache)
     started = time.perf_counter()
     resuming = args.resume or _has_checkpoint(args)
+    if args.checkpoint_dir is not None:
+        guard_resume(args.checkpoint_dir, resuming, modules=("jaxabc.surrogate",) if surrogate else ())
     clock = (
-        SittingClock(args.checkpoint_dir / f"{stem}.sittings.json", fresh=not resuming)
+        # Runs replayed from the cache were paid for in the earlier sittings: they count.
+        SittingClock(args.checkpoint_dir / f"{stem}.sittings.json", fresh=not resuming and not _has_cached_runs(args))
         if args.checkpoint_dir is not None
         else contextlib.nullcontext()
     )

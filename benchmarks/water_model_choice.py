@@ -32,7 +32,7 @@ cache and continues where it stopped.
 Usage (from the repository root)::
 
     python benchmarks/water_model_choice.py --data xray --workers 2          # hours of GROMACS
-    python benchmarks/water_model_choice.py --data xray --resume             # continue it
+    python benchmarks/water_model_choice.py --data xray --continue           # continue it, or start
     python benchmarks/water_model_choice.py --tiny                           # smoke test, minutes
 
 ``--tiny`` runs 2 ps simulations (the surrogate on 50 per model; ABC-SMC on 3 pilot runs and
@@ -66,7 +66,7 @@ from md.water.model_simulator import CachedSummaries, WaterModelSimulator  # noq
 from md.water.models import MODELS, model_prior, polarisation_correction_kj_mol  # noqa: E402
 
 sys.path.insert(0, str(ROOT / "benchmarks"))
-from _common import command_line, write_result  # noqa: E402
+from _common import command_line, guard_resume, write_result  # noqa: E402
 
 DATA_FILES = {
     "xray": [JOINT_DATA_FILE, ROOT / "md/water/data/skinner2013_gOO_295K_nm.csv"],
@@ -81,6 +81,13 @@ def parse_arguments(argv=None) -> argparse.Namespace:
     parser.add_argument("--budget-per-model", type=int, default=200, help="surrogate: GROMACS runs per model")
     parser.add_argument("--checkpoint-dir", type=Path, default=None, help="surrogate: default runs/.../surrogate")
     parser.add_argument("--resume", action="store_true", help="surrogate: continue from --checkpoint-dir")
+    parser.add_argument(
+        "--continue",
+        dest="continue_run",
+        action="store_true",
+        help="surrogate: resume when --checkpoint-dir holds checkpoints, else start (one command for a run "
+        "that spans sittings)",
+    )
     parser.add_argument("--predictive", type=int, default=20, help="posterior-predictive runs per model (0: none)")
     parser.add_argument("--preset", choices=("quick", "paper"), default="quick")
     parser.add_argument("--particles", type=int, default=100, help="accepted particles per model and generation")
@@ -103,6 +110,8 @@ def parse_arguments(argv=None) -> argparse.Namespace:
     suffix = f"{args.data}_{args.preset}" + ("_tiny" if args.tiny else "")
     args.cache_dir = args.cache_dir or ROOT / "runs" / "water_model_choice" / suffix
     args.checkpoint_dir = args.checkpoint_dir or args.cache_dir / "surrogate"
+    if args.continue_run and any(args.checkpoint_dir.glob("*/checkpoint.npz")):
+        args.resume = True
     return args
 
 
@@ -158,6 +167,7 @@ def run_surrogate(args, data, models: list[Model], executor):
     """Model choice by surrogate evidence, the measurement errors added to every simulation."""
     sd = measurement_sd(data)
     noisy = [Model(m.name, MeasurementError(m.simulate, sd), m.prior) for m in models]
+    guard_resume(args.checkpoint_dir, args.resume, modules=("jaxabc.surrogate", "jaxabc.model_choice"))
     return jaxabc.run(
         noisy,
         observed=data.observed[data.fitted],

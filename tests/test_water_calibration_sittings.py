@@ -92,3 +92,22 @@ def test_the_sitting_clock_adds_sittings_and_keeps_a_killed_one(tmp_path):
     with wc.SittingClock(path, fresh=True) as clock:
         pass
     assert len(json.loads(path.read_text())["sittings"]) == 1
+
+
+def test_resuming_checkpoints_of_other_code_is_refused(tmp_path):
+    import _common
+
+    _common.guard_resume(tmp_path, resuming=True)  # nothing to resume yet: no refusal
+    _common.guard_resume(tmp_path, resuming=False, modules=("jaxabc.surrogate",))
+    (tmp_path / "model_a").mkdir()
+    (tmp_path / "model_a" / "checkpoint.npz").write_bytes(b"")
+    stamp = json.loads((tmp_path / _common.CODE_STAMP).read_text())["files"]
+    assert "jaxabc/surrogate/design.py" in stamp  # lazily imported modules are stamped too
+    _common.guard_resume(tmp_path, resuming=True)  # the same code
+    stamp["jaxabc/surrogate/design.py"] = "0" * 16
+    (tmp_path / _common.CODE_STAMP).write_text(json.dumps({"files": stamp}))
+    with pytest.raises(SystemExit, match=r"jaxabc/surrogate/design\.py"):
+        _common.guard_resume(tmp_path, resuming=True)
+    (tmp_path / _common.CODE_STAMP).unlink()
+    with pytest.raises(SystemExit, match="without a code stamp"):
+        _common.guard_resume(tmp_path, resuming=True)
