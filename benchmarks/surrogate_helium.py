@@ -50,6 +50,19 @@ from _common import write_result  # noqa: E402
 LEVELS = np.linspace(0.03, 0.97, 16)
 
 
+def quantile_problem(preset: str, seed: int):
+    """The surrogate's helium problem: ``(simulate_quantiles, prior, observed series, observed
+    quantiles, simulate)``, the Table 1 data of ``seed`` summarised by the 16 quantiles of f_B."""
+    simulate, prior = make_model(preset)
+    observed = helium.observed_series(jax.random.key(10_000 + seed), preset)
+    levels = jnp.asarray(LEVELS, jnp.float32)
+
+    def simulate_quantiles(key, theta):
+        return jnp.quantile(simulate(key, theta), levels)
+
+    return simulate_quantiles, prior, observed, np.quantile(np.asarray(observed), LEVELS), simulate
+
+
 def energy_distance(a: np.ndarray, b: np.ndarray, scale: np.ndarray, num: int, rng: np.random.Generator) -> float:
     """Energy distance between two samples (rows), from ``num`` rows of each, coordinates / ``scale``."""
     a = a[rng.choice(len(a), min(num, len(a)), replace=False)] / scale
@@ -183,14 +196,7 @@ def main(argv: list[str] | None = None) -> dict:
         args.apmc_particles, args.apmc_steps, args.draws, args.ed_num, args.ed_repeats = 100, 3, 1000, 300, 3
         args.sl_coarse, args.sl_coarse_reps, args.sl_fine, args.sl_fine_reps = 8, 4, 10, 6
 
-    simulate, prior = make_model(args.preset)
-    observed = helium.observed_series(jax.random.key(10_000 + args.seed), args.preset)
-    levels = jnp.asarray(LEVELS, jnp.float32)
-
-    def simulate_quantiles(key, theta):
-        return jnp.quantile(simulate(key, theta), levels)
-
-    observed_q = np.quantile(np.asarray(observed), LEVELS)
+    simulate_quantiles, prior, observed, observed_q, simulate = quantile_problem(args.preset, args.seed)
     truth = np.asarray(helium.TRUE_THETA)
     scale = np.asarray(prior.high) - np.asarray(prior.low)
 

@@ -38,12 +38,10 @@ import jaxabc  # noqa: E402
 from jaxabc import checkpoint  # noqa: E402
 from jaxabc.surrogate import build, emulator, sampling  # noqa: E402
 from jaxabc.surrogate._fit import fit_likelihood  # noqa: E402
-from md import helium  # noqa: E402
-from md.helium_calibration import make_model  # noqa: E402
 
 sys.path.insert(0, str(ROOT / "benchmarks"))
 from _common import write_result  # noqa: E402
-from surrogate_helium import LEVELS  # noqa: E402
+from surrogate_helium import quantile_problem  # noqa: E402
 
 
 def _mean_abs_corr(cov: np.ndarray) -> float:
@@ -66,14 +64,7 @@ def main(argv: list[str] | None = None) -> dict:
     if args.quick:
         args.budget, args.replicates, args.design_sites, args.design_replicates = 60, 100, 2, 50
 
-    simulate, prior = make_model(args.preset)
-    observed = helium.observed_series(jax.random.key(10_000 + args.seed), args.preset)
-    levels = jnp.asarray(LEVELS, jnp.float32)
-
-    def simulate_quantiles(key, theta):
-        return jnp.quantile(simulate(key, theta), levels)
-
-    observed_q = np.quantile(np.asarray(observed), LEVELS)
+    simulate_quantiles, prior, _, observed_q, _ = quantile_problem(args.preset, args.seed)
     batched = jax.jit(jax.vmap(simulate_quantiles))
 
     def replicates(theta: np.ndarray, count: int, seed: int) -> np.ndarray:
