@@ -64,13 +64,25 @@ def _missing_programs(entry: Entry) -> list[str]:
     return [p for p in entry.requires if shutil.which(p) is None]
 
 
-def plan(
-    statuses: list[tuple[Entry, Status]], budget_s: float, quick: bool = False
-) -> tuple[list[tuple[Entry, Status, float]], list[tuple[Entry, Status, float, str]]]:
-    """Split the non-current entries into (run, skipped-with-reason), cheapest first.
+def _waiting_for(entry: Entry, states: dict[str, str], pending: set[str]) -> list[str]:
+    """Entries of ``entry.after`` that are not current and will not run before it."""
+    names = [n for d in entry.after for n in states if n == d or n.split(":")[0] == d]
+    return [n for n in names if states[n] != "current" and n not in pending]
 
-    Returns lists of ``(entry, status, cost_s)`` to run in order, and of
-    ``(entry, status, cost_s, reason)`` left out.
+
+def plan(
+    statuses: list[tuple[Entry, Status]],
+    budget_s: float,
+    quick: bool = False,
+    states: dict[str, str] | None = None,
+) -> tuple[list[tuple[Entry, Status, float]], list[tuple[Entry, Status, float, str]]]:
+    """Split the non-current entries into (run, skipped-with-reason), cheapest first, each after
+    the entries it reads (``Entry.after``; full mode only).
+
+    ``states`` maps registry names to their state, for entries named in ``after`` that
+    ``statuses`` does not hold (default: only those in ``statuses`` are known).  Returns lists of
+    ``(entry, status, cost_s)`` to run in order, and of ``(entry, status, cost_s, reason)`` left
+    out; an entry whose inputs are not current and not planned before it is left out.
     """
 
     def cost_of(entry: Entry, st: Status) -> float:
@@ -81,14 +93,27 @@ def plan(
         return entry.estimated_cost_s if entry.estimated_cost_s is not None else UNKNOWN_COST_S
 
     todo = sorted(((e, s, cost_of(e, s)) for e, s in statuses if s.state != "current"), key=lambda t: t[2])
+    known = {**(states or {}), **{e.name: s.state for e, s in statuses}}
+    if not quick:
+        # Cheapest first among those whose inputs are already planned (a stable topological order).
+        ordered, rest = [], list(todo)
+        while rest:
+            planned = {e.name for e, _, _ in rest}
+            ready = next((t for t in rest if not set(_waiting_for(t[0], known, set())) & planned), rest[0])
+            ordered.append(ready)
+            rest.remove(ready)
+        todo = ordered
     run, skipped, left = [], [], budget_s
     for entry, st, cost in todo:
         missing = _missing_programs(entry)
         command = entry.quick if quick else entry.full
+        waiting = [] if quick else _waiting_for(entry, known, {e.name for e, _, _ in run})
         if command is None:
             skipped.append((entry, st, cost, "no quick mode"))
         elif missing:
             skipped.append((entry, st, cost, f"needs {', '.join(missing)}"))
+        elif waiting:
+            skipped.append((entry, st, cost, f"reads {', '.join(waiting)}, not current"))
         elif cost > left:
             skipped.append((entry, st, cost, f"over the budget left ({format_cost(left)})"))
         else:
@@ -105,6 +130,12 @@ def _select(names: list[str] | None) -> list[Entry]:
     if unknown:
         raise SystemExit(f"unknown results {unknown}; known: {', '.join(known)}")
     return [e for e in REGISTRY if e.name in names or e.name.split(":")[0] in names]
+
+
+def dependency_states(entries: list[Entry], quick: bool) -> dict[str, str]:
+    """States of the registry entries that ``entries`` read (``Entry.after``)."""
+    wanted = {d for e in entries for d in e.after}
+    return {e.name: status_of(e, quick).state for e in REGISTRY if e.name in wanted or e.name.split(":")[0] in wanted}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -131,7 +162,7 @@ def main(argv: list[str] | None = None) -> int:
     first = True
     while True:
         current = [(e, s) for e, s in statuses() if e.name not in done]
-        run, skipped = plan(current, left, args.quick)
+        run, skipped = plan(current, left, args.quick, dependency_states(entries, args.quick))
         if first:
             print(
                 f"budget {format_cost(args.budget)}, cheapest first; "

@@ -71,6 +71,9 @@ class Entry:
         vectorised rounding may differ between runs, with the reason in ``note``.
     ignore_keys
         Further key patterns left out of the quick comparison (beyond :data:`TIMING_KEYS`).
+    after
+        Entries whose saved results this command reads: ``regenerate.py`` runs them first and
+        holds this one back while any of them is not current.
     note
         What a reader of ``status`` should know.
     """
@@ -87,6 +90,7 @@ class Entry:
     requires: tuple[str, ...] = ()
     compare_tolerance: float = 0.0
     ignore_keys: tuple[str, ...] = ()
+    after: tuple[str, ...] = ()
     note: str = ""
 
 
@@ -408,6 +412,7 @@ REGISTRY: tuple[Entry, ...] = (
         requires=("gmx",),
         quick="python benchmarks/criticism_water.py --tiny --workers 2",
         quick_output=f"{Q}/criticism_water.json",
+        after=("water_xray:robust",),
     ),
     Entry(
         "criticism_water_neutron",
@@ -419,6 +424,7 @@ REGISTRY: tuple[Entry, ...] = (
         long=True,
         legacy_cost_keys=("wall_time_s",),
         requires=("gmx",),
+        after=("water_neutron:robust",),
     ),
     Entry(
         "surrogate_coverage",
@@ -456,6 +462,7 @@ REGISTRY: tuple[Entry, ...] = (
         note="TIP4P's model-choice posterior draws in the paper preset beside the quick one, and its "
         "published parameters; needs water_model_choice first; runs cached under "
         "benchmarks/results/water_model_choice/paper_check",
+        after=("water_model_choice",),
     ),
     Entry(
         "water_model_paper_check_tip3p",
@@ -467,6 +474,7 @@ REGISTRY: tuple[Entry, ...] = (
         estimated_cost_s=1800.0,
         note="the same paper-preset check for TIP3P, the model with the highest (unresolved) probability; "
         "runs cached beside TIP4P's (files are named by model)",
+        after=("water_model_choice",),
     ),
     Entry(
         "criticism_water_joint",
@@ -481,6 +489,7 @@ REGISTRY: tuple[Entry, ...] = (
         note="criticism of TIP4P on the joint data, surrogate refits; needs "
         "water_model_choice first; its simulations are kept under benchmarks/results/"
         "criticism_water_joint, so the same command continues an interrupted run",
+        after=("water_model_choice",),
     ),
     Entry(
         "criticism_water_joint_tip3p",
@@ -492,6 +501,7 @@ REGISTRY: tuple[Entry, ...] = (
         estimated_cost_s=4000.0,
         note="the same criticism of TIP3P, the model with the highest (unresolved) probability; its "
         "simulations share the TIP4P criticism's cache folder (files are named by model)",
+        after=("water_model_choice",),
     ),
     Entry(
         "water_density_relaxation",

@@ -208,6 +208,28 @@ def test_budget_and_plan_run_cheapest_first_within_budget() -> None:
     assert all("budget" in why for *_, why in skipped)
 
 
+def test_plan_runs_an_entry_after_the_results_it_reads() -> None:
+    def item(name: str, state: str, cost: float, after: tuple[str, ...] = ()):
+        entry = registry.Entry(name, f"benchmarks/results/{name}.json", f"python {name}.py", after=after)
+        return entry, status.Status(name, entry.output, state, cost_s=cost)
+
+    statuses = [
+        item("criticism", "stale", 60.0, after=("choice",)),
+        item("choice", "stale", 600.0),
+        item("other", "stale", 100.0),
+    ]
+    run, _ = regenerate.plan(statuses, budget_s=3600.0)
+    assert [e.name for e, _, _ in run] == ["other", "choice", "criticism"]
+    # Its input over the budget, or not selected and stale: held back, not run on old inputs.
+    run, skipped = regenerate.plan(statuses, budget_s=300.0)
+    assert [e.name for e, _, _ in run] == ["other"]
+    assert any(e.name == "criticism" and "reads choice" in why for e, *_, why in skipped)
+    run, skipped = regenerate.plan(statuses[:1], budget_s=3600.0, states={"choice": "stale"})
+    assert not run and "reads choice" in skipped[0][3]
+    run, _ = regenerate.plan(statuses[:1], budget_s=3600.0, states={"choice": "current"})
+    assert [e.name for e, _, _ in run] == ["criticism"]
+
+
 def test_registry_is_consistent() -> None:
     names = [e.name for e in registry.REGISTRY]
     assert len(names) == len(set(names))
@@ -220,6 +242,8 @@ def test_registry_is_consistent() -> None:
             assert e.quick_output.startswith("benchmarks/results/quick/"), e.name
         if ":" in e.name:
             assert e.part == e.name.split(":", 1)[1], e.name
+        for dep in e.after:
+            assert any(n == dep or n.split(":")[0] == dep for n in names), (e.name, dep)
 
 
 def test_every_benchmark_script_saves_through_write_result() -> None:
