@@ -151,10 +151,10 @@ def parse_arguments(argv=None) -> argparse.Namespace:
     parser.add_argument(
         "--surrogate-replicates",
         type=int,
-        default=0,
-        help="replicate runs measuring the noise; the library puts them at the box centre and the "
-        "first Sobol point, which vaporise in the paper's box, so by default none (the noise is "
-        "then the fitted nugget, checked by the held-out runs)",
+        default=8,
+        help="replicate runs measuring the noise, at two liquid runs of the start (the library "
+        "places them once the start has found liquid; 0: none, the noise is then the nugget "
+        "fitted to scattered runs)",
     )
     parser.add_argument("--surrogate-holdout", type=int, default=20, help="held-out runs per validation")
     parser.add_argument(

@@ -98,6 +98,8 @@ def test_finalize_reports_design_and_validation(gaussian_run):
     assert len(diag["design_points"]) == num_sims
     assert diag["num_holdout"] == algorithm.settings["num_holdout"]
     assert diag["num_design"] + diag["num_holdout"] == num_sims
+    group = np.asarray(diag["design_replicate_group"])
+    assert np.sum(group >= 0) == algorithm.settings["num_replicates"] + 2
     lo, hi = diagnostics.holdout_bounds(diag["num_holdout"] * 2)
     assert lo <= diag["holdout_coverage_95"] and diag["holdout_mean_squared_error"] <= hi
     assert max(diag["nuts_split_rhat"]) < 1.05
@@ -158,17 +160,19 @@ def test_failed_simulations_inform_the_design():
     # Untruncated, P(theta0 > 1 | data) = 0.11; runs there fail, so the posterior must avoid it.
     observed = np.array([0.6, 0.0])
     algorithm = build(PRIOR, 1000, observed=observed, max_simulations=200)
+    # The Sobol start, the replicates, then two acquisition batches.
     state, _, _, proposals = _drive(
-        algorithm, failing_for_large_theta0, VmapExecutor(), max_iterations=3, observed=observed
+        algorithm, failing_for_large_theta0, VmapExecutor(), max_iterations=4, observed=observed
     )
     c = int(state.count)
     failed = ~state.ok[:c]
     assert failed.any() and np.all(state.thetas[:c][failed, 0] > 1.0)
     assert np.all(np.isnan(state.summaries[:c][failed]))
-    later = np.concatenate(proposals[1:])  # the acquisition batches after the Sobol start
+    assert np.all(proposals[1][:, 0] < 1.0), "replicates at successful runs"
+    later = np.concatenate(proposals[2:])  # the acquisition batches
     assert np.mean(later[:, 0] > 1.0) < 0.1
     particles, _ = algorithm.posterior(state)
-    # The classifier's boundary is soft after 3 batches (it sharpens as runs gather there): the
+    # The classifier's boundary is soft after 2 acquisition batches (it sharpens as runs gather there): the
     # mass beyond it shrinks from 0.11, it does not vanish.
     assert np.mean(particles[:, 0] > 1.0) < 0.08
     assert np.mean(particles[:, 0] > 0.6) > 0.2  # truncated, not pushed away
@@ -537,6 +541,48 @@ def test_abc_mode_matches_the_analytic_posterior_within_its_tolerance():
 def mostly_failing(key, theta):
     # Only a quarter of the box (theta0 < -2) gives summaries, as water's prior mostly vaporises.
     return jnp.where(theta[0] < -2.0, linear_gaussian(key, theta), jnp.nan)
+
+
+def test_replicate_sites_keep_away_from_failures_and_from_each_other():
+    x_ok = np.array([[0.5, 0.5], [0.1, 0.1], [0.1, 0.95], [0.9, 0.2]])
+    # No failures: the run nearest the centre, then the earliest run half a box from it.
+    site, count = design.replicate_sites(x_ok, np.zeros((0, 2)), 7)
+    np.testing.assert_array_equal(site, [0, 1])
+    np.testing.assert_array_equal(count, [4, 3])
+    # Runs failed around the centre: the sites move to the successful runs farthest from them.
+    failed = np.array([[0.45, 0.5], [0.55, 0.5], [0.5, 0.6], [0.25, 0.2]])
+    site, _ = design.replicate_sites(x_ok, failed, 8)
+    assert site[0] == 2 and site[1] == 3, site
+    site, count = design.replicate_sites(x_ok[:1], failed, 5)
+    np.testing.assert_array_equal(site, [0])
+    np.testing.assert_array_equal(count, [5])
+    with pytest.raises(ValueError, match="successful run"):
+        design.replicate_sites(np.zeros((0, 2)), failed, 4)
+
+
+def failing_centre(key, theta):
+    # Runs fail over the middle of the box (the start's old replicate site) and beyond it.
+    return jnp.where(theta[0] > -1.0, jnp.nan, linear_gaussian(key, theta))
+
+
+def test_replicates_go_where_runs_succeed_and_measure_the_noise():
+    observed = np.array([-2.5, -0.7])
+    algorithm = build(PRIOR, 1000, observed=observed, max_simulations=120, num_replicates=8, batch_size=4)
+    state, _, _, proposals = _drive(algorithm, failing_centre, VmapExecutor(), max_iterations=2, observed=observed)
+    c = int(state.count)
+    group, ok = np.asarray(state.group[:c]), np.asarray(state.ok[:c])
+    assert len(proposals[0]) == algorithm.settings["num_initial"], "no replicates in the start"
+    np.testing.assert_array_equal(np.unique(group[group >= 0]), [0, 1])
+    assert np.sum(group >= 0) == 8 + 2  # the repeats and their two sites
+    assert np.all(ok[group >= 0]), "every replicate succeeded"
+    for g in (0, 1):
+        np.testing.assert_array_equal(np.unique(state.thetas[:c][group == g], axis=0).shape, (1, 2))
+    # The pooled within-group variance estimates the simulator's noise: 8 degrees of freedom,
+    # so the ratio lies between the chi-square 0.1 % and 99.9 % points over 8 (0.107, 3.27).
+    s = np.asarray(state.summaries[:c])
+    resid = np.concatenate([s[group == g] - s[group == g].mean(axis=0) for g in (0, 1)])
+    ratio = np.sum(resid**2, axis=0) / 8 / NOISE_SD**2
+    assert np.all((ratio > 0.107) & (ratio < 3.27)), ratio
 
 
 def test_too_few_successes_explore_where_runs_succeed():

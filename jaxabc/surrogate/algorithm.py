@@ -3,9 +3,10 @@
 Each ``update`` adds a batch of real simulations to fixed-size buffers, refits the emulator and
 decides what to simulate next:
 
-1. *design*: a Sobol start with replicates (``initial_proposal``), then acquisition batches
-   (:mod:`.design`) until the emulator's variance over the posterior is small next to the
-   simulator noise (``tolerance``) or the design budget is spent;
+1. *design*: a Sobol start (``initial_proposal``), replicate runs at two successful sites
+   once there are enough successes, then acquisition batches (:mod:`.design`) until the
+   emulator's variance over the posterior is small next to the simulator noise
+   (``tolerance``) or the design budget is spent;
 2. *validation*: draws from the surrogate posterior (NUTS on the synthetic likelihood, or with
    ``mode="abc"`` APMCABC on emulated summaries, :mod:`.abc_mode`); ``num_holdout`` of them are
    simulated for real and compared with the emulator's predictions (:mod:`.diagnostics`).  Pass: stop with
@@ -67,6 +68,8 @@ class SurrogateState(NamedTuple):
     pending : array, shape (B, d)
         The next proposal's parameters (first ``num_pending`` rows).
     num_pending : array, shape ()
+    pending_group : array of int, shape (B,)
+        Replicate group of each pending run (-1: none).
     draws : array, shape (P, d)
         The current posterior draws (importance resampled during design; NUTS, or the APMCABC
         population in ABC mode, once validating).
@@ -115,6 +118,7 @@ class SurrogateState(NamedTuple):
     abc_emulated: Any
     joint_mean_squared_error: Any
     joint_ok: Any
+    pending_group: Any
 
 
 # Fields added after the first release: a checkpoint without them restores with these values.
@@ -125,6 +129,7 @@ _LATER_FIELDS = (
     ".abc_emulated",
     ".joint_mean_squared_error",
     ".joint_ok",
+    ".pending_group",
 )
 
 
@@ -214,8 +219,9 @@ def build(
     num_initial : int, optional
         Sobol points of the start (default ``max(20, 10 d)``).
     num_replicates : int
-        Extra runs at two replicate sites that measure the simulator's noise (0: none; the
-        lack-of-fit test is then skipped).
+        Repeat runs that measure the simulator's noise, at two successful runs away from the
+        failed ones, once ``max(3, d + 1)`` runs have succeeded (0: none; the lack-of-fit test
+        is then skipped, and the nugget rests on the design's scatter alone).
     batch_size : int
         Simulations per acquisition batch (match the number of workers).
     num_holdout : int
@@ -365,11 +371,13 @@ def build(
             abc_emulated=np.int64(0),
             joint_mean_squared_error=np.float64(np.nan),
             joint_ok=np.bool_(True),
+            pending_group=np.full(B, -1, np.int32),
         )
 
     def initial_proposal(key: jax.Array) -> Proposal:
         with jax.enable_x64(True):
-            x, _ = design.initial_design(_int_seed(key), d, num_initial, num_replicates)
+            # Replicates come later, at sites known to succeed (replicate_step).
+            x, _ = design.initial_design(_int_seed(key), d, num_initial, 0)
         return Proposal(to_theta(x), np.ones(len(x), bool), np.bool_(True))
 
     def propose(key: jax.Array, state: SurrogateState) -> Proposal:
@@ -458,7 +466,40 @@ def build(
         pending[:batch_size] = to_theta(cand.x[idx])
         return state._replace(pending=pending, num_pending=np.int64(batch_size), phase=np.int64(DESIGN))
 
+    def replicate_step(state: SurrogateState) -> SurrogateState | None:
+        """The replicate runs, once the successful design runs can host them (None: not now).
+
+        They go to two successful runs, away from the failed ones (:func:`.design.replicate_sites`),
+        which join their groups.  Never when the budget left could not also pay a validation.
+        """
+        used = state.role != ROLE_EMPTY
+        good = used & state.ok & (state.role == ROLE_DESIGN)
+        done = np.any(state.group[used] >= 0)
+        if num_replicates == 0 or done or good.sum() < min_successes:
+            return None
+        if M - int(state.count) < num_replicates + num_holdout:
+            return None
+        rows = np.flatnonzero(good)
+        failed = to_unit(state.thetas[used & ~state.ok])
+        site, count = design.replicate_sites(to_unit(state.thetas[rows]), failed, num_replicates)
+        group = state.group.copy()
+        group[rows[site]] = np.arange(site.size)
+        pending = np.zeros((B, d))
+        pending_group = np.full(B, -1, np.int32)
+        pending[:num_replicates] = np.repeat(state.thetas[rows[site]], count, axis=0)
+        pending_group[:num_replicates] = np.repeat(np.arange(site.size), count)
+        return state._replace(
+            group=group,
+            pending=pending,
+            num_pending=np.int64(num_replicates),
+            pending_group=pending_group,
+            phase=np.int64(DESIGN),
+        )
+
     def design_step(key: jax.Array, state: SurrogateState) -> SurrogateState:
+        replicated = replicate_step(state)
+        if replicated is not None:
+            return replicated
         num_ok = int(np.sum((state.role != ROLE_EMPTY) & state.ok & (state.role != ROLE_HOLDOUT)))
         if num_ok < min_successes:
             return explore_step(key, state, num_ok)
@@ -660,11 +701,9 @@ def build(
         return state, info_of(state)
 
     def init(key: jax.Array, proposal: Proposal, distances: Any, summaries: Any) -> tuple[SurrogateState, Info]:
-        # The replicate layout depends only on the sizes, not on the key of the initial proposal.
-        group = design.replicate_groups(num_initial, num_replicates)
-        if np.asarray(proposal.thetas).shape[0] != group.size:
-            raise ValueError(f"surrogate: init expects the initial proposal of {group.size} points")
-        state = add_rows(empty_state(), proposal, summaries, ROLE_DESIGN, group)
+        if np.asarray(proposal.thetas).shape[0] != num_initial:
+            raise ValueError(f"surrogate: init expects the initial proposal of {num_initial} points")
+        state = add_rows(empty_state(), proposal, summaries, ROLE_DESIGN, None)
         return step(key, state._replace(round=np.int64(-1)))
 
     def update(
@@ -673,8 +712,9 @@ def build(
         if int(state.phase) == DONE:
             raise RuntimeError("surrogate: update called after the run stopped")
         role = ROLE_HOLDOUT if int(state.phase) == VALIDATING else ROLE_DESIGN
-        state = add_rows(state, proposal, summaries, role, None)
-        return step(key, state)
+        group = np.asarray(state.pending_group)[: np.asarray(proposal.thetas).shape[0]]
+        state = add_rows(state, proposal, summaries, role, group if np.any(group >= 0) else None)
+        return step(key, state._replace(pending_group=np.full(B, -1, np.int32)))
 
     def posterior(state: SurrogateState) -> tuple[np.ndarray, np.ndarray]:
         return np.array(state.draws), np.array(state.log_weights, np.float64)
@@ -707,6 +747,7 @@ def build(
             "design_points": state.thetas[:c].tolist(),
             "design_ok": state.ok[:c].tolist(),
             "design_role": state.role[:c].tolist(),
+            "design_replicate_group": state.group[:c].tolist(),
             "holdout_coverage_95": float(state.coverage),
             "holdout_mean_squared_error": float(state.mean_squared_error),
             "holdout_joint_mean_squared_error": float(state.joint_mean_squared_error),

@@ -1,7 +1,10 @@
 """Where to simulate: a space-filling start, then batches where the posterior is most uncertain.
 
-The start is a scrambled Sobol sequence in the prior box plus replicate runs at two sites (the
-box centre and the first Sobol point), whose scatter measures the simulator's own noise.
+The start is a scrambled Sobol sequence in the prior box.  Replicate runs, whose scatter
+measures the simulator's own noise, follow once enough runs have succeeded, at two of the
+successful sites (:func:`replicate_sites`): placed in advance (the box centre, the first Sobol
+point) they land where runs fail whenever most of the box does (water's prior vaporises), and
+the nugget is then fitted from a handful of scattered runs, usually at its lower bound.
 
 Later batches maximise a posterior-weighted emulator uncertainty, in the spirit of the
 ``MAXV`` rule of Järvenpää et al. (2019, Bayesian Analysis 14, 595): ``a(x) = pi(x)
@@ -29,6 +32,7 @@ __all__ = [
     "initial_design",
     "penalty_radius",
     "replicate_groups",
+    "replicate_sites",
     "select_batch",
 ]
 
@@ -76,6 +80,44 @@ def replicate_groups(num_points: int, num_replicates: int) -> np.ndarray:
     group[num_points : num_points + n_centre] = 0
     group[num_points + n_centre :] = 1
     return group
+
+
+def replicate_sites(x_ok: np.ndarray, x_failed: np.ndarray, num_replicates: int) -> tuple[np.ndarray, np.ndarray]:
+    """Where ``num_replicates`` repeat runs go: two of the successful runs ``x_ok (n, d)``.
+
+    Site 0 is the successful run farthest from every failed run ``x_failed (m, d)`` (unit box),
+    so that its repeats succeed too; site 1 the one farthest from the failed runs and from site
+    0, so that the noise is measured in two places.  Distances count up to half the box;
+    ties go to the run nearest the box centre (site 0) or the earliest run (site 1), so with no
+    failures site 0 is near the centre and site 1 a Sobol point half a box away.
+
+    Returns
+    -------
+    site : array of int, shape (2,), or (1,) with one successful run or one repeat
+        Row of ``x_ok`` of each site (its own run joins the group).
+    count : array of int, same shape
+        Repeats per site: ``ceil(r / 2)`` and ``floor(r / 2)``.
+    """
+    x_ok = np.asarray(x_ok, np.float64)
+    if x_ok.shape[0] == 0 or num_replicates < 1:
+        raise ValueError("replicate_sites needs a successful run and num_replicates >= 1")
+    x_failed = np.asarray(x_failed, np.float64).reshape(-1, x_ok.shape[1])
+
+    def distance_to(points: np.ndarray) -> np.ndarray:
+        if points.shape[0] == 0:
+            return np.full(x_ok.shape[0], 0.5)
+        d = np.sqrt(np.min(np.sum((x_ok[:, None, :] - points[None]) ** 2, axis=-1), axis=1))
+        return np.minimum(d, 0.5)
+
+    from_failed = distance_to(x_failed)
+    # np.lexsort sorts by its last key first: distance (descending), then the tie-breaker.
+    first = int(np.lexsort((np.sum((x_ok - 0.5) ** 2, axis=1), -from_failed))[0])
+    if x_ok.shape[0] == 1 or num_replicates < 2:
+        return np.array([first]), np.array([num_replicates])
+    spread = np.minimum(from_failed, distance_to(x_ok[first : first + 1]))
+    spread[first] = -1.0
+    second = int(np.lexsort((np.arange(x_ok.shape[0]), -spread))[0])
+    return np.array([first, second]), np.array([(num_replicates + 1) // 2, num_replicates // 2])
 
 
 class Candidates:
