@@ -1060,10 +1060,23 @@ _SURROGATE_HEADER = [
     "GROMACS runs (failed)",
     "validated",
     "held-out cov. / MSSE / joint",
+    "replicate runs (nugget test)",
     "truth in 50 % HPD",
     "wall time",
     "GROMACS time (sum over runs)",
 ]
+
+
+def _replicates(sur: dict) -> str:
+    """Replicate runs of a surrogate result and whether the fitted nuggets agree with their
+    scatter ("-" for results made before the diagnostics listed the groups)."""
+    groups = sur.get("design_replicate_group")
+    if groups is None:
+        return "-"
+    n = sum(g >= 0 for g in groups)
+    if not n:
+        return "none"
+    return f"{n} ({'agree' if sur.get('lack_of_fit_ok', True) else '**disagree**'})"
 
 
 def _water_surrogate_section() -> str:
@@ -1095,6 +1108,7 @@ def _water_surrogate_section() -> str:
                         if "holdout_joint_mean_squared_error" in sur
                         else "-"
                     ),
+                    _replicates(sur),
                     truth or "-",
                     _wall_time(e),
                     _gromacs_seconds(data, stats),
@@ -1112,7 +1126,8 @@ before a posterior is reported; see the [surrogate coverage study](surrogate_cov
 prior, same GROMACS preset.  Bayes estimate [95 % interval] from the emulator's synthetic
 likelihood; real GROMACS runs (failed); whether the held-out check passed, with the held-out 95 %
 coverage / mean squared standardised error / the joint one (Mahalanobis distance under the noise
-correlation, divided by the number of statistics; 1 when the correlation is right); for simulated
+correlation, divided by the number of statistics; 1 when the correlation is right); the replicate
+runs at two liquid design points and whether the GP nuggets agree with their scatter; for simulated
 data whether TIP4P's own parameters lie in the 50 % HPD region.
 
 {table(_SURROGATE_HEADER, rows)}
