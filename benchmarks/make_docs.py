@@ -1186,13 +1186,22 @@ in `benchmarks/registry.py`), resumable across sittings.
             failed += bool(str(z["reason"])) or not bool(np.all(np.isfinite(z["summaries"])))
     sittings = json.loads(clock.read_text())["sittings"] if clock.exists() else []
     seconds = sum(s["elapsed_s"] for s in sittings)
-    checkpoint = (folder / "checkpoint_xray" / "checkpoint.npz").exists()
+    checkpoint = folder / "checkpoint_xray" / "checkpoint.npz"
+    design = "no checkpoint yet (the first comes after the start batch)"
+    if checkpoint.exists():
+        # The design's own runs; the cache may also hold runs an earlier design made.
+        with np.load(checkpoint) as z:
+            n = int(z["state/.count"]) if "state/.count" in z else None
+            ok = np.asarray(z["state/.ok"])[:n] if n is not None and "state/.ok" in z else None
+        if n is not None and ok is not None:
+            design = f"the checkpoint's design holds {n} of them ({int(np.sum(~ok.astype(bool)))} failed)"
+        else:
+            design = "a checkpoint holds the design so far"
     return (
         head
         + f"""
-In progress: {len(runs)} of at most 200 GROMACS runs finished ({failed} failed) in
-{len(sittings)} sitting(s), {format_cost(seconds)} of wall time;
-{"a checkpoint holds the design so far" if checkpoint else "no checkpoint yet (the first comes after the start batch)"}.
+In progress: {len(runs)} GROMACS runs cached ({failed} failed; at most 200 in the design) in
+{len(sittings)} sitting(s), {format_cost(seconds)} of wall time; {design}.
 `python benchmarks/regenerate.py --only water_xray_surrogate_paper_preset:paper --budget 12h` continues it.
 """
     )
