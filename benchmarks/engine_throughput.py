@@ -17,8 +17,9 @@ Run: ``nice -n 5 python benchmarks/engine_throughput.py [--quick]``.
 preset, batched over parameters, against LAMMPS on the same system, in system-steps per
 CPU-second (``time.process_time``; LAMMPS: loop time x its "% CPU use"), so the ratios hold on a
 machine shared with other work.  With ``--baseline-tree DIR`` (a checkout of an earlier commit)
-the same engine timing and the main job ``jaxabc example helium`` (CPU seconds of the child
-process) run for both trees in the same run, giving the speed-ups over that commit.  It writes
+the same engine timing and the main job ``jaxabc example helium`` (wall and CPU seconds of the
+child process, the jobs one at a time before the rest) run for both trees in the same run,
+giving the speed-ups over that commit.  It writes
 ``engine_throughput_small_system.json``.
 
 ``--single-core`` pins this process (and the LAMMPS it starts) to core 0 and XLA to one thread,
@@ -35,10 +36,10 @@ import argparse
 import json
 import os
 import platform
+import shutil
 import subprocess
 import sys
 import time
-from collections.abc import Callable
 from importlib import metadata
 from pathlib import Path
 
@@ -234,56 +235,46 @@ def _in_tree(tree: Path, args: list[str], timeout: float = 3600) -> str:
     ).stdout
 
 
-def main_job_seconds(trees: dict[str, Path]) -> Callable[[], dict]:
+def main_job_seconds(trees: dict[str, Path]) -> dict:
     """Wall and CPU seconds of ``jaxabc example helium`` (the main job) run from each tree.
 
     Each tree runs it twice with its own empty compilation cache (``JAXABC_COMPILATION_CACHE``
-    set to a fresh folder): ``cold`` compiles everything, as on a fresh machine; ``warm`` is the
-    next run, which loads the programs the main job cached (a tree whose job caches nothing
-    compiles again).  The cold runs start at once and go concurrently with whatever this
-    process does next (on a shared machine their CPU seconds, from ``os.wait4``, are what
-    compares); call the returned function to wait for them, run the warm ones, and get the
-    record: ``{tree: {"cold": {...}, "warm": {...}}}``.
+    set to a fresh folder): ``cold`` compiles everything, as on a fresh machine after
+    ``scripts/setup.sh`` (which builds the C++ force kernel); ``warm`` is the next run, which
+    loads the programs the main job cached (a tree whose job caches nothing compiles again).
+    The jobs run one at a time, before anything else in this benchmark, so that their wall
+    times compare; each record keeps the load average at its start, to show whether something
+    else shared the machine.  Returns ``{tree: {"cold": {...}, "warm": {...}}}``.
     """
     import tempfile
 
-    folders = {name: tempfile.TemporaryDirectory() for name in trees}
-
-    def launch(name: str) -> tuple[subprocess.Popen, float]:
-        folder = folders[name].name
-        code = (
-            "import sys; from jaxabc.cli import main; "
-            f"sys.exit(main(['example', 'helium', '--output', {folder + '/run'!r}]))"
-        )
-        env = dict(USER_ENV, PYTHONPATH=str(trees[name]), JAXABC_COMPILATION_CACHE=folder + "/xla")
-        proc = subprocess.Popen(
-            [sys.executable, "-c", code],
-            cwd=trees[name],
-            env=env,
-            stdout=subprocess.DEVNULL,
-            stderr=subprocess.DEVNULL,
-        )
-        return proc, time.perf_counter()
-
-    def collect(proc: subprocess.Popen, start: float, tree: Path) -> dict:
-        _, status, usage = os.wait4(proc.pid, 0)
-        return {
-            "tree": str(tree),
-            "exit_status": status,
-            "wall_seconds": time.perf_counter() - start,
-            "cpu_seconds": usage.ru_utime + usage.ru_stime,
-        }
-
-    cold = {name: launch(name) for name in trees}
-
-    def wait() -> dict:
-        out = {name: {"cold": collect(*cold[name], trees[name])} for name in trees}
-        for name in trees:
-            out[name]["warm"] = collect(*launch(name), trees[name])
-            folders[name].cleanup()
-        return out
-
-    return wait
+    out: dict[str, dict] = {name: {} for name in trees}
+    for run in ("cold", "warm"):
+        for name, tree in trees.items():
+            folder = tempfile.mkdtemp(prefix=f"main_job_{name}_") if run == "cold" else out[name]["_folder"]
+            out[name]["_folder"] = folder
+            code = (
+                "import sys; from jaxabc.cli import main; "
+                f"sys.exit(main(['example', 'helium', '--output', {folder + '/run'!r}]))"
+            )
+            env = dict(USER_ENV, PYTHONPATH=str(tree), JAXABC_COMPILATION_CACHE=folder + "/xla")
+            load = os.getloadavg()[0]
+            start = time.perf_counter()
+            proc = subprocess.Popen(
+                [sys.executable, "-c", code], cwd=tree, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL
+            )
+            _, status, usage = os.wait4(proc.pid, 0)
+            out[name][run] = {
+                "tree": str(tree),
+                "exit_status": status,
+                "wall_seconds": time.perf_counter() - start,
+                "cpu_seconds": usage.ru_utime + usage.ru_stime,
+                "load_average_1min_at_start": load,
+            }
+            print(f"main job {name} {run}: {out[name][run]}", flush=True)
+    for name in trees:
+        shutil.rmtree(out[name].pop("_folder"), ignore_errors=True)
+    return out
 
 
 def small_system(args: argparse.Namespace) -> None:
@@ -296,11 +287,11 @@ def small_system(args: argparse.Namespace) -> None:
     trees = {"this": here}
     if args.baseline_tree is not None:
         trees["baseline"] = args.baseline_tree.resolve()
-    wait_for_jobs = main_job_seconds(trees) if args.main_job else None
+    jobs = main_job_seconds(trees) if args.main_job else {}
     preset = helium.get_preset("cpu")
     lmp = time_lammps(preset, 250_000) if lammps_reference.lammps_available() else None
     script = str(Path(__file__).resolve())
-    rates, jobs = {}, {}
+    rates = {}
     for name, tree in trees.items():
         out = _in_tree(tree, [script, "--small-system", "--rates-only"])
         rates[name] = json.loads(out.strip().splitlines()[-1])
@@ -314,9 +305,6 @@ def small_system(args: argparse.Namespace) -> None:
                 "LAMMPS)",
                 flush=True,
             )
-    if wait_for_jobs is not None:
-        jobs = wait_for_jobs()
-        print(f"main job: {jobs}", flush=True)
     ratios = {}
     if "baseline" in rates:
         ratios["engine_speedup_over_baseline"] = {

@@ -369,13 +369,33 @@ def _small_system(d: dict[str, Any]) -> list[str]:
     for tree, job in jobs.items():
         runs = job if "cold" in job else {"single run": job}
         for label, r in runs.items():
-            job_rows.append([tree, label, f(r["wall_seconds"], 1), f(r["cpu_seconds"], 1), r["exit_status"]])
+            load = r.get("load_average_1min_at_start")
+            job_rows.append(
+                [
+                    tree,
+                    label,
+                    f(r["wall_seconds"], 1),
+                    f(r["cpu_seconds"], 1),
+                    "-" if load is None else f(load, 2),
+                    r["exit_status"],
+                ]
+            )
     if job_rows:
+        ratios = d.get("ratios") or {}
+        speedups = [
+            f"{run} {kind} {f(ratios[key], 2)}x"
+            for run in ("cold", "warm")
+            for kind in ("wall", "cpu")
+            if (key := f"main_job_{run}_{kind}_speedup_over_baseline") in ratios
+        ]
         parts += [
             "The main job, `jaxabc example helium`: `cold` with an empty compilation cache (a fresh "
-            "machine), `warm` the next run with the programs the job cached.\n",
-            table(["tree", "run", "wall s", "CPU s", "exit"], job_rows) + "\n",
+            "machine after `scripts/setup.sh`), `warm` the next run with the programs the job cached. "
+            "A load average above zero at the start means something else shared the machine.\n",
+            table(["tree", "run", "wall s", "CPU s", "load at start", "exit"], job_rows) + "\n",
         ]
+        if speedups:
+            parts.append("Speed-up over the baseline tree: " + ", ".join(speedups) + ".\n")
     return parts
 
 
