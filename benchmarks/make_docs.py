@@ -920,7 +920,7 @@ def page_abc_overhead() -> str:
 Every run is a fresh process on the same 2-D Gaussian problem and tolerance schedule; the peers
 run in their own virtual environments.  `run_fused` keeps its compiled programs in a persistent
 cache (`~/.cache/jaxabc/xla`) by default: "cold (empty cache)" is a machine's first run of a
-configuration, "cache filled" every later process.  Note recorded with the run: {d.get("note", "-")}
+configuration, "cache filled" every later process.{" Note recorded with the run: " + d["note"] if d.get("note") else ""}
 
 {source("abc_overhead")}
 
