@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from typing import Any
 
+from docpages.common import cause_rows, f, load, misfit_rows, source, table
 from md.water.models import PAPER_TIP4P_ESTIMATES
 
 #: Saved paper-preset checks of models of the model choice, one result each.
@@ -12,9 +13,9 @@ PAPER_CHECKS = ("water_model_paper_check", "water_model_paper_check_tip3p")
 CRITICISMS = ("criticism_water_joint", "criticism_water_joint_tip3p")
 
 
-def page_water_model_choice(load, source, table, f, misfit_rows, cause_rows) -> str:
+def page_water_model_choice() -> str:
     """``docs/results/water_model_choice.md`` from ``water_model_choice.json`` and
-    ``criticism_water_joint.json`` (the helpers are make_docs's)."""
+    ``criticism_water_joint.json``."""
     parts = [
         "# Which rigid water model do the measured data prefer?\n",
         "Five published rigid water models, each with its O-O Lennard-Jones pair calibrated by the GP "
@@ -34,7 +35,7 @@ def page_water_model_choice(load, source, table, f, misfit_rows, cause_rows) -> 
         f"Stopped: {d['model_choice']['stop_reason']}.\n",
         table(_HEADER, [_row(name, row, d["models"][name]) for name, row in d["per_model"].items()]) + "\n",
         "Side by side with the published parameters and the paper's TIP4P calibration:\n",
-        side_by_side(d, table) + "\n",
+        side_by_side(d) + "\n",
         "Probability: delta-method error, and the 2.5-97.5 % points with each log evidence drawn from "
         "its error (importance sampling and the design jackknife).  Misfit p: the chi-square check of the "
         "observed summaries against each model's emulated posterior predictive; a small value says the "
@@ -61,15 +62,15 @@ def page_water_model_choice(load, source, table, f, misfit_rows, cause_rows) -> 
     for name in PAPER_CHECKS:
         check = load(name)
         if check is not None:
-            parts += _paper_check(name, check, source, table, f)
+            parts += _paper_check(name, check)
     for name in CRITICISMS:
         c = load(name)
         if c is not None:
-            parts += _criticism(name, c, source, table, f, misfit_rows, cause_rows)
+            parts += _criticism(name, c)
     return "\n".join(parts)
 
 
-def side_by_side(d: dict[str, Any], table) -> str:
+def side_by_side(d: dict[str, Any]) -> str:
     """Markdown table: each model's published (sigma, epsilon), its calibration here, and the
     TIP4P Bayes estimates of Dutta et al. (2018) on the same kind of data (g_OO alone, APMCABC)."""
     header = ["", "sigma_OO (nm)", "epsilon_OO (kJ/mol)", "correlation", "probability"]
@@ -123,7 +124,7 @@ def _row(name: str, row: dict[str, Any], model: dict[str, Any]) -> list[str]:
     ]
 
 
-def _paper_check(name: str, c: dict[str, Any], source, table, f) -> list[str]:
+def _paper_check(name: str, c: dict[str, Any]) -> list[str]:
     sets, shift, summaries = c["sets"], c["preset_shift"], c["summaries"]
 
     def cell(stats: dict[str, Any], j: int) -> str:
@@ -162,7 +163,7 @@ def _paper_check(name: str, c: dict[str, Any], source, table, f) -> list[str]:
     ]
 
 
-def _criticism(name: str, c: dict[str, Any], source, table, f, misfit_rows, cause_rows) -> list[str]:
+def _criticism(name: str, c: dict[str, Any]) -> list[str]:
     refits = ", ".join(
         f"{label} {r['num_simulations']} runs, ESS {r['ess']:.0f}" + (f" ({r['source']})" if r.get("source") else "")
         for label, r in c["refits"].items()
@@ -191,7 +192,7 @@ def _criticism(name: str, c: dict[str, Any], source, table, f, misfit_rows, caus
     return lines
 
 
-def misfit_table(d: dict[str, Any], table) -> str:
+def misfit_table(d: dict[str, Any]) -> str:
     """Markdown table: each model's standardised residual (observed - predictive) / sd per fitted
     summary, with the misfit chi-square, its degrees of freedom and p-value."""
     fitted = d["summaries"]["fitted"]
@@ -211,17 +212,17 @@ def misfit_table(d: dict[str, Any], table) -> str:
     return table(["model", *fitted, "chi-square / dof", "p"], rows)
 
 
-def outcome(d: dict[str, Any], checks: dict[str, Any], crits: dict[str, Any], source, table, f) -> str:
+def outcome(d: dict[str, Any], checks: dict[str, Any], crits: dict[str, Any]) -> str:
     """The README block under the side-by-side table: the model choice's verdict, the misfit of
     every model per summary, the paper-preset check and the criticism's held-out gain."""
     parts = [
         source("water_model_choice", data=d),
         f"Verdict of the model choice: {d['model_choice']['stop_reason']}.",
-        misfit_table(d, table),
+        misfit_table(d),
     ]
     for name, check in checks.items():
         if check is not None:
-            parts += _paper_check(name, check, source, table, f)[1:]
+            parts += _paper_check(name, check)[1:]
     for name, crit in crits.items():
         if crit is None:
             continue
@@ -233,3 +234,21 @@ def outcome(d: dict[str, Any], checks: dict[str, Any], crits: dict[str, Any], so
 
 
 __all__ = ["CRITICISMS", "PAPER_CHECKS", "misfit_table", "outcome", "page_water_model_choice", "side_by_side"]
+
+
+def block_water_model_choice() -> str:
+    """The side-by-side table of the water model choice, for ``md/water/README.md``."""
+    d = load("water_model_choice")
+    if d is None:
+        return "Not run yet: `python benchmarks/regenerate.py --only water_model_choice --budget 4h`."
+    return "\n\n".join([source("water_model_choice", data=d), side_by_side(d)])
+
+
+def block_water_model_outcome() -> str:
+    """What the model choice, the paper-preset check and the criticism found, for ``md/water/README.md``."""
+    d = load("water_model_choice")
+    if d is None:
+        return "Not run yet."
+    crits = {name: load(name) for name in CRITICISMS}
+    checks = {name: load(name) for name in PAPER_CHECKS}
+    return outcome(d, checks, crits)

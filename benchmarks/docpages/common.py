@@ -1,0 +1,113 @@
+"""Shared helpers of the results pages: load a result, name its source, format numbers and tables."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+from collections.abc import Sequence
+from typing import Any
+
+from _common import RESULTS, ROOT
+from status import format_cost
+
+DOCS = ROOT / "docs" / "results"
+
+#: Code whose later commits the pages list under a result without provenance.
+#: The code a result depends on: Python files only, so that a commit of generated docs under md/
+#: (md/water/README.md) does not count as a code change and re-stale its own generated blocks.
+CODE_PATHS = (":(glob)jaxabc/**/*.py", ":(glob)md/**/*.py")
+
+
+def load(name: str) -> dict[str, Any] | None:
+    """``benchmarks/results/<name>.json``, or None when it is not saved."""
+    path = RESULTS / f"{name}.json"
+    return json.loads(path.read_text()) if path.is_file() else None
+
+
+def git(*args: str) -> str:
+    """Stdout of ``git args`` in the repository ("" when git fails)."""
+    out = subprocess.run(["git", *args], cwd=ROOT, capture_output=True, text=True)
+    return out.stdout.strip() if out.returncode == 0 else ""
+
+
+def source(name: str, part: str | None = None, data: dict[str, Any] | None = None) -> str:
+    """One Markdown line: the JSON, the commit that made it, its date and its status now."""
+    rel = f"benchmarks/results/{name}.json"
+    data = data if data is not None else load(name) or {}
+    prov = data.get("provenance_parts", {}).get(part) if part else data.get("provenance")
+    label = f"`{rel}`" + (f" (part `{part}`)" if part else "")
+    if prov:
+        commit = (prov.get("commit") or "?")[:10]
+        dirty = "" if prov.get("tree_clean", True) else " plus uncommitted changes"
+        return (
+            f"Source: {label}, made at commit `{commit}`{dirty} on {prov.get('date_utc', '?')} "
+            f"in {format_cost(prov.get('cost_s'))} by `{prov.get('command', '?')}`."
+        )
+    saved = git("log", "-1", "--format=%h %ad", "--date=short", "--", rel)
+    if not saved:
+        return f"Source: {label} (not committed yet; no provenance recorded)."
+    commit, date = saved.split(" ", 1)
+    later = git("rev-list", "--count", f"{commit}..HEAD", "--", *CODE_PATHS) or "?"
+    return (
+        f"Source: {label}, saved at commit `{commit}` ({date}; no provenance recorded: the code "
+        f"version is that of the commit that saved it); {later} later commits changed Python files under "
+        "`jaxabc/` or `md/`."
+    )
+
+
+def table(header: Sequence[str], rows: Sequence[Sequence[Any]]) -> str:
+    """A Markdown table."""
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    lines += ["| " + " | ".join(str(c) for c in row) + " |" for row in rows]
+    return "\n".join(lines)
+
+
+def f(x: float | None, digits: int = 3) -> str:
+    """Fixed-point with ``digits`` decimals; '-' for None."""
+    return "-" if x is None else f"{x:.{digits}f}"
+
+
+def g(x: float | None, digits: int = 3) -> str:
+    """``digits`` significant figures; '-' for None."""
+    return "-" if x is None else f"{x:.{digits}g}"
+
+
+def span(values: Sequence[float], digits: int = 2) -> str:
+    """'a' or 'a-b' for the min and max of ``values``."""
+    lo, hi = f(min(values), digits), f(max(values), digits)
+    return lo if lo == hi else f"{lo}-{hi}"
+
+
+def misfit_rows(d: dict[str, Any], limit: int) -> list[list[str]]:
+    """Rows of a criticism report's first ``limit`` misfits."""
+    return [
+        [
+            m["name"],
+            f(m["observed"], 3),
+            f"{f(m['band'][0], 3)}-{f(m['band'][1], 3)}",
+            f(m["residual"], 1),
+            g(m["adjusted_p_value"], 2),
+            "held out" if m["held_out"] else "fitted",
+        ]
+        for m in d["misfits"][:limit]
+    ]
+
+
+def cause_rows(d: dict[str, Any]) -> list[list[str]]:
+    """Rows of a criticism report's ranked causes."""
+    return [
+        [
+            c["name"],
+            f(c["score"], 1),
+            f"{100 * c['fraction_explained']:.0f} %",
+            g(c["adjusted_p_value"], 2),
+            "yes" if c["ambiguous"] else "no",
+            c.get("note", ""),
+        ]
+        for c in d["causes"]
+    ]
+
+
+def sourced_table(names: Sequence[str], header: Sequence[str], rows: Sequence[Sequence[Any]]) -> str:
+    """A generated block: the source line of each result, then the table."""
+    return "\n\n".join([*(source(n) for n in names), table(header, rows)])

@@ -1,0 +1,469 @@
+"""The water calibrations page and the generated blocks of ``md/water/README.md``."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from _common import RESULTS, ROOT
+from status import format_cost
+
+from docpages.common import f, git, load, source, sourced_table, table
+
+WATER_LABELS = {
+    "simulated": "simulated at TIP4P",
+    "xray": "X-ray g_OO (Skinner 2013)",
+    "neutron": "neutron g_OO, g_OH (Soper 2013 EPSR)",
+}
+
+_VALIDATION_HEADER = ["parameters", "density (kg/m3)", "kappa_T (1e-6/bar)", "C_p (J/mol/K)", "epsilon"]
+
+
+def _validation_rows() -> tuple[list[list[Any]], list[str]]:
+    """The paper's Table 2 properties at each calibration's estimate and at TIP4P, then experiment;
+    and the results they come from."""
+    rows: list[list[Any]] = []
+    names: list[str] = []
+    exp_row = None
+    for data in ("simulated", "xray", "neutron"):
+        d = load(f"water_{data}") or {}
+        for stats in ("robust", "paper"):
+            v = (d.get(stats) or {}).get("validation")
+            if not v:
+                continue
+            names.append(f"water_{data}")
+            for point in ("bayes_estimate", "tip4p"):
+                p = v[point]
+                rows.append(
+                    [
+                        f"{data} {stats} {point.replace('_', ' ')} ({f(p['theta'][0], 4)}, {f(p['theta'][1])})",
+                        f"{p['density_kg_m3']:.1f} +- {p['density_se']:.1f}",
+                        f"{p['compressibility_per_bar'] * 1e6:.0f} +- {p['compressibility_se'] * 1e6:.0f}",
+                        f"{p['heat_capacity_j_mol_k']:.1f} +- {p['heat_capacity_se']:.1f}",
+                        f"{p['dielectric_constant']:.0f}",
+                    ]
+                )
+            x = v["experiment"]
+            exp_row = [
+                "experiment (298 K)",
+                x["density_kg_m3"],
+                f"{x['compressibility_per_bar'] * 1e6:.1f}",
+                x["heat_capacity_j_mol_k"],
+                x["dielectric_constant"],
+            ]
+    return ([*rows, exp_row] if exp_row else rows), sorted(set(names))
+
+
+def page_water() -> str:
+    rows, sources = [], []
+    saving_commits: set[str] = set()
+    for data in ("simulated", "xray", "neutron"):
+        d = load(f"water_{data}")
+        if d is None:
+            continue
+        for stats in ("robust", "paper"):
+            e = d.get(stats)
+            if not e:
+                continue
+            ci = e["credible_interval_95"]
+            paper = e["paper"]
+            rows.append(
+                [
+                    WATER_LABELS[data],
+                    f"{stats} ({e['settings']['particles']} particles)",
+                    f"{f(e['bayes_estimate'][0], 4)} [{f(ci[0][0], 4)}, {f(ci[0][1], 4)}]",
+                    f"{f(e['bayes_estimate'][1])} [{f(ci[1][0])}, {f(ci[1][1])}]",
+                    f(e["correlation"], 3),
+                    f"{e['num_simulations']} ({e['num_failures']})",
+                    f(e["final_threshold"], 3),
+                    format_cost(e["wall_time_s"]),
+                    f"{paper['bayes_estimate'][0]}, {paper['bayes_estimate'][1]}, {paper['correlation']}",
+                ]
+            )
+            sources.append(f"- {source(f'water_{data}', stats, d)}")
+            if not d.get("provenance_parts", {}).get(stats):
+                saving_commits.add(git("log", "-1", "--format=%h", "--", f"benchmarks/results/water_{data}.json"))
+    # The oldest commit that saved one of these results: every later change to the water pipeline,
+    # the criticism catalogue or the inference core is one that some of them predate.
+    saved = sorted(c for c in saving_commits if c)
+    oldest = max(saved, key=lambda c: int(git("rev-list", "--count", f"{c}..HEAD") or 0)) if saved else None
+    predate = ""
+    if oldest:
+        predate = git(
+            "log",
+            "--format=- `%h` %ad %<(100,trunc)%s",
+            "--date=short",
+            f"{oldest}..HEAD",
+            "--",
+            ":(glob)md/water/**/*.py",
+            "md/water/data",
+            "md/criticism_catalogue.py",
+            ":(glob)jaxabc/**/*.py",
+        )
+    predate = "\n".join(line.rstrip() for line in predate.splitlines())
+    out = f"""# Water calibrations (GROMACS TIP4P, quick preset)
+
+APMCABC, alpha 0.1, acceptance cutoff 0.03, prior U[0.281, 0.53] nm x U[0.2, 0.9] kJ/mol;
+`robust` statistics with the pilot-MAD-scaled mean absolute difference, `paper` statistics with
+the paper's mean absolute difference.  Bayes estimate [95 % interval] (read these intervals as
+roughly 75 % intervals: see the coverage page); simulations (failed); wall time on the machine
+that made them.
+
+{
+        table(
+            [
+                "data",
+                "statistics",
+                "sigma_OW (nm)",
+                "epsilon_OW (kJ/mol)",
+                "corr.",
+                "sims (failed)",
+                "final threshold",
+                "wall time",
+                "paper (sigma, epsilon, corr.)",
+            ],
+            rows,
+        )
+    }
+
+Which code made them: these hours-long runs were saved before results recorded their provenance,
+so the code version is that of the commit that saved each JSON part (the commit of the last
+change to the file bounds it from above):
+
+{chr(10).join(sources)}
+
+Commits after the oldest of these (`{oldest}`) that changed the water pipeline, the criticism
+catalogue or the inference core (`jaxabc/`), newest first; each result predates those made after
+the commit that saved it:
+
+{predate or "- (none)"}
+"""
+    out += _water_surrogate_section()
+    out += _water_paper_preset_section()
+    out += _water_side_by_side()
+    validation, _ = _validation_rows()
+    if validation:
+        out += "\n## Validation properties (the paper's Table 2)\n\n" + table(_VALIDATION_HEADER, validation) + "\n"
+    return out
+
+
+_SURROGATE_HEADER = [
+    "data",
+    "statistics",
+    "sigma_OW (nm)",
+    "epsilon_OW (kJ/mol)",
+    "corr.",
+    "GROMACS runs (failed)",
+    "validated",
+    "held-out cov. / MSSE / joint",
+    "replicate runs (nugget test)",
+    "truth in 50 % HPD",
+    "wall time",
+    "GROMACS time (sum over runs)",
+]
+
+
+def _replicates(sur: dict) -> str:
+    """Replicate runs of a surrogate result and whether the fitted nuggets agree with their
+    scatter ("-" for results made before the diagnostics listed the groups)."""
+    groups = sur.get("design_replicate_group")
+    if groups is None:
+        return "-"
+    n = sum(g >= 0 for g in groups)
+    if not n:
+        return "none"
+    return f"{n} ({'agree' if sur.get('lack_of_fit_ok', True) else '**disagree**'})"
+
+
+def _water_surrogate_section() -> str:
+    """The GP-surrogate calibrations (``--algorithm surrogate``) beside the APMCABC ones."""
+    rows, sources = [], []
+    for data in ("simulated", "xray", "neutron"):
+        d = load(f"water_{data}_surrogate")
+        for stats, e in (d or {}).items():
+            if stats not in ("robust", "paper") or not e:
+                continue
+            ci, sur = e["credible_interval_95"], e["surrogate"]
+            truth = ""
+            if "truth_in_50pct_hpd" in e:
+                level = e["truth_credibility"]
+                level = level["hpd_level"] if isinstance(level, dict) else level
+                truth = f"{'yes' if e['truth_in_50pct_hpd'] else 'no'} (HPD level {f(level, 2)})"
+            rows.append(
+                [
+                    WATER_LABELS[data],
+                    stats,
+                    f"{f(e['bayes_estimate'][0], 4)} [{f(ci[0][0], 4)}, {f(ci[0][1], 4)}]",
+                    f"{f(e['bayes_estimate'][1])} [{f(ci[1][0])}, {f(ci[1][1])}]",
+                    f(e["correlation"], 3),
+                    f"{e['num_simulations']} ({e['num_failures']})",
+                    "yes" if sur["validated"] else "**no**",
+                    f"{f(sur['holdout_coverage_95'], 2)} / {f(sur['holdout_mean_squared_error'], 2)} / "
+                    + (
+                        f(sur["holdout_joint_mean_squared_error"], 2)
+                        if "holdout_joint_mean_squared_error" in sur
+                        else "-"
+                    ),
+                    _replicates(sur),
+                    truth or "-",
+                    _wall_time(e),
+                    _gromacs_seconds(data, stats),
+                ]
+            )
+            sources.append(f"- {source(f'water_{data}_surrogate', stats, d)}")
+    if not rows:
+        return ""
+    return f"""
+## GP-surrogate calibrations
+
+`--algorithm surrogate`: `jaxabc.run("surrogate", ...)` (a GP emulator of S1..S9, sequential
+design, a success classifier for the runs that vaporise or collapse, held-out runs checked
+before a posterior is reported; see the [surrogate coverage study](surrogate_coverage.md)), same
+prior, same GROMACS preset.  Bayes estimate [95 % interval] from the emulator's synthetic
+likelihood; real GROMACS runs (failed); whether the held-out check passed, with the held-out 95 %
+coverage / mean squared standardised error / the joint one (Mahalanobis distance under the noise
+correlation, divided by the number of statistics; 1 when the correlation is right); the replicate
+runs at two liquid design points and whether the GP nuggets agree with their scatter; for simulated
+data whether TIP4P's own parameters lie in the 50 % HPD region.
+
+{table(_SURROGATE_HEADER, rows)}
+
+{chr(10).join(sources)}
+"""
+
+
+def _water_paper_preset_section() -> str:
+    """The paper's own protocol through the surrogate: the result, or the progress of a run that
+    spans sittings (its checkpoint, run cache and sitting clock live in the results folder)."""
+    folder = RESULTS / "water_paper_preset"
+    d = load("water_paper_preset/water_xray_surrogate")
+    head = """
+## The paper's preset (515 molecules, 100 ps), X-ray data, paper statistics
+
+The calibration the paper itself made, through the GP surrogate (`water_xray_surrogate_paper_preset`
+in `benchmarks/registry.py`), resumable across sittings.
+"""
+    if d and d.get("paper"):
+        e = d["paper"]
+        ci, sur, paper = e["credible_interval_95"], e["surrogate"], e["paper"]
+        row = [
+            f"{f(e['bayes_estimate'][0], 4)} [{f(ci[0][0], 4)}, {f(ci[0][1], 4)}]",
+            f"{f(e['bayes_estimate'][1])} [{f(ci[1][0])}, {f(ci[1][1])}]",
+            f(e["correlation"], 3),
+            f"{e['num_simulations']} ({e['num_failures']})",
+            "yes" if sur["validated"] else "**no**",
+            _wall_time(e),
+            f"{f(paper['bayes_estimate'][0], 4)}, {f(paper['bayes_estimate'][1])}",
+        ]
+        header = [
+            "sigma_OW (nm)",
+            "epsilon_OW (kJ/mol)",
+            "corr.",
+            "GROMACS runs (failed)",
+            "validated",
+            "wall time",
+            "paper's estimate",
+        ]
+        return (
+            head
+            + "\n"
+            + table(header, [row])
+            + "\n\n- "
+            + source("water_paper_preset/water_xray_surrogate", "paper", d)
+            + "\n"
+        )
+    runs = sorted((folder / "checkpoint_xray" / "run_cache").glob("*.npz"))
+    clock = folder / "checkpoint_xray" / "water_xray_paper_surrogate.sittings.json"
+    if not runs and not clock.exists():
+        return head + "\nNot run yet.\n"
+    failed = 0
+    for path in runs:
+        with np.load(path) as z:
+            failed += bool(str(z["reason"])) or not bool(np.all(np.isfinite(z["summaries"])))
+    sittings = json.loads(clock.read_text())["sittings"] if clock.exists() else []
+    seconds = sum(s["elapsed_s"] for s in sittings)
+    checkpoint = folder / "checkpoint_xray" / "checkpoint.npz"
+    design = "no checkpoint yet (the first comes after the start batch)"
+    if checkpoint.exists():
+        # The design's own runs; the cache may also hold runs an earlier design made.
+        with np.load(checkpoint) as z:
+            n = int(z["state/.count"]) if "state/.count" in z else None
+            ok = np.asarray(z["state/.ok"])[:n] if n is not None and "state/.ok" in z else None
+        if n is not None and ok is not None:
+            design = f"the checkpoint's design holds {n} of them ({int(np.sum(~ok.astype(bool)))} failed)"
+        else:
+            design = "a checkpoint holds the design so far"
+    return (
+        head
+        + f"""
+In progress: {len(runs)} GROMACS runs cached ({failed} failed; at most 200 in the design) in
+{len(sittings)} sitting(s), {format_cost(seconds)} of wall time; {design}.
+`python benchmarks/regenerate.py --only water_xray_surrogate_paper_preset:paper --budget 12h` continues it.
+"""
+    )
+
+
+_MEASURED_GOO = {
+    "xray": ("md/water/data/skinner2013_gOO_295K_nm.csv", "X-ray 295 K"),
+    "neutron": ("md/water/data/soper2013_gOO_gOH_gHH_nm.csv", "neutron EPSR"),
+}
+
+
+def _first_peak(r: np.ndarray, g: np.ndarray) -> tuple[int, float, float]:
+    """Index, position (nm) and height of the g_OO maximum in 0.25-0.32 nm."""
+    window = np.flatnonzero((r >= 0.25) & (r <= 0.32))
+    i = int(window[np.argmax(g[window])])
+    return i, float(r[i]), float(g[i])
+
+
+def _predictive_peak(e: dict[str, Any]) -> str:
+    """First peak of the posterior-predictive median g_OO, with the quartiles of g there."""
+    bands = e.get("predictive_goo")
+    if not bands:
+        return "-"
+    r, median = np.asarray(bands["r_nm"]), np.asarray(bands["median"])
+    i, r_peak, g_peak = _first_peak(r, median)
+    return (
+        f"{f(r_peak, 3)} nm, {f(g_peak, 2)} [{f(bands['q25'][i], 2)}, {f(bands['q75'][i], 2)}] "
+        f"({bands['num_curves']} runs)"
+    )
+
+
+def _water_npz(data: str, stats: str, surrogate: bool) -> Path:
+    """The saved posterior of a water calibration (``water_calibration.py`` names it so)."""
+    return RESULTS / f"water_{data}_{stats}{'_surrogate' if surrogate else ''}.npz"
+
+
+def _wall_time(entry: dict) -> str:
+    """A water calibration's wall time: over every sitting where recorded, else its last one."""
+    if "sittings" not in entry:
+        return f"{format_cost(entry['wall_time_s'])} (last sitting)"
+    n = entry["sittings"]
+    return format_cost(entry["wall_time_s"]) + (f" ({n} sittings)" if n > 1 else "")
+
+
+def _gromacs_seconds(data: str, stats: str) -> str:
+    """Summed wall time of a surrogate run's GROMACS runs, over every sitting (a resumed run's
+    own wall time covers only its last one)."""
+    path = _water_npz(data, stats, surrogate=True)
+    if not path.exists():
+        return "-"
+    with np.load(path, allow_pickle=True) as z:
+        key = "record_wall_time"
+        return format_cost(float(np.nansum(z[key]))) if key in z.files else "-"
+
+
+def _posterior_draws(data: str, stats: str, surrogate: bool) -> str:
+    """Number of posterior draws and their effective sample size, from the saved result."""
+    path = _water_npz(data, stats, surrogate)
+    if not path.exists():
+        return "-"
+    with np.load(path, allow_pickle=True) as z:
+        w = np.asarray(z["weights"], np.float64)
+    w = w / w.sum()
+    return f"{w.size} (ESS {1.0 / np.sum(w**2):.0f})"
+
+
+_SIDE_BY_SIDE_HEADER = [
+    "data",
+    "statistics",
+    "method",
+    "sigma_OW (nm)",
+    "epsilon_OW (kJ/mol)",
+    "corr.",
+    "GROMACS runs (failed)",
+    "draws (ESS)",
+]
+
+
+def _water_side_by_side_rows() -> tuple[list[list[Any]], list[list[Any]]]:
+    """Rows of the measured-data calibrations (APMCABC, surrogate, paper) and of their predictive peaks."""
+    rows, peaks = [], []
+    for data in ("xray", "neutron"):
+        apmc, sur = load(f"water_{data}") or {}, load(f"water_{data}_surrogate") or {}
+        csv, label = _MEASURED_GOO[data]
+        measured = np.loadtxt(ROOT / csv, delimiter=",", comments="#")
+        _, r_m, g_m = _first_peak(measured[:, 0], measured[:, 1])
+        for stats in ("robust", "paper"):
+            if not sur.get(stats) and not apmc.get(stats):
+                continue
+            first = True
+            for method, e, is_sur in (("APMCABC", apmc.get(stats), False), ("GP surrogate", sur.get(stats), True)):
+                if not e:
+                    continue
+                paper = e["paper"]
+                if first:
+                    pe = paper["bayes_estimate"]
+                    rows.append(
+                        [
+                            WATER_LABELS[data],
+                            stats,
+                            "paper (Dutta et al. 2018)",
+                            pe[0],
+                            pe[1],
+                            paper["correlation"],
+                            "-",
+                            "-",
+                        ]
+                    )
+                    first = False
+                ci = e["credible_interval_95"]
+                # A surrogate posterior whose emulator failed its held-out check says so here.
+                validated = (e.get("surrogate") or {}).get("validated", True)
+                rows.append(
+                    [
+                        WATER_LABELS[data],
+                        stats,
+                        method if validated else f"{method} (NOT VALIDATED: {e['surrogate'].get('failure', '')})",
+                        f"{f(e['bayes_estimate'][0], 4)} [{f(ci[0][0], 4)}, {f(ci[0][1], 4)}]",
+                        f"{f(e['bayes_estimate'][1])} [{f(ci[1][0])}, {f(ci[1][1])}]",
+                        f(e["correlation"], 3),
+                        f"{e['num_simulations']} ({e['num_failures']})",
+                        _posterior_draws(data, stats, is_sur),
+                    ]
+                )
+                peaks.append(
+                    [WATER_LABELS[data], stats, method, _predictive_peak(e), f"{f(r_m, 3)} nm, {f(g_m, 2)} ({label})"]
+                )
+    return rows, peaks
+
+
+def _water_side_by_side() -> str:
+    """The measured-data calibrations, APMCABC and surrogate side by side with the paper."""
+    rows, peaks = _water_side_by_side_rows()
+    if not rows:
+        return ""
+    return f"""
+## Measured data: APMCABC, the surrogate and the paper side by side
+
+Bayes estimate [95 % interval], correlation, real GROMACS runs (failed) and the posterior draws
+with their effective sample size.  The paper's runs used its own preset (515 molecules, 100 ps);
+these use the quick preset.
+
+{table(_SIDE_BY_SIDE_HEADER, rows)}
+
+Posterior-predictive g_OO: the first peak of the median of `--predictive` GROMACS runs at posterior
+draws (position, height [quartiles of the height there]), beside the measured curve's first peak.
+The bands themselves are plotted in `benchmarks/results/water_<data>_<statistics>[_surrogate]_predictive.png`.
+
+{table(["data", "statistics", "method", "predictive first peak", "measured first peak"], peaks)}
+"""
+
+
+def block_water_calibrations() -> str:
+    """The measured-data calibrations beside the paper's, for ``md/water/README.md``."""
+    rows, _ = _water_side_by_side_rows()
+    if not rows:
+        return "Not run yet: `python benchmarks/regenerate.py --only water_xray water_neutron --budget 8h`."
+    names = [n for d in ("xray", "neutron") for n in (f"water_{d}", f"water_{d}_surrogate") if load(n)]
+    return sourced_table(names, _SIDE_BY_SIDE_HEADER, rows)
+
+
+def block_water_validation() -> str:
+    """The validation properties, for ``md/water/README.md``."""
+    rows, names = _validation_rows()
+    if not rows:
+        return "Not run yet: `--validation-ps 500` with a calibration."
+    return sourced_table(names, _VALIDATION_HEADER, rows)
