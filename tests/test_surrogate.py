@@ -260,6 +260,29 @@ def test_the_nearest_run_cut_is_sharp_for_a_failing_phase_and_blind_to_random_fa
     assert np.mean(keep) > 0.98
 
 
+def test_replicates_count_once_in_the_nearest_run_cut():
+    """Eight successful replicates at one site must not outvote the failures around a point: the
+    nearest sites of ``p`` are two failures, the replicate site and three more failures."""
+    from jaxabc.surrogate import sampling
+
+    p = np.array([0.5, 0.5])
+    failed = np.array([[0.51, 0.5], [0.5, 0.51], [0.5, 0.3], [0.7, 0.5], [0.3, 0.5]])
+    replicate = np.repeat([[0.5, 0.6]], 8, axis=0)
+    far_ok = np.array([[0.05, 0.05], [0.95, 0.95], [0.05, 0.95], [0.95, 0.05]])
+    x = np.concatenate([failed, replicate, far_ok])
+    ok = np.concatenate([np.zeros(len(failed), bool), np.ones(len(replicate) + len(far_ok), bool)])
+    model = sampling.fit_feasibility(x, ok, size=40)
+    assert not bool(sampling.nearest_runs_succeed(model, jnp.asarray(p[None]))[0])
+    # The replicate site, its nearest four sites failed, is not cut: its own runs succeed.
+    assert bool(sampling.nearest_runs_succeed(model, jnp.asarray([[0.5, 0.62]]))[0])
+    # A site with two failures among its eight runs counts a quarter.
+    ok_mixed = ok.copy()
+    ok_mixed[len(failed) : len(failed) + 2] = False
+    mixed = sampling.fit_feasibility(x, ok_mixed)
+    site = np.flatnonzero(np.all(np.isclose(np.asarray(mixed.runs_x), replicate[0]), axis=1))
+    assert site.size == 1 and np.isclose(float(mixed.runs_failed[site[0]]), 0.25)
+
+
 def constant_extra_summary(key, theta):
     # A third summary the "data set does not measure": the simulator zeroes it, as the water
     # plugin zeroes g_OH statistics for X-ray data.

@@ -57,9 +57,12 @@ class Feasibility(NamedTuple):
     (a phase beyond a plane, a stable island) and, unlike a kernel smoother, extrapolates to
     corners where no run was made.  ``p`` is exactly 1 when nothing has failed.
 
-    Beside it, the runs themselves, for :func:`nearest_runs_succeed`: a k-nearest-neighbour
+    Beside it, the distinct run sites, for :func:`nearest_runs_succeed`: a k-nearest-neighbour
     classifier, local and sharp where the quadratic boundary is neither (a narrow band of
-    success between two failing phases).
+    success between two failing phases).  Replicate runs at one site count once, with their
+    fraction of failures: otherwise a replicated site fills every neighbourhood around it and
+    shields the failures next to it from the cut (water, paper preset: a replicate site nearby
+    kept the design returning to a spot where every run had failed).
 
     Attributes
     ----------
@@ -68,20 +71,20 @@ class Feasibility(NamedTuple):
     active : array of bool, shape ()
         False when every run succeeded (then ``p = 1``).
     runs_x : array, shape (m, d)
-        Unit-box points of the runs (padding rows far outside the box).
-    runs_ok : array of bool, shape (m,)
-        Their outcomes (padding rows True).
+        Unit-box points of the distinct run sites (padding rows far outside the box).
+    runs_failed : array, shape (m,)
+        The fraction of the runs at each site that failed (padding rows 0).
     """
 
     weights: jax.Array
     active: jax.Array
     runs_x: jax.Array
-    runs_ok: jax.Array
+    runs_failed: jax.Array
 
 
 #: The k-nearest-neighbour cut: a point is infeasible when at least ``KNN_MAX_FAILED`` of its
-#: ``KNN_K`` nearest runs failed.  4 of 5 cuts a deterministic failure region once a few runs
-#: have failed there, and almost never a region where runs fail at random (30 % failures:
+#: ``KNN_K`` nearest run sites failed, the nearest among them.  4 of 5 cuts a deterministic
+#: failure region once a few runs have failed there, and almost never a region where runs fail at random (30 % failures:
 #: P(>= 4 of 5) = 0.03).
 KNN_K = 5
 KNN_MAX_FAILED = 4
@@ -106,16 +109,19 @@ def fit_feasibility(
 
     An L2 penalty on the non-constant weights keeps a perfectly separable design (the usual
     case: runs fail beyond a sharp boundary) at finite, steep weights.  ``size`` pads the stored
-    runs to a fixed number of rows (one compilation per budget, not per design size).
+    sites to a fixed number of rows (one compilation per budget, not per design size).
     """
     phi = np.asarray(_features(jnp.asarray(x)))
-    n, d = x.shape
-    m = max(n, size or 0)
+    d = x.shape[1]
+    sites, site_of = np.unique(x, axis=0, return_inverse=True)
+    site_of = site_of.reshape(-1)
+    failed = np.bincount(site_of, weights=~np.asarray(ok, bool), minlength=len(sites))
+    m = max(len(sites), size or 0)
     runs_x = np.full((m, d), _PAD_COORD)
-    runs_x[:n] = x
-    runs_ok = np.ones(m, bool)
-    runs_ok[:n] = ok
-    runs = (jnp.asarray(runs_x), jnp.asarray(runs_ok))
+    runs_x[: len(sites)] = sites
+    runs_failed = np.zeros(m)
+    runs_failed[: len(sites)] = failed / np.bincount(site_of, minlength=len(sites))
+    runs = (jnp.asarray(runs_x), jnp.asarray(runs_failed))
     if np.all(ok):
         return Feasibility(jnp.zeros(phi.shape[1]), jnp.asarray(False), *runs)
     y = np.where(ok, 1.0, -1.0)
@@ -137,13 +143,18 @@ def feasibility(model: Feasibility, x: jax.Array) -> jax.Array:
 
 
 def nearest_runs_succeed(model: Feasibility, x: jax.Array) -> jax.Array:
-    """False where at least ``KNN_MAX_FAILED`` of the ``KNN_K`` runs nearest to ``x (n, d)`` (unit
-    box, Euclidean) failed: bool array (n,)."""
+    """False where at least ``KNN_MAX_FAILED`` of the ``KNN_K`` run sites nearest to ``x (n, d)``
+    (unit box, Euclidean) failed, a replicated site counting its fraction of failures, and most
+    runs at the nearest site failed: bool array (n,).
+
+    The second condition keeps the cell around a site where runs succeed, even amid failures:
+    a successful site is never cut off.
+    """
     k = min(KNN_K, model.runs_x.shape[0])
     d2 = jnp.sum((x[:, None, :] - model.runs_x[None, :, :]) ** 2, axis=-1)
     _, idx = jax.lax.top_k(-d2, k)
-    failed = jnp.sum(~model.runs_ok[idx], axis=1)
-    return failed < min(KNN_MAX_FAILED, k)
+    failed = jnp.sum(model.runs_failed[idx], axis=1)
+    return (failed < min(KNN_MAX_FAILED, k)) | (model.runs_failed[idx[:, 0]] <= 0.5)
 
 
 def log_level(min_feasibility: float) -> jax.Array:
