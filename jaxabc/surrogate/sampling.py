@@ -84,8 +84,8 @@ class Feasibility(NamedTuple):
 
 #: The k-nearest-neighbour cut: a point is infeasible when at least ``KNN_MAX_FAILED`` of its
 #: ``KNN_K`` nearest run sites failed, the nearest among them.  4 of 5 cuts a deterministic
-#: failure region once a few runs have failed there, and almost never a region where runs fail at random (30 % failures:
-#: P(>= 4 of 5) = 0.03).
+#: failure region once a few runs have failed there, and almost never a region where runs fail
+#: at random (30 % failures: P(>= 4 of 5) = 0.03).
 KNN_K = 5
 KNN_MAX_FAILED = 4
 _PAD_COORD = 1e3
