@@ -158,6 +158,16 @@ def parse_arguments(argv=None) -> argparse.Namespace:
     )
     parser.add_argument("--surrogate-holdout", type=int, default=20, help="held-out runs per validation")
     parser.add_argument(
+        "--surrogate-min-feasibility",
+        type=float,
+        default=0.2,
+        help="cut the posterior where the fitted chance of a liquid run is below this (the library's "
+        "min_feasibility). Water's failures are phase changes, not random crashes, and no parameter "
+        "fits the measured data within the noise, so the emulator's variance pulls the posterior to "
+        "wherever runs fail; at the library's default level the paper-preset design spent run after "
+        "run just above it, where the classifier already gave a few per cent",
+    )
+    parser.add_argument(
         "--stop-after-iterations",
         type=int,
         default=None,
@@ -762,6 +772,7 @@ def algorithm_options(args, executor, distance) -> dict:
         "batch_size": args.surrogate_batch or num_workers(args, executor),
         "num_replicates": args.surrogate_replicates,
         "num_holdout": args.surrogate_holdout,
+        "min_feasibility": args.surrogate_min_feasibility,
     }
     options["num_initial"] = args.surrogate_initial
     if args.surrogate_mode == "abc":
