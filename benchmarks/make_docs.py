@@ -146,3 +146,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"out of date: {', '.join(differ)} (run python benchmarks/make_docs.py)")
         return 1
     return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
