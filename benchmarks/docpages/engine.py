@@ -167,7 +167,8 @@ def _small_system(d: dict[str, Any]) -> list[str]:
         parts += [
             "The main job, `jaxabc example helium`: `cold` with an empty compilation cache (a fresh "
             "machine after `scripts/setup.sh`), `warm` the next run with the programs the job cached. "
-            "A load average above zero at the start means something else shared the machine.\n",
+            "The jobs run one at a time; the 1-minute load average at each start still carries the job "
+            "before it.\n",
             table(["tree", "run", "wall s", "CPU s", "load at start", "exit"], job_rows) + "\n",
         ]
         if speedups:
