@@ -130,7 +130,7 @@ def _water_paper_preset(data: str) -> Entry:
         f"water_{data}_surrogate_paper_preset:paper",
         f"{folder}/water_{data}_surrogate.json",
         f"python benchmarks/water_calibration.py --data {data} --statistics paper --preset paper "
-        "--algorithm surrogate --max-simulations 200 --workers 2 --predictive 10 "
+        "--algorithm surrogate --max-simulations 200 --surrogate-tolerance 0.04 --workers 2 --predictive 10 "
         f"--checkpoint-dir {folder}/checkpoint_{data} --continue --run-cache {folder}/checkpoint_{data}/run_cache "
         f"--out-dir {folder} --no-progress",
         part="paper",
