@@ -15,12 +15,14 @@ negligible): the error of the weighted mean, ``|mean|``, and of the weighted cov
 ``||cov - I||_F``.  At final tolerance ``eps`` the ABC posterior itself has covariance
 ``(1 + eps^2 / 4) I``, so no method can do better than that bias at that tolerance.
 
-jaxabc's runs: ``jaxabc.run_fused`` (PMC-ABC) in a fresh process with an empty persistent
-compilation cache (cold), then a second time in the same process (warm: compiled chunks
-reused), then in another fresh process that finds the persistent cache filled (cold, cached), and
-in a fresh process with ``fast_compile=True`` and no persistent cache (``run_fused`` keeps one
-in ``~/.cache/jaxabc/xla`` by default: every cold row here sets ``JAXABC_COMPILATION_CACHE``).
-The host driver ``jaxabc.run`` (PMC-ABC, vmap executor) runs cold once per size.  A last part
+jaxabc's runs: a plain ``jaxabc.run`` call (PMC-ABC; for a JAX simulator it runs the fused
+program, :func:`jaxabc.run_fused`) in a fresh process with an empty persistent compilation
+cache (cold), then a second time in the same process (warm: compiled chunks reused), then in
+another fresh process that finds the persistent cache filled (cold, cached), and
+``run_fused(fast_compile=True)`` in a fresh process with no persistent cache (the fused path
+keeps one in ``~/.cache/jaxabc/xla`` by default: every cold row here sets
+``JAXABC_COMPILATION_CACHE``).  The host driver (``jaxabc.run(executor="vmap")``) runs cold
+once per size.  A last part
 compares PMC-ABC's and APMCABC's steady-state cost per simulation in the host driver at the
 largest size.
 
@@ -136,8 +138,9 @@ def simulate(key, theta):
     return theta + jax.random.normal(key, theta.shape)
 
 prior = jaxabc.Uniform([-10.0, -10.0], [10.0, 10.0], names=("a", "b"))
-runner = jaxabc.run if mode == "host" else jaxabc.run_fused
-extra = {"fast_compile": True} if mode == "fused_fast_compile" else {}
+# "fused": a plain jaxabc.run call (its default for a JAX simulator); "host": the host driver.
+runner = jaxabc.run_fused if mode == "fused_fast_compile" else jaxabc.run
+extra = {"fast_compile": True} if mode == "fused_fast_compile" else {"executor": "vmap"} if mode == "host" else {}
 out = []
 for i in range(repeats):
     t0 = time.perf_counter()
@@ -166,8 +169,9 @@ prior = jaxabc.Uniform([-10.0, -10.0], [10.0, 10.0], names=("a", "b"))
 out = {}
 for name, kw in (("apmcabc", dict(num_steps=7, acceptance_cutoff=0.0)),
                  ("pmcabc", dict(num_steps=6))):
+    # The host driver: it times each generation (a fused run sees only its chunks).
     r = jaxabc.run(name, simulate, prior, np.zeros(2), num_particles=n, distance="euclidean",
-                   keep_summaries=False, **kw)
+                   keep_summaries=False, executor="vmap", **kw)
     walls = np.diff(r.metadata["generation_wall_times"])
     sims = r.simulations_per_step[1:]
     # Generations 0-1 compile the kernels; 2 onwards are the steady state.

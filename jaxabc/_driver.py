@@ -268,6 +268,12 @@ class Recorder:
         return total, failed, examples
 
 
+BAD_DISTANCE_REASON = (
+    "the distance to the observed data was NaN or -inf for finite summaries "
+    "(e.g. a KL distance of samples with no spread)"
+)
+
+
 def mark_bad_distances(
     status: np.ndarray, reasons: list[str], bad: np.ndarray, distances: np.ndarray
 ) -> tuple[np.ndarray, list[str]]:
@@ -277,10 +283,7 @@ def mark_bad_distances(
     status = np.where(bad, STATUS_BAD_DISTANCE, status)
     reasons = list(reasons)
     for i in np.flatnonzero(bad):
-        reasons[i] = (
-            "the distance to the observed data was NaN or -inf for finite summaries "
-            "(e.g. a KL distance of samples with no spread)"
-        )
+        reasons[i] = BAD_DISTANCE_REASON
     return status, reasons
 
 

@@ -8,8 +8,9 @@ from typing import Any
 import jax.numpy as jnp
 import numpy as np
 
+from jaxabc._driver import BAD_DISTANCE_REASON
 from jaxabc.algorithms.base import ABCAlgorithm, Info
-from jaxabc.errors import STATUS_NONFINITE, STATUS_OK
+from jaxabc.errors import STATUS_BAD_DISTANCE, STATUS_NONFINITE, STATUS_OK
 
 # Why a fused chunk stopped (the compiled loop's stop code).
 _NONE, _STOP_ALGORITHM, _STOP_STEPS, _STOP_THRESHOLD, _STOP_BUDGET = range(5)
@@ -34,6 +35,7 @@ def _absorb(
                 "theta": block["thetas"][i][active],
                 "distance": block["distances"][i][active],
                 "finite": block["finite"][i][active],
+                "bad": block["bad"][i][active],
                 "active": active[active],
                 "iteration": np.full(int(active.sum()), first_iteration + j, np.int32),
                 **({"summaries": block["summaries"][i][active]} if "summaries" in block else {}),
@@ -56,20 +58,54 @@ def _record_arrays(records: list[dict], keep_summaries: bool) -> dict[str, Any]:
     if not records:
         return {}
     finite = np.concatenate([r["finite"] for r in records])
+    bad = np.concatenate([r["bad"] for r in records])
     size = finite.shape[0]
     out: dict[str, Any] = {
         "theta": np.concatenate([r["theta"] for r in records]).astype(np.float64),
         "distance": np.concatenate([r["distance"] for r in records]).astype(np.float64),
-        "status": np.where(finite, STATUS_OK, STATUS_NONFINITE).astype(np.int32),
+        "status": np.where(bad, STATUS_BAD_DISTANCE, np.where(finite, STATUS_OK, STATUS_NONFINITE)).astype(np.int32),
         "wall_time": np.full(size, np.nan),
         "cpu_time": np.full(size, np.nan),
         "worker": np.zeros(size, np.int32),
         "iteration": np.concatenate([r["iteration"] for r in records]),
-        "reasons": ["" if f else "simulator returned non-finite summaries" for f in finite],
+        "reasons": [
+            BAD_DISTANCE_REASON if b else "" if f else "simulator returned non-finite summaries"
+            for f, b in zip(finite, bad, strict=True)
+        ],
     }
     if keep_summaries:
         out["summaries"] = np.concatenate([r["summaries"] for r in records])
     return out
+
+
+def to_checkpoint(records: list[dict]) -> list[dict[str, Any]]:
+    """The fused records as the checkpoint's chunks (the host driver's fields, one per iteration)."""
+    chunks = []
+    for r in records:
+        out = _record_arrays([r], "summaries" in r)
+        out["summaries"] = out.get("summaries")
+        chunks.append(out)
+    return chunks
+
+
+def from_checkpoint(chunks: list[dict[str, Any]]) -> list[dict]:
+    """Inverse of :func:`to_checkpoint`."""
+    records = []
+    for c in chunks:
+        status = np.asarray(c["status"])
+        finite = status != STATUS_NONFINITE
+        r = {
+            "theta": np.asarray(c["theta"]),
+            "distance": np.asarray(c["distance"]),
+            "finite": finite,
+            "bad": status == STATUS_BAD_DISTANCE,
+            "active": np.ones(finite.shape, bool),
+            "iteration": np.asarray(c["iteration"], np.int32),
+        }
+        if c.get("summaries") is not None:
+            r["summaries"] = np.asarray(c["summaries"])
+        records.append(r)
+    return records
 
 
 def _stop_reason(

@@ -25,9 +25,9 @@ A configuration file describes one calibration::
     seed = 0
     options = { alpha = 0.1, acceptance_cutoff = 0.03 }
 
-    [executor]
-    name = "vmap"             # serial | process_pool | mpi | mpi_static | dask
-    options = {}
+    [executor]                # optional: without it a JAX simulator runs as one compiled
+    name = "vmap"             # program (jaxabc.run's default); vmap | serial | process_pool |
+    options = {}              # mpi | mpi_static | dask
 
     [output]
     folder = "runs/gaussian"
@@ -166,8 +166,9 @@ def run_config(cfg: dict, resume: bool = False, progress: bool = True, overwrite
     a = dict(cfg["algorithm"])
     name = a.pop("name")
     options = a.pop("options", {})
-    ex = cfg.get("executor", {})
-    executor = jaxabc.executors.get_executor(ex.get("name", "vmap"), **ex.get("options", {}))
+    ex = cfg.get("executor")
+    # No [executor] section: jaxabc.run's default (the fused program for a JAX simulator).
+    executor = None if ex is None else jaxabc.executors.get_executor(ex.get("name", "vmap"), **ex.get("options", {}))
     folder = Path(cfg["output"]["folder"])
     try:
         result = jaxabc.run(
@@ -185,7 +186,8 @@ def run_config(cfg: dict, resume: bool = False, progress: bool = True, overwrite
             **options,
         )
     finally:
-        executor.close()
+        if executor is not None:
+            executor.close()
     write_outputs(result, folder, truth=cfg.get("truth", {}).get("values"))
     return result
 

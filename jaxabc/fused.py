@@ -31,7 +31,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxabc._driver import build_by_name, builder_accepts
+from jaxabc import checkpoint as _ckpt
+from jaxabc._driver import build_by_name, builder_accepts, posterior_distances
 from jaxabc._driver_checks import (
     cast_prior,
     check_stopping_rule,
@@ -48,14 +49,19 @@ from jaxabc._fused_records import (
     _absorb,
     _record_arrays,
     _stop_reason,
+    from_checkpoint,
+    to_checkpoint,
 )
 from jaxabc.algorithms.base import ABCAlgorithm
 from jaxabc.distances import get_distance
-from jaxabc.errors import TooManyFailures
+from jaxabc.errors import NoPosterior, TooManyFailures
 from jaxabc.priors import Uniform
 from jaxabc.results import ABCResult, versions
 
-__all__ = ["default_compilation_cache", "enable_compilation_cache", "run_fused"]
+__all__ = ["DRIVER", "default_compilation_cache", "enable_compilation_cache", "run_fused"]
+
+#: The ``driver`` field of a fused run's checkpoint fingerprint (the host driver's has none).
+DRIVER = "fused"
 
 #: Environment variable naming a folder for JAX's persistent compilation cache; ``off``
 #: (or ``0``, ``false``, ``no``) keeps :func:`run_fused` from turning the cache on.
@@ -63,8 +69,9 @@ CACHE_ENV = "JAXABC_COMPILATION_CACHE"
 _CACHE_OFF = ("off", "0", "false", "no")
 
 _INT_MAX = np.iinfo(np.int32).max
+_DEFAULT_CHUNK = 16
 _MIN_FOR_FAILURE_CHECK = 20
-_COMPILED: dict[Any, tuple[Callable, Callable]] = {}
+_COMPILED: dict[Any, tuple[Callable, Callable, Any]] = {}
 _MAX_COMPILED = 32
 # LLVM's optimisation passes are most of XLA:CPU's compile time; the ABC loop's cost is
 # dominated by sorts, gathers and the simulator's own arithmetic, which lose little without them.
@@ -154,9 +161,11 @@ def _compile(
         keys = jax.random.split(key, thetas.shape[0])
         summaries = jax.vmap(simulate)(keys, thetas)
         finite = jnp.all(jnp.isfinite(summaries.reshape(summaries.shape[0], -1)), axis=1)
-        dist = jax.vmap(distance, in_axes=(None, 0))(observed, summaries)
-        dist = jnp.where(finite & jnp.isfinite(dist) & active, dist, jnp.inf)
-        return summaries, finite, dist.astype(thetas.dtype)
+        raw = jax.vmap(distance, in_axes=(None, 0))(observed, summaries)
+        # As the host driver: a NaN or -inf distance of finite summaries is a failure of its own.
+        bad = finite & active & (jnp.isnan(raw) | (raw == -jnp.inf))
+        dist = jnp.where(finite & ~bad & active, raw, jnp.inf)
+        return summaries, finite, bad, dist.astype(thetas.dtype)
 
     def after_update(carry, state, info, n_active, limits):
         gen_sims = carry.generation_sims + n_active
@@ -198,7 +207,7 @@ def _compile(
         key = jax.random.fold_in(root, 0)
         k_prop, k_sim, k_upd = jax.random.split(key, 3)
         proposal = algo.initial_proposal(k_prop)
-        summaries, finite, dist = simulate_distances(k_sim, proposal.thetas, proposal.active, observed)
+        summaries, finite, bad, dist = simulate_distances(k_sim, proposal.thetas, proposal.active, observed)
         state, info = algo.init(k_upd, proposal, dist)
         particles, log_w = algo.posterior(state)
         zero = jnp.int32(0)
@@ -221,6 +230,7 @@ def _compile(
             active=proposal.active,
             distances=dist,
             finite=finite,
+            bad=bad,
             ok=proposal.ok,
             ran=jnp.bool_(True),
         )
@@ -236,10 +246,10 @@ def _compile(
         over_budget = carry.num_sims + n_active > limits.max_simulations
 
         def run(_):
-            summaries, finite, dist = simulate_distances(k_sim, proposal.thetas, proposal.active, observed)
+            summaries, finite, bad, dist = simulate_distances(k_sim, proposal.thetas, proposal.active, observed)
             state, info = algo.update(k_upd, carry.state, proposal, dist)
             new, record = after_update(carry, state, info, n_active, limits)
-            record.update(distances=dist, finite=finite, ran=jnp.bool_(True))
+            record.update(distances=dist, finite=finite, bad=bad, ran=jnp.bool_(True))
             if keep_summaries:
                 record["summaries"] = summaries
             return new, record
@@ -270,15 +280,16 @@ def _compile(
 
 def _compile_both(
     start: Callable, chunk: Callable, root: jax.Array, observed: jax.Array, limits: _Limits, fast_compile: bool
-) -> tuple[Callable, Callable]:
+) -> tuple[Callable, Callable, Any]:
     """Compile the two programs side by side: XLA releases the GIL while it compiles, and a
-    cold run spends most of its time here."""
+    cold run spends most of its time here.  Also returns the carry's shapes (a checkpoint's
+    template)."""
     carry = jax.eval_shape(start, root, observed, limits)[0]
     lowered = [start.lower(root, observed, limits), chunk.lower(root, observed, limits, carry)]
     options = _FAST_COMPILE if fast_compile else None
     with ThreadPoolExecutor(max_workers=2) as pool:
         compiled = list(pool.map(lambda program: program.compile(options), lowered))
-    return compiled[0], compiled[1]
+    return compiled[0], compiled[1], carry
 
 
 def _cache_key(
@@ -310,7 +321,7 @@ def _cache_key(
 
 
 def _run_fused_body(
-    algorithm: str,
+    algorithm: str | ABCAlgorithm,
     simulate: Callable,
     prior: Uniform,
     observed: Any,
@@ -323,8 +334,13 @@ def _run_fused_body(
     max_simulations: int | None = None,
     max_wall_time: float | None = None,
     max_failure_fraction: float = 0.5,
-    chunk_size: int = 16,
+    chunk_size: int | None = None,
     fast_compile: bool = False,
+    checkpoint_dir: str | Path | None = None,
+    resume: bool = False,
+    overwrite: bool = False,
+    simulator_id: str | None = None,
+    stop_after_iterations: int | None = None,
     keep_summaries: bool = True,
     progress: bool = False,
     dtype: str = "float32",
@@ -341,8 +357,15 @@ def _run_fused_body(
     final_threshold, max_simulations, max_wall_time, max_failure_fraction, keep_summaries
         As in :func:`jaxabc.run`.  The wall-time limit and the failure check are applied
         between chunks, so a run may go up to ``chunk_size - 1`` iterations past them.
-    chunk_size : int
-        Iterations per compiled program between two visits to the host.
+    chunk_size : int, optional
+        Iterations per compiled program between two visits to the host.  Default: 1 with a
+        ``checkpoint_dir`` (a checkpoint after every iteration, as the host driver writes), else 16.
+    checkpoint_dir, resume, overwrite, simulator_id
+        As in :func:`jaxabc.run`: a checkpoint after every chunk, and a resumed run gives the
+        uninterrupted run's result.  A checkpoint of the host driver is refused (the
+        fingerprint's ``driver`` field differs); :func:`jaxabc.run` resumes it on the host.
+    stop_after_iterations : int, optional
+        Stop, resumably, at the first chunk boundary at or after this many iterations.
     fast_compile : bool
         Compile with LLVM's optimisation passes off: a cold run compiles faster; the compiled
         loop may run slower, which matters for expensive simulators (CPU backend only).
@@ -352,11 +375,13 @@ def _run_fused_body(
     Returns
     -------
     ABCResult
-        The fields of :func:`jaxabc.run`'s result.  For the same seed the iterations use the
-        same keys as the host driver with the ``"vmap"`` executor; the posterior agrees with it
-        up to floating-point rounding (XLA may fuse the simulator and the distance differently
-        inside one program, which can move a distance across a threshold by one ulp).  Records
-        have no per-simulation wall or CPU time (NaN) and worker 0.
+        The fields of :func:`jaxabc.run`'s result (a run stopped before its first generation
+        completed returns the particles accepted so far, flagged ``incomplete``).  For the
+        same seed the iterations use the same keys as the host driver with the ``"vmap"``
+        executor; the posterior agrees with it up to floating-point rounding (XLA may fuse the
+        simulator and the distance differently inside one program, which can move a distance
+        across a threshold by one ulp).  Records have no per-simulation wall or CPU time (NaN)
+        and worker 0.
 
     Raises
     ------
@@ -365,9 +390,14 @@ def _run_fused_body(
     ValueError
         Bad arguments, as in :func:`jaxabc.run`.
     TooManyFailures
-        More than ``max_failure_fraction`` of the simulations returned non-finite summaries.
+        More than ``max_failure_fraction`` of the simulations returned non-finite summaries, or
+        all of them.
+    NoPosterior
+        The run stopped before accepting any particle.
     RuntimeError
         The truncated kernel could not reach the prior's support.
+    jaxabc.checkpoint.CheckpointError, FileExistsError
+        As in :func:`jaxabc.run`.
     """
     t_start = time.perf_counter()
     if dtype not in ("float32", "float64"):
@@ -377,6 +407,8 @@ def _run_fused_body(
         raise ValueError(f"num_particles must be a positive integer, got {num_particles!r}")
     if num_steps is not None and num_steps < 1:
         raise ValueError(f"num_steps must be at least 1, got {num_steps}")
+    if chunk_size is None:
+        chunk_size = 1 if checkpoint_dir is not None else _DEFAULT_CHUNK
     if not isinstance(chunk_size, int | np.integer) or chunk_size < 1:
         raise ValueError(f"chunk_size must be a positive integer, got {chunk_size!r}")
     if not 0.0 < max_failure_fraction <= 1.0:
@@ -394,9 +426,26 @@ def _run_fused_body(
         algo = build_by_name(algorithm, prior, int(num_particles), algorithm_options)
     if algo.host or algo.uses_summaries:
         raise ValueError(f"{algo.name} is host code: run it with jaxabc.run, not run_fused")
+    name = algo.name
     check_stopping_rule(algo, num_steps, final_threshold, max_simulations, max_wall_time)
     check_traced_shape(simulate, prior, obs, distance, jdtype, "The fused path")
     dist_fn = get_distance(distance)
+    # Only now, with every input checked, may overwrite=True delete an old checkpoint.
+    ckpt_path = _ckpt.prepare_folder(checkpoint_dir, resume, overwrite)
+    fp = {
+        **_ckpt.fingerprint(
+            algorithm=name,
+            settings=algo.settings,
+            prior=prior,
+            observed=obs,
+            distance=distance,
+            simulator_id=_ckpt.simulator_identity(simulate, simulator_id),
+            seed=seed,
+            num_particles=int(num_particles),
+            dtype=dtype,
+        ),
+        "driver": DRIVER,
+    }
     root = jax.random.key(seed)
     obs_j = jnp.asarray(obs, jdtype)
     limits = _Limits(
@@ -423,36 +472,57 @@ def _run_fused_body(
         _COMPILED[key] = _compile_both(
             start, chunk, root, obs_j, limits, fast_compile and jax.default_backend() == "cpu"
         )
-    start, chunk = _COMPILED[key]
+    start, chunk, template = _COMPILED[key]
 
     records: list[dict[str, np.ndarray]] = []
     history: dict[str, list] = {"threshold": [], "sims": [], "acceptance": [], "ess": [], "wall": []}
+    stop_reason = ""
+    first_iteration = 0
+    if resume:
+        assert ckpt_path is not None, "prepare_folder refuses resume without a folder"
+        ck = _ckpt.load(ckpt_path)
+        _ckpt.check_fingerprint(ck.fingerprint, fp, ckpt_path)
+        carry = _ckpt.restore_state(ck.state_leaves, template, ckpt_path)
+        records, history = from_checkpoint(ck.records), ck.history
+        first_iteration, stop_reason = int(ck.counters["iteration"]), ck.counters["stop_reason"]
+        pending = []
     bar = None
     if progress:
         from tqdm.auto import tqdm
 
-        bar = tqdm(total=num_steps, desc=algorithm, unit="step")
-    stop_reason = ""
+        bar = tqdm(total=num_steps, desc=name, unit="step", initial=len(history["threshold"]))
     try:
-        carry, first = start(root, obs_j, limits)
-        pending = [jax.tree.map(lambda x: np.asarray(x)[None], first)]
-        first_iteration = 0
+        if not resume:
+            carry, first = start(root, obs_j, limits)
+            pending = [jax.tree.map(lambda x: np.asarray(x)[None], first)]
         while True:
             for block in pending:
-                _absorb(block, first_iteration, records, history, t_start, algorithm, bar)
+                _absorb(block, first_iteration, records, history, t_start, name, bar)
                 first_iteration += int(block["ran"].sum())
             total = sum(int(r["active"].sum()) for r in records)
-            failed = sum(int(np.sum(r["active"] & ~r["finite"])) for r in records)
+            failed = sum(int(np.sum(r["active"] & (~r["finite"] | r["bad"]))) for r in records)
+            if total and failed == total:
+                # As the host driver: nothing was learnt, whatever the limit.
+                raise TooManyFailures(
+                    f"all {total} simulations failed (non-finite summaries or distances), so there is no "
+                    "posterior to return"
+                )
             if total >= _MIN_FOR_FAILURE_CHECK and failed > max_failure_fraction * total:
                 raise TooManyFailures(
-                    f"{failed} of {total} simulations returned non-finite summaries (limit {max_failure_fraction:.0%})"
+                    f"{failed} of {total} simulations failed: non-finite summaries or distances "
+                    f"(limit {max_failure_fraction:.0%})"
                 )
             code = int(carry.stop_code)
-            if code != _NONE:
-                stop_reason = _stop_reason(code, algorithm, algo, history, num_steps, final_threshold, max_simulations)
-                break
-            if max_wall_time is not None and time.perf_counter() - t_start > max_wall_time:
+            if not stop_reason and code != _NONE:
+                stop_reason = _stop_reason(code, name, algo, history, num_steps, final_threshold, max_simulations)
+            if not stop_reason and max_wall_time is not None and time.perf_counter() - t_start > max_wall_time:
                 stop_reason = f"wall time {max_wall_time} s reached"
+            if ckpt_path is not None and pending:
+                _save(ckpt_path, fp, carry, first_iteration, stop_reason, history, records)
+            if stop_reason:
+                break
+            if stop_after_iterations is not None and first_iteration >= stop_after_iterations:
+                stop_reason = f"stopped after {first_iteration} iterations (resumable)"
                 break
             carry, block = chunk(root, obs_j, limits, carry)
             pending = [jax.tree.map(np.asarray, block)]
@@ -460,11 +530,25 @@ def _run_fused_body(
         if bar is not None:
             bar.close()
 
-    if int(carry.generations) == 0:
-        raise RuntimeError("the run stopped before completing a generation: raise the budget")
-    particles = np.asarray(carry.post_particles)
-    log_w = np.asarray(carry.post_log_weights)
-    dist = np.asarray(carry.post_distances)
+    num_sims = int(carry.num_sims)
+    incomplete = int(carry.generations) == 0
+    if incomplete:
+        # As the host driver: the particles accepted so far, flagged.
+        particles, log_w = (np.asarray(a) for a in algo.posterior(carry.state))
+        dist = posterior_distances(carry.state, len(log_w))
+        if not np.any(np.isfinite(log_w)):
+            raise NoPosterior(
+                f"the run stopped ({stop_reason}) after {num_sims} simulations without "
+                "accepting any particle: raise max_simulations / max_wall_time or loosen the threshold"
+            )
+        stop_reason += (
+            f"; incomplete: the first generation was not completed, the posterior "
+            f"holds the {int(np.isfinite(log_w).sum())} particles accepted so far"
+        )
+    else:
+        particles = np.asarray(carry.post_particles)
+        log_w = np.asarray(carry.post_log_weights)
+        dist = np.asarray(carry.post_distances)
     keep = np.isfinite(log_w)
     w = np.exp(log_w[keep] - np.max(log_w[keep]))
     meta = {
@@ -474,8 +558,11 @@ def _run_fused_body(
         "dtype": dtype,
         "observed": obs.tolist() if obs.size <= 10_000 else None,
         # Seconds since the run started, at the end of the chunk that completed each
-        # generation (the host does not see generations inside a chunk).
+        # generation (the host does not see generations inside a chunk; after a resume,
+        # counted from the resume).
         "generation_wall_times": history["wall"],
+        "simulator": fp["simulator"],
+        "incomplete": incomplete,
         "chunk_size": int(chunk_size),
     }
     meta.update(metadata or {})
@@ -495,8 +582,8 @@ def _run_fused_body(
         simulations_per_step=np.asarray(history["sims"]),
         acceptance_rates=np.asarray(history["acceptance"]),
         ess=ess,
-        num_simulations=int(carry.num_sims),
-        algorithm=algo.name,
+        num_simulations=num_sims,
+        algorithm=name,
         settings=algo.settings,
         prior=prior,
         seed=seed,
@@ -506,6 +593,30 @@ def _run_fused_body(
         records=_record_arrays(records, keep_summaries),
         metadata=meta,
         diagnostics=diagnostics,
+    )
+
+
+def _save(path: Path, fp: dict, carry: _Carry, iteration: int, stop_reason: str, history: dict, records: list) -> None:
+    done = int(carry.generations) > 0
+    _ckpt.save(
+        path,
+        _ckpt.Checkpoint(
+            fingerprint=fp,
+            state_leaves=_ckpt.flatten_state(carry),
+            counters={
+                "iteration": iteration,
+                "num_sims": int(carry.num_sims),
+                "sims_this_generation": int(carry.generation_sims),
+                "stop_reason": stop_reason,
+            },
+            history=history,
+            records=to_checkpoint(records),
+            last_posterior=(
+                (np.asarray(carry.post_particles), np.asarray(carry.post_log_weights), np.asarray(carry.post_distances))
+                if done
+                else None
+            ),
+        ),
     )
 
 

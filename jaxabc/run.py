@@ -49,6 +49,8 @@ from jaxabc.checkpoint import CHECKPOINT_NAME
 from jaxabc.distances import AdaptivePNorm, as_adaptive, get_distance, is_adaptive
 from jaxabc.errors import STATUS_OK, TooManyFailures
 from jaxabc.executors import Executor, get_executor
+from jaxabc.fused import DRIVER as FUSED_DRIVER
+from jaxabc.fused import _run_fused_body
 from jaxabc.priors import Uniform
 from jaxabc.results import ABCResult
 
@@ -252,6 +254,38 @@ def _restore(ctx: Context, prog: Progress) -> None:
 # ----------------------------------------------------------------------------- entry point
 
 
+def _fused_applies(
+    algo: ABCAlgorithm,
+    num_particles: int | None,
+    simulate: Callable,
+    prior: Uniform,
+    obs: np.ndarray,
+    distance: Any,
+    jdtype: Any,
+    checkpoint_dir: str | Path | None,
+    resume: bool,
+) -> bool:
+    """Whether ``run(executor=None)`` can run the whole calibration as compiled programs
+    (:func:`jaxabc.fused.run_fused`): a JAX algorithm, and a simulator and distance JAX can trace.
+    A resumed run stays on the driver that wrote its checkpoint."""
+    if algo.host or algo.uses_summaries or num_particles is None:
+        return False
+    if resume and checkpoint_dir is not None and (Path(checkpoint_dir) / CHECKPOINT_NAME).exists():
+        try:
+            stored = _ckpt.load(Path(checkpoint_dir) / CHECKPOINT_NAME).fingerprint
+        except _ckpt.CheckpointError:
+            return False  # the host driver reports it
+        return stored.get("driver") == FUSED_DRIVER
+    try:
+        out = jax.eval_shape(simulate, jax.random.key(0), jnp.zeros((prior.dim,), jdtype))
+        jax.eval_shape(get_distance(distance), jnp.zeros(obs.shape, jdtype), out)
+    except Exception:
+        # Not traceable (NumPy, an external program, Python control flow on values): this is a
+        # probe, and the host driver gives such simulators their own clear errors.
+        return False
+    return shapes_compatible(tuple(out.shape), obs.shape, distance)
+
+
 def _adaptive_setup(distance: Any, algorithm: Any, obs: np.ndarray, options: dict) -> Callable:
     """Hand the bound adaptive norm to the algorithm; return the distance the driver records."""
     spec = as_adaptive(distance, obs)
@@ -353,9 +387,12 @@ def run(
         the unit-weight p-norm, and the thresholds are on each generation's own scale.
     seed : int
         The run's only source of randomness.
-    executor : str or Executor
-        ``"vmap"`` (default), ``"serial"``, ``"process_pool"``, ``"mpi"``, ``"mpi_static"``, or
-        an executor object.
+    executor : str or Executor, optional
+        ``"vmap"``, ``"serial"``, ``"process_pool"``, ``"mpi"``, ``"mpi_static"``, or an executor
+        object.  Default: the whole run as compiled programs (:func:`jaxabc.run_fused`, result
+        ``metadata["executor"] == "fused"``) when the algorithm is a JAX one and JAX can trace
+        ``simulate`` and the distance, else ``"vmap"`` on this host driver.  Both give the same
+        iterations for a seed, up to floating-point rounding.
     final_threshold : float, optional
         Stop once a generation's threshold is at or below this.
     max_simulations : int, optional
@@ -436,6 +473,33 @@ def run(
         compiled = compile_algorithm(algorithm, prior, num_particles, algorithm_options, dtype)
         algo = compiled.algorithm
         check_stopping_rule(algo, num_steps, final_threshold, max_simulations, max_wall_time)
+        fused = executor is None and _fused_applies(
+            algo, num_particles, simulate, prior, obs, distance, jdtype, checkpoint_dir, resume
+        )
+        if fused:
+            return _run_fused_body(
+                algo,
+                simulate,
+                prior,
+                obs,
+                int(cast(int, num_particles)),
+                num_steps,
+                distance,
+                seed,
+                final_threshold=final_threshold,
+                max_simulations=max_simulations,
+                max_wall_time=max_wall_time,
+                max_failure_fraction=max_failure_fraction,
+                checkpoint_dir=checkpoint_dir,
+                resume=resume,
+                overwrite=overwrite,
+                simulator_id=simulator_id,
+                stop_after_iterations=stop_after_iterations,
+                keep_summaries=keep_summaries,
+                progress=progress,
+                dtype=dtype,
+                metadata=metadata,
+            )
         own_executor = not hasattr(executor, "map")
         ex = SharedVmapExecutor() if executor in (None, "vmap") else get_executor(executor)
         try:

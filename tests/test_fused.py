@@ -17,6 +17,7 @@ import numpy as np
 import pytest
 
 import jaxabc
+from jaxabc.checkpoint import CheckpointError
 
 N = 300
 ROOT = Path(__file__).resolve().parents[1]
@@ -54,20 +55,79 @@ def _same_run(host, fast):
 def test_fused_equals_host_driver(problem, algorithm, options):
     prior, observed = problem
     kw = dict(num_particles=N, distance="euclidean", seed=3, **options)
-    host = jaxabc.run(algorithm, _simulate, prior, observed, **kw)
+    host = jaxabc.run(algorithm, _simulate, prior, observed, executor="vmap", **kw)
     fast = jaxabc.run_fused(algorithm, _simulate, prior, observed, chunk_size=2, **kw)
     _same_run(host, fast)
-    assert fast.metadata["executor"] == "fused"
+    assert fast.metadata["executor"] == "fused" and host.metadata["executor"] == "vmap"
 
 
 def test_fused_simulation_budget_as_host(problem):
     """Stops before the iteration that would exceed the budget, with the last full generation."""
     prior, observed = problem
     kw = dict(num_particles=N, distance="euclidean", seed=4, max_simulations=1000, acceptance_cutoff=0.0)
-    host = jaxabc.run("apmcabc", _simulate, prior, observed, **kw)
+    host = jaxabc.run("apmcabc", _simulate, prior, observed, executor="vmap", **kw)
     fast = jaxabc.run_fused("apmcabc", _simulate, prior, observed, chunk_size=2, **kw)
     assert host.stop_reason.startswith("simulation budget")
     _same_run(host, fast)
+
+
+def test_run_defaults_to_the_fused_program_for_jax_simulators(problem):
+    """``jaxabc.run`` without an executor runs a JAX simulator fused: the same run as
+    ``run_fused``; an explicit executor, a host algorithm or an untraceable simulator keeps the
+    host driver."""
+    prior, observed = problem
+    kw = dict(num_particles=N, distance="euclidean", seed=5, num_steps=3)
+    auto = jaxabc.run("apmcabc", _simulate, prior, observed, **kw)
+    fused = jaxabc.run_fused("apmcabc", _simulate, prior, observed, **kw)
+    assert auto.metadata["executor"] == "fused"
+    np.testing.assert_array_equal(auto.particles, fused.particles)
+    np.testing.assert_array_equal(auto.records["theta"], fused.records["theta"])
+
+    def host_simulate(key, theta):
+        return np.asarray(theta) + np.random.default_rng(int(np.asarray(jax.random.key_data(key))[-1])).normal()
+
+    host = jaxabc.run("apmcabc", host_simulate, prior, observed, executor="serial", **kw)
+    assert host.metadata["executor"] == "serial"
+    # Untraceable and no executor: the host driver's vmap executor, with its own error.
+    with pytest.raises(TypeError, match="could not trace simulate"):
+        jaxabc.run("apmcabc", host_simulate, prior, observed, **kw)
+
+
+def test_fused_checkpoint_resume_equals_the_uninterrupted_run(problem, tmp_path):
+    """A fused run stopped part-way (resumably) and resumed from its checkpoint gives the
+    uninterrupted run's result, records included; a host checkpoint is resumed on the host."""
+    prior, observed = problem
+    kw = dict(num_particles=N, distance="euclidean", seed=6, num_steps=5, acceptance_cutoff=0.0)
+    whole = jaxabc.run("apmcabc", _simulate, prior, observed, **kw)
+    folder = tmp_path / "fused"
+    part = jaxabc.run("apmcabc", _simulate, prior, observed, checkpoint_dir=folder, stop_after_iterations=2, **kw)
+    assert part.stop_reason.startswith("stopped after 2 iterations") and part.metadata["executor"] == "fused"
+    assert len(part.thresholds) == 2
+    resumed = jaxabc.run("apmcabc", _simulate, prior, observed, checkpoint_dir=folder, resume=True, **kw)
+    assert resumed.metadata["executor"] == "fused" and resumed.stop_reason == whole.stop_reason
+    np.testing.assert_array_equal(resumed.particles, whole.particles)
+    np.testing.assert_array_equal(resumed.weights, whole.weights)
+    np.testing.assert_array_equal(resumed.thresholds, whole.thresholds)
+    for name in ("theta", "distance", "iteration", "status", "summaries"):
+        np.testing.assert_array_equal(resumed.records[name], whole.records[name])
+    # A checkpoint of the host driver: jaxabc.run continues it there; run_fused refuses it.
+    host_folder = tmp_path / "host"
+    first = dict(executor="vmap", checkpoint_dir=host_folder, stop_after_iterations=2)
+    jaxabc.run("apmcabc", _simulate, prior, observed, **first, **kw)
+    host = jaxabc.run("apmcabc", _simulate, prior, observed, checkpoint_dir=host_folder, resume=True, **kw)
+    assert host.metadata["executor"] == "vmap" and len(host.thresholds) == 5
+    with pytest.raises(CheckpointError, match="driver"):
+        jaxabc.run_fused("apmcabc", _simulate, prior, observed, checkpoint_dir=host_folder, resume=True, **kw)
+
+
+def test_fused_run_that_fails_everywhere_is_refused_at_once(problem):
+    prior, observed = problem
+
+    def simulate(key, theta):
+        return jnp.full(theta.shape, jnp.nan)
+
+    with pytest.raises(jaxabc.TooManyFailures, match="all 50 simulations failed"):
+        jaxabc.run("apmcabc", simulate, prior, observed, num_particles=50, num_steps=2)
 
 
 def test_second_call_does_not_retrace(problem):

@@ -280,10 +280,10 @@ def page_abc_overhead() -> str:
     if d is None:
         return "# Whole-run cost against ELFI and pyABC\n\nNot saved yet.\n"
     runs = [
-        ("fused_cold", "jaxabc fused, cold (empty cache)"),
-        ("fused_cold_persistent_cache", "jaxabc fused, new process, cache filled (default)"),
-        ("fused_warm", "jaxabc fused, warm"),
-        ("host_driver_cold", "jaxabc host driver, cold"),
+        ("fused_cold", "jaxabc.run (fused), cold (empty cache)"),
+        ("fused_cold_persistent_cache", "jaxabc.run (fused), new process, cache filled (default)"),
+        ("fused_warm", "jaxabc.run (fused), warm"),
+        ("host_driver_cold", "jaxabc host driver (executor='vmap'), cold"),
     ]
     rows = []
     for r in d["rows"]:
@@ -335,9 +335,10 @@ def page_abc_overhead() -> str:
 {d.get("description", "")}
 
 Every run is a fresh process on the same 2-D Gaussian problem and tolerance schedule; the peers
-run in their own virtual environments.  `run_fused` keeps its compiled programs in a persistent
-cache (`~/.cache/jaxabc/xla`) by default: "cold (empty cache)" is a machine's first run of a
-configuration, "cache filled" every later process.{" Note recorded with the run: " + d["note"] if d.get("note") else ""}
+run in their own virtual environments.  For a JAX simulator `jaxabc.run` runs the fused program
+(`run_fused`), which keeps its compiled programs in a persistent cache (`~/.cache/jaxabc/xla`)
+by default: "cold (empty cache)" is a machine's first run of a configuration, "cache filled"
+every later process.{" Note recorded with the run: " + d["note"] if d.get("note") else ""}
 
 {source("abc_overhead")}
 
