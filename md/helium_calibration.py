@@ -63,6 +63,10 @@ def calibrate(
         num_steps=num_steps,
         distance="kl",
         seed=seed,
+        # The host driver, not jaxabc.run's fused default: with the MD engine inside the fused
+        # program's scan, XLA compiles the engine twice and each generation runs slower
+        # (engine_throughput_small_system's main-job rows measure this job).
+        executor="vmap",
         progress=progress,
         # An example starts over unless asked to resume (its folder is its own).
         checkpoint_dir=output,
