@@ -98,8 +98,22 @@ def _strip_docstrings(tree: ast.AST) -> ast.AST:
     return tree
 
 
+def _canonical(node: Any) -> str:
+    # ast.dump's text differs between Python versions for the same code (3.12 adds empty
+    # type_params, 3.13 hides empty fields), so spell the tree out without empty fields.
+    if isinstance(node, ast.AST):
+        fields = [f"{k}={_canonical(v)}" for k, v in ast.iter_fields(node) if v is not None and v != []]
+        return f"{type(node).__name__}({','.join(fields)})"
+    if isinstance(node, list):
+        return "[" + ",".join(_canonical(v) for v in node) + "]"
+    return repr(node)
+
+
 def code_hash(path: str | Path) -> str:
     """Hash of a Python file's meaning: its AST without docstrings, comments or layout.
+
+    The same on every Python version that parses the file alike, so a result made on another
+    machine (a lent GPU's Python 3.12, say) can be checked here.
 
     Parameters
     ----------
@@ -110,6 +124,19 @@ def code_hash(path: str | Path) -> str:
     -------
     str
         16 hex digits.  A file that does not parse is hashed by its bytes (prefixed ``raw:``).
+    """
+    source = Path(path).read_bytes()
+    try:
+        tree = _strip_docstrings(ast.parse(source))
+    except SyntaxError:
+        return "raw:" + hashlib.sha256(source).hexdigest()[:16]
+    return hashlib.sha256(_canonical(tree).encode()).hexdigest()[:16]
+
+
+def legacy_code_hash(path: str | Path) -> str:
+    """The hash that results written before the version-independent one carry (``ast.dump``).
+
+    It depends on the Python version that computed it; status accepts it beside ``code_hash``.
     """
     source = Path(path).read_bytes()
     try:

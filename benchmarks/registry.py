@@ -95,10 +95,7 @@ class Entry:
 
 
 R = "benchmarks/results"
-_GPU_NOTE = (
-    "made on a lent GPU machine (the device tool) with the cpu parts on its own CPU; code fingerprints "
-    "there come from its Python's AST, so status shows these parts stale on this machine"
-)
+_GPU_NOTE = "made on a lent GPU machine (the device tool) with the cpu parts on its own CPU"
 Q = "benchmarks/results/quick"
 
 

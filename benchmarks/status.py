@@ -31,7 +31,7 @@ from pathlib import Path
 from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _common import ROOT, code_hash, data_hash
+from _common import ROOT, code_hash, data_hash, legacy_code_hash
 from registry import CACHES, REGISTRY, TIMING_KEYS, Entry
 
 __all__ = [
@@ -79,7 +79,7 @@ def check_provenance(prov: dict[str, Any], root: Path = ROOT) -> list[str]:
             path = Path(rel) if Path(rel).is_absolute() else root / rel
             if not path.is_file():
                 changed.append(f"{rel} (removed)")
-            elif hasher(path) != recorded:
+            elif hasher(path) != recorded and not (kind == "code" and legacy_code_hash(path) == recorded):
                 changed.append(rel)
     return changed
 

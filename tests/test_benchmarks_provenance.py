@@ -125,6 +125,36 @@ def test_stale_check_names_what_changed(fake_repo: Path) -> None:
     assert status.check_provenance(prov, fake_repo)[0] == "jaxabc/fake_dependency.py (removed)"
 
 
+def test_code_hash_is_the_same_across_python_versions(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    # Python 3.12 gives every FunctionDef an empty ``type_params`` and 3.13's ast.dump hides empty
+    # fields: a parse that differs only by such empty fields must hash alike, while ast.dump does not.
+    a = tmp_path / "a.py"
+    a.write_text(SOURCE)
+    before, legacy = _common.code_hash(a), _common.legacy_code_hash(a)
+    real_parse = _common.ast.parse
+
+    def parse_with_empty_fields(source: bytes) -> object:
+        tree = real_parse(source)
+        for node in _common.ast.walk(tree):
+            if isinstance(node, _common.ast.FunctionDef):
+                node._fields = (*node._fields, "type_params")
+                node.type_params = []  # type: ignore[attr-defined]
+        return tree
+
+    monkeypatch.setattr(_common.ast, "parse", parse_with_empty_fields)
+    assert _common.code_hash(a) == before
+    assert _common.legacy_code_hash(a) != legacy
+
+
+def test_status_accepts_the_legacy_hash(fake_repo: Path) -> None:
+    prov = json.loads(write_fake(fake_repo).read_text())["provenance"]
+    module_file = fake_repo / "jaxabc/fake_dependency.py"
+    prov["fingerprint"]["code"]["jaxabc/fake_dependency.py"] = _common.legacy_code_hash(module_file)
+    assert status.check_provenance(prov, fake_repo) == []
+    module_file.write_text(SOURCE.replace("SCALE = 2.0", "SCALE = 3.0"))
+    assert status.check_provenance(prov, fake_repo) == ["jaxabc/fake_dependency.py"]
+
+
 def test_missing_declared_input_is_an_error(fake_repo: Path) -> None:
     with pytest.raises(FileNotFoundError, match="declared input"):
         _common.write_result(fake_repo / "r.json", {}, inputs=[fake_repo / "absent.txt"])
