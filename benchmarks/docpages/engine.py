@@ -100,6 +100,30 @@ def _gpu(d: dict[str, Any]) -> list[str]:
                 f(r["second_run"]["us_per_simulation"], 3),
             ]
         )
+    # Best rate per device and setup; a system's setups are "<system>" and "<system>_vmap_all".
+    best: dict[str, dict[str, float]] = {}
+    for key in ("gpu", "cpu"):
+        for setup, records in ((parts.get(key) or {}).get("engine") or {}).items():
+            rates = [r["system_steps_per_second"] for r in records if r.get("system_steps_per_second")]
+            if rates:
+                best.setdefault(setup, {})[key] = max(rates)
+    ratio_lines = []
+    paper, paper_all = best.get("paper_preset", {}).get("gpu"), best.get("paper_preset_vmap_all", {}).get("gpu")
+    if paper and paper_all:
+        ratio_lines.append(
+            f"On the GPU the paper preset's CPU setting (members one at a time) reaches at best "
+            f"{paper / paper_all:.3f} of the rate with the whole batch under one `vmap`: on a GPU use "
+            "`md.helium.get_preset('paper', vmap_width=None)`."
+        )
+    speedups = []
+    for system in ("cpu_preset", "paper_preset"):
+        rates = {dev: max(v.get(dev, 0.0) for k, v in best.items() if k.startswith(system)) for dev in ("gpu", "cpu")}
+        if rates["gpu"] and rates["cpu"]:
+            speedups.append(f"{system.replace('_', ' ')} {rates['gpu'] / rates['cpu']:.1f}")
+    if speedups:
+        ratio_lines.append(
+            "Best GPU rate over the best rate of the same machine's CPU (any setting): " + ", ".join(speedups) + "."
+        )
     jobs = [
         [names[k], f(p["main_job"].get("wall_s"), 1), p["main_job"].get("returncode", p["main_job"].get("error"))]
         for k, p in parts.items()
@@ -112,6 +136,7 @@ def _gpu(d: dict[str, Any]) -> list[str]:
         "(`--cpu`, every core XLA takes).  The `paper preset` maps over its members one at a time "
         "(the CPU choice); `paper preset vmap all` puts the whole batch under one `vmap`.\n",
         table(["device", "setup", "atoms", "batch", "system-steps/s", "atom-steps/s"], rows) + "\n",
+        *[line + "\n" for line in ratio_lines],
         "Fused PMC-ABC loop (`jaxabc.run_fused`, the 2-D Gaussian of `abc_overhead`): microseconds "
         "per simulation, the first run in the process (compilation included) and the second.\n",
         table(["device", "N", "simulations", "first run us/sim", "second run us/sim"], fused) + "\n",
