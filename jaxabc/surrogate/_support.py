@@ -8,7 +8,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxabc.surrogate import sampling
+from jaxabc.surrogate import diagnostics, sampling
 
 _FLAG = "NOT VALIDATED: "
 
@@ -33,7 +33,10 @@ def _failure_text(state: Any, max_emulator_ratio: float) -> str:
     errors = np.asarray(state.holdout_errors)
     num_run = int(np.sum(np.any(np.isfinite(errors), axis=1)))
     if num_run < errors.shape[0]:
-        parts.append(f"{errors.shape[0] - num_run} of {errors.shape[0]} held-out runs failed")
+        text = f"{errors.shape[0] - num_run} of {errors.shape[0]} held-out runs failed"
+        if num_run < diagnostics.MIN_HOLDOUT_RUNS:
+            text += f", fewer than {diagnostics.MIN_HOLDOUT_RUNS} succeeded: too few to check the emulator"
+        parts.append(text)
     if np.isfinite(state.coverage):
         parts.append(
             f"held-out 95 % coverage {float(state.coverage):.2f}, mean squared standardised "

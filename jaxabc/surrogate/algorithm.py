@@ -292,8 +292,8 @@ def build(
     log_min_feasibility = sampling.log_level(min_feasibility)
     if on_failure not in ("flag", "raise"):
         raise ValueError(f"on_failure must be 'flag' or 'raise', got {on_failure!r}")
-    if num_replicates < 0 or batch_size < 1 or num_holdout < 5:
-        raise ValueError("need num_replicates >= 0, batch_size >= 1 and num_holdout >= 5")
+    if num_replicates < 0 or batch_size < 1 or num_holdout < diagnostics.MIN_HOLDOUT_RUNS:
+        raise ValueError(f"need num_replicates >= 0, batch_size >= 1 and num_holdout >= {diagnostics.MIN_HOLDOUT_RUNS}")
     first = num_initial + num_replicates
     if first + num_holdout > max_simulations:
         raise ValueError(
@@ -522,6 +522,7 @@ def build(
         # that the run succeeds and teaches the emulator anything.
         p_ok = np.asarray(sampling.feasibility(model.feasible, jnp.asarray(x)))
         acquisition = np.exp(lp - np.max(lp)) * np.sqrt(ratio) * p_ok
+        acquisition[p_ok < design.design_level(p_ok)] = 0.0
         # Penalise around each pick on the scale of the posterior (half its sd), or of the
         # emulator where that is shorter: GP length scales often exceed the posterior, and a
         # penalty that wide would push the batch into the corners of the box.  Failed runs are
@@ -651,7 +652,8 @@ def build(
         errors = np.full((num_holdout, q), np.nan)
         errors[: len(rows), on] = check.errors
         resolved = float(state.emulator_ratio) <= max_emulator_ratio
-        passed = check.passed and lof_ok is not False and resolved
+        enough = len(rows) >= diagnostics.MIN_HOLDOUT_RUNS
+        passed = check.passed and lof_ok is not False and resolved and enough
         state = state._replace(
             holdout_errors=errors,
             coverage=np.float64(check.coverage),

@@ -26,9 +26,11 @@ import numpy as np
 import scipy.stats
 
 __all__ = [
+    "MIN_DESIGN_SUCCESS",
     "MIN_RADIUS_FRACTION",
     "Candidates",
     "candidates",
+    "design_level",
     "initial_design",
     "penalty_radius",
     "replicate_groups",
@@ -39,6 +41,12 @@ __all__ = [
 #: Floor of the penalisation radius, in emulator length scales: a run 0.1 length scales from
 #: another is 99.5 % correlated with it under the squared-exponential kernel.
 MIN_RADIUS_FRACTION = 0.1
+
+#: Design runs go only where the success classifier expects a run to succeed at least this
+#: often.  The posterior keeps its own, lower level (``min_feasibility``): when the data pull
+#: the likelihood beyond the feasible region, the posterior piles against that level, and an
+#: acquisition free to follow it would place run after run where most fail.
+MIN_DESIGN_SUCCESS = 0.5
 
 
 def initial_design(seed: int, dim: int, num_points: int, num_replicates: int) -> tuple[np.ndarray, np.ndarray]:
@@ -166,6 +174,12 @@ def candidates(
     local = mvn.logpdf(x).reshape(-1) - np.log(frac_inside)
     log_q = np.logaddexp(np.log(n_uniform / len(x)), np.log(len(xl) / len(x)) + local)
     return Candidates(x, log_q)
+
+
+def design_level(p_ok: np.ndarray) -> float:
+    """Least success probability of a design point: ``MIN_DESIGN_SUCCESS``, or the best of the
+    candidates' ``p_ok (n,)`` where none reaches it (a simulator that fails often everywhere)."""
+    return min(MIN_DESIGN_SUCCESS, float(np.max(p_ok, initial=0.0)))
 
 
 def penalty_radius(emulator_ls: np.ndarray, posterior_sd: np.ndarray) -> np.ndarray:

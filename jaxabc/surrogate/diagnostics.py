@@ -84,6 +84,12 @@ class HoldoutCheck(NamedTuple):
     passed: bool
 
 
+#: Successful held-out runs a validation needs (also the least ``num_holdout``).  Fewer leave
+#: bounds too loose to catch a poor emulator, and mean that the posterior sits where most runs
+#: fail: a validation from the two of twenty that succeeded is no validation.
+MIN_HOLDOUT_RUNS = 5
+
+
 def holdout_bounds(n: int) -> tuple[float, float]:
     """Pass bounds ``(coverage_min, mean_squared_max)`` for ``n`` standardised errors."""
     return 0.95 - 3.0 * np.sqrt(0.95 * 0.05 / n), float(scipy.stats.chi2.ppf(0.999, n) / n)
