@@ -219,6 +219,9 @@ def test_design_runs_go_where_runs_are_expected_to_succeed():
     assert design.design_level(p_ok) == design.MIN_DESIGN_SUCCESS
     # A simulator that fails often everywhere: the best candidates still qualify.
     assert design.design_level(np.array([0.05, 0.2, 0.3])) == 0.3
+    # The posterior peaks far beyond the level (1e4 nats up): the eligible candidates still rank.
+    a = design.acquisition(np.array([0.0, -1e4, -1e4 - 1.0]), np.ones(3), np.array([0.2, 0.9, 0.9]))
+    np.testing.assert_allclose(a, [0.0, 1.0, np.exp(-1.0)])
 
 
 def test_a_batch_is_spread_even_when_the_posterior_collapses_onto_one_point():

@@ -521,8 +521,7 @@ def build(
         # The posterior density already holds p_feasible once; a second factor is the chance
         # that the run succeeds and teaches the emulator anything.
         p_ok = np.asarray(sampling.feasibility(model.feasible, jnp.asarray(x)))
-        acquisition = np.exp(lp - np.max(lp)) * np.sqrt(ratio) * p_ok
-        acquisition[p_ok < design.design_level(p_ok)] = 0.0
+        acquisition = design.acquisition(lp, ratio, p_ok)
         # Penalise around each pick on the scale of the posterior (half its sd), or of the
         # emulator where that is shorter: GP length scales often exceed the posterior, and a
         # penalty that wide would push the batch into the corners of the box.  Failed runs are

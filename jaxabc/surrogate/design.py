@@ -29,6 +29,7 @@ __all__ = [
     "MIN_DESIGN_SUCCESS",
     "MIN_RADIUS_FRACTION",
     "Candidates",
+    "acquisition",
     "candidates",
     "design_level",
     "initial_design",
@@ -180,6 +181,20 @@ def design_level(p_ok: np.ndarray) -> float:
     """Least success probability of a design point: ``MIN_DESIGN_SUCCESS``, or the best of the
     candidates' ``p_ok (n,)`` where none reaches it (a simulator that fails often everywhere)."""
     return min(MIN_DESIGN_SUCCESS, float(np.max(p_ok, initial=0.0)))
+
+
+def acquisition(log_posterior: np.ndarray, emulator_ratio: np.ndarray, p_ok: np.ndarray) -> np.ndarray:
+    """``pi(x) sqrt(var / noise^2) p_ok(x)`` at candidates (arrays (n,)), 0 where ``p_ok`` is
+    below :func:`design_level`, scaled so that its maximum is 1.
+
+    Computed in logs and scaled over the eligible candidates only: scaled over all of them, a
+    posterior peak beyond the design level (thousands of nats above the rest, where the data
+    pull the likelihood into a failing region) underflows every eligible candidate to 0.
+    """
+    with np.errstate(divide="ignore"):
+        log_a = np.asarray(log_posterior, np.float64) + 0.5 * np.log(emulator_ratio) + np.log(p_ok)
+    log_a = np.where(p_ok >= design_level(p_ok), log_a, -np.inf)
+    return np.exp(log_a - np.max(log_a))
 
 
 def penalty_radius(emulator_ls: np.ndarray, posterior_sd: np.ndarray) -> np.ndarray:
