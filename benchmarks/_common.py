@@ -24,7 +24,7 @@ import shlex
 import subprocess
 import sys
 import time
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from pathlib import Path
 from typing import Any
 
@@ -109,6 +109,15 @@ def _canonical(node: Any) -> str:
     return repr(node)
 
 
+def _hash_tree(path: str | Path, dump: Callable[[ast.AST], str]) -> str:
+    source = Path(path).read_bytes()
+    try:
+        tree = _strip_docstrings(ast.parse(source))
+    except SyntaxError:
+        return "raw:" + hashlib.sha256(source).hexdigest()[:16]
+    return hashlib.sha256(dump(tree).encode()).hexdigest()[:16]
+
+
 def code_hash(path: str | Path) -> str:
     """Hash of a Python file's meaning: its AST without docstrings, comments or layout.
 
@@ -125,12 +134,7 @@ def code_hash(path: str | Path) -> str:
     str
         16 hex digits.  A file that does not parse is hashed by its bytes (prefixed ``raw:``).
     """
-    source = Path(path).read_bytes()
-    try:
-        tree = _strip_docstrings(ast.parse(source))
-    except SyntaxError:
-        return "raw:" + hashlib.sha256(source).hexdigest()[:16]
-    return hashlib.sha256(_canonical(tree).encode()).hexdigest()[:16]
+    return _hash_tree(path, _canonical)
 
 
 def legacy_code_hash(path: str | Path) -> str:
@@ -138,12 +142,7 @@ def legacy_code_hash(path: str | Path) -> str:
 
     It depends on the Python version that computed it; status accepts it beside ``code_hash``.
     """
-    source = Path(path).read_bytes()
-    try:
-        tree = _strip_docstrings(ast.parse(source))
-    except SyntaxError:
-        return "raw:" + hashlib.sha256(source).hexdigest()[:16]
-    return hashlib.sha256(ast.dump(tree, include_attributes=False).encode()).hexdigest()[:16]
+    return _hash_tree(path, lambda tree: ast.dump(tree, include_attributes=False))
 
 
 def data_hash(path: str | Path) -> str:
