@@ -26,7 +26,12 @@ from docpages.criticism import page_criticism, page_criticism_fluids
 from docpages.engine import page_abc_overhead, page_engine, page_speedup
 from docpages.helium import page_coverage, page_helium_table1, page_identifiability, page_lammps
 from docpages.model_choice import block_water_model_choice, block_water_model_outcome, page_water_model_choice
-from docpages.surrogate import page_surrogate_coverage, page_surrogate_helium, page_surrogate_peers
+from docpages.surrogate import (
+    page_surrogate_classifier,
+    page_surrogate_coverage,
+    page_surrogate_helium,
+    page_surrogate_peers,
+)
 from docpages.water import block_water_calibrations, block_water_validation, page_water
 from docpages.water_jaxmd import page_density_relaxation, page_water_jaxmd
 from registry import REGISTRY
@@ -59,6 +64,7 @@ every benchmark's quick mode reproduces its saved numbers.
 - [Engine throughput](engine_throughput.md) and [agreement with LAMMPS](lammps_agreement.md)
 - [Coverage of credible regions](coverage.md) and [of the surrogate posterior](surrogate_coverage.md)
 - [Surrogate against APMCABC on helium](surrogate_helium.md) and [against BOLFI and pyABC](surrogate_peers.md)
+- [The surrogate's success classifier on the water runs](surrogate_classifier.md)
 - [Speedup and scheduling](speedup.md)
 - [Cost of an ABC step](abc_overhead.md)
 - [Water calibrations](water_calibrations.md) and [the quick preset's density relaxation](water_density_relaxation.md)
@@ -81,6 +87,7 @@ PAGES: dict[str, Callable[[], str]] = {
     "surrogate_coverage.md": page_surrogate_coverage,
     "surrogate_helium.md": page_surrogate_helium,
     "surrogate_peers.md": page_surrogate_peers,
+    "surrogate_classifier.md": page_surrogate_classifier,
     "speedup.md": page_speedup,
     "abc_overhead.md": page_abc_overhead,
     "water_calibrations.md": page_water,

@@ -223,6 +223,13 @@ REGISTRY: tuple[Entry, ...] = (
         note="GP surrogate against ELFI's BOLFI and pyABC at equal simulation budgets on an exact problem",
     ),
     Entry(
+        "surrogate_classifier_replay",
+        f"{R}/surrogate_classifier_replay.json",
+        "python benchmarks/surrogate_classifier_replay.py",
+        estimated_cost_s=60.0,
+        note="the success classifier scored on the saved water surrogate runs (reads their .npz records)",
+    ),
+    Entry(
         "engine_throughput",
         f"{R}/engine_throughput.json",
         "python benchmarks/engine_throughput.py",

@@ -1,4 +1,5 @@
-"""Surrogate pages: SBC coverage, helium against APMCABC, and the peers BOLFI and pyABC."""
+"""Surrogate pages: SBC coverage, helium against APMCABC, the peers BOLFI and pyABC, and the
+success classifier replayed on the water runs."""
 
 from __future__ import annotations
 
@@ -252,4 +253,53 @@ overshoot it (the simulations column counts what each method ran).
 {source("surrogate_peers")}
 
 {table([*header, "corr", "wall s", "notes"], rows)}
+"""
+
+
+def page_surrogate_classifier() -> str:
+    d = load("surrogate_classifier_replay")
+    if d is None:
+        return "# The surrogate's success classifier on water runs\n\nNot saved yet.\n"
+    rows = []
+    for name, run in d["runs"].items():
+        for label, c in run["classifiers"].items():
+            above, below = c["success_share_at_or_above_level"], c["success_share_below_level"]
+            rows.append(
+                [
+                    f"`{name}`",
+                    f"{run['num_failed']} / {run['num_runs']}",
+                    label,
+                    f"{c['log_loss']:.3f}",
+                    f"{c['brier']:.3f}",
+                    f"{c['runs_at_or_above_level']}: {above:.2f}" if above is not None else "0",
+                    f"{c['runs_below_level']}: {below:.2f}" if below is not None else "0",
+                ]
+            )
+    level = d["design_level"]
+    return f"""# The surrogate's success classifier on water runs
+
+Every saved water surrogate run, replayed batch by batch: the success classifier is fitted to the
+runs made before a batch and predicts that batch's outcomes. `quadratic` is quadratic logistic
+regression alone (the classifier before the GP); `library` is `fit_feasibility` as it is now (the
+lesser of the quadratic and a GP classifier). The runs were placed by the design that made each
+record, so both classifiers are scored on the same points. Design runs go only where the
+classifier gives at least {level:g}: the last two columns give how many replayed runs were at or
+above that level and below it, and the share of them that succeeded.
+
+{source("surrogate_classifier_replay")}
+
+{
+        table(
+            [
+                "record",
+                "failed / runs",
+                "classifier",
+                "log loss",
+                "Brier",
+                f"p >= {level:g}: runs, success share",
+                f"p < {level:g}: runs, success share",
+            ],
+            rows,
+        )
+    }
 """

@@ -21,8 +21,9 @@ prior's support.
 
 from __future__ import annotations
 
+import warnings
 from functools import partial
-from typing import NamedTuple
+from typing import Any, NamedTuple, cast
 
 import blackjax
 import jax
@@ -35,9 +36,12 @@ from jaxabc.surrogate.emulator import Emulator, predict
 
 __all__ = [
     "Feasibility",
+    "GPClassifier",
     "LikelihoodModel",
     "feasibility",
     "fit_feasibility",
+    "fit_gp_classifier",
+    "gp_log_success",
     "log_feasibility",
     "log_feasibility_term",
     "log_level",
@@ -49,13 +53,115 @@ __all__ = [
 ]
 
 
-class Feasibility(NamedTuple):
-    """A probabilistic classifier of successful simulations: quadratic logistic regression.
+class GPClassifier(NamedTuple):
+    """The Laplace-approximated GP classifier of :class:`Feasibility`, as arrays for JAX.
 
-    ``p(x) = sigmoid(w . phi(x))`` with ``phi`` the constant, linear and quadratic terms of
-    ``x - 1/2`` (unit-box coordinates).  A quadratic boundary covers the usual failure regions
-    (a phase beyond a plane, a stable island) and, unlike a kernel smoother, extrapolates to
-    corners where no run was made.  ``p`` is exactly 1 when nothing has failed.
+    Latent mean ``k(x)^T alpha`` and variance ``amp - |L^-1 (w_sr * k(x))|^2`` with ``k(x) =
+    amp exp(-|x - x_i|^2_ls / 2)`` (Rasmussen & Williams 2006, algorithm 3.2), then ``p =
+    sigmoid(mean / sqrt(1 + pi var / 8))`` (MacKay's probit approximation).  Rows beyond the
+    fitted runs are padding (far outside the box, ``alpha`` and ``w_sr`` 0, ``L`` the identity).
+
+    Attributes
+    ----------
+    x : array, shape (m, d)
+    alpha : array, shape (m,)
+        ``y - pi`` at the Laplace mode (``y`` 1 for success).
+    w_sr : array, shape (m,)
+        ``sqrt(pi (1 - pi))``.
+    chol : array, shape (m, m)
+        Lower Cholesky factor of ``I + W^1/2 K W^1/2``.
+    log_amp : array, shape ()
+    log_ls : array, shape (d,)
+    active : array of bool, shape ()
+    """
+
+    x: jax.Array
+    alpha: jax.Array
+    w_sr: jax.Array
+    chol: jax.Array
+    log_amp: jax.Array
+    log_ls: jax.Array
+    active: jax.Array
+
+
+#: The GP classifier is fitted once this many runs (of both outcomes) are known.
+GP_MIN_RUNS = 6
+#: Bounds of its kernel amplitude and length scales (unit-box widths).  Deterministic failures
+#: beyond a sharp boundary are separable data, whose marginal likelihood grows with the
+#: amplitude without end: the cap keeps the boundary steep but finite.
+GP_AMP_BOUNDS = (1e-2, 1e3)
+GP_LS_BOUNDS = (1e-2, 1e1)
+
+
+def fit_gp_classifier(x: np.ndarray, ok: np.ndarray, size: int | None = None) -> GPClassifier:
+    """Fit :class:`GPClassifier` to unit-box inputs ``x (n, d)`` and outcomes ``ok (n,)``,
+    padded to ``size`` rows; inactive (``p = 1``) with fewer than ``GP_MIN_RUNS`` runs or one
+    outcome only.  Deterministic: the optimiser starts from fixed values, with no restarts."""
+    x = np.asarray(x, np.float64)
+    ok = np.asarray(ok, bool)
+    n, d = x.shape
+    m = max(n, size or 0)
+    xs = np.full((m, d), _PAD_COORD)
+    xs[:n] = x
+    alpha, w_sr, chol = np.zeros(m), np.zeros(m), np.eye(m)
+    log_amp, log_ls, active = 0.0, np.zeros(d), False
+    if n >= GP_MIN_RUNS and 0 < ok.sum() < n:
+        from sklearn.exceptions import ConvergenceWarning
+        from sklearn.gaussian_process import GaussianProcessClassifier
+        from sklearn.gaussian_process.kernels import RBF, ConstantKernel
+
+        # An array length scale makes the RBF anisotropic; sklearn's annotation says float.
+        ls0 = np.full(d, 0.2)
+        kernel = ConstantKernel(1.0, GP_AMP_BOUNDS) * RBF(ls0, GP_LS_BOUNDS)  # pyright: ignore[reportArgumentType]
+        with warnings.catch_warnings():
+            # A hyper-parameter at its bound is expected (the amplitude, see GP_AMP_BOUNDS).
+            warnings.simplefilter("ignore", ConvergenceWarning)
+            gpc = GaussianProcessClassifier(kernel).fit(x, ok.astype(np.int64))
+        # The binary Laplace classifier's factors (Rasmussen & Williams, algorithm 3.2); sklearn
+        # types base_estimator_ as the multi-class wrappers it uses for more than two classes.
+        fitted: Any = gpc.base_estimator_
+        params = cast(Any, gpc.kernel_).get_params()
+        alpha[:n] = fitted.y_train_ - fitted.pi_
+        w_sr[:n] = fitted.W_sr_
+        chol[:n, :n] = fitted.L_
+        log_amp = float(np.log(params["k1__constant_value"]))
+        log_ls = np.log(np.broadcast_to(params["k2__length_scale"], (d,)))
+        active = True
+    return GPClassifier(
+        x=jnp.asarray(xs),
+        alpha=jnp.asarray(alpha),
+        w_sr=jnp.asarray(w_sr),
+        chol=jnp.asarray(chol),
+        log_amp=jnp.asarray(log_amp),
+        log_ls=jnp.asarray(log_ls),
+        active=jnp.asarray(active),
+    )
+
+
+def gp_log_success(gp: GPClassifier, x: jax.Array) -> jax.Array:
+    """``log p_gp`` of success at unit-box points ``x (n, d)``: (n,), 0 where ``gp`` is inactive."""
+    ls = jnp.exp(gp.log_ls)
+    r2 = jnp.sum(((gp.x[:, None, :] - x[None, :, :]) / ls) ** 2, axis=-1)
+    amp = jnp.exp(gp.log_amp)
+    k = amp * jnp.exp(-0.5 * r2)  # (m, n)
+    mean = k.T @ gp.alpha
+    v = jax.scipy.linalg.solve_triangular(gp.chol, gp.w_sr[:, None] * k, lower=True)
+    var = jnp.maximum(amp - jnp.sum(v * v, axis=0), 0.0)
+    return jnp.where(gp.active, jax.nn.log_sigmoid(mean / jnp.sqrt(1.0 + jnp.pi * var / 8.0)), 0.0)
+
+
+class Feasibility(NamedTuple):
+    """A probabilistic classifier of successful simulations: the lesser of two.
+
+    ``p(x) = min(sigmoid(w . phi(x)), p_gp(x))``.  The first is quadratic logistic regression,
+    ``phi`` the constant, linear and quadratic terms of ``x - 1/2`` (unit-box coordinates): it
+    extrapolates a boundary to corners where no run was made (a phase beyond a plane), where a
+    kernel method says nothing.  The second, a Gaussian-process classifier
+    (:class:`GPClassifier`, once runs of both outcomes are known), is local: it follows a
+    curved or narrow failure region that lies across the quadratic's boundary (water, paper
+    statistics: most design runs placed on the quadratic's ``p = 0.5`` contour failed).  A run
+    is expected to succeed only where both expect it; far from every run the GP says 0.5.
+    ``p`` is exactly 1 when nothing has failed.
 
     Beside it, the distinct run sites, for :func:`nearest_runs_succeed`: a k-nearest-neighbour
     classifier, local and sharp where the quadratic boundary is neither (a narrow band of
@@ -74,12 +180,15 @@ class Feasibility(NamedTuple):
         Unit-box points of the distinct run sites (padding rows far outside the box).
     runs_failed : array, shape (m,)
         The fraction of the runs at each site that failed (padding rows 0).
+    gp : GPClassifier
+        The Gaussian-process classifier (``gp.active`` False: not fitted, only one outcome seen).
     """
 
     weights: jax.Array
     active: jax.Array
     runs_x: jax.Array
     runs_failed: jax.Array
+    gp: GPClassifier
 
 
 #: The k-nearest-neighbour cut: a point is infeasible when at least ``KNN_MAX_FAILED`` of its
@@ -122,8 +231,9 @@ def fit_feasibility(
     runs_failed = np.zeros(m)
     runs_failed[: len(sites)] = failed / np.bincount(site_of, minlength=len(sites))
     runs = (jnp.asarray(runs_x), jnp.asarray(runs_failed))
+    gp = fit_gp_classifier(x, ok, size)
     if np.all(ok):
-        return Feasibility(jnp.zeros(phi.shape[1]), jnp.asarray(False), *runs)
+        return Feasibility(jnp.zeros(phi.shape[1]), jnp.asarray(False), *runs, gp)
     y = np.where(ok, 1.0, -1.0)
 
     def loss(w: np.ndarray) -> tuple[float, np.ndarray]:
@@ -134,12 +244,12 @@ def fit_feasibility(
         return float(value), grad
 
     res = scipy.optimize.minimize(loss, np.zeros(phi.shape[1]), jac=True, method="L-BFGS-B")
-    return Feasibility(jnp.asarray(res.x), jnp.asarray(True), *runs)
+    return Feasibility(jnp.asarray(res.x), jnp.asarray(True), *runs, gp)
 
 
 def feasibility(model: Feasibility, x: jax.Array) -> jax.Array:
     """Probability of success at unit-box points ``x (n, d)``: array (n,)."""
-    return jnp.where(model.active, jax.nn.sigmoid(_features(x) @ model.weights), 1.0)
+    return jnp.exp(log_feasibility(model, x))
 
 
 def nearest_runs_succeed(model: Feasibility, x: jax.Array) -> jax.Array:
@@ -172,7 +282,8 @@ def nearest_runs_cut(model: Feasibility, x: jax.Array) -> jax.Array:
 
 def log_feasibility(model: Feasibility, x: jax.Array) -> jax.Array:
     """``log p_feasible`` at unit-box points ``x (n, d)``: array (n,), finite where p underflows."""
-    return jnp.where(model.active, jax.nn.log_sigmoid(_features(x) @ model.weights), 0.0)
+    quadratic = jnp.where(model.active, jax.nn.log_sigmoid(_features(x) @ model.weights), 0.0)
+    return jnp.minimum(quadratic, gp_log_success(model.gp, x))
 
 
 class LikelihoodModel(NamedTuple):

@@ -1,0 +1,114 @@
+"""The surrogate's success classifier, replayed on the water calibrations' own runs.
+
+Each saved water surrogate run records every GROMACS run in order (``record_theta``,
+``record_status``, ``record_iteration``).  For every batch after the start, this fits the success
+classifier to the runs made before it and predicts the batch's outcomes, for two classifiers:
+
+- ``quadratic``: quadratic logistic regression alone (the library's classifier before the GP);
+- ``library``: ``jaxabc.surrogate.sampling.fit_feasibility`` as it is now (a GP classifier once
+  runs of both outcomes are known).
+
+Reported per data set: log loss and Brier score of the predictions, and the share of runs that
+succeeded among those given an even chance or better (the design's level,
+``design.MIN_DESIGN_SUCCESS``) and among the rest.  The runs were placed by whichever design made
+the record, so this scores the classifiers on the same points, not the designs.
+
+Usage::
+
+    python benchmarks/surrogate_classifier_replay.py
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import warnings
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+import jax  # noqa: E402
+import jax.numpy as jnp  # noqa: E402
+import numpy as np  # noqa: E402
+
+from jaxabc.surrogate import design, sampling  # noqa: E402
+
+sys.path.insert(0, str(ROOT / "benchmarks"))
+from _common import machine, relative, write_result  # noqa: E402
+
+RECORDS = sorted((ROOT / "benchmarks" / "results").glob("water_*_surrogate.npz"))
+
+
+def _quadratic(x_train: np.ndarray, ok: np.ndarray, x: np.ndarray) -> np.ndarray:
+    model = sampling.fit_feasibility(x_train, ok)
+    if not bool(model.active):
+        return np.ones(len(x))
+    return np.asarray(jax.nn.sigmoid(sampling._features(jnp.asarray(x)) @ model.weights))
+
+
+def _library(x_train: np.ndarray, ok: np.ndarray, x: np.ndarray) -> np.ndarray:
+    return np.asarray(sampling.feasibility(sampling.fit_feasibility(x_train, ok), jnp.asarray(x)))
+
+
+CLASSIFIERS = {"quadratic": _quadratic, "library": _library}
+
+
+def scores(p: np.ndarray, ok: np.ndarray) -> dict:
+    """Log loss (p clipped to [1e-3, 1 - 1e-3]), Brier score, success shares at the design level."""
+    pc = np.clip(p, 1e-3, 1 - 1e-3)
+    high = p >= design.MIN_DESIGN_SUCCESS
+    return {
+        "log_loss": float(-np.mean(np.where(ok, np.log(pc), np.log1p(-pc)))),
+        "brier": float(np.mean((p - ok) ** 2)),
+        "runs_at_or_above_level": int(high.sum()),
+        "success_share_at_or_above_level": float(ok[high].mean()) if high.any() else None,
+        "runs_below_level": int((~high).sum()),
+        "success_share_below_level": float(ok[~high].mean()) if (~high).any() else None,
+    }
+
+
+def replay(path: Path) -> dict:
+    """Score both classifiers on one saved run's batches."""
+    rec = np.load(path, allow_pickle=False)
+    meta = json.loads(str(rec["metadata"]))
+    low, high = np.asarray(meta["prior"]["low"]), np.asarray(meta["prior"]["high"])
+    x = (rec["record_theta"] - low) / (high - low)
+    ok = rec["record_status"] == 0
+    it = rec["record_iteration"]
+    predicted: dict[str, list[np.ndarray]] = {name: [] for name in CLASSIFIERS}
+    outcomes = []
+    for k in range(1, int(it.max()) + 1):
+        before, batch = it < k, it == k
+        if not batch.any():
+            continue
+        for name, classify in CLASSIFIERS.items():
+            predicted[name].append(classify(x[before], ok[before], x[batch]))
+        outcomes.append(ok[batch])
+    y = np.concatenate(outcomes) if outcomes else np.zeros(0, bool)
+    return {
+        "record": relative(path),
+        "num_runs": len(ok),
+        "num_failed": int((~ok).sum()),
+        "num_replayed": len(y),
+        "replayed_success_share": float(y.mean()) if len(y) else None,
+        "classifiers": {name: scores(np.concatenate(p), y) for name, p in predicted.items() if p},
+    }
+
+
+def main(argv: list[str] | None = None) -> dict:
+    parser = argparse.ArgumentParser(description=(__doc__ or "").split("\n\n")[0])
+    parser.parse_args(argv)
+    jax.config.update("jax_enable_x64", True)
+    warnings.filterwarnings("ignore", module="sklearn")
+    runs = {path.stem: replay(path) for path in RECORDS}
+    payload = {"machine": machine(), "design_level": design.MIN_DESIGN_SUCCESS, "runs": runs}
+    out = write_result("surrogate_classifier_replay", payload, inputs=RECORDS)
+    print(json.dumps(runs, indent=1))
+    print(f"wrote {relative(out)}")
+    return payload
+
+
+if __name__ == "__main__":
+    main()
