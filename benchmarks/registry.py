@@ -226,7 +226,7 @@ REGISTRY: tuple[Entry, ...] = (
         "surrogate_classifier_replay",
         f"{R}/surrogate_classifier_replay.json",
         "python benchmarks/surrogate_classifier_replay.py",
-        estimated_cost_s=60.0,
+        estimated_cost_s=600.0,
         note="the success classifier scored on the saved water surrogate runs (reads their .npz records)",
     ),
     Entry(
