@@ -41,15 +41,15 @@ from _common import machine, relative, write_result  # noqa: E402
 RECORDS = sorted((ROOT / "benchmarks" / "results").glob("water_*_surrogate.npz"))
 
 
-def _quadratic(x_train: np.ndarray, ok: np.ndarray, x: np.ndarray) -> np.ndarray:
-    model = sampling.fit_feasibility(x_train, ok)
+def _quadratic(x_train: np.ndarray, ok: np.ndarray, x: np.ndarray, size: int) -> np.ndarray:
+    model = sampling.fit_feasibility(x_train, ok, size=size)
     if not bool(model.active):
         return np.ones(len(x))
     return np.asarray(jax.nn.sigmoid(sampling._features(jnp.asarray(x)) @ model.weights))
 
 
-def _library(x_train: np.ndarray, ok: np.ndarray, x: np.ndarray) -> np.ndarray:
-    return np.asarray(sampling.feasibility(sampling.fit_feasibility(x_train, ok), jnp.asarray(x)))
+def _library(x_train: np.ndarray, ok: np.ndarray, x: np.ndarray, size: int) -> np.ndarray:
+    return np.asarray(sampling.feasibility(sampling.fit_feasibility(x_train, ok, size=size), jnp.asarray(x)))
 
 
 CLASSIFIERS = {"quadratic": _quadratic, "library": _library}
@@ -84,7 +84,8 @@ def replay(path: Path) -> dict:
         if not batch.any():
             continue
         for name, classify in CLASSIFIERS.items():
-            predicted[name].append(classify(x[before], ok[before], x[batch]))
+            # Padded to the record's size: one compilation per record, not per batch.
+            predicted[name].append(classify(x[before], ok[before], x[batch], len(x)))
         outcomes.append(ok[batch])
     y = np.concatenate(outcomes) if outcomes else np.zeros(0, bool)
     return {

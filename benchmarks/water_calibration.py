@@ -387,13 +387,15 @@ def predictive_bands(args, result) -> dict:
     context = multiprocessing.get_context("spawn")
     with concurrent.futures.ProcessPoolExecutor(args.workers, mp_context=context) as pool:
         curves = [c for c in pool.map(_predictive_goo, tasks) if c is not None]
-    curves = np.array(curves)
-    quantiles = np.quantile(curves, [0.0, 0.25, 0.5, 0.75, 1.0], axis=0)
-    return {
-        "r_nm": ROBUST_GRID_NM.tolist(),
-        "num_curves": len(curves),
-        **{name: q.tolist() for name, q in zip(("min", "q25", "median", "q75", "max"), quantiles, strict=True)},
-    }
+    bands = {"r_nm": ROBUST_GRID_NM.tolist(), "num_curves": len(curves), "num_failed": len(tasks) - len(curves)}
+    if not curves:
+        # Every posterior draw failed (gas, collapse): no band, and the result says so rather
+        # than losing the whole run to an error after hours of simulation.
+        print(f"warning: all {len(tasks)} posterior-predictive runs failed; no g_OO band", file=sys.stderr)
+        return bands
+    quantiles = np.quantile(np.array(curves), [0.0, 0.25, 0.5, 0.75, 1.0], axis=0)
+    names = ("min", "q25", "median", "q75", "max")
+    return {**bands, **{name: q.tolist() for name, q in zip(names, quantiles, strict=True)}}
 
 
 def plot_bands(bands: dict, data: str, path: Path) -> None:
@@ -936,7 +938,8 @@ def main(argv=None) -> dict:
         entry["truth_credibility"] = truth_credibility(result, truth)
     if args.predictive:
         entry["predictive_goo"] = predictive_bands(args, result)
-        plot_bands(entry["predictive_goo"], args.data, args.out_dir / f"{stem}_predictive.png")
+        if entry["predictive_goo"]["num_curves"]:
+            plot_bands(entry["predictive_goo"], args.data, args.out_dir / f"{stem}_predictive.png")
     if args.validation_ps:
         entry["validation"] = validation_table(args, result.bayes_estimate())
     path = args.out_dir / f"water_{args.data}{suffix}.json"

@@ -338,6 +338,8 @@ def _predictive_peak(e: dict[str, Any]) -> str:
     bands = e.get("predictive_goo")
     if not bands:
         return "-"
+    if not bands["num_curves"]:
+        return f"- (all {bands['num_failed']} runs failed)"
     r, median = np.asarray(bands["r_nm"]), np.asarray(bands["median"])
     i, r_peak, g_peak = _first_peak(r, median)
     return (
