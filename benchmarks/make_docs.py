@@ -48,7 +48,7 @@ def page_index() -> str:
             [
                 f"`{e.name}`",
                 st.state,
-                format_cost(st.cost_s) + ("" if st.cost_source == "recorded" else " (est.)"),
+                format_cost(st.cost_s) + ("" if st.cost_source.startswith("recorded") else " (est.)"),
                 ", ".join(st.changed[:3]) + (" ..." if len(st.changed) > 3 else ""),
             ]
         )

@@ -133,6 +133,13 @@ def status_of(entry: Entry, quick: bool = False, root: Path = ROOT) -> Status:
     st.changed = check_provenance(prov, root)
     st.state = "stale" if st.changed else "current"
     st.cost_s, st.cost_source = prov.get("cost_s"), "recorded"
+    body = data.get(entry.part, {}) if entry.part and not quick else data
+    sittings = body.get("sittings") if isinstance(body, dict) else None
+    if isinstance(sittings, int) and sittings > 1 and isinstance(body.get("wall_time_s"), (int, float)):
+        # A run resumed over several sittings: the process that wrote the JSON paid only the
+        # last one; its own wall time over every sitting is the cost of a rerun.
+        st.cost_s = max(st.cost_s or 0.0, float(body["wall_time_s"]))
+        st.cost_source = f"recorded over {sittings} sittings"
     st.commit, st.date_utc, st.tree_clean = prov.get("commit"), prov.get("date_utc"), prov.get("tree_clean")
     return st
 
@@ -234,7 +241,8 @@ def render(rows: list[Status]) -> str:
     """Plain-text table of the statuses."""
     lines = [f"{'result':34s} {'state':8s} {'cost':>9s}  {'commit':8s} {'date (UTC)':20s} what changed / note"]
     for s in rows:
-        cost = format_cost(s.cost_s) + ("*" if s.cost_source not in ("recorded", "none") else "")
+        estimated = s.cost_source not in ("recorded", "none") and not s.cost_source.startswith("recorded over")
+        cost = format_cost(s.cost_s) + ("*" if estimated else "")
         commit = (s.commit or "-")[:8] + ("+" if s.tree_clean is False else "")
         detail = ", ".join(s.changed[:6]) + (f" (+{len(s.changed) - 6} more)" if len(s.changed) > 6 else "")
         if not detail:

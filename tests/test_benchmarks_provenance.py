@@ -169,6 +169,22 @@ def test_parts_keep_each_commands_provenance(fake_repo: Path) -> None:
     assert data["provenance_parts"]["paper"]["command"] == "python other.py"
 
 
+def test_a_run_over_several_sittings_costs_its_whole_wall_time(fake_repo: Path) -> None:
+    """A resumed run's JSON is written by its last sitting's process: status must not plan a
+    rerun at that process's cost (a 64-minute water run showed as 48 s)."""
+    path = fake_repo / "benchmarks/results/res.json"
+    for part, body in (
+        ("one", {"wall_time_s": 5000.0, "sittings": 1}),
+        ("two", {"wall_time_s": 5000.0, "sittings": 2}),
+    ):
+        payload = json.loads(path.read_text()) if path.exists() else {}
+        _common.write_result(path, {**payload, part: body}, inputs=[fake_repo / "data.txt"], part=part)
+    one = status.status_of(registry.Entry("res:one", "benchmarks/results/res.json", "x", part="one"), root=fake_repo)
+    two = status.status_of(registry.Entry("res:two", "benchmarks/results/res.json", "x", part="two"), root=fake_repo)
+    assert one.cost_source == "recorded" and one.cost_s is not None and one.cost_s < 5000.0
+    assert (two.cost_s, two.cost_source) == (5000.0, "recorded over 2 sittings")
+
+
 def test_status_of_entries(fake_repo: Path) -> None:
     write_fake(fake_repo, part="a")
     legacy = fake_repo / "benchmarks/results/legacy.json"
