@@ -94,6 +94,7 @@ from _common import (  # noqa: E402
 
 from jaxabc.checkpoint import simulator_identity  # noqa: E402
 from jaxabc.errors import SimulationFailure  # noqa: E402
+from jaxabc.surrogate.design import MIN_DESIGN_SUCCESS  # noqa: E402
 
 TIP4P_THETA = np.array([TIP4P_PARAMETERS.sigma_ow_nm, TIP4P_PARAMETERS.epsilon_ow_kj_mol])
 PRIOR_LOW, PRIOR_HIGH = (0.281, 0.2), (0.53, 0.9)
@@ -160,12 +161,14 @@ def parse_arguments(argv=None) -> argparse.Namespace:
     parser.add_argument(
         "--surrogate-min-feasibility",
         type=float,
-        default=0.2,
+        default=MIN_DESIGN_SUCCESS,
         help="cut the posterior where the fitted chance of a liquid run is below this (the library's "
-        "min_feasibility). Water's failures are phase changes, not random crashes, and no parameter "
-        "fits the measured data within the noise, so the emulator's variance pulls the posterior to "
-        "wherever runs fail; at the library's default level the paper-preset design spent run after "
-        "run just above it, where the classifier already gave a few per cent",
+        "min_feasibility; default: the level design runs must reach, design.MIN_DESIGN_SUCCESS). "
+        "Water's failures are phase changes, and where no parameter fits the data within the noise "
+        "the posterior piles against this level. Below the design level no design run goes, so "
+        "the emulator's variance stays large there and makes that band look like the best fit: at a "
+        "lower level the neutron run with the paper's statistics put its whole posterior on that "
+        "level, and every held-out run there vaporised",
     )
     parser.add_argument(
         "--surrogate-tolerance",
