@@ -43,9 +43,7 @@ RECORDS = sorted((ROOT / "benchmarks" / "results").glob("water_*_surrogate.npz")
 
 def _quadratic(x_train: np.ndarray, ok: np.ndarray, x: np.ndarray, size: int) -> np.ndarray:
     model = sampling.fit_feasibility(x_train, ok, size=size)
-    if not bool(model.active):
-        return np.ones(len(x))
-    return np.asarray(jax.nn.sigmoid(sampling._features(jnp.asarray(x)) @ model.weights))
+    return np.exp(np.asarray(sampling.quadratic_log_success(model, jnp.asarray(x))))
 
 
 def _library(x_train: np.ndarray, ok: np.ndarray, x: np.ndarray, size: int) -> np.ndarray:

@@ -104,6 +104,7 @@ def test_finalize_reports_design_and_validation(gaussian_run):
     lo, hi = diagnostics.holdout_bounds(diag["num_holdout"] * 2)
     assert lo <= diag["holdout_coverage_95"] and diag["holdout_mean_squared_error"] <= hi
     assert max(diag["nuts_split_rhat"]) < 1.05
+    assert diag["posterior_share_below_design_level"] == 0.0  # no run failed: p = 1 everywhere
     # The NUTS draws carry equal weights, but their ESS is the chains' (ArviZ), not the count.
     chains = np.asarray(state.draws).reshape(algorithm.settings["num_chains"], -1, 2)
     assert extras["ess"] == pytest.approx(chain_ess(chains))
@@ -259,6 +260,34 @@ def test_the_failure_text_counts_held_out_runs_that_failed():
     assert "too few" not in _failure_text(state, 1.0)
     errors[2:5] = np.nan
     assert "18 of 20 held-out runs failed, fewer than 5 succeeded" in _failure_text(state, 1.0)
+    # The posterior sits where the design never goes: the text names that band and the way out.
+    state.untested_share = 0.9
+    assert "90% of the posterior lies where the success classifier is below" in _failure_text(state, 1.0)
+    state.untested_share = 0.1
+    assert "below the design level" not in _failure_text(state, 1.0)
+
+
+def test_the_untested_share_is_the_posterior_weight_below_the_design_level():
+    from types import SimpleNamespace
+
+    from jaxabc.surrogate import sampling
+    from jaxabc.surrogate._support import _untested_share
+
+    # Runs fail beyond x0 = 0.5 (a sharp phase boundary); the classifier learns it.
+    rng = np.random.default_rng(1)
+    x = rng.uniform(size=(80, 2))
+    feasible = sampling.fit_feasibility(x, x[:, 0] < 0.5)
+    model = SimpleNamespace(feasible=feasible)
+    cand = rng.uniform(size=(2000, 2))
+    draws = np.column_stack([np.linspace(0.05, 0.95, 100), np.full(100, 0.5)])
+    # Equal weights: the draws beyond the boundary (x0 > ~0.5) are below the design level.
+    share = _untested_share(model, cand, draws, np.zeros(100))
+    assert 0.4 <= share <= 0.6, share
+    # Weight only on the feasible half (-inf pads the rest): nothing is untested.
+    log_w = np.where(draws[:, 0] < 0.4, 0.0, -np.inf)
+    assert _untested_share(model, cand, draws, log_w) == 0.0
+    # Weight on the failing half only: all of it is.
+    assert _untested_share(model, cand, draws, np.where(draws[:, 0] > 0.6, 0.0, -np.inf)) == 1.0
 
 
 def test_the_nearest_run_cut_is_sharp_for_a_failing_phase_and_blind_to_random_failures():
@@ -319,7 +348,7 @@ def test_feasibility_follows_a_curved_failure_boundary():
     with jax.enable_x64(True):
         model = sampling.fit_feasibility(x, succeeds(x))
         feasible = np.asarray(sampling.feasibility(model, jnp.asarray(grid))) >= 0.5
-        quadratic = np.asarray(jax.nn.sigmoid(sampling._features(jnp.asarray(grid)) @ model.weights)) >= 0.5
+        quadratic = np.exp(np.asarray(sampling.quadratic_log_success(model, jnp.asarray(grid)))) >= 0.5
     # Errors of the GP lie in a band about a run spacing (200**-0.5 ~ 0.07) wide along the
     # boundary; the quadratic's misplaced boundary errs well beyond it.
     assert np.mean(~truth[feasible]) < 0.03

@@ -158,6 +158,7 @@ _SURROGATE_HEADER = [
     "GROMACS runs (failed)",
     "validated",
     "held-out cov. / MSSE / joint",
+    "min_feasibility (posterior below design level)",
     "replicate runs (nugget test)",
     "truth in 50 % HPD",
     "wall time",
@@ -175,6 +176,15 @@ def _replicates(sur: dict) -> str:
     if not n:
         return "none"
     return f"{n} ({'agree' if sur.get('lack_of_fit_ok', True) else '**disagree**'})"
+
+
+def _feasibility_level(entry: dict) -> str:
+    """The posterior's feasibility level and its weight below the design level ("-" for results
+    made before the diagnostic existed)."""
+    share = entry["surrogate"].get("posterior_share_below_design_level")
+    level = f(entry.get("settings", {}).get("min_feasibility"), 2)
+    known = share is not None and np.isfinite(share)
+    return f"{level} ({f'{share:.0%}' if known else '-'})"
 
 
 def _water_surrogate_section() -> str:
@@ -206,6 +216,7 @@ def _water_surrogate_section() -> str:
                         if "holdout_joint_mean_squared_error" in sur
                         else "-"
                     ),
+                    _feasibility_level(e),
                     _replicates(sur),
                     truth or "-",
                     _wall_time(e),
@@ -224,7 +235,9 @@ before a posterior is reported; see the [surrogate coverage study](surrogate_cov
 prior, same GROMACS preset.  Bayes estimate [95 % interval] from the emulator's synthetic
 likelihood; real GROMACS runs (failed); whether the held-out check passed, with the held-out 95 %
 coverage / mean squared standardised error / the joint one (Mahalanobis distance under the noise
-correlation, divided by the number of statistics; 1 when the correlation is right); the replicate
+correlation, divided by the number of statistics; 1 when the correlation is right); the level of
+the success classifier below which the posterior is cut, and the posterior weight between it and the
+design level, where no design run goes (docs/guide/surrogate.md); the replicate
 runs at two liquid design points and whether the GP nuggets agree with their scatter; for simulated
 data whether TIP4P's own parameters lie in the 50 % HPD region.
 

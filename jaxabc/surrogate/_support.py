@@ -8,9 +8,24 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxabc.surrogate import diagnostics, sampling
+from jaxabc.surrogate import design, diagnostics, sampling
 
 _FLAG = "NOT VALIDATED: "
+
+#: Posterior share below the design level from which a failed validation names that band.
+UNTESTED_SHARE_WARN = 0.25
+
+
+def _untested_share(
+    model: sampling.LikelihoodModel, candidates: np.ndarray, draws: np.ndarray, log_weights: np.ndarray
+) -> float:
+    """Posterior weight of unit-box ``draws (P, d)`` (``log_weights (P,)``, ``-inf`` pads) where the
+    success classifier is below :func:`.design.design_level` over ``candidates (n, d)``."""
+    level = design.design_level(np.asarray(sampling.feasibility(model.feasible, jnp.asarray(candidates))))
+    p = np.asarray(sampling.feasibility(model.feasible, jnp.asarray(draws)))
+    lw = np.asarray(log_weights, np.float64)
+    w = np.exp(lw - np.max(lw))
+    return float(w @ (p < level) / w.sum())
 
 
 def _failure_text(state: Any, max_emulator_ratio: float) -> str:
@@ -37,6 +52,14 @@ def _failure_text(state: Any, max_emulator_ratio: float) -> str:
         if num_run < diagnostics.MIN_HOLDOUT_RUNS:
             text += f", fewer than {diagnostics.MIN_HOLDOUT_RUNS} succeeded: too few to check the emulator"
         parts.append(text)
+    share = float(getattr(state, "untested_share", np.nan))
+    if num_run < errors.shape[0] and share >= UNTESTED_SHARE_WARN:
+        parts.append(
+            f"{share:.0%} of the posterior lies where the success classifier is below the design "
+            "level (design.MIN_DESIGN_SUCCESS), a band no design run enters: its fit there rests on "
+            "the emulator's extrapolation. More budget lets the failed held-out runs join the "
+            "design; for failures that are phase changes, set min_feasibility to the design level"
+        )
     if np.isfinite(state.coverage):
         parts.append(
             f"held-out 95 % coverage {float(state.coverage):.2f}, mean squared standardised "

@@ -31,7 +31,7 @@ from jaxabc.algorithms.base import ABCAlgorithm, Info, Proposal
 from jaxabc.distances import get_distance
 from jaxabc.surrogate import abc_mode, design, diagnostics, emulator, sampling
 from jaxabc.surrogate._fit import ROLE_DESIGN, ROLE_EMPTY, ROLE_FAILED_HOLDOUT, ROLE_HOLDOUT, fit_likelihood
-from jaxabc.surrogate._support import _FLAG, _evaluate, _failure_text
+from jaxabc.surrogate._support import _FLAG, _evaluate, _failure_text, _untested_share
 
 __all__ = ["MODES", "EmulatorFailure", "SurrogateState", "build"]
 
@@ -91,6 +91,9 @@ class SurrogateState(NamedTuple):
     abc_threshold, abc_generations, abc_emulated : array, shape ()
         ABC mode: final tolerance, APMCABC generations and emulated simulations of the last
         posterior (NaN / 0 otherwise).
+    untested_share : array, shape ()
+        Posterior weight, at the last validation, where the success classifier is below the
+        design level (:func:`.design.design_level`): a band no design run enters (NaN before).
     """
 
     thetas: Any
@@ -119,6 +122,7 @@ class SurrogateState(NamedTuple):
     joint_mean_squared_error: Any
     joint_ok: Any
     pending_group: Any
+    untested_share: Any
 
 
 # Fields added after the first release: a checkpoint without them restores with these values.
@@ -130,6 +134,7 @@ _LATER_FIELDS = (
     ".joint_mean_squared_error",
     ".joint_ok",
     ".pending_group",
+    ".untested_share",
 )
 
 
@@ -372,6 +377,7 @@ def build(
             joint_mean_squared_error=np.float64(np.nan),
             joint_ok=np.bool_(True),
             pending_group=np.full(B, -1, np.int32),
+            untested_share=np.float64(np.nan),
         )
 
     def initial_proposal(key: jax.Array) -> Proposal:
@@ -457,7 +463,7 @@ def build(
         rng = np.random.default_rng(_int_seed(key))
         cand = design.candidates(rng, d, num_candidates)
         x_used = to_unit(state.thetas[used])
-        feas = sampling.fit_feasibility(x_used, state.ok[used])
+        feas = sampling.fit_feasibility(x_used, state.ok[used], size=M)  # one compilation per budget
         acquisition = np.array(sampling.feasibility(feas, jnp.asarray(cand.x)), np.float64)
         for x0 in x_used:  # no repeats of what is known
             acquisition *= 1.0 - np.exp(-0.5 * np.sum(((cand.x - x0) / explore_radius) ** 2, axis=1))
@@ -582,6 +588,7 @@ def build(
         return state._replace(
             draws=to_theta(flat),
             log_weights=log_weights,
+            untested_share=np.float64(_untested_share(model, x, flat, log_weights)),
             rhat=rhat,
             pending=pending,
             num_pending=np.int64(num_holdout),
@@ -618,9 +625,12 @@ def build(
         idx = np.searchsorted(np.cumsum(w), (rng.uniform() + np.arange(num_holdout)) / num_holdout)
         pending = np.zeros((B, d))
         pending[:num_holdout] = post.particles[np.minimum(idx, num_particles - 1)]
+        cand = design.candidates(rng, d, num_candidates)
+        share = _untested_share(model, cand.x, to_unit(np.asarray(post.particles)), np.asarray(post.log_weights))
         return state._replace(
             draws=post.particles,
             log_weights=post.log_weights,
+            untested_share=np.float64(share),
             abc_threshold=np.float64(post.threshold),
             abc_generations=np.int64(post.generations),
             abc_emulated=np.int64(post.num_emulated),
@@ -756,6 +766,7 @@ def build(
             "holdout_errors": np.where(np.isfinite(state.holdout_errors), state.holdout_errors, None).tolist(),  # pyright: ignore[reportAttributeAccessIssue]
             "lack_of_fit_ok": bool(state.lack_of_fit_ok),
             "emulator_to_noise_variance": float(state.emulator_ratio),
+            "posterior_share_below_design_level": float(state.untested_share),
             "lengthscales": ls.tolist(),
             "amplitude_standardised": np.exp(state.hyper[:, 0]).tolist(),
             "noise_sd_standardised": np.exp(state.hyper[:, -1]).tolist(),

@@ -49,6 +49,7 @@ __all__ = [
     "nearest_runs_cut",
     "nearest_runs_succeed",
     "nuts",
+    "quadratic_log_success",
     "split_rhat",
 ]
 
@@ -280,10 +281,16 @@ def nearest_runs_cut(model: Feasibility, x: jax.Array) -> jax.Array:
     return model.active & ~nearest_runs_succeed(model, x)
 
 
+def quadratic_log_success(model: Feasibility, x: jax.Array) -> jax.Array:
+    """``log p`` of the quadratic logistic classifier alone at unit-box ``x (n, d)``: array (n,),
+    0 while no run has failed (``model.active`` False)."""
+    return jnp.where(model.active, jax.nn.log_sigmoid(_features(x) @ model.weights), 0.0)
+
+
 def log_feasibility(model: Feasibility, x: jax.Array) -> jax.Array:
-    """``log p_feasible`` at unit-box points ``x (n, d)``: array (n,), finite where p underflows."""
-    quadratic = jnp.where(model.active, jax.nn.log_sigmoid(_features(x) @ model.weights), 0.0)
-    return jnp.minimum(quadratic, gp_log_success(model.gp, x))
+    """``log p_feasible`` at unit-box points ``x (n, d)``: array (n,), finite where p underflows.
+    The lesser of :func:`quadratic_log_success` and :func:`gp_log_success`."""
+    return jnp.minimum(quadratic_log_success(model, x), gp_log_success(model.gp, x))
 
 
 class LikelihoodModel(NamedTuple):
