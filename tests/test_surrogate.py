@@ -267,6 +267,29 @@ def test_the_failure_text_counts_held_out_runs_that_failed():
     assert "below the design level" not in _failure_text(state, 1.0)
 
 
+def test_no_likelihood_outbids_the_feasibility_level():
+    from types import SimpleNamespace
+
+    from jaxabc.surrogate import sampling
+
+    # Runs fail beyond x0 = 0.5.  A likelihood rising into the failing region (misspecified data,
+    # the emulator extrapolating) outbid a linear cut below the level: water's posterior sat at
+    # p = 0.14 under a level of 0.5.  Below the level the drop is a step, as for the nearest-run cut.
+    rng = np.random.default_rng(2)
+    x = rng.uniform(size=(80, 2))
+    with jax.enable_x64(True):
+        feasible = sampling.fit_feasibility(x, x[:, 0] < 0.5)
+        model = SimpleNamespace(feasible=feasible, log_min_feasibility=sampling.log_level(0.5))
+        grid = jnp.asarray(np.column_stack([np.linspace(0.0, 1.0, 401), np.full(401, 0.5)]))
+        lf = np.asarray(sampling.log_feasibility(feasible, grid))
+        term = np.asarray(sampling.log_feasibility_term(model, grid))
+        knn = np.asarray(sampling.nearest_runs_cut(feasible, grid))
+    below = lf < np.log(0.5)
+    assert np.any(below & ~knn), "points below the level the nearest-run cut leaves alone"
+    assert np.all(term[below] < -1e11)
+    np.testing.assert_allclose(term[~below & ~knn], lf[~below & ~knn])
+
+
 def test_the_untested_share_is_the_posterior_weight_below_the_design_level():
     from types import SimpleNamespace
 
