@@ -254,7 +254,12 @@ def test_the_failure_text_counts_held_out_runs_that_failed():
     errors = np.full((20, 3), np.nan)
     errors[:5] = 0.1
     state = SimpleNamespace(
-        emulator_ratio=0.0, lack_of_fit_ok=True, joint_ok=True, coverage=np.nan, holdout_errors=errors
+        emulator_ratio=0.0,
+        lack_of_fit_ok=True,
+        joint_ok=True,
+        coverage=np.nan,
+        holdout_errors=errors,
+        untested_share=np.nan,
     )
     assert "15 of 20 held-out runs failed" in _failure_text(state, 1.0)
     assert "too few" not in _failure_text(state, 1.0)
@@ -273,8 +278,8 @@ def test_no_likelihood_outbids_the_feasibility_level():
     from jaxabc.surrogate import sampling
 
     # Runs fail beyond x0 = 0.5.  A likelihood rising into the failing region (misspecified data,
-    # the emulator extrapolating) outbid a linear cut below the level: water's posterior sat at
-    # p = 0.14 under a level of 0.5.  Below the level the drop is a step, as for the nearest-run cut.
+    # the emulator extrapolating) outbid a linear cut below the level (water, neutron data, paper
+    # statistics).  Below the level the drop is a step, as for the nearest-run cut.
     rng = np.random.default_rng(2)
     x = rng.uniform(size=(80, 2))
     with jax.enable_x64(True):

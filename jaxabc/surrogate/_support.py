@@ -52,7 +52,7 @@ def _failure_text(state: Any, max_emulator_ratio: float) -> str:
         if num_run < diagnostics.MIN_HOLDOUT_RUNS:
             text += f", fewer than {diagnostics.MIN_HOLDOUT_RUNS} succeeded: too few to check the emulator"
         parts.append(text)
-    share = float(getattr(state, "untested_share", np.nan))
+    share = float(state.untested_share)
     if num_run < errors.shape[0] and share >= UNTESTED_SHARE_WARN:
         parts.append(
             f"{share:.0%} of the posterior lies where the success classifier is below the design "

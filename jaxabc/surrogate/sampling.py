@@ -320,16 +320,16 @@ class LikelihoodModel(NamedTuple):
 
 
 #: Slope of the constraint below ``min_feasibility`` (per nat of log p), on top of its step
-#: (``_KNN_CUT``): a gradient back towards the level for a sampler that starts outside.
+#: (``_CUT_STEP``): a gradient back towards the level for a sampler that starts outside.
 _CUT_SLOPE = 1000.0
 #: Log-density drop below ``min_feasibility`` and where the nearest runs failed (a step: NUTS
 #: sees a divergence and stays).  It stands in for probability zero, so no likelihood may
 #: outbid it: an emulator fitted to a few successes can put a failing corner 1e4 nats above
 #: every feasible point (water, paper preset, X-ray data: the design then spent 29 runs
 #: there), and the slope alone was outbid on the neutron data with the paper's statistics
-#: (the whole posterior at p = 0.14 under a level of 0.5, every held-out run vaporised).
+#: (benchmarks/results/water_neutron_surrogate.json at commit ecc0ebb: every held-out run failed).
 #: 1e12 still leaves float64 a 1e-4 nat resolution among cut points.
-_KNN_CUT = 1e12
+_CUT_STEP = 1e12
 
 
 def log_likelihood_terms(model: LikelihoodModel, x: jax.Array) -> tuple[jax.Array, jax.Array]:
@@ -361,7 +361,7 @@ def log_feasibility_term(model: LikelihoodModel, x: jax.Array) -> jax.Array:
     failed), at ``x (n, d)``: (n,)."""
     lf = log_feasibility(model.feasible, x)
     below = lf < model.log_min_feasibility
-    cut = jnp.where(nearest_runs_cut(model.feasible, x) | below, _KNN_CUT, 0.0)
+    cut = jnp.where(nearest_runs_cut(model.feasible, x) | below, _CUT_STEP, 0.0)
     return lf - _CUT_SLOPE * jnp.maximum(model.log_min_feasibility - lf, 0.0) - cut
 
 
