@@ -105,6 +105,9 @@ def test_finalize_reports_design_and_validation(gaussian_run):
     assert lo <= diag["holdout_coverage_95"] and diag["holdout_mean_squared_error"] <= hi
     assert max(diag["nuts_split_rhat"]) < 1.05
     assert diag["posterior_share_below_design_level"] == 0.0  # no run failed: p = 1 everywhere
+    # The data came from the model: the posterior predictive holds them.
+    assert diag["observed_misfit"]["dof"] == 2
+    assert diag["observed_misfit"]["p_value"] > diagnostics.MISFIT_P_VALUE
     # The NUTS draws carry equal weights, but their ESS is the chains' (ArviZ), not the count.
     chains = np.asarray(state.draws).reshape(algorithm.settings["num_chains"], -1, 2)
     assert extras["ess"] == pytest.approx(chain_ess(chains))
@@ -215,6 +218,33 @@ def test_a_misspecified_model_does_not_chase_the_failing_region():
     # the emulator; with the GP classifier beside it enough succeed.
     succeeded = int(np.sum(np.any(np.isfinite(state.holdout_errors), axis=1)))
     assert succeeded >= diagnostics.MIN_HOLDOUT_RUNS
+    # The result says that no theta reproduces the data, and which summary misses.
+    with pytest.warns(RuntimeWarning, match="outside the model's posterior predictive"):
+        misfit = algorithm.finalize(state)["diagnostics"]["observed_misfit"]
+    assert misfit["p_value"] < 1e-6
+    residuals = misfit["standardised_residuals"]
+    assert residuals[0] > 3 and abs(residuals[0]) > abs(residuals[1])  # s0 = 5 lies above every fit
+
+
+def test_the_misfit_weighs_the_draws(gaussian_run):
+    """Zero-weight draws drop out; equal weights are the plain posterior predictive."""
+    from jaxabc.surrogate import evidence
+
+    algorithm, state, _, _ = gaussian_run
+    low, high = np.asarray(PRIOR.low), np.asarray(PRIOR.high)
+    with jax.enable_x64(True):
+        transform, model = evidence.likelihood_from_state(state, low, high, OBSERVED, algorithm.settings)
+        x = (np.asarray(state.draws) - low) / (high - low)
+        far = np.clip(x + 0.3, 0.0, 1.0)  # draws whose predictions miss the data
+        plain = evidence.observed_misfit(model, transform, x)
+        masked = evidence.observed_misfit(
+            model, transform, np.concatenate([x, far]), np.r_[np.ones(len(x)), np.zeros(len(x))]
+        )
+        shifted = evidence.observed_misfit(model, transform, far)
+        with pytest.raises(ValueError, match="weights"):
+            evidence.observed_misfit(model, transform, x, np.zeros(len(x)))
+    assert masked["mahalanobis_squared"] == pytest.approx(plain["mahalanobis_squared"], rel=1e-9)
+    assert shifted["mahalanobis_squared"] > 10 * plain["mahalanobis_squared"]
 
 
 def test_design_runs_go_where_runs_are_expected_to_succeed():

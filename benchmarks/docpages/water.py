@@ -160,6 +160,7 @@ _SURROGATE_HEADER = [
     "held-out cov. / MSSE / joint",
     "min_feasibility (posterior below design level)",
     "replicate runs (nugget test)",
+    "observed misfit p (largest residual)",
     "truth in 50 % HPD",
     "wall time",
     "GROMACS time (sum over runs)",
@@ -176,6 +177,18 @@ def _replicates(sur: dict) -> str:
     if not n:
         return "none"
     return f"{n} ({'agree' if sur.get('lack_of_fit_ok', True) else '**disagree**'})"
+
+
+def _misfit(entry: dict) -> str:
+    """The posterior predictive p-value of the observed summaries and the summary that misses
+    most, in sd ("-" for results made before the check existed)."""
+    m = entry["surrogate"].get("observed_misfit")
+    if not m:
+        return "-"
+    residuals = m["standardised_residuals"]
+    worst = max((i for i, r in enumerate(residuals) if r is not None), key=lambda i: abs(residuals[i]))
+    name = f"PC {worst + 1}" if m["projected"] else entry["statistic_names"][worst].split()[0]
+    return f"{m['p_value']:.1g} ({name} {residuals[worst]:+.1f} sd)"
 
 
 def _feasibility_level(entry: dict) -> str:
@@ -218,6 +231,7 @@ def _water_surrogate_section() -> str:
                     ),
                     _feasibility_level(e),
                     _replicates(sur),
+                    _misfit(e),
                     truth or "-",
                     _wall_time(e),
                     _gromacs_seconds(data, stats),
@@ -238,8 +252,12 @@ coverage / mean squared standardised error / the joint one (Mahalanobis distance
 correlation, divided by the number of statistics; 1 when the correlation is right); the level of
 the success classifier below which the posterior is cut, and the posterior weight between it and the
 design level, where no design run goes (docs/guide/surrogate.md); the replicate
-runs at two liquid design points and whether the GP nuggets agree with their scatter; for simulated
-data whether TIP4P's own parameters lie in the 50 % HPD region.
+runs at two liquid design points and whether the GP nuggets agree with their scatter; the
+posterior predictive check of the observed summaries (`observed_misfit`: the chi-square tail
+probability, and the summary furthest from the emulated prediction in noise sd; below 1e-3 no
+parameter value reproduces the data within the simulator noise, and the interval is that of the
+best fit of a misspecified model, conditional on it); for simulated data whether TIP4P's own
+parameters lie in the 50 % HPD region.
 
 {table(_SURROGATE_HEADER, rows)}
 

@@ -68,6 +68,22 @@ def _failure_text(state: Any, max_emulator_ratio: float) -> str:
     return "; ".join(parts)
 
 
+def _misfit_text(misfit: dict) -> str:
+    residuals = misfit["standardised_residuals"]
+    worst = sorted((i for i, r in enumerate(residuals) if r is not None), key=lambda i: -abs(residuals[i]))[:3]
+    which = "principal component" if misfit["projected"] else "summary"
+    named = ", ".join(f"{which} {i} ({residuals[i]:+.1f} sd)" for i in worst)
+    return (
+        f"surrogate: the observed summaries lie outside the model's posterior predictive "
+        f"(squared Mahalanobis distance {misfit['mahalanobis_squared']:.3g} on {misfit['dof']} outputs, "
+        f"p = {misfit['p_value']:.2g}; largest mean standardised residuals: {named}). No parameter value "
+        "reproduces the data within the simulator noise: the posterior is the best fit of a "
+        "misspecified model, and its width reflects the simulator noise, not the misfit. Add the "
+        "data's measurement error (jaxabc.noise.MeasurementError) or read the interval as conditional "
+        "on the model"
+    )
+
+
 def _noise_correlation(residuals: np.ndarray, active: np.ndarray | None = None) -> np.ndarray:
     """Correlation ``(q, q)`` of leave-one-out residuals ``(n, q)``, Ledoit-Wolf shrunk.
 

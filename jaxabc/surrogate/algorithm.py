@@ -29,9 +29,9 @@ from jax.tree_util import keystr, tree_flatten_with_path
 
 from jaxabc.algorithms.base import ABCAlgorithm, Info, Proposal
 from jaxabc.distances import get_distance
-from jaxabc.surrogate import abc_mode, design, diagnostics, emulator, sampling
+from jaxabc.surrogate import abc_mode, design, diagnostics, emulator, evidence, sampling
 from jaxabc.surrogate._fit import ROLE_DESIGN, ROLE_EMPTY, ROLE_FAILED_HOLDOUT, ROLE_HOLDOUT, fit_likelihood
-from jaxabc.surrogate._support import _FLAG, _evaluate, _failure_text, _untested_share
+from jaxabc.surrogate._support import _FLAG, _evaluate, _failure_text, _misfit_text, _untested_share
 
 __all__ = ["MODES", "EmulatorFailure", "SurrogateState", "build"]
 
@@ -745,6 +745,16 @@ def build(
             f"mean squared standardised error {float(info.threshold):.2f})"
         )
 
+    def observed_misfit(state: SurrogateState) -> dict | None:
+        """The posterior predictive check of the observed summaries (None before any posterior)."""
+        if int(state.phase) != DONE:
+            return None
+        with jax.enable_x64(True), _single_threaded_blas():
+            transform, _, model, _ = fit(state)
+            lw = np.asarray(state.log_weights, np.float64)
+            x = to_unit(np.asarray(state.draws, np.float64))
+            return evidence.observed_misfit(model, transform, x, np.exp(lw - np.max(lw)))
+
     def finalize(state: SurrogateState) -> dict:
         c = int(state.count)
         ls = np.exp(state.hyper[:, 1 : 1 + d]) * (high - low)
@@ -776,6 +786,9 @@ def build(
             else ("APMCABC on the emulator" if abc else "NUTS"),
             "rounds": int(state.round),
         }
+        diag["observed_misfit"] = misfit = observed_misfit(state)
+        if misfit is not None and misfit["p_value"] < diagnostics.MISFIT_P_VALUE:
+            warnings.warn(_misfit_text(misfit), RuntimeWarning, stacklevel=2)
         if abc:
             diag |= {
                 "mode": mode,

@@ -90,6 +90,13 @@ class HoldoutCheck(NamedTuple):
 MIN_HOLDOUT_RUNS = 5
 
 
+#: Tail probability of the observed summaries under the posterior predictive below which a
+#: run warns that the model does not reproduce the data (:func:`jaxabc.surrogate.evidence.observed_misfit`).
+#: A posterior predictive p-value is conservative (it concentrates near 0.5 for a right model),
+#: so this level flags misfits, not the chance scatter of a model that fits.
+MISFIT_P_VALUE = 1e-3
+
+
 def holdout_bounds(n: int) -> tuple[float, float]:
     """Pass bounds ``(coverage_min, mean_squared_max)`` for ``n`` standardised errors."""
     return 0.95 - 3.0 * np.sqrt(0.95 * 0.05 / n), float(scipy.stats.chi2.ppf(0.999, n) / n)

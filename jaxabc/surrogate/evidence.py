@@ -169,35 +169,45 @@ def evidence_from_state(
 
 
 def observed_misfit(
-    model: sampling.LikelihoodModel, transform: emulator.OutputTransform, x_draws: np.ndarray
+    model: sampling.LikelihoodModel,
+    transform: emulator.OutputTransform,
+    x_draws: np.ndarray,
+    weights: np.ndarray | None = None,
 ) -> dict[str, Any]:
     """How far the observed summaries lie from the posterior predictive of the emulated model.
 
-    ``x_draws (P, d)``: posterior draws in the unit box.  The predictive covariance is the
-    simulator's noise plus the emulator's variance plus the spread of the emulated mean over
-    the draws, so the check includes the parameters' uncertainty.  Returns the posterior mean
-    of each output's standardised residual ``(z_obs - mu) / sqrt(noise^2 + var)`` (``None``
-    for outputs left out; in summary order unless the outputs were projected), the squared
-    Mahalanobis distance of the observed summaries over the active outputs, its degrees of
-    freedom and the chi-square tail probability: a small ``p_value`` says no parameter value
-    reproduces the data within the noise (misspecification, or a measurement error missing).
+    ``x_draws (P, d)``: posterior draws in the unit box, ``weights (P,)`` their weights (equal
+    if ``None``; zero weights drop a draw).  The predictive covariance is the simulator's noise
+    plus the emulator's variance plus the spread of the emulated mean over the draws, so the
+    check includes the parameters' uncertainty.  Returns the posterior mean of each output's
+    standardised residual ``(z_obs - mu) / sqrt(noise^2 + var)`` (``None`` for outputs left
+    out; in summary order unless the outputs were projected), the squared Mahalanobis distance
+    of the observed summaries over the active outputs, its degrees of freedom and the
+    chi-square tail probability: a small ``p_value`` says no parameter value reproduces the
+    data within the noise (misspecification, or a measurement error missing).
     """
     from scipy.stats import chi2
 
+    w = np.full(len(x_draws), 1.0) if weights is None else np.asarray(weights, np.float64)
+    if w.shape != (len(x_draws),) or not np.all(w >= 0) or not w.sum() > 0:
+        raise ValueError("observed_misfit: weights must be (P,), non-negative and not all zero")
+    keep = w > 0
+    x, w = np.asarray(x_draws)[keep], w[keep] / w[keep].sum()
     active = np.asarray(model.active, bool)
     means, variances = [], []
-    for i in range(0, len(x_draws), _CHUNK):
-        m, v = emulator.predict(model.emulator, jnp.asarray(x_draws[i : i + _CHUNK]))
+    for i in range(0, len(x), _CHUNK):
+        m, v = emulator.predict(model.emulator, jnp.asarray(x[i : i + _CHUNK]))
         means.append(np.asarray(m, np.float64))
         variances.append(np.asarray(v, np.float64))
     mean, var = np.concatenate(means), np.concatenate(variances)
     noise_sd = np.exp(np.asarray(model.emulator.log_noise, np.float64))
     z_obs = np.asarray(model.z_obs, np.float64)
-    r = np.mean((z_obs - mean) / np.sqrt(noise_sd**2 + var), axis=0)
+    r = w @ ((z_obs - mean) / np.sqrt(noise_sd**2 + var))
+    centre = w @ mean
     chol = np.asarray(model.noise_chol, np.float64)
-    cov = noise_sd[:, None] * (chol @ chol.T) * noise_sd[None, :] + np.diag(var.mean(axis=0))
-    cov += np.atleast_2d(np.cov(mean, rowvar=False))
-    e = (z_obs - mean.mean(axis=0))[active]
+    cov = noise_sd[:, None] * (chol @ chol.T) * noise_sd[None, :] + np.diag(w @ var)
+    cov += (mean - centre).T @ ((mean - centre) * w[:, None])
+    e = (z_obs - centre)[active]
     c = cov[np.ix_(active, active)]
     d2 = float(e @ np.linalg.solve(c, e))
     dof = int(active.sum())
@@ -215,8 +225,9 @@ def with_evidence(algorithm: Any, prior: Any, observed: Any, seed: int = 0) -> A
 
     The driver puts ``log_evidence`` on the result (``result.log_evidence``); its standard
     error, the summaries in the likelihood and the sample size go to ``result.diagnostics``
-    (``log_evidence_se``, ``evidence_active``, ``evidence_samples``), with the posterior
-    predictive check of the observed summaries (``observed_misfit``, :func:`observed_misfit`).  Only for
+    (``log_evidence_se``, ``evidence_active``, ``evidence_samples``), beside the posterior
+    predictive check of the observed summaries that every surrogate run reports
+    (``observed_misfit``, :func:`observed_misfit`).  Only for
     ``mode="synthetic_likelihood"``; the posterior and the checkpoints are unchanged, apart
     from the fingerprint's ``evidence_seed`` setting.
     """
@@ -235,8 +246,6 @@ def with_evidence(algorithm: Any, prior: Any, observed: Any, seed: int = 0) -> A
             transform, model = likelihood_from_state(state, low, high, obs, settings)
             rng = np.random.default_rng(seed)
             ev = evidence_from_state(state, low, high, obs, settings, rng, fitted=(transform, model))
-            x = (np.asarray(state.draws, np.float64) - low) / (high - low)
-            misfit = observed_misfit(model, transform, x)
         out["log_evidence"] = ev.log_z
         out["diagnostics"] = dict(out["diagnostics"]) | {
             "log_evidence_se": ev.log_z_se,
@@ -244,7 +253,6 @@ def with_evidence(algorithm: Any, prior: Any, observed: Any, seed: int = 0) -> A
             "log_evidence_jackknife_se": ev.jackknife_se,
             "evidence_active": ev.active.tolist(),
             "evidence_samples": ev.num_samples,
-            "observed_misfit": misfit,
         }
         return out
 
