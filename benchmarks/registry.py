@@ -223,6 +223,13 @@ REGISTRY: tuple[Entry, ...] = (
         note="GP surrogate against ELFI's BOLFI and pyABC at equal simulation budgets on an exact problem",
     ),
     Entry(
+        "water_misfit",
+        f"{R}/water_misfit.json",
+        "python benchmarks/water_misfit.py",
+        estimated_cost_s=120.0,
+        note="the paper-preset X-ray surrogate's observed-data misfit, from its saved checkpoint (no GROMACS)",
+    ),
+    Entry(
         "surrogate_classifier_replay",
         f"{R}/surrogate_classifier_replay.json",
         "python benchmarks/surrogate_classifier_replay.py",

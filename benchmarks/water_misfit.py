@@ -1,0 +1,130 @@
+"""Where the surrogate's paper-preset X-ray estimate leaves the paper's, and why.
+
+The GP-surrogate calibration of the paper's preset (``water_xray_surrogate_paper_preset`` in
+``benchmarks/registry.py``) keeps its checkpoint in the results folder.  This restores it, refits
+the run's emulator (its own last fit: a deterministic optimisation on the same rows) and reports
+
+- the posterior predictive check of the observed summaries
+  (:func:`jaxabc.surrogate.evidence.observed_misfit`, over the saved posterior draws);
+- at the surrogate's Bayes estimate, the paper's estimate and TIP4P's own parameters: the
+  emulated summaries, each summary's residual ``(observed - emulated) / sd`` with ``sd`` the
+  simulator noise and emulator spread, the synthetic log-likelihood and the chance that a run
+  succeeds there, and the paper's own distance (mean absolute difference of the statistics,
+  with the run's scales) between the observed and the emulated summaries.
+
+No GROMACS run is made: everything comes from the saved design.
+
+Usage::
+
+    python benchmarks/water_misfit.py
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+import jax  # noqa: E402
+import jax.numpy as jnp  # noqa: E402
+import numpy as np  # noqa: E402
+
+from jaxabc.priors import Uniform  # noqa: E402
+from jaxabc.surrogate import build, emulator, evidence, sampling  # noqa: E402
+from md.water.gromacs import TIP4P_PARAMETERS  # noqa: E402
+
+sys.path.insert(0, str(ROOT / "benchmarks"))
+from _common import machine, relative, write_result  # noqa: E402
+
+FOLDER = ROOT / "benchmarks" / "results" / "water_paper_preset"
+CHECKPOINT = FOLDER / "checkpoint_xray" / "checkpoint.npz"
+RESULT = FOLDER / "water_xray_surrogate.json"
+RECORD = FOLDER / "water_xray_paper_surrogate.npz"
+#: Settings of the saved run that shape its fit (the rest only steer the design).
+_FIT_SETTINGS = ("num_initial", "num_replicates", "batch_size", "num_holdout", "max_outputs", "min_feasibility")
+
+
+def _restore(entry: dict, low: np.ndarray, high: np.ndarray):
+    settings = entry["settings"]
+    algorithm = build(
+        Uniform(low, high),
+        settings["num_particles"],
+        observed=np.asarray(entry["observed"], np.float64),
+        max_simulations=settings["max_simulations"],
+        **{k: settings[k] for k in _FIT_SETTINGS},
+    )
+    with np.load(CHECKPOINT, allow_pickle=False) as data:
+        flat = {k.removeprefix("state/"): data[k] for k in data.files if k.startswith("state/")}
+    return algorithm, algorithm.restore_state(flat)
+
+
+def at_point(model, transform, x: np.ndarray, observed: np.ndarray, scale: np.ndarray) -> dict:
+    """Emulated summaries and residuals at one unit-box point ``x (d,)``."""
+    mean, var = emulator.predict(model.emulator, jnp.asarray(x[None, :]))
+    z, v = np.asarray(mean[0], np.float64), np.asarray(var[0], np.float64)
+    rotation = np.asarray(transform.rotation, np.float64)
+    t_scale, t_mean = np.asarray(transform.scale, np.float64), np.asarray(transform.mean, np.float64)
+    emulated = t_mean + t_scale * (z @ rotation.T)
+    noise_sd = np.exp(np.asarray(model.emulator.log_noise, np.float64))
+    z_obs = np.asarray(model.z_obs, np.float64)
+    active = np.asarray(model.active, bool)
+    loglik, _ = sampling.log_likelihood_terms(model, jnp.asarray(x[None, :]))
+    return {
+        "emulated_summaries": emulated.tolist(),
+        "residual_sd": [
+            float(r) if a else None for r, a in zip((z_obs - z) / np.sqrt(noise_sd**2 + v), active, strict=True)
+        ],
+        "synthetic_log_likelihood": float(loglik[0]),
+        "success_probability": float(sampling.feasibility(model.feasible, jnp.asarray(x[None, :]))[0]),
+        "paper_distance": float(np.mean(np.abs(observed - emulated) / scale)),
+    }
+
+
+def main(argv: list[str] | None = None) -> dict:
+    parser = argparse.ArgumentParser(description=(__doc__ or "").split("\n\n")[0])
+    parser.parse_args(argv)
+    jax.config.update("jax_enable_x64", True)
+    entry = json.loads(RESULT.read_text())["paper"]
+    with np.load(RECORD, allow_pickle=False) as rec:
+        prior = json.loads(str(rec["metadata"]))["prior"]
+    low, high = np.asarray(prior["low"], np.float64), np.asarray(prior["high"], np.float64)
+    algorithm, state = _restore(entry, low, high)
+    observed = np.asarray(entry["observed"], np.float64)
+    scale = np.asarray(entry["scale"], np.float64)
+    transform, model = evidence.likelihood_from_state(state, low, high, observed, algorithm.settings)
+    lw = np.asarray(state.log_weights, np.float64)
+    x_draws = (np.asarray(state.draws, np.float64) - low) / (high - low)
+    misfit = evidence.observed_misfit(model, transform, x_draws, np.exp(lw - np.max(lw)))
+    points = {
+        "surrogate_estimate": np.asarray(entry["bayes_estimate"], np.float64),
+        "paper_estimate": np.asarray(entry["paper"]["bayes_estimate"], np.float64),
+        "tip4p": np.array([TIP4P_PARAMETERS.sigma_ow_nm, TIP4P_PARAMETERS.epsilon_ow_kj_mol]),
+    }
+    at = {
+        name: {"theta": theta.tolist()} | at_point(model, transform, (theta - low) / (high - low), observed, scale)
+        for name, theta in points.items()
+    }
+    payload = {
+        "machine": machine(),
+        "source": relative(RESULT),
+        "statistics": entry["statistics"],
+        "statistic_names": entry["statistic_names"],
+        "observed": observed.tolist(),
+        "noise_sd": (np.exp(np.asarray(model.emulator.log_noise)) * np.asarray(transform.scale)).tolist()
+        if transform.rotation.shape[0] == transform.rotation.shape[1]
+        else None,
+        "observed_misfit": misfit,
+        "points": at,
+    }
+    out = write_result("water_misfit", payload, inputs=[CHECKPOINT, RESULT, RECORD])
+    print(json.dumps({"observed_misfit": misfit, "points": at}, indent=1))
+    print(f"wrote {relative(out)}")
+    return payload
+
+
+if __name__ == "__main__":
+    main()
