@@ -695,6 +695,8 @@ def test_abc_mode_matches_the_analytic_posterior_within_its_tolerance():
     assert result.num_simulations <= 200 and result.particles.shape == (2000, 2)
     assert diag["validated"] and diag["mode"] == "abc" and len(diag["design_points"]) == result.num_simulations
     assert result.stop_reason.startswith("emulator validated")
+    # The predictive check runs on the weighted ABC particles too; the data came from the model.
+    assert diag["observed_misfit"]["p_value"] > diagnostics.MISFIT_P_VALUE
     eps = diag["abc_threshold"]
     # APMCABC's acceptance cutoff (0.03) stops below the smaller noise sd: the tolerance then
     # widens the posterior by a few per cent, which the comparison below accounts for.
