@@ -11,6 +11,7 @@ from _common import RESULTS, ROOT
 from status import format_cost
 
 from docpages.common import f, git, load, source, sourced_table, table
+from jaxabc.surrogate.diagnostics import MISFIT_P_VALUE
 
 WATER_LABELS = {
     "simulated": "simulated at TIP4P",
@@ -179,16 +180,19 @@ def _replicates(sur: dict) -> str:
     return f"{n} ({'agree' if sur.get('lack_of_fit_ok', True) else '**disagree**'})"
 
 
+def _worst_residual(entry: dict, misfit: dict) -> str:
+    """The summary furthest from the emulated prediction, in noise sd (e.g. ``S4 -80.8 sd``)."""
+    residuals = misfit["standardised_residuals"]
+    worst = max((i for i, r in enumerate(residuals) if r is not None), key=lambda i: abs(residuals[i]))
+    name = f"PC {worst + 1}" if misfit["projected"] else entry["statistic_names"][worst].split()[0]
+    return f"{name} {residuals[worst]:+.1f} sd"
+
+
 def _misfit(entry: dict) -> str:
     """The posterior predictive p-value of the observed summaries and the summary that misses
-    most, in sd ("-" for results made before the check existed)."""
+    most ("-" for results made before the check existed)."""
     m = entry["surrogate"].get("observed_misfit")
-    if not m:
-        return "-"
-    residuals = m["standardised_residuals"]
-    worst = max((i for i, r in enumerate(residuals) if r is not None), key=lambda i: abs(residuals[i]))
-    name = f"PC {worst + 1}" if m["projected"] else entry["statistic_names"][worst].split()[0]
-    return f"{m['p_value']:.1g} ({name} {residuals[worst]:+.1f} sd)"
+    return f"{m['p_value']:.1g} ({_worst_residual(entry, m)})" if m else "-"
 
 
 def _feasibility_level(entry: dict) -> str:
@@ -485,6 +489,18 @@ def _posterior_draws(data: str, stats: str, surrogate: bool) -> str:
     return f"{w.size} (ESS {1.0 / np.sum(w**2):.0f})"
 
 
+def _method_label(method: str, entry: dict, validated: bool) -> str:
+    """The side-by-side method, flagged when the emulator failed validation or when no parameter
+    reproduces the data (the ``observed_misfit`` check below ``MISFIT_P_VALUE``)."""
+    if not validated:
+        return f"{method} (NOT VALIDATED: {entry['surrogate'].get('failure', '')})"
+    misfit = (entry.get("surrogate") or {}).get("observed_misfit")
+    if misfit and misfit["p_value"] < MISFIT_P_VALUE:
+        worst = _worst_residual(entry, misfit)
+        return f"{method} (MISFIT: p = {misfit['p_value']:.1g}, {worst}; interval conditional on the model)"
+    return method
+
+
 _SIDE_BY_SIDE_HEADER = [
     "data",
     "statistics",
@@ -535,7 +551,7 @@ def _water_side_by_side_rows() -> tuple[list[list[Any]], list[list[Any]]]:
                     [
                         WATER_LABELS[data],
                         stats,
-                        method if validated else f"{method} (NOT VALIDATED: {e['surrogate'].get('failure', '')})",
+                        _method_label(method, e, validated),
                         f"{f(e['bayes_estimate'][0], 4)} [{f(ci[0][0], 4)}, {f(ci[0][1], 4)}]",
                         f"{f(e['bayes_estimate'][1])} [{f(ci[1][0])}, {f(ci[1][1])}]",
                         f(e["correlation"], 3),
