@@ -9,6 +9,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+import scipy.stats
 from jax.tree_util import keystr, tree_flatten_with_path
 
 from jaxabc.diagnostics import chain_ess
@@ -816,3 +817,103 @@ def test_the_result_ess_of_nuts_draws_is_the_chains_not_the_rows():
     assert result.diagnostics["posterior_sampler"] == "NUTS"
     assert result.effective_sample_size() == pytest.approx(float(result.ess[-1]))
     assert result.effective_sample_size() < len(result.weights)
+
+
+_MODES = ((0.3, (0.2, 0.9), (3e-3, 9e-3), 0.8), (0.7, (0.7, 0.3), (6e-3, 3e-3), -0.5))
+
+
+def _two_narrow_modes(x: np.ndarray) -> tuple[np.ndarray]:
+    """Log density (unnormalised) of the mixture ``_MODES`` (share, mean, sds, correlation)."""
+    out = []
+    for share, mean, sd, rho in _MODES:
+        cov = np.array([[sd[0] ** 2, rho * sd[0] * sd[1]], [rho * sd[0] * sd[1], sd[1] ** 2]])
+        out.append(np.log(share) + scipy.stats.multivariate_normal(mean, cov).logpdf(x))
+    return (np.logaddexp(*out),)
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_the_importance_pool_resolves_narrow_modes(monkeypatch, seed):
+    # Two modes about as wide as the spacing of the 16384-point uniform pass, 0.8 apart: the
+    # first local Gaussian spans both; the refinements resolve each.
+    rng = np.random.default_rng(seed)
+    points, (log_density,) = design.importance_pool(rng, 2, 1 << 14, _two_narrow_modes)
+    log_w = log_density - points.log_q
+    ess = design.kish_ess(log_w)
+    assert ess >= (1 << 14) / design.POINTS_PER_ESS
+    w = np.exp(log_w - log_w.max())
+    w /= w.sum()
+    upper = points.x[:, 1] > 0.6
+    # Mode shares, means and sds against the exact ones, within 4 Monte Carlo standard errors.
+    assert abs(w[upper].sum() - 0.3) < 4 * np.sqrt(0.3 * 0.7 / ess)
+    for sel, (share, mean, sd, _) in zip((upper, ~upper), _MODES, strict=True):
+        ws = w[sel] / w[sel].sum()
+        m = ws @ points.x[sel]
+        s = np.sqrt(ws @ (points.x[sel] - m) ** 2)
+        n = share * ess
+        assert np.all(np.abs(m - mean) < 4 * np.asarray(sd) / np.sqrt(n)), (m, mean)
+        assert np.all(np.abs(s / sd - 1) < 4 / np.sqrt(2 * n)), (s, sd)
+    # Without the refinements the same pool resolves them with a few dozen effective points.
+    monkeypatch.setattr(design, "MAX_REFINEMENTS", 0)
+    points, (log_density,) = design.importance_pool(np.random.default_rng(seed), 2, 1 << 14, _two_narrow_modes)
+    assert design.kish_ess(log_density - points.log_q) < 100
+
+
+def test_the_importance_pool_resolves_a_peak_against_the_box_edge():
+    # A sharp peak cut by the upper edge (the neutron data's synthetic likelihood): the exact
+    # marginal of the second coordinate is a truncated normal.
+    sd = np.array([5e-5, 4e-4])
+    centre = np.array([0.046, 0.9998])
+
+    def log_density(x):
+        return (-0.5 * np.sum(((x - centre) / sd) ** 2, axis=1),)
+
+    points, (lp,) = design.importance_pool(np.random.default_rng(1), 2, 1 << 15, log_density)
+    log_w = lp - points.log_q
+    ess = design.kish_ess(log_w)
+    w = np.exp(log_w - log_w.max())
+    w /= w.sum()
+    exact = scipy.stats.truncnorm(-np.inf, (1 - centre[1]) / sd[1], loc=centre[1], scale=sd[1])
+    assert ess >= (1 << 15) / design.POINTS_PER_ESS
+    m = w @ points.x
+    assert abs(m[0] - centre[0]) < 4 * sd[0] / np.sqrt(ess)
+    assert abs(m[1] - exact.mean()) < 4 * exact.std() / np.sqrt(ess)
+    assert abs(np.sqrt(w @ (points.x[:, 1] - m[1]) ** 2) / exact.std() - 1) < 4 / np.sqrt(2 * ess)
+
+
+def test_a_posterior_of_few_effective_draws_warns(gaussian_run):
+    algorithm, state, _, _ = gaussian_run
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)
+        assert algorithm.finalize(state)["ess"] >= diagnostics.MIN_POSTERIOR_ESS  # no warning
+    # The same draws, the weight on five of them: what an importance pool that saw a sharp
+    # posterior through a handful of points reports.
+    log_weights = np.full(len(state.draws), -np.inf)
+    log_weights[:5] = 0.0
+    with pytest.warns(RuntimeWarning, match="effective sample size of 5 "):
+        extras = algorithm.finalize(state._replace(log_weights=log_weights))
+    assert extras["ess"] == pytest.approx(5.0)
+
+
+def test_a_sharp_two_mode_posterior_is_resolved_by_thousands_of_draws():
+    import jaxabc
+
+    # As the two-mode test, with noise 50 times smaller: each mode is 1e-4 of the box wide, far
+    # narrower than the importance pool's uniform spacing.  This checks the sampler (effective
+    # draws, the modes' masses and widths), not the emulator's accuracy at the modes' centres.
+    noise = 0.001
+    prior = Uniform(np.array([-2.0]), np.array([2.0]))
+
+    def simulate(key, theta):
+        return theta[0] ** 2 + noise * jax.random.normal(key, (2,))
+
+    result = jaxabc.run("surrogate", simulate, prior, np.array([1.0, 1.0]), max_simulations=150, seed=0)
+    ess = result.effective_sample_size()
+    assert ess >= 500
+    x, w = result.particles[:, 0], result.weights
+    assert abs(w[x > 0].sum() - 0.5) < 4.0 * np.sqrt(0.25 / ess)
+    # theta^2 ~ N(1, noise^2 / 2) at each mode: theta's sd is noise / (2 sqrt 2).
+    exact_sd = noise / (2 * np.sqrt(2))
+    for sel in (x > 0, x < 0):
+        ws = w[sel] / w[sel].sum()
+        sd = np.sqrt(ws @ (x[sel] - ws @ x[sel]) ** 2)
+        assert abs(sd / exact_sd - 1) < 0.15, (sd, exact_sd)

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import contextlib
 import warnings
+from functools import partial
 from typing import Any, NamedTuple
 
 import jax
@@ -148,12 +149,6 @@ def _single_threaded_blas() -> contextlib.AbstractContextManager:
     return threadpool_limits(limits=1, user_api="blas")
 
 
-def kish_ess(log_weights: np.ndarray) -> float:
-    """Kish effective sample size ``(sum w)^2 / sum w^2`` of log weights ``(n,)``."""
-    w = np.exp(np.asarray(log_weights, np.float64) - np.max(log_weights))
-    return float(w.sum() ** 2 / np.sum(w**2))
-
-
 #: Split R-hat above which the NUTS chains are taken not to agree (e.g. in different modes of
 #: a multimodal posterior); the reported draws are then importance-resampled instead.
 RHAT_MAX = 1.05
@@ -174,7 +169,7 @@ def posterior_ess(state: Any, num_chains: int, abc: bool) -> float:
     if abc or not np.all(np.isfinite(rhat)) or resampled or len(draws) % num_chains:
         # Weighted draws: APMCABC's population, the design phase's importance sample, or the
         # importance resample that replaced chains which did not mix.
-        return kish_ess(state.log_weights)
+        return design.kish_ess(state.log_weights)
     from jaxabc.diagnostics import chain_ess
 
     return chain_ess(draws.reshape(num_chains, -1, draws.shape[1]))
@@ -424,14 +419,9 @@ def build(
     def importance_posterior(rng: np.random.Generator, model: sampling.LikelihoodModel, size: int | None = None):
         """Candidate points with self-normalised importance weights of the surrogate posterior
         (``size`` of them in the second, local pass; default ``num_candidates``)."""
-        cand = design.candidates(rng, d, num_candidates)
-        lp, ratio = _evaluate(model, cand.x)
-        w = np.exp(lp - cand.log_q - np.max(lp - cand.log_q))
-        w /= w.sum()
-        mean = w @ cand.x
-        cov = (cand.x - mean).T @ ((cand.x - mean) * w[:, None])
-        cand = design.candidates(rng, d, size or num_candidates, mean, cov)
-        lp, ratio = evaluate(model, cand.x)
+        cand, (lp, ratio) = design.importance_pool(
+            rng, d, size or num_candidates, partial(evaluate, model), first_num=num_candidates
+        )
         logw = lp - cand.log_q
         w = np.exp(logw - np.max(logw))
         w /= w.sum()
@@ -789,6 +779,16 @@ def build(
         diag["observed_misfit"] = misfit = observed_misfit(state)
         if misfit is not None and misfit["p_value"] < diagnostics.MISFIT_P_VALUE:
             warnings.warn(_misfit_text(misfit), RuntimeWarning, stacklevel=2)
+        ess = posterior_ess(state, num_chains, abc)
+        if int(state.phase) == DONE and ess < diagnostics.MIN_POSTERIOR_ESS:
+            warnings.warn(
+                f"surrogate: the posterior rests on an effective sample size of {ess:.0f} (below "
+                f"{diagnostics.MIN_POSTERIOR_ESS}; sampler: {diag['posterior_sampler']}): its intervals and "
+                "correlation are not resolved. A sharper posterior than the importance pool resolves "
+                f"({_IS_POOL} points per particle) needs more num_particles",
+                RuntimeWarning,
+                stacklevel=2,
+            )
         if abc:
             diag |= {
                 "mode": mode,
@@ -796,7 +796,7 @@ def build(
                 "abc_generations": int(state.abc_generations),
                 "abc_emulated_simulations": int(state.abc_emulated),
             }
-        return {"ess": posterior_ess(state, num_chains, abc), "diagnostics": diag}
+        return {"ess": ess, "diagnostics": diag}
 
     def restore_state(flat: dict[str, np.ndarray]) -> SurrogateState:
         template = empty_state()

@@ -95,6 +95,10 @@ MIN_HOLDOUT_RUNS = 5
 #: A posterior predictive p-value is conservative (it concentrates near 0.5 for a right model),
 #: so this level flags misfits, not the chance scatter of a model that fits.
 MISFIT_P_VALUE = 1e-3
+#: Effective sample size of the reported posterior below which a run warns that its intervals
+#: and correlation are not resolved (a quantile from ``n`` effective draws carries a standard
+#: error of about ``sqrt(q (1 - q) / n)`` in probability: 0.02 at ``q = 0.975`` for 100).
+MIN_POSTERIOR_ESS = 100
 
 
 def holdout_bounds(n: int) -> tuple[float, float]:

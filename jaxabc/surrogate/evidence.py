@@ -97,17 +97,14 @@ def _log_density(model: sampling.LikelihoodModel, x: np.ndarray) -> np.ndarray:
 
 def _points(model: sampling.LikelihoodModel, rng: np.random.Generator, num_samples: int) -> design.Candidates:
     """The importance-sampling points: half Sobol over the box, half a Gaussian fitted to a
-    first uniform pass (the defensive mixture), with their log proposal density."""
+    first uniform pass and refined while it resolves the density poorly (the defensive
+    mixture, :func:`.design.importance_pool`), with their log proposal density."""
     d = model.emulator.x.shape[1]
-    first = design.candidates(rng, d, num_samples)
-    lp = _log_density(model, first.x)
-    w = np.exp(lp - np.max(lp))
-    if not np.isfinite(w.sum()) or w.sum() <= 0:
-        raise FloatingPointError("the synthetic likelihood is not finite anywhere in the box")
-    w /= w.sum()
-    centre = w @ first.x
-    cov = (first.x - centre).T @ ((first.x - centre) * w[:, None])
-    return design.candidates(rng, d, num_samples, centre, cov)
+    try:
+        points, _ = design.importance_pool(rng, d, num_samples, lambda x: (_log_density(model, x),))
+    except FloatingPointError:
+        raise FloatingPointError("the synthetic likelihood is not finite anywhere in the box") from None
+    return points
 
 
 def _estimate(
