@@ -485,8 +485,10 @@ def _posterior_draws(data: str, stats: str, surrogate: bool) -> str:
         return "-"
     with np.load(path, allow_pickle=True) as z:
         w = np.asarray(z["weights"], np.float64)
+        # The run's own ESS (NUTS chains: ArviZ's, below the count of equal weights).
+        ess = float(np.asarray(z["ess"])[-1]) if "ess" in z.files else None
     w = w / w.sum()
-    return f"{w.size} (ESS {1.0 / np.sum(w**2):.0f})"
+    return f"{w.size} (ESS {1.0 / np.sum(w**2) if ess is None else ess:.0f})"
 
 
 def _method_label(method: str, entry: dict, validated: bool) -> str:
