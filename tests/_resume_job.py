@@ -1,4 +1,8 @@
-"""A calibration run used by test_run.py: killed part-way, then resumed (argv: folder, mode)."""
+"""A calibration run used by test_faults.py: killed part-way, then resumed.
+
+argv: folder, mode (plain | ckpt | resume), optionally the method (apmcabc, the default, or
+surrogate).
+"""
 
 import sys
 import time
@@ -16,21 +20,30 @@ def slow_simulate(key, theta):
 
 def main() -> None:
     folder, mode = sys.argv[1], sys.argv[2]
-    prior = jaxabc.Uniform([-10.0], [10.0], names=("mu",))
-    result = jaxabc.run(
-        "apmcabc",
-        slow_simulate,
-        prior,
-        np.array([0.0]),
-        num_particles=300,
-        num_steps=7,
-        acceptance_cutoff=0.0,
+    method = sys.argv[3] if len(sys.argv) > 3 else "apmcabc"
+    common = dict(
         executor="serial",
         seed=7,
         checkpoint_dir=None if mode == "plain" else folder,
         resume=mode == "resume",
     )
-    result.save(f"{folder}/result-{mode}.npz")
+    if method == "surrogate":
+        # A host (NumPy) simulator through the surrogate's sequential design.
+        prior = jaxabc.Uniform([-10.0, -10.0], [10.0, 10.0], names=("a", "b"))
+        result = jaxabc.run("surrogate", slow_simulate, prior, np.array([0.5, -1.0]), max_simulations=60, **common)
+    else:
+        prior = jaxabc.Uniform([-10.0], [10.0], names=("mu",))
+        result = jaxabc.run(
+            "apmcabc",
+            slow_simulate,
+            prior,
+            np.array([0.0]),
+            num_particles=300,
+            num_steps=7,
+            acceptance_cutoff=0.0,
+            **common,
+        )
+    result.save(f"{folder}/result-{mode}-{method}.npz")
 
 
 if __name__ == "__main__":

@@ -131,40 +131,64 @@ def test_hanging_simulator_is_stopped_by_the_pool_timeout():
     assert "timeout" in str(err.value) and time.perf_counter() - t0 < 50
 
 
-def _job(folder, mode):
+def _job(folder, mode, method="apmcabc"):
     return subprocess.Popen(
-        [sys.executable, str(HERE / "_resume_job.py"), str(folder), mode],
+        [sys.executable, str(HERE / "_resume_job.py"), str(folder), mode, method],
         env={**os.environ, "PYTHONPATH": str(HERE.parent)},
     )
 
 
-def test_resume_after_sigkill_equals_uninterrupted_run(tmp_path):
-    plain = _job(tmp_path, "plain")
-    killed = _job(tmp_path, "ckpt")
-    ckpt = tmp_path / checkpoint.CHECKPOINT_NAME
+def _kill_at_iteration(job, ckpt: Path, first: int) -> int:
+    """SIGKILL ``job`` once its checkpoint records iteration ``first`` or later."""
     deadline = time.time() + 300
     iteration = 0
     while time.time() < deadline:
         if ckpt.exists():
             # Written atomically: a reader never sees a half-written file.
             iteration = checkpoint.load(ckpt).counters["iteration"]
-            if iteration >= 3:
+            if iteration >= first:
                 break
-        assert killed.poll() is None, "the run finished before it could be killed"
+        assert job.poll() is None, "the run finished before it could be killed"
         time.sleep(0.05)
-    killed.send_signal(signal.SIGKILL)
-    killed.wait()
-    assert killed.returncode == -signal.SIGKILL and 3 <= iteration < 7
-    assert not (tmp_path / "result-ckpt.npz").exists()
+    job.send_signal(signal.SIGKILL)
+    job.wait()
+    assert job.returncode == -signal.SIGKILL
+    return iteration
+
+
+def test_resume_after_sigkill_equals_uninterrupted_run(tmp_path):
+    plain = _job(tmp_path, "plain")
+    killed = _job(tmp_path, "ckpt")
+    iteration = _kill_at_iteration(killed, tmp_path / checkpoint.CHECKPOINT_NAME, 3)
+    assert 3 <= iteration < 7
+    assert not (tmp_path / "result-ckpt-apmcabc.npz").exists()
     assert _job(tmp_path, "resume").wait(timeout=600) == 0
     assert plain.wait(timeout=600) == 0
-    a = jaxabc.load(tmp_path / "result-plain.npz")
-    b = jaxabc.load(tmp_path / "result-resume.npz")
+    a = jaxabc.load(tmp_path / "result-plain-apmcabc.npz")
+    b = jaxabc.load(tmp_path / "result-resume-apmcabc.npz")
     np.testing.assert_array_equal(a.particles, b.particles)
     np.testing.assert_array_equal(a.weights, b.weights)
     np.testing.assert_array_equal(a.thresholds, b.thresholds)
     assert a.num_simulations == b.num_simulations == 300 + 6 * 270
     np.testing.assert_array_equal(a.records["theta"], b.records["theta"])
+
+
+def test_surrogate_resume_after_sigkill_equals_uninterrupted_run(tmp_path):
+    """A host simulator through the surrogate's design, killed after its second batch."""
+    plain = _job(tmp_path, "plain", "surrogate")
+    killed = _job(tmp_path, "ckpt", "surrogate")
+    iteration = _kill_at_iteration(killed, tmp_path / checkpoint.CHECKPOINT_NAME, 2)
+    assert iteration >= 2
+    assert not (tmp_path / "result-ckpt-surrogate.npz").exists()
+    assert _job(tmp_path, "resume", "surrogate").wait(timeout=600) == 0
+    assert plain.wait(timeout=600) == 0
+    a = jaxabc.load(tmp_path / "result-plain-surrogate.npz")
+    b = jaxabc.load(tmp_path / "result-resume-surrogate.npz")
+    assert a.num_simulations == b.num_simulations <= 60 and a.particles.shape[0] >= 1000
+    np.testing.assert_array_equal(a.records["theta"], b.records["theta"])  # the same design
+    np.testing.assert_array_equal(a.particles, b.particles)
+    np.testing.assert_array_equal(a.weights, b.weights)
+    assert a.stop_reason == b.stop_reason
 
 
 def test_write_interrupted_half_way_leaves_the_previous_checkpoint(tmp_path, gaussian_problem):
