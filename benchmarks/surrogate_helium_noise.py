@@ -9,7 +9,12 @@ at the posterior (same data, seed and summaries as ``surrogate_helium.py``):
   summary, mean absolute correlation);
 - the posterior sd of a Laplace approximation (the emulator's mean gradient at the posterior
   mean) under the model's covariance, under the empirical one at the posterior mean, and with
-  each one's sds and the other's correlations, beside the surrogate's posterior sd.
+  each one's sds and the other's correlations, beside the surrogate's posterior sd;
+- exact posteriors on a grid around the surrogate's, one ingredient changed at a time: the
+  surrogate's own log-likelihood (checks the sampler), without the emulator's variance, with
+  the replicate mean in place of the emulated one, with the replicates' covariance pooled over
+  the grid (``surrogate_helium``'s reference) and with it local to each point, log-determinant
+  included (the synthetic likelihood of Wood 2010, whose covariance varies with theta).
 
 It explains the width of the surrogate's posterior against ``surrogate_helium``'s grid reference,
 whose covariance is pooled over a box around the posterior.
@@ -50,6 +55,32 @@ def _mean_abs_corr(cov: np.ndarray) -> float:
     return float(np.mean(np.abs(corr[np.triu_indices(len(sd), 1)])))
 
 
+def grid_moments(grid: np.ndarray, loglik: np.ndarray, size: int) -> dict:
+    """Mean, sd, correlation and the weight on the edge of a ``size x size`` grid posterior."""
+    w = np.exp(loglik - loglik.max())
+    w /= w.sum()
+    mean = w @ grid
+    sd = np.sqrt(w @ (grid - mean) ** 2)
+    corr = float(w @ np.prod(grid - mean, axis=1) / np.prod(sd))
+    square = w.reshape(size, size)
+    edge = float(square[[0, -1], :].sum() + square[1:-1, [0, -1]].sum())
+    return {"mean": mean.tolist(), "sd": sd.tolist(), "correlation": corr, "weight_on_edge": edge}
+
+
+def local_covariances(resid: np.ndarray, size: int, half: int) -> np.ndarray:
+    """Per grid point, the covariance of the replicate residuals ``resid (size^2, R, q)`` pooled
+    over the ``(2 half + 1)^2`` neighbouring points (their own means removed): (size^2, q, q)."""
+    r, q = resid.shape[1], resid.shape[2]
+    square = resid.reshape(size, size, r, q)
+    out = np.empty((size * size, q, q))
+    for i in range(size):
+        for j in range(size):
+            block = square[max(0, i - half) : i + half + 1, max(0, j - half) : j + half + 1].reshape(-1, q)
+            points = block.shape[0] // r
+            out[i * size + j] = block.T @ block / (points * (r - 1))
+    return out
+
+
 def main(argv: list[str] | None = None) -> dict:
     parser = argparse.ArgumentParser(description=(__doc__ or "").split("\n\n")[0])
     parser.add_argument("--budget", type=int, default=100, help="the surrogate's max_simulations")
@@ -59,10 +90,15 @@ def main(argv: list[str] | None = None) -> dict:
     parser.add_argument("--replicates", type=int, default=600, help="runs at the posterior mean")
     parser.add_argument("--design-sites", type=int, default=8, help="design points given replicates too")
     parser.add_argument("--design-replicates", type=int, default=200)
+    parser.add_argument("--grid", type=int, default=41, help="grid points per parameter")
+    parser.add_argument("--grid-width", type=float, default=8.0, help="half-width in surrogate posterior sd")
+    parser.add_argument("--grid-replicates", type=int, default=40, help="runs per grid point")
+    parser.add_argument("--neighbourhood", type=int, default=3, help="half-width in points of the local covariance")
     parser.add_argument("--quick", action="store_true")
     args = parser.parse_args(argv)
     if args.quick:
         args.budget, args.replicates, args.design_sites, args.design_replicates = 60, 100, 2, 50
+        args.grid, args.grid_replicates = 11, 20
 
     simulate_quantiles, prior, _, observed_q, _ = quantile_problem(args.preset, args.seed)
     batched = jax.jit(jax.vmap(simulate_quantiles))
@@ -95,6 +131,23 @@ def main(argv: list[str] | None = None) -> dict:
     sites = design[rng.choice(len(design), size=min(args.design_sites, len(design)), replace=False)]
     at_sites = [replicates(s, args.design_replicates, 2 + i) for i, s in enumerate(sites)]
 
+    # The grid around the surrogate's posterior, each point with its own replicate runs.
+    spread = args.grid_width * draws.std(axis=0)
+    axes = [
+        np.linspace(max(c - w, lo), min(c + w, hi), args.grid)
+        for c, w, lo, hi in zip(centre, spread, low, high, strict=True)
+    ]
+    grid = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 2)
+    keys = jax.random.split(jax.random.key(args.seed + 100), len(grid) * args.grid_replicates)
+    thetas = jnp.asarray(np.repeat(grid, args.grid_replicates, axis=0), jnp.float32)
+    chunk = 8192
+    at_grid = np.concatenate(
+        [
+            np.asarray(batched(keys[i : i + chunk], thetas[i : i + chunk]), np.float64)
+            for i in range(0, len(thetas), chunk)
+        ]
+    )
+
     with jax.enable_x64(True):
         transform, emu, model, _ = fit_likelihood(
             state, low, high, observed_q, 16, args.budget, sampling.log_level(0.01)
@@ -115,12 +168,54 @@ def main(argv: list[str] | None = None) -> dict:
             down, _ = emulator.predict(emu, jnp.asarray([u - step]))
             columns.append((np.asarray(up)[0] - np.asarray(down)[0]) / (2 * h * (high[j] - low[j])))
         jac = np.stack(columns, axis=1)
+        u_grid = jnp.asarray((grid - low) / (high - low))
+        loglik_surrogate, _ = sampling.log_likelihood_terms(model, u_grid)
+        emulated, _ = emulator.predict(emu, u_grid)
+        z_grid = np.asarray(transform.apply(jnp.asarray(at_grid)), np.float64)
+        active = np.asarray(model.active, bool)
+        z_obs = np.asarray(model.z_obs, np.float64)
 
     sd_centre = np.sqrt(np.diag(cov_centre))
     corr_centre = cov_centre / np.outer(sd_centre, sd_centre)
 
     def laplace_sd(cov: np.ndarray) -> list[float]:
         return np.sqrt(np.diag(np.linalg.inv(jac.T @ np.linalg.solve(cov, jac)))).tolist()
+
+    reps = args.grid_replicates
+    z_grid = z_grid.reshape(len(grid), reps, -1)[:, :, active]
+    rep_mean = z_grid.mean(axis=1)
+    resid = z_grid - rep_mean[:, None]
+    emulated = np.asarray(emulated, np.float64)[:, active]
+    inflate = 1.0 + 1.0 / reps  # the replicate mean's own error
+
+    def gaussian_loglik(means: np.ndarray, cov: np.ndarray) -> np.ndarray:
+        """Log-likelihood of the data at every grid point; ``cov`` (q, q) or per point (n, q, q)."""
+        diff = z_obs[active] - means
+        if cov.ndim == 2:
+            return -0.5 * np.einsum("ni,ni->n", diff, np.linalg.solve(cov, diff.T).T)
+        _, logdet = np.linalg.slogdet(cov)
+        return -0.5 * np.einsum("ni,ni->n", diff, np.linalg.solve(cov, diff[..., None])[..., 0]) - 0.5 * logdet
+
+    model_cov = cov_model[np.ix_(active, active)]
+    pooled = resid.reshape(-1, resid.shape[-1])
+    pooled_cov = pooled.T @ pooled / (len(grid) * (reps - 1))
+    local = local_covariances(resid, args.grid, args.neighbourhood)
+    size = args.grid
+    decomposition = {
+        "surrogate_log_likelihood": grid_moments(grid, np.asarray(loglik_surrogate, np.float64), size),
+        "emulated_mean_model_covariance_no_emulator_variance": grid_moments(
+            grid, gaussian_loglik(emulated, model_cov), size
+        ),
+        "replicate_mean_model_covariance": grid_moments(grid, gaussian_loglik(rep_mean, model_cov * inflate), size),
+        "replicate_mean_pooled_covariance": grid_moments(grid, gaussian_loglik(rep_mean, pooled_cov * inflate), size),
+        "replicate_mean_local_covariance": grid_moments(grid, gaussian_loglik(rep_mean, local * inflate), size),
+    }
+    # The emulated mean's error where the surrogate's posterior lies, in noise sd per output.
+    loglik = np.asarray(loglik_surrogate, np.float64)
+    weights = np.exp(loglik - loglik.max())
+    weights /= weights.sum()
+    noise_active = noise_sd[active]
+    mean_error = np.sqrt(weights @ ((emulated - rep_mean) / noise_active) ** 2)
 
     entry = {
         "benchmark": "surrogate_helium_noise",
@@ -153,6 +248,17 @@ def main(argv: list[str] | None = None) -> dict:
             "empirical_at_posterior_mean": laplace_sd(cov_centre),
             "model_sd_empirical_correlation": laplace_sd(np.outer(noise_sd, noise_sd) * corr_centre),
             "empirical_sd_model_correlation": laplace_sd(np.outer(sd_centre, sd_centre) * corr_model),
+        },
+        "grid": {
+            "points_per_parameter": args.grid,
+            "half_width_in_surrogate_sd": args.grid_width,
+            "replicates_per_point": reps,
+            "simulations": int(len(grid) * reps),
+            "local_covariance_neighbourhood": 2 * args.neighbourhood + 1,
+            "low": grid.min(axis=0).tolist(),
+            "high": grid.max(axis=0).tolist(),
+            "posteriors": decomposition,
+            "emulated_mean_rms_error_in_noise_sd": mean_error.tolist(),
         },
     }
     print(
