@@ -22,9 +22,12 @@ another fresh process that finds the persistent cache filled (cold, cached), and
 ``run_fused(fast_compile=True)`` in a fresh process with no persistent cache (the fused path
 keeps one in ``~/.cache/jaxabc/xla`` by default: every cold row here sets
 ``JAXABC_COMPILATION_CACHE``).  The host driver (``jaxabc.run(executor="vmap")``) runs cold
-once per size.  A last part
-compares PMC-ABC's and APMCABC's steady-state cost per simulation in the host driver at the
-largest size.
+once per size.  The compiled-step floor is the least any cold process pays before its first
+PMC-ABC iteration when that iteration is a compiled JAX program: interpreter start, imports,
+tracing, lowering and compiling a single ``make_jax_step`` step, with no persistent cache, at
+XLA's default optimisation and with ``run_fused``'s fast-compile options (median of three
+processes).  A last part compares PMC-ABC's and APMCABC's steady-state cost per simulation in
+the host driver at the largest size.
 
 Writes ``benchmarks/results/abc_overhead.json``.  Usage::
 
@@ -153,6 +156,43 @@ for i in range(repeats):
                 "since_start_s": time.perf_counter() - t_start,
                 "iterations": int(r.records["iteration"].max()) + 1})
 print(json.dumps(out))
+"""
+
+# The least a process must do before it can run one PMC-ABC iteration as a compiled JAX program:
+# start, import JAX and jaxabc, trace and lower ``make_jax_step``'s step (propose, the vmapped
+# simulator and update in one jit; no records, no loop, no initial generation) and compile it.
+# No persistent cache: this is the cost a machine's first run cannot avoid.
+FLOOR_SCRIPT = r"""
+import time
+t0 = time.perf_counter()
+import json, sys
+import jax
+t_jax = time.perf_counter() - t0
+import jax.numpy as jnp
+import jaxabc
+from jaxabc.algorithms import pmc
+from jaxabc.algorithms.base import make_jax_step
+from jaxabc.distances import get_distance
+from jaxabc.fused import _FAST_COMPILE
+t_jaxabc = time.perf_counter() - t0 - t_jax
+n, thresholds, mode = int(sys.argv[1]), json.loads(sys.argv[2]), sys.argv[3]
+
+def simulate(key, theta):
+    return theta + jax.random.normal(key, theta.shape)
+
+prior = jaxabc.Uniform([-10.0, -10.0], [10.0, 10.0], names=("a", "b"))
+algo = pmc.build(prior, n, thresholds=thresholds)
+init, step = make_jax_step(algo, simulate, get_distance("euclidean"), jnp.zeros(2, jnp.float32))
+key = jax.random.key(0)
+state = jax.eval_shape(init, key)[0]
+t = time.perf_counter()
+lowered = jax.jit(step).lower(key, state)
+t_lower = time.perf_counter() - t
+t = time.perf_counter()
+lowered.compile(_FAST_COMPILE if mode == "fast" else None)
+t_compile = time.perf_counter() - t
+print(json.dumps({"import_jax_s": t_jax, "import_jaxabc_s": t_jaxabc, "trace_lower_s": t_lower,
+                  "compile_s": t_compile}))
 """
 
 PER_SIMULATION_SCRIPT = r"""
@@ -294,6 +334,30 @@ def jaxabc_rows(n: int, seed: int, thresholds: list, timeout: float, cache: Path
     return rows
 
 
+def floor_rows(n: int, thresholds: list, timeout: float, repeats: int = 3) -> dict:
+    """The compiled-step floor (``FLOOR_SCRIPT``) at default and fast compilation: medians of
+    ``repeats`` fresh processes, and the bare interpreter's start for comparison."""
+    env = {
+        "PYTHONPATH": str(ROOT),
+        "JAX_PLATFORMS": os.environ.get("JAX_PLATFORMS", "cpu"),
+        "JAXABC_COMPILATION_CACHE": "off",
+    }
+    bare = [run_process([sys.executable, "-c", "print('{}')"], timeout)["process_wall_s"] for _ in range(repeats)]
+    out: dict = {"python_start_s": float(np.median(bare)), "repeats": repeats}
+    for mode in ("default", "fast"):
+        runs = [
+            run_process([sys.executable, "-c", FLOOR_SCRIPT, str(n), json.dumps(thresholds), mode], timeout, env)
+            for _ in range(repeats)
+        ]
+        bad = [r for r in runs if "error" in r]
+        if bad:
+            out[mode] = bad[0]
+            continue
+        parts = {k: float(np.median([r["output"][k] for r in runs])) for k in runs[0]["output"]}
+        out[mode] = {**parts, "process_wall_s": float(np.median([r["process_wall_s"] for r in runs]))}
+    return out
+
+
 def peer_row(python: str, script: str, n: int, seed: int, thresholds: list, timeout: float) -> dict:
     out = run_process([python, "-c", script, str(n), str(seed), json.dumps(thresholds)], timeout)
     if "error" in out:
@@ -334,6 +398,7 @@ def main() -> None:
         row: dict = {
             "num_particles": n,
             "jaxabc": jaxabc_rows(n, args.seed, args.thresholds, args.timeout, args.cache_dir),
+            "compiled_step_floor": floor_rows(n, args.thresholds, args.timeout),
         }
         for name, env in envs.items():
             row[name] = (

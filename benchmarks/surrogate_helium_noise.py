@@ -55,10 +55,15 @@ def _mean_abs_corr(cov: np.ndarray) -> float:
     return float(np.mean(np.abs(corr[np.triu_indices(len(sd), 1)])))
 
 
+def posterior_weights(loglik: np.ndarray) -> np.ndarray:
+    """Normalised weights of grid points under a uniform prior."""
+    w = np.exp(loglik - loglik.max())
+    return w / w.sum()
+
+
 def grid_moments(grid: np.ndarray, loglik: np.ndarray, size: int) -> dict:
     """Mean, sd, correlation and the weight on the edge of a ``size x size`` grid posterior."""
-    w = np.exp(loglik - loglik.max())
-    w /= w.sum()
+    w = posterior_weights(loglik)
     mean = w @ grid
     sd = np.sqrt(w @ (grid - mean) ** 2)
     corr = float(w @ np.prod(grid - mean, axis=1) / np.prod(sd))
@@ -103,9 +108,18 @@ def main(argv: list[str] | None = None) -> dict:
     simulate_quantiles, prior, _, observed_q, _ = quantile_problem(args.preset, args.seed)
     batched = jax.jit(jax.vmap(simulate_quantiles))
 
+    def runs(keys: jax.Array, thetas: np.ndarray, chunk: int = 8192) -> np.ndarray:
+        """One simulation per (key, theta) row, in chunks that bound the vmapped batch's memory."""
+        points = jnp.asarray(thetas, jnp.float32)
+        return np.concatenate(
+            [
+                np.asarray(batched(keys[i : i + chunk], points[i : i + chunk]), np.float64)
+                for i in range(0, len(points), chunk)
+            ]
+        )
+
     def replicates(theta: np.ndarray, count: int, seed: int) -> np.ndarray:
-        keys = jax.random.split(jax.random.key(seed), count)
-        return np.asarray(batched(keys, jnp.tile(jnp.asarray(theta, jnp.float32), (count, 1))), np.float64)
+        return runs(jax.random.split(jax.random.key(seed), count), np.tile(theta, (count, 1)))
 
     with tempfile.TemporaryDirectory() as folder:
         result = jaxabc.run(
@@ -139,14 +153,7 @@ def main(argv: list[str] | None = None) -> dict:
     ]
     grid = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 2)
     keys = jax.random.split(jax.random.key(args.seed + 100), len(grid) * args.grid_replicates)
-    thetas = jnp.asarray(np.repeat(grid, args.grid_replicates, axis=0), jnp.float32)
-    chunk = 8192
-    at_grid = np.concatenate(
-        [
-            np.asarray(batched(keys[i : i + chunk], thetas[i : i + chunk]), np.float64)
-            for i in range(0, len(thetas), chunk)
-        ]
-    )
+    at_grid = runs(keys, np.repeat(grid, args.grid_replicates, axis=0))
 
     with jax.enable_x64(True):
         transform, emu, model, _ = fit_likelihood(
@@ -211,9 +218,7 @@ def main(argv: list[str] | None = None) -> dict:
         "replicate_mean_local_covariance": grid_moments(grid, gaussian_loglik(rep_mean, local * inflate), size),
     }
     # The emulated mean's error where the surrogate's posterior lies, in noise sd per output.
-    loglik = np.asarray(loglik_surrogate, np.float64)
-    weights = np.exp(loglik - loglik.max())
-    weights /= weights.sum()
+    weights = posterior_weights(np.asarray(loglik_surrogate, np.float64))
     noise_active = noise_sd[active]
     mean_error = np.sqrt(weights @ ((emulated - rep_mean) / noise_active) ** 2)
 
