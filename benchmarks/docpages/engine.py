@@ -303,7 +303,7 @@ of the k n + 1 longest tasks) is what any schedule of indivisible tasks must exc
 def page_abc_overhead() -> str:
     d = load("abc_overhead")
     if d is None:
-        return "# Whole-run cost against ELFI and pyABC\n\nNot saved yet.\n"
+        return "# Whole-run cost against ELFI, pyABC and ABCpy\n\nNot saved yet.\n"
     runs = [
         ("fused_cold", "jaxabc.run (fused), cold (empty cache)"),
         ("fused_cold_persistent_cache", "jaxabc.run (fused), new process, cache filled (default)"),
@@ -328,7 +328,11 @@ def page_abc_overhead() -> str:
                         f(x.get("cov_error_vs_exact")),
                     ]
                 )
-        for key, label in (("elfi_smc", "ELFI SMC"), ("pyabc_abcsmc", "pyABC ABC-SMC")):
+        for key, label in (
+            ("elfi_smc", "ELFI SMC"),
+            ("pyabc_abcsmc", "pyABC ABC-SMC"),
+            ("abcpy_pmcabc", "ABCpy PMCABC"),
+        ):
             x = r.get(key) or {}
             if "process_wall_s" in x:
                 rows.append(
@@ -404,7 +408,7 @@ def page_abc_overhead() -> str:
             )
             + "\n"
         )
-    return f"""# Whole-run cost against ELFI and pyABC
+    return f"""# Whole-run cost against ELFI, pyABC and ABCpy
 
 {d.get("description", "")}
 
