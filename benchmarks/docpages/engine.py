@@ -300,6 +300,9 @@ of the k n + 1 longest tasks) is what any schedule of indivisible tasks must exc
 """
 
 
+PEER_LABELS = (("elfi_smc", "ELFI SMC"), ("pyabc_abcsmc", "pyABC ABC-SMC"), ("abcpy_pmcabc", "ABCpy PMCABC"))
+
+
 def page_abc_overhead() -> str:
     d = load("abc_overhead")
     if d is None:
@@ -328,13 +331,9 @@ def page_abc_overhead() -> str:
                         f(x.get("cov_error_vs_exact")),
                     ]
                 )
-        for key, label in (
-            ("elfi_smc", "ELFI SMC"),
-            ("pyabc_abcsmc", "pyABC ABC-SMC"),
-            ("abcpy_pmcabc", "ABCpy PMCABC"),
-        ):
+        for key, label in PEER_LABELS:
             x = r.get(key) or {}
-            if "process_wall_s" in x:
+            if "num_simulations" in x:
                 rows.append(
                     [
                         n,
@@ -348,6 +347,18 @@ def page_abc_overhead() -> str:
                 )
             elif x:
                 rows.append([n, label, "-", x.get("error", "did not finish"), "-", "-", "-"])
+    # Whole-process ratios, peer over jaxabc; a peer that did not finish gives a lower bound.
+    ratio_rows = []
+    for r in d["rows"]:
+        ratios = r.get("ratios", {})
+        for key, label in PEER_LABELS:
+            cells = []
+            for mode in ("fused_cold", "fused_cold_persistent_cache"):
+                exact = ratios.get(f"{key}_over_jaxabc_{mode}_whole_run")
+                bound = ratios.get(f"{key}_over_jaxabc_{mode}_whole_run_at_least")
+                cells.append(f(exact, 1) if exact is not None else f">= {f(bound, 1)}" if bound is not None else "-")
+            if any(c != "-" for c in cells):
+                ratio_rows.append([r["num_particles"], label, *cells])
     pmc = d.get("pmc_vs_apmc_host_driver_per_simulation", {})
     header = ["N", "run", "simulations", "whole process (s)", "us / simulation", "mean error", "covariance error"]
     floor_rows = []
@@ -421,6 +432,11 @@ every later process.{" Note recorded with the run: " + d["note"] if d.get("note"
 {source("abc_overhead")}
 
 {table(header, rows)}
+
+How many times faster jaxabc's whole process is than each peer's (the peer's process time over
+jaxabc's; the goal is 10x; ">=" where the peer did not finish):
+
+{table(["N", "peer", "jaxabc cold, empty cache", "jaxabc cold, cache filled"], ratio_rows)}
 
 PMC-ABC against APMCABC per simulation (host driver, warm):
 {f(pmc.get("pmc_over_apmc"), 2)}x.
