@@ -17,6 +17,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxabc import algorithms as _algorithms
+from jaxabc._driver_checks import check_distance_shape
 from jaxabc.algorithms.base import ABCAlgorithm
 from jaxabc.distances import get_distance
 from jaxabc.errors import STATUS_BAD_DISTANCE, STATUS_NAMES, STATUS_OK
@@ -178,6 +179,7 @@ def make_distance_fn(distance: Any, observed: np.ndarray, dtype: Any) -> Callabl
             size = max(64, 1 << (good.shape[0] - 1).bit_length())
             padded = np.concatenate([good, np.repeat(good[:1], size - good.shape[0], axis=0)])
             d = np.asarray(batched(obs, jnp.asarray(padded, dtype)), np.float64)[: good.shape[0]]
+            check_distance_shape(d.shape[1:])
             invalid = np.isnan(d) | (d == -np.inf)
             out[ok] = np.where(invalid, np.inf, d)
             bad[ok] = invalid

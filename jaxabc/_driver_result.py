@@ -8,6 +8,7 @@ from typing import Any
 import numpy as np
 
 from jaxabc._driver import Context, Progress, posterior_distances
+from jaxabc.checkpoint import display_name
 from jaxabc.errors import NoPosterior
 from jaxabc.results import ABCResult, versions
 
@@ -51,7 +52,7 @@ def assemble(ctx: Context, prog: Progress, dtype: str, metadata: dict | None, se
         # Seconds since this process started the run, at the end of each generation (after a
         # resume, counted from the resume).
         "generation_wall_times": prog.history["wall"],
-        "simulator": ctx.fingerprint["simulator"],
+        "simulator": display_name(ctx.fingerprint["simulator"]),
         "incomplete": incomplete,
     }
     extras = dict(algo.finalize(prog.state)) if prog.state is not None else {}

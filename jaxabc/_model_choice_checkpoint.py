@@ -49,7 +49,7 @@ def problem_fingerprint(
         prior=tracks[0].prior,
         observed=observed,
         distance=distance,
-        simulator_id=simulator_id if simulator_id is not None else ";".join(m["simulator"] for m in models),
+        simulator_id=simulator_id if simulator_id is not None else [m["simulator"] for m in models],
         seed=seed,
         num_particles=settings.num_particles,
         dtype=dtype,

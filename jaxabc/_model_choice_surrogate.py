@@ -15,6 +15,7 @@ likelihood (Gaussian summaries within the simulator's noise), not of an ABC tole
 from __future__ import annotations
 
 import time
+import warnings
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
@@ -154,8 +155,10 @@ def run_model_choice_surrogate(
         algo = with_evidence(algo, model.prior, obs, seed=model_seed)
         ckpt = None if folder is None else folder / _file_stem(model.name)
         model_resume = bool(resume and ckpt is not None and (ckpt / "checkpoint.npz").exists())
-        posteriors.append(
-            calibrate(
+        with warnings.catch_warnings():
+            # A model finished in an earlier sitting is reused on purpose: no "nothing was run".
+            warnings.filterwarnings("ignore", message="the run in .* had already ended")
+            posterior = calibrate(
                 algo,
                 model.simulate,
                 model.prior,
@@ -171,7 +174,7 @@ def run_model_choice_surrogate(
                 dtype="float64",
                 metadata={"model": model.name},
             )
-        )
+        posteriors.append(posterior)
     actives = [tuple(p.diagnostics["evidence_active"]) for p in posteriors]
     if len(set(actives)) > 1:
         listing = ", ".join(f"{m.name!r}: {list(a)}" for m, a in zip(ms, actives, strict=True))

@@ -6,6 +6,12 @@ autocorrelation-aware estimate across the chains from ArviZ, never more than the
 distinct draws.  It assumes the chains are independent of one another; ABCsubsim's chains share
 ancestors, which :func:`jaxabc.algorithms.subsim.population_ess_bound` accounts for, so the
 effective sample size of an ABCsubsim population is the smaller of the two.
+
+The Monte Carlo standard error of a weighted mean needs more than an effective sample size when
+the particles share ancestors (ABCsubsim's chains, APMCABC's resampled parents): the spread of
+a few lineages says how far the estimate may be off, the spread within them does not.
+:func:`lineage_variance` and :func:`cluster_variance` estimate the variance of the weighted mean
+from the lineages, :func:`importance_variance` without them.
 """
 
 from __future__ import annotations
@@ -14,7 +20,15 @@ import warnings
 
 import numpy as np
 
-__all__ = ["batch_means_ess", "chain_ess", "count_distinct"]
+__all__ = [
+    "batch_means_ess",
+    "chain_ess",
+    "cluster_variance",
+    "count_distinct",
+    "effective_lineages",
+    "importance_variance",
+    "lineage_variance",
+]
 
 # ArviZ's multi-chain estimate needs this many draws per chain.
 _MIN_DRAWS_FOR_ARVIZ = 4
@@ -99,3 +113,112 @@ def chain_ess(chains: np.ndarray) -> float:
         per_param = [e for e in per_param if np.isfinite(e)]
         ess = min(per_param) if per_param else float(c * length)
     return float(np.clip(ess, 1.0, distinct))
+
+
+def _lineage_sums(x: np.ndarray, weights: np.ndarray, lineage: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Each lineage's share of the weight (k,) and its weighted residual sum (k, d).
+
+    Only particles with positive weight count: a lineage without weight is not one.
+    """
+    x = np.asarray(x, np.float64).reshape(len(x), -1)
+    w = np.asarray(weights, np.float64)
+    keep = w > 0
+    x, w = x[keep], w[keep] / w[keep].sum()
+    _, inverse = np.unique(np.asarray(lineage).reshape(-1)[keep], return_inverse=True)
+    inverse = inverse.reshape(-1)
+    residual = w[:, None] * (x - w @ x)
+    k = int(inverse.max()) + 1
+    sums = np.zeros((k, x.shape[1]))
+    np.add.at(sums, inverse, residual)
+    return np.bincount(inverse, weights=w, minlength=k), sums
+
+
+def effective_lineages(weights: np.ndarray, lineage: np.ndarray) -> tuple[int, float]:
+    """Number of lineages and Kish's effective number ``1 / sum_c W_c^2`` of their weights.
+
+    Parameters
+    ----------
+    weights : numpy.ndarray, shape (n,)
+        Non-negative, not necessarily normalised.
+    lineage : numpy.ndarray, shape (n,)
+        A label per particle; particles with one label share an ancestor.
+
+    Returns
+    -------
+    tuple of (int, float)
+        Lineages holding weight, and their effective number (1 when one lineage holds it all).
+    """
+    per_lineage, _ = _lineage_sums(np.zeros((len(weights), 1)), weights, lineage)
+    return int(per_lineage.size), float(1.0 / np.sum(per_lineage**2))
+
+
+def importance_variance(x: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """Delta-method variance of a self-normalised weighted mean: ``sum_i w_i^2 (x_i - mean)^2``.
+
+    Unlike ``var / ESS`` with Kish's ESS, it lets the weights and the residuals go together
+    (large weights in the tails).  Assumes independent particles.
+
+    Parameters
+    ----------
+    x : numpy.ndarray, shape (n, d)
+    weights : numpy.ndarray, shape (n,)
+
+    Returns
+    -------
+    numpy.ndarray, shape (d,)
+    """
+    x = np.asarray(x, np.float64).reshape(len(x), -1)
+    w = np.asarray(weights, np.float64)
+    w = w / w.sum()
+    return np.sum(w[:, None] ** 2 * (x - w @ x) ** 2, axis=0)
+
+
+def cluster_variance(x: np.ndarray, weights: np.ndarray, lineage: np.ndarray) -> np.ndarray:
+    """Cluster-robust variance of a weighted mean, the lineages as clusters.
+
+    ``k / (k - 1) sum_c (sum_{i in c} w_i (x_i - mean))^2`` with ``k`` lineages (CR1): exact
+    for independent lineages whatever the correlation inside them.  Suits many lineages
+    (APMCABC's, a few generations back); with one lineage it is 0.
+
+    Parameters
+    ----------
+    x : numpy.ndarray, shape (n, d)
+    weights : numpy.ndarray, shape (n,)
+    lineage : numpy.ndarray, shape (n,)
+
+    Returns
+    -------
+    numpy.ndarray, shape (d,)
+    """
+    per_lineage, sums = _lineage_sums(x, weights, lineage)
+    k = per_lineage.size
+    return np.sum(sums**2, axis=0) * (k / (k - 1) if k > 1 else 0.0)
+
+
+def lineage_variance(x: np.ndarray, weights: np.ndarray, lineage: np.ndarray) -> np.ndarray:
+    """Variance of a weighted mean whose lineages are its independent units.
+
+    The lineage means ``m_c`` with weights ``W_c`` are treated as independent draws of one
+    variance ``s^2``, estimated without bias by ``sum_c W_c (m_c - mean)^2 / (1 - sum_c W_c^2)``;
+    the variance of the mean is ``s^2 sum_c W_c^2``.  Unlike :func:`cluster_variance` it does
+    not lose the variance of a lineage that holds most of the weight (its residual is small
+    because it sets the mean); it suits a few lineages that barely move (ABCsubsim's chains).
+
+    Parameters
+    ----------
+    x : numpy.ndarray, shape (n, d)
+    weights : numpy.ndarray, shape (n,)
+    lineage : numpy.ndarray, shape (n,)
+
+    Returns
+    -------
+    numpy.ndarray, shape (d,)
+        ``inf`` with a single lineage (no spread between lineages to measure).
+    """
+    per_lineage, sums = _lineage_sums(x, weights, lineage)
+    concentration = float(np.sum(per_lineage**2))
+    if per_lineage.size < 2 or concentration >= 1.0:
+        return np.full(sums.shape[1], np.inf)
+    # sums[c] = W_c (m_c - mean), so W_c (m_c - mean)^2 = sums[c]^2 / W_c.
+    spread = np.sum(sums**2 / per_lineage[:, None], axis=0) / (1.0 - concentration)
+    return spread * concentration

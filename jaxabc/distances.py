@@ -22,6 +22,7 @@ __all__ = [
     "DistanceFn",
     "adaptive_weights",
     "as_adaptive",
+    "check_kl_observed",
     "euclidean",
     "gaussian_kde_density",
     "get_distance",
@@ -106,9 +107,10 @@ def kl_divergence(observed: jax.Array, simulated: jax.Array, num_grid: int = 100
     Returns
     -------
     jax.Array, shape ()
-        Non-negative; zero only for identical densities.  NaN if a series is constant or
-        contains non-finite values (a degenerate simulation), which the driver records as
-        a failed simulation.
+        Non-negative; zero only for identical densities.  NaN if a series has fewer than two
+        values, is constant or contains non-finite values: its KDE has no bandwidth.  A
+        degenerate simulated series is recorded by the driver as a failed simulation; a
+        degenerate observed series is refused before the run (``check_observed``).
     """
     observed = jnp.ravel(jnp.asarray(observed))
     simulated = jnp.ravel(jnp.asarray(simulated))
@@ -122,13 +124,47 @@ def kl_divergence(observed: jax.Array, simulated: jax.Array, num_grid: int = 100
     tiny = jnp.finfo(q.dtype).tiny
     q = jnp.maximum(q, tiny)
     terms = jnp.where(p > 0, p * (jnp.log(jnp.maximum(p, tiny)) - jnp.log(q)), 0.0)
-    return jnp.maximum(jnp.sum(terms), 0.0)
+    # A zero or undefined bandwidth makes p NaN, and the p > 0 mask above would turn that into
+    # 0: "identical to everything".  Say NaN instead, as for a degenerate q.
+    defined = jnp.all(jnp.isfinite(p))
+    return jnp.where(defined, jnp.maximum(jnp.sum(terms), 0.0), jnp.nan)
+
+
+def check_kl_observed(observed: Any) -> None:
+    """Refuse an observed series whose KL density cannot be estimated.
+
+    Parameters
+    ----------
+    observed : array_like
+        The observed series (flattened).
+
+    Raises
+    ------
+    ValueError
+        Fewer than two values, or all equal: the Gaussian KDE's bandwidth (a standard deviation)
+        is then undefined or zero, and :func:`kl_divergence` is NaN for every simulation.
+    """
+    obs = np.ravel(np.asarray(observed, np.float64))
+    if obs.size < 2:
+        reason = f"the observed data has {obs.size} element"
+    elif np.ptp(obs) == 0:
+        reason = f"all {obs.size} observed values equal {obs[0]:.6g} (zero spread)"
+    else:
+        return
+    raise ValueError(
+        f"distance='kl' compares kernel density estimates of two series, but {reason}, so the "
+        "density of the observed series cannot be estimated: pass the observed series itself "
+        "(at least two distinct values), or use a distance for summary vectors ('euclidean', "
+        "'mean_abs')"
+    )
 
 
 # KL compares two samples of a distribution: the observed series may be longer than a
 # simulated one (the paper's observed helium run is 4x longer), so the driver does not require
 # equal shapes for it.
 kl_divergence.compares_samples = True  # type: ignore[attr-defined]
+# The drivers call a distance's check_observed(observed) before the run (validate_observed).
+kl_divergence.check_observed = check_kl_observed  # type: ignore[attr-defined]
 
 DISTANCES: dict[str, DistanceFn] = {
     "mean_abs": mean_abs,

@@ -35,10 +35,13 @@ from jaxabc import checkpoint as _ckpt
 from jaxabc._driver import build_by_name, builder_accepts, posterior_distances
 from jaxabc._driver_checks import (
     cast_prior,
+    check_first_distances,
+    check_first_iteration_budget,
     check_stopping_rule,
     check_traced_shape,
     precision,
     validate_observed,
+    validate_seed,
 )
 from jaxabc._fused_records import (
     _NONE,
@@ -320,7 +323,7 @@ def _cache_key(
     )
 
 
-def _run_fused_body(
+def _fused_run(
     algorithm: str | ABCAlgorithm,
     simulate: Callable,
     prior: Uniform,
@@ -415,8 +418,9 @@ def _run_fused_body(
         raise ValueError(f"max_failure_fraction must lie in (0, 1], got {max_failure_fraction}")
     if not callable(simulate):
         raise TypeError("simulate must be a callable simulate(key, theta) -> summaries")
+    seed = validate_seed(seed)
     default_compilation_cache()
-    obs = validate_observed(observed)
+    obs = validate_observed(observed, dtype, distance)
     prior = cast_prior(prior, jdtype)
     if isinstance(algorithm, ABCAlgorithm):
         algo = algorithm
@@ -430,7 +434,12 @@ def _run_fused_body(
     check_stopping_rule(algo, num_steps, final_threshold, max_simulations, max_wall_time)
     check_traced_shape(simulate, prior, obs, distance, jdtype, "The fused path")
     dist_fn = get_distance(distance)
-    # Only now, with every input checked, may overwrite=True delete an old checkpoint.
+    first = jax.eval_shape(algo.initial_proposal, jax.random.key(0)).thetas.shape[0]
+    check_first_iteration_budget(first, max_simulations, name)  # every initial slot is active
+    if checkpoint_dir is not None:
+        _ckpt.require_fingerprintable(simulate, simulator_id, distance)
+    # Only now, with every input checked, may overwrite=True delete an old checkpoint (the
+    # caller, _run_fused_body, holds the folder's lock).
     ckpt_path = _ckpt.prepare_folder(checkpoint_dir, resume, overwrite)
     fp = {
         **_ckpt.fingerprint(
@@ -484,7 +493,18 @@ def _run_fused_body(
         _ckpt.check_fingerprint(ck.fingerprint, fp, ckpt_path)
         carry = _ckpt.restore_state(ck.state_leaves, template, ckpt_path)
         records, history = from_checkpoint(ck.records), ck.history
-        first_iteration, stop_reason = int(ck.counters["iteration"]), ck.counters["stop_reason"]
+        first_iteration = int(ck.counters["iteration"])
+        stop_reason = _ckpt.reopen(
+            ck.counters["stop_reason"],
+            history,
+            num_steps=num_steps,
+            final_threshold=final_threshold,
+            max_simulations=max_simulations,
+            max_wall_time=max_wall_time,
+            path=ckpt_path,
+        )
+        if not stop_reason:  # an ended run that goes on under this run's rules
+            carry = carry._replace(stop_code=jnp.asarray(_NONE, jnp.int32))
         pending = []
     bar = None
     if progress:
@@ -494,6 +514,9 @@ def _run_fused_body(
     try:
         if not resume:
             carry, first = start(root, obs_j, limits)
+            # The distances are computed inside the program; the host checks the first
+            # population's (prior draws) as the host driver does, before any further chunk.
+            check_first_distances(np.asarray(first["distances"]))
             pending = [jax.tree.map(lambda x: np.asarray(x)[None], first)]
         while True:
             for block in pending:
@@ -561,7 +584,7 @@ def _run_fused_body(
         # generation (the host does not see generations inside a chunk; after a resume,
         # counted from the resume).
         "generation_wall_times": history["wall"],
-        "simulator": fp["simulator"],
+        "simulator": _ckpt.display_name(fp["simulator"]),
         "incomplete": incomplete,
         "chunk_size": int(chunk_size),
     }
@@ -618,6 +641,18 @@ def _save(path: Path, fp: dict, carry: _Carry, iteration: int, stop_reason: str,
             ),
         ),
     )
+
+
+@functools.wraps(_fused_run)
+def _run_fused_body(*args: Any, checkpoint_dir: str | Path | None = None, **kwargs: Any) -> ABCResult:
+    # One run per checkpoint folder: the lock is held from before the folder is prepared until
+    # the last checkpoint is written.
+    lock = _ckpt.FolderLock.acquire(checkpoint_dir)
+    try:
+        return _fused_run(*args, checkpoint_dir=checkpoint_dir, **kwargs)
+    finally:
+        if lock is not None:
+            lock.release()
 
 
 @functools.wraps(_run_fused_body)

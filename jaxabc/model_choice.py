@@ -65,10 +65,17 @@ import numpy as np
 
 from jaxabc import _model_choice_checkpoint as _ckpt
 from jaxabc._driver import Recorder, SharedVmapExecutor, make_distance_fn
-from jaxabc._driver_checks import cast_prior, check_traced_shape, precision, shapes_compatible, validate_observed
+from jaxabc._driver_checks import (
+    cast_prior,
+    check_traced_shape,
+    precision,
+    shapes_compatible,
+    validate_observed,
+    validate_seed,
+)
 from jaxabc._model_choice_result import ModelChoiceResult, load_model_choice, probabilities_with_errors
 from jaxabc._model_choice_smc import ALGORITHM_NAME, Context, ModelTrack, Settings, next_threshold
-from jaxabc.checkpoint import prepare_folder
+from jaxabc.checkpoint import FolderLock, prepare_folder, require_fingerprintable
 from jaxabc.distances import get_distance
 from jaxabc.executors import Executor, get_executor
 from jaxabc.results import versions
@@ -404,7 +411,7 @@ def run_model_choice(
     distance : str or callable
         As for :func:`jaxabc.run`; the same for every model.
     seed : int
-        The run's only source of randomness.
+        The run's only source of randomness, ``0 <= seed < 2**32`` (as :func:`jaxabc.run`).
     executor : str or Executor, optional
         As for :func:`jaxabc.run` (default ``"vmap"``).
     final_threshold : float, optional
@@ -476,13 +483,15 @@ def run_model_choice(
     if stop_after_generations is not None and stop_after_generations < 1:
         raise ValueError(f"stop_after_generations must be at least 1, got {stop_after_generations}")
     p_model = _model_prior(model_prior, len(model_list))
-    obs = validate_observed(observed)
+    seed = validate_seed(seed)
+    obs = validate_observed(observed, dtype, distance)
     get_distance(distance)  # an unknown name fails here, before any simulation
     with precision(dtype):
         jdtype = jnp.float64 if dtype == "float64" else jnp.float32
         priors = [cast_prior(m.prior, jdtype) for m in model_list]
         own_executor = not hasattr(executor, "map")
         ex = SharedVmapExecutor() if executor in (None, "vmap") else get_executor(executor)
+        lock = None
         try:
             if ex.name == "vmap" and not any(hasattr(m.simulate, "simulate_batch") for m in model_list):
                 _check_summary_shapes(model_list, priors, obs, distance)
@@ -504,7 +513,12 @@ def run_model_choice(
                 for model, prior in zip(model_list, priors, strict=True)
             ]
             fp = _ckpt.problem_fingerprint(tracks, settings, p_model, obs, distance, seed, dtype, simulator_id)
-            # Only now, with every input checked, may overwrite=True delete an old checkpoint.
+            if checkpoint_dir is not None:
+                for track in tracks:
+                    require_fingerprintable(track.simulate, simulator_id, distance)
+            # One run per folder; and only now, with every input checked, may overwrite=True
+            # delete an old checkpoint.
+            lock = FolderLock.acquire(checkpoint_dir)
             ckpt_path = prepare_folder(checkpoint_dir, resume, overwrite)
             thresholds: list[float] = []
             stop_reason = ""
@@ -523,6 +537,8 @@ def run_model_choice(
                 if ckpt_path is not None and "resumable" not in stop_reason:
                     _ckpt.save(ckpt_path, fp, tracks, thresholds, stop_reason)
         finally:
+            if lock is not None:
+                lock.release()
             if own_executor:
                 ex.close()
     return _assemble(ctx, tracks, thresholds, stop_reason, p_model, dtype, metadata)

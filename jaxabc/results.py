@@ -8,6 +8,8 @@ The Monte Carlo error of the summaries is set by the effective sample size: Kish
 ``1 / sum w^2`` for weighted independent particles; for ABCsubsim, whose population is a set of
 short Markov chains with shared ancestors, the honest estimate of
 :func:`jaxabc.algorithms.subsim.chain_diagnostics` (never more than the distinct particles).
+The MCSE of the posterior mean of ABCsubsim and APMCABC comes from their particles' lineages
+(``diagnostics["mcse"]``), and is ``inf`` for a population that has collapsed onto a few points.
 """
 
 from __future__ import annotations
@@ -98,7 +100,9 @@ class ABCResult:
         Versions, executor, distance, anything else worth keeping.
     diagnostics : dict
         Monte Carlo diagnostics of the final population (for ABCsubsim: distinct particles,
-        chain ESS, whether the chains stopped moving); filled in on construction.
+        chain ESS, whether the chains stopped moving; for ABCsubsim and APMCABC: ``mcse``,
+        ``num_lineages``, ``effective_lineages``, ``collapsed`` and ``mcse_note``); filled in
+        on construction.
     check : bool
         Warn on construction when the final population is degenerate (ABCsubsim chains that
         stopped moving); :func:`load` passes False.
@@ -125,7 +129,8 @@ class ABCResult:
     check: InitVar[bool] = True
 
     def __post_init__(self, check: bool) -> None:
-        if not self._is_chain_population() or "chain_ess" in self.diagnostics:
+        # "mcse": diagnostics from before the lineage MCSE (older files) are recomputed.
+        if not self._is_chain_population() or "mcse" in self.diagnostics:
             return
         from jaxabc.algorithms.subsim import chain_diagnostics
 
@@ -212,7 +217,9 @@ class ABCResult:
         """Posterior correlation matrix, shape (d, d)."""
         cov = self.covariance()
         sd = np.sqrt(np.diag(cov))
-        return cov / np.outer(sd, sd)
+        # A parameter without spread (a collapsed population) has NaN correlations, silently.
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return cov / np.outer(sd, sd)
 
     def effective_sample_size(self) -> float:
         """Effective sample size of the final population, the one that sets Monte Carlo errors.
@@ -232,10 +239,21 @@ class ABCResult:
     def mcse(self) -> np.ndarray:
         """Monte Carlo standard error of :meth:`bayes_estimate`, shape (d,).
 
-        The posterior standard deviation over ``sqrt(ESS)`` with the ESS of
-        :meth:`effective_sample_size`: the error of the estimate from the finite sample, not
-        the posterior's width.
+        The error of the estimate from the finite sample, not the posterior's width.  Where the
+        algorithm measured it from the particles' lineages (``diagnostics["mcse"]``: ABCsubsim,
+        APMCABC, whose particles share ancestors) that value; otherwise the posterior standard
+        deviation over ``sqrt(ESS)`` with the ESS of :meth:`effective_sample_size`.  ``inf``
+        when the population has collapsed (``diagnostics["collapsed"]``, or fewer than two
+        distinct particles carry weight): a few repeated points cannot say how far off the
+        estimate is.
         """
+        stored = self.diagnostics.get("mcse")
+        d = self.particles.shape[1]
+        if stored is not None and np.shape(stored) == (d,):
+            return np.asarray(stored, np.float64)
+        weighted = self.particles[np.asarray(self.weights) > 0]
+        if weighted.shape[0] < 2 or np.all(weighted == weighted[0]):
+            return np.full(d, np.inf)
         return np.sqrt(np.diag(self.covariance()) / self.effective_sample_size())
 
     def credible_interval(self, level: float = 0.95, adjust_for_ess: bool = False) -> np.ndarray:
@@ -338,11 +356,15 @@ class ABCResult:
         ]
         if self.diagnostics.get("warning"):
             lines.append(f"  warning: {self.diagnostics['warning']}")
+        if not np.all(np.isfinite(err)):
+            # Say why in words: "+- inf" alone reads like a bug.
+            note = self.diagnostics.get("mcse_note") or "collapsed: fewer than 2 distinct particles; MCSE not available"
+            if note not in self.diagnostics.get("warning", ""):
+                lines.append(f"  {note}")
         for j, name in enumerate(self.names):
             unit = self.prior.units[j] if self.prior.units[j] else ""
-            lines.append(
-                f"  {name:>12s} = {est[j]:.5g} +- {err[j]:.2g} (MCSE) {unit}  95% CI [{ci[j, 0]:.5g}, {ci[j, 1]:.5g}]"
-            )
+            error = f"+- {err[j]:.2g} (MCSE)" if np.isfinite(err[j]) else "(MCSE not available)"
+            lines.append(f"  {name:>12s} = {est[j]:.5g} {error} {unit}  95% CI [{ci[j, 0]:.5g}, {ci[j, 1]:.5g}]")
         if len(self.names) > 1:
             lines.append("  correlation:\n" + np.array2string(self.correlation(), precision=3))
         return "\n".join(lines)
@@ -370,13 +392,16 @@ class ABCResult:
     def save(self, path: str | Path, overwrite: bool = False) -> Path:
         """Write the result to ``path`` with ``.npz`` appended unless it ends in ``.npz``.
 
-        The file is written to a temporary file in the same folder and moved into place, so an
+        An existing folder, or a path ending in a separator (``"runs/alpha/"``, created if
+        missing), gets ``result.npz`` inside it, the name :func:`write_outputs` uses.  The file
+        is written to a temporary file in the same folder and moved into place, so an
         interrupted save leaves either the old file or the complete new one.
 
         Parameters
         ----------
         path : str or Path
-            ``"run_alpha0.1"`` writes ``run_alpha0.1.npz``.
+            ``"run_alpha0.1"`` writes ``run_alpha0.1.npz``; an existing folder ``"run1"``
+            writes ``run1/result.npz``.
         overwrite : bool
             Replace an existing file; without it an existing file raises ``FileExistsError``.
 
@@ -385,8 +410,12 @@ class ABCResult:
         Path
             The file written.
         """
+        names_folder = str(path).endswith((os.sep, "/"))
         path = Path(path)
-        if path.suffix != ".npz":
+        if names_folder or path.is_dir():
+            # Not a sibling "<folder>.npz" next to it: a folder is where the user wants it.
+            path = path / "result.npz"
+        elif path.suffix != ".npz":
             path = path.with_name(path.name + ".npz")
         if path.is_dir():
             raise IsADirectoryError(f"cannot save the result to {path}: it is a directory")
@@ -497,6 +526,7 @@ def _from_npz(path: Path, data: Any) -> ABCResult:
     from jaxabc.priors_numpyro import prior_from_dict
 
     records = {k[len("record_") :]: data[k] for k in data.files if k.startswith("record_")}
+    _check_shapes(path, {k: data[k] for k in _REQUIRED_ARRAYS}, records)
     records["reasons"] = meta.get("reasons", [])
     return ABCResult(
         particles=data["particles"],
@@ -519,6 +549,41 @@ def _from_npz(path: Path, data: Any) -> ABCResult:
         diagnostics=meta.get("diagnostics") or {},
         check=False,
     )
+
+
+def _check_shapes(path: Path, arrays: dict[str, np.ndarray], records: dict[str, np.ndarray]) -> None:
+    """Refuse arrays of a result file that do not fit together, naming them and the file.
+
+    A file edited by hand or by another program would otherwise load and fail later with
+    NumPy's broadcasting error, which names neither.  The rules: particles (n, d); weights and
+    distances (n,); the per-generation arrays one length (g,); the record arrays one length.
+    """
+    problems = []
+    particles = arrays["particles"]
+    if particles.ndim != 2:
+        problems.append(f"particles has shape {particles.shape}, expected (n, d)")
+    else:
+        n = particles.shape[0]
+        problems += [
+            f"{k} has shape {arrays[k].shape}, expected ({n},) like the particles"
+            for k in ("weights", "distances")
+            if arrays[k].shape != (n,)
+        ]
+    per_generation = ("thresholds", "simulations_per_step", "acceptance_rates", "ess")
+    g = arrays["thresholds"].shape
+    problems += [
+        f"{k} has shape {arrays[k].shape}, expected {g} like the thresholds"
+        for k in per_generation
+        if arrays[k].ndim != 1 or arrays[k].shape != g
+    ]
+    lengths = {k: v.shape[0] if v.ndim else None for k, v in records.items()}
+    if len(set(lengths.values())) > 1:
+        problems.append(
+            "the record arrays have different lengths: "
+            + ", ".join(f"record_{k} {None if n is None else n}" for k, n in sorted(lengths.items()))
+        )
+    if problems:
+        raise ValueError(f"{path} is an inconsistent jaxabc result file: " + "; ".join(problems))
 
 
 def write_outputs(result: ABCResult, folder: str | Path, truth: np.ndarray | None = None) -> None:

@@ -36,12 +36,15 @@ from jaxabc._driver import (
 )
 from jaxabc._driver_checks import (
     cast_prior,
+    check_first_distances,
+    check_first_iteration_budget,
     check_shape,
     check_stopping_rule,
     precision,
     shapes_compatible,
     validate_arguments,
     validate_observed,
+    validate_seed,
 )
 from jaxabc._driver_result import assemble
 from jaxabc.algorithms.base import ABCAlgorithm
@@ -128,6 +131,8 @@ def _step(ctx: Context, prog: Progress) -> Any:
         )
     active = np.asarray(proposal.active, bool)
     thetas = np.asarray(proposal.thetas)
+    if prog.state is None and prog.num_sims == 0:
+        check_first_iteration_budget(int(active.sum()), ctx.max_simulations, c.algorithm.name)
     if (
         ctx.max_simulations is not None
         and prog.state is not None
@@ -136,6 +141,9 @@ def _step(ctx: Context, prog: Progress) -> Any:
         prog.stop_reason = f"simulation budget {ctx.max_simulations} reached"
         return None
     distances, summaries = _simulate_batch(ctx, prog, k_sim, thetas, active)
+    if prog.state is None:
+        # Prior draws: a distance that goes negative or cannot rank them shows it here.
+        check_first_distances(distances)
     d = np.asarray(distances) if c.algorithm.host else jnp.asarray(distances, ctx.jdtype)
     extra = () if summaries is None else (summaries if c.algorithm.host else jnp.asarray(summaries),)
     if prog.state is None:
@@ -245,8 +253,16 @@ def _restore(ctx: Context, prog: Progress) -> None:
     c = ck.counters
     prog.iteration, prog.num_sims = int(c["iteration"]), int(c["num_sims"])
     prog.sims_this_generation = int(c["sims_this_generation"])
-    prog.stop_reason = c["stop_reason"]
     prog.history = ck.history
+    prog.stop_reason = _ckpt.reopen(
+        c["stop_reason"],
+        ck.history,
+        num_steps=ctx.num_steps,
+        final_threshold=ctx.final_threshold,
+        max_simulations=ctx.max_simulations,
+        max_wall_time=ctx.max_wall_time,
+        path=ctx.ckpt_path,
+    )
     prog.recorder.chunks = ck.records
     prog.last_posterior = ck.last_posterior
 
@@ -386,7 +402,9 @@ def run(
         ``result.diagnostics["distance_weights"]`` (shape (generations, s)), the records hold
         the unit-weight p-norm, and the thresholds are on each generation's own scale.
     seed : int
-        The run's only source of randomness.
+        The run's only source of randomness: an integer with ``0 <= seed < 2**32`` (a NumPy
+        integer is taken as its value; anything else is refused with ``TypeError`` or
+        ``ValueError``).
     executor : str or Executor, optional
         ``"vmap"``, ``"serial"``, ``"process_pool"``, ``"mpi"``, ``"mpi_static"``, or an executor
         object.  Default: the whole run as compiled programs (:func:`jaxabc.run_fused`, result
@@ -396,7 +414,8 @@ def run(
     final_threshold : float, optional
         Stop once a generation's threshold is at or below this.
     max_simulations : int, optional
-        Simulation budget: stop before an iteration that would exceed it.  A run stopped before
+        Simulation budget: stop before an iteration that would exceed it.  A budget below the
+        first iteration's simulations (the initial prior sample) is refused.  A run stopped before
         its first generation completed returns the particles accepted so far, flagged
         ``incomplete`` in ``stop_reason`` and ``metadata``.
     max_wall_time : float, optional
@@ -410,12 +429,17 @@ def run(
     resume : bool
         Continue from the checkpoint in ``checkpoint_dir``; the result equals that of the
         uninterrupted run.  Refused when the problem differs (prior, observed values, distance,
-        simulator, algorithm and settings, seed, ``num_particles``, dtype).
+        simulator, algorithm and settings, seed, ``num_particles``, dtype; a partial's or
+        closure's bound values count, see :func:`jaxabc.checkpoint.describe_callable`) or when
+        another run holds the folder (:class:`jaxabc.checkpoint.FolderInUse`).  A run that had
+        ended on ``num_steps``, ``final_threshold``, ``max_simulations`` or ``max_wall_time``
+        goes on when this call's rule allows more.
     overwrite : bool
         Delete an existing checkpoint in ``checkpoint_dir`` and start over.
     simulator_id : str, optional
-        The simulator's identity in checkpoints (default ``module:qualname``): set it for
-        closures and external programs whose name says nothing about what they compute.
+        The simulator's identity in checkpoints (default: :func:`jaxabc.checkpoint.describe_callable`
+        of ``simulate``): required with ``checkpoint_dir`` when ``simulate`` captures an object
+        that cannot be fingerprinted; useful for external programs.
     stop_after_iterations : int, optional
         Stop after this many iterations (for tests and for splitting long runs).
     keep_summaries : bool
@@ -437,7 +461,15 @@ def run(
     Raises
     ------
     TooManyFailures, NoPosterior, jaxabc.checkpoint.CheckpointError, FileExistsError
+    ValueError
+        Besides bad arguments: observed data beyond ``dtype``'s range or that the distance
+        cannot use (``"kl"`` with fewer than two distinct values), or a distance that returned
+        negative values for the first population.  Every distance of the first population
+        being equal only warns (``UserWarning``): the posterior is then the prior.
+    TypeError
+        Besides bad argument types: a simulator that returns complex summaries.
     """
+    seed = validate_seed(seed)  # before model choice takes the arguments, so it is checked too
     if type(algorithm) in (list, tuple) or type(simulate) in (list, tuple):
         # Model choice, imported here so that a calibration never loads it.
         if algorithm_options.get("method") == "surrogate":
@@ -454,7 +486,7 @@ def run(
     algorithm = cast(str | ABCAlgorithm, algorithm)
     t_start = time.perf_counter()
     validate_arguments(dtype, num_particles, num_steps, max_failure_fraction, simulate, prior)
-    obs = validate_observed(observed)
+    obs = validate_observed(observed, dtype, distance)
     if isinstance(distance, AdaptivePNorm) or is_adaptive(distance):
         # The algorithm computes the adaptive distances; the driver records a fixed one.
         distance = _adaptive_setup(distance, algorithm, obs, algorithm_options)
@@ -502,12 +534,17 @@ def run(
             )
         own_executor = not hasattr(executor, "map")
         ex = SharedVmapExecutor() if executor in (None, "vmap") else get_executor(executor)
+        lock = None
         try:
             check_shape(ex, simulate, prior, obs, distance)
             if hasattr(ex, "summary_shape") and not getattr(get_distance(distance), "compares_samples", False):
                 # A batch where every task fails keeps it (not on the Executor protocol).
                 cast(Any, ex).summary_shape = tuple(obs.shape)
-            # Only now, with every input checked, may overwrite=True delete an old checkpoint.
+            if checkpoint_dir is not None:
+                _ckpt.require_fingerprintable(simulate, simulator_id, distance)
+            # One run per folder; and only now, with every input checked, may overwrite=True
+            # delete an old checkpoint.
+            lock = _ckpt.FolderLock.acquire(checkpoint_dir)
             ckpt_path = _ckpt.prepare_folder(checkpoint_dir, resume, overwrite)
             fp = _ckpt.fingerprint(
                 algorithm=algo.name,
@@ -552,6 +589,8 @@ def run(
                 if ctx.bar is not None:
                     ctx.bar.close()
         finally:
+            if lock is not None:
+                lock.release()
             if own_executor:
                 ex.close()
         return assemble(ctx, prog, dtype, metadata, seed, prior)

@@ -28,25 +28,43 @@ the summaries: a new particle is counted as accepted when it is within the previ
 under the previous weights; then the weights are re-estimated from the step's ``N - n_alpha``
 simulations and the whole merged population's distances are recomputed with them before the
 alpha selection (Prangle 2017).
+
+The kept particles are not independent: new ones are drawn around resampled kept ones, and kept
+ones survive for generations, so their Monte Carlo error is larger than Kish's ESS of the
+weights says.  The state records each particle's lineage (its ancestor ``LINEAGE_LAG`` to
+``2 LINEAGE_LAG - 1`` generations back, or its prior draw before that), and :func:`finalize`
+reports the MCSE of the posterior mean from the spread between lineages
+(:func:`lineage_mcse`).  The parent of a new particle is not kept by ``propose``; ``update``
+draws it from its conditional distribution given the particle,
+``w_j K(theta | theta_j) / sum_k w_k K(theta | theta_k)``, with a key of its own, so the
+recorded genealogy has the law of the true one and the sampling is untouched.
 """
 
 from __future__ import annotations
 
+import functools
 import math
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jax.scipy.special import logsumexp
 
 from jaxabc import kernels
 from jaxabc.algorithms.base import ABCAlgorithm, Info, Proposal, masked_percentile
+from jaxabc.diagnostics import cluster_variance, count_distinct, effective_lineages, importance_variance
 from jaxabc.distances import AdaptivePNorm, adaptive_weights
 from jaxabc.priors import Prior
 
-__all__ = ["APMCState", "build"]
+__all__ = ["LINEAGE_LAG", "APMCState", "build", "finalize", "impute_parents", "lineage_mcse"]
 
 WEIGHT_MODES = ("lenormand", "abcpy")
+
+# Lineages are traced back between LINEAGE_LAG and 2 LINEAGE_LAG - 1 generations: far enough
+# that the correlation of relatives is inside them, near enough that many lineages remain
+# (tracing to the prior draws leaves a handful after a few dozen generations).
+LINEAGE_LAG = 8
 
 
 class APMCState(NamedTuple):
@@ -72,6 +90,10 @@ class APMCState(NamedTuple):
         With an adaptive distance: the merged population's summaries (NaN for failed slots).
     distance_weights : jax.Array, shape (s,), or None
         With an adaptive distance: the weights of ``distances`` and ``threshold``.
+    lineage : jax.Array, shape (N, 2), int32
+        Each particle's ancestor (a slot index) at the last two generations that are multiples
+        of ``LINEAGE_LAG`` (both at generation 0 before the first); column 0 groups the
+        particles for the MCSE.  Bookkeeping only: the sampling never reads it.
     """
 
     particles: jax.Array
@@ -86,6 +108,8 @@ class APMCState(NamedTuple):
     # exactly those of a fixed distance.
     summaries: jax.Array | None = None
     distance_weights: jax.Array | None = None
+    # A default only so that the field can follow the optional ones; _finish always sets it.
+    lineage: jax.Array | None = None
 
 
 def build(
@@ -164,15 +188,25 @@ def build(
         cov = covariance_factor * kernels.weighted_covariance(particles, lw)
         return jnp.linalg.cholesky(kernels.regularize_covariance(cov, low, high))
 
-    def _finish(particles, log_weights, distances, valid, generation, acceptance, summaries=None, dweights=None):
+    def _finish(
+        particles, log_weights, distances, valid, generation, acceptance, lineage, summaries=None, dweights=None
+    ):
         order, kept, threshold = _select(distances, valid, log_weights)
         particles, log_weights = particles[order], log_weights[order]
         distances, valid = distances[order], valid[order]
         chol = _chol(particles, log_weights, kept)
         if summaries is not None:
             summaries = summaries[order]
+        lineage = lineage[order]
+        # Every LINEAGE_LAG generations the newer ancestors become the grouping ones and each
+        # particle starts a lineage of its own.
+        lineage = jnp.where(
+            generation % LINEAGE_LAG == 0,
+            jnp.stack([lineage[:, 1], jnp.arange(n, dtype=jnp.int32)], axis=1),
+            lineage,
+        )
         state = APMCState(
-            particles, log_weights, distances, valid, kept, threshold, chol, generation, summaries, dweights
+            particles, log_weights, distances, valid, kept, threshold, chol, generation, summaries, dweights, lineage
         )
         stop = acceptance < acceptance_cutoff
         post_lw = posterior(state)[1]
@@ -203,6 +237,8 @@ def build(
             jnp.ones((n,), bool),
             jnp.int32(0),
             jnp.asarray(1.0, dtype),
+            # Each prior draw its own lineage (any distinct labels; generation 0 relabels).
+            jnp.tile(jnp.arange(n, dtype=jnp.int32)[:, None], (1, 2)),
             summaries,
             dweights,
         )
@@ -227,6 +263,10 @@ def build(
             log_norm = kernels.log_truncation_normalizer(key, centres, state.chol, low, high)
             log_norm = jnp.where(state.kept[head], log_norm, 0.0)
         new_lw = kernels.mixture_log_weights(theta, prior.log_prob(theta), centres, centre_lw, state.chol, log_norm)
+        # The genealogy for the MCSE, from a key derived here: `key` itself is used as before.
+        parents = impute_parents(jax.random.fold_in(key, 1), theta, centres, centre_lw, state.chol, log_norm)
+        assert state.lineage is not None, "states are built by init/update"
+        lineage = jnp.concatenate([state.lineage[head], state.lineage[head][parents]])
         merged_summaries = dweights = None
         if adaptive is not None:
             summaries = adaptive.summaries_of(summaries, distances, theta.dtype)
@@ -255,6 +295,7 @@ def build(
             valid,
             state.generation + 1,
             acceptance.astype(theta.dtype),
+            lineage,
             merged_summaries,
             dweights,
         )
@@ -283,6 +324,7 @@ def build(
         posterior,
         settings,
         stop_reason=_stop_reason,
+        finalize=functools.partial(finalize, posterior=posterior),
         # A zero cutoff never fires: the run needs another rule.
         needs_stopping_rule=acceptance_cutoff == 0.0,
         uses_summaries=adaptive is not None,
@@ -291,3 +333,136 @@ def build(
 
 def _stop_reason(settings: dict, info: Info) -> str:
     return f"acceptance {float(info.acceptance_rate):.4f} < cutoff {settings['acceptance_cutoff']}"
+
+
+def impute_parents(
+    key: jax.Array,
+    theta: jax.Array,
+    centres: jax.Array,
+    centre_log_weights: jax.Array,
+    chol: jax.Array,
+    log_normalizer: jax.Array | None = None,
+) -> jax.Array:
+    """A parent for each proposed particle, drawn from its conditional law given the particle.
+
+    ``theta_i`` was drawn from the mixture ``sum_j w_j K(. | theta_j)``: given ``theta_i``
+    its parent is ``j`` with probability ``w_j K(theta_i | theta_j) / sum_k w_k K(theta_i |
+    theta_k)``.  Drawn independently for each particle, these parents have the joint law of
+    the parents ``propose`` drew, so a genealogy built from them has the law of the true one.
+
+    Parameters
+    ----------
+    key : jax.Array
+    theta : jax.Array, shape (m, d)
+    centres : jax.Array, shape (c, d)
+    centre_log_weights : jax.Array, shape (c,)
+        Unnormalised; ``-inf`` for slots that are not centres.
+    chol : jax.Array, shape (d, d)
+        Lower Cholesky factor of the kernel covariance.
+    log_normalizer : jax.Array, shape (c,), optional
+        The kernels' log truncation normalisers, as in :func:`jaxabc.kernels.mixture_log_weights`.
+
+    Returns
+    -------
+    jax.Array, shape (m,), int32
+        Indices into ``centres``.
+    """
+    log_w = centre_log_weights if log_normalizer is None else centre_log_weights - log_normalizer
+    origin = jnp.mean(centres, axis=0)
+    a = jax.scipy.linalg.solve_triangular(chol, (theta - origin).T, lower=True).T
+    b = jax.scipy.linalg.solve_triangular(chol, (centres - origin).T, lower=True).T
+    sq = jnp.maximum(jnp.sum(a**2, 1)[:, None] + jnp.sum(b**2, 1)[None, :] - 2.0 * a @ b.T, 0.0)
+    logits = log_w[None, :] - 0.5 * sq
+    prob = jnp.exp(logits - jnp.max(logits, axis=1, keepdims=True))
+    # Inverse CDF in two stages, a block of about sqrt(c) centres and then a centre in it: a
+    # cumulative sum over all c centres per particle costs several times the kernel itself
+    # on the CPU, and Gumbel draws (jax.random.categorical) more.
+    m, c = prob.shape
+    size = math.isqrt(c - 1) + 1
+    blocks = -(-c // size)
+    prob = jnp.pad(prob, ((0, 0), (0, blocks * size - c))).reshape(m, blocks, size)
+    k_block, k_centre = jax.random.split(key)
+    block = _inverse_cdf(k_block, jnp.sum(prob, axis=2))
+    centre = _inverse_cdf(k_centre, jnp.take_along_axis(prob, block[:, None, None], axis=1)[:, 0])
+    return (block * size + centre).astype(jnp.int32)
+
+
+def _inverse_cdf(key: jax.Array, prob: jax.Array) -> jax.Array:
+    """One index per row of ``prob`` (m, c), drawn with probabilities proportional to the row."""
+    cdf = jnp.cumsum(prob, axis=1)
+    u = jax.random.uniform(key, (prob.shape[0], 1), cdf.dtype) * cdf[:, -1:]
+    idx = jnp.sum(cdf <= u, axis=1)
+    # Never a zero-probability slot, even when rounding leaves u at the top of the cdf.
+    last = jnp.max(jnp.where(prob > 0, jnp.arange(prob.shape[1]), 0), axis=1)
+    return jnp.minimum(idx, last)
+
+
+def lineage_mcse(particles: Any, weights: Any, lineage: Any) -> dict:
+    """Monte Carlo standard error of APMCABC's weighted posterior mean, from its lineages.
+
+    The variance of the mean is the larger of the cluster-robust variance over the lineages
+    (:func:`jaxabc.diagnostics.cluster_variance`) and the delta-method variance of
+    self-normalised importance sampling (:func:`jaxabc.diagnostics.importance_variance`, the
+    error of independent particles).  ``inf`` when fewer than two distinct particles carry
+    weight.
+
+    Parameters
+    ----------
+    particles : array_like, shape (n, d)
+    weights : array_like, shape (n,)
+        Non-negative; zero for particles outside the posterior.
+    lineage : array_like, shape (n,)
+        A label per particle; particles that share it share an ancestor.
+
+    Returns
+    -------
+    dict
+        ``mcse`` (list of d floats), ``num_distinct`` (particles with weight),
+        ``num_lineages``, ``effective_lineages`` (Kish's number of the lineages' weights),
+        ``collapsed`` (bool) and ``mcse_note`` (why no MCSE, empty when there is one).
+    """
+    x = np.asarray(particles, np.float64)
+    x = x.reshape(x.shape[0], -1)
+    w = np.asarray(weights, np.float64)
+    lineage = np.asarray(lineage).reshape(-1)
+    keep = w > 0
+    distinct = count_distinct(x[keep])
+    num_lineages, effective = effective_lineages(w, lineage)
+    if distinct < 2:
+        note = f"collapsed: {distinct} distinct particle{'s' * (distinct != 1)} with weight; MCSE not available"
+        mcse = np.full(x.shape[1], np.inf)
+    else:
+        note = ""
+        mcse = np.sqrt(np.maximum(cluster_variance(x, w, lineage), importance_variance(x[keep], w[keep])))
+    return {
+        "mcse": [float(v) for v in mcse],
+        "num_distinct": distinct,
+        "num_lineages": num_lineages,
+        "effective_lineages": effective,
+        "collapsed": distinct < 2,
+        "mcse_note": note,
+    }
+
+
+def finalize(state: APMCState, posterior: Any) -> dict:
+    """Result extras of a run that ended in ``state``: the lineage MCSE (:func:`lineage_mcse`).
+
+    Parameters
+    ----------
+    state : APMCState
+    posterior : callable ``(state) -> (particles, log_weights)``
+        The algorithm's posterior (kept particles, or the merged population in ``abcpy`` mode).
+
+    Returns
+    -------
+    dict
+        ``{"diagnostics": dict}``; empty for a state without lineages.
+    """
+    if state.lineage is None:
+        return {}
+    particles, log_w = (np.asarray(a, np.float64) for a in posterior(state))
+    keep = np.isfinite(log_w)
+    if not np.any(keep):
+        return {}
+    w = np.where(keep, np.exp(log_w - np.max(log_w[keep])), 0.0)
+    return {"diagnostics": lineage_mcse(particles, w, np.asarray(state.lineage)[:, 0])}

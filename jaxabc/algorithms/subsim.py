@@ -26,7 +26,10 @@ population collapses onto a few points.  ``Info.ess`` is therefore :func:`popula
 (distinct particles, independent lineages, batch means over lineages), :func:`finalize` adds
 ArviZ's autocorrelation-aware estimate along the chains, and a ``UserWarning`` names the level
 whose chains stopped moving; ``min_distinct_fraction`` and ``acceptance_floor`` stop the run
-there instead.
+there instead.  The Monte Carlo standard error of the posterior mean comes from the spread
+between the level-0 lineages (:func:`lineage_mcse`): a population left with three effective
+lineages or fewer has collapsed, and its MCSE is ``inf``, not the spread of a few repeated
+points.
 """
 
 from __future__ import annotations
@@ -42,7 +45,7 @@ import numpy as np
 
 from jaxabc import kernels
 from jaxabc.algorithms.base import ABCAlgorithm, Info, Proposal
-from jaxabc.diagnostics import chain_ess
+from jaxabc.diagnostics import chain_ess, effective_lineages, lineage_variance
 from jaxabc.diagnostics import count_distinct as count_distinct_host
 from jaxabc.priors import Prior
 
@@ -53,6 +56,7 @@ __all__ = [
     "count_distinct",
     "finalize",
     "level_chains",
+    "lineage_mcse",
     "log_evidence",
     "population_ess_bound",
     "stop_reason",
@@ -354,7 +358,12 @@ def level_chains(particles: Any, num_chains: int) -> np.ndarray:
 
 
 def chain_diagnostics(
-    particles: Any, settings: dict, level: int, level_acceptance: float, ess_bound: float | None = None
+    particles: Any,
+    settings: dict,
+    level: int,
+    level_acceptance: float,
+    ess_bound: float | None = None,
+    ancestors: Any = None,
 ) -> dict:
     """Host diagnostics of a completed level's population, with a warning when stuck.
 
@@ -370,14 +379,18 @@ def chain_diagnostics(
         The level's chain-move acceptance rate.
     ess_bound : float, optional
         :func:`population_ess_bound` of the state, when the state is at hand.
+    ancestors : array_like, shape (N,), optional
+        Each particle's level-0 ancestor (``SubsimState.ancestors``); without it (a result
+        file) the distinct particles stand in for the lineages.
 
     Returns
     -------
     dict
         ``ess`` (the smaller of :func:`jaxabc.diagnostics.chain_ess` and ``ess_bound``),
         ``chain_ess``, ``ess_bound``, ``num_distinct``, ``level``, ``level_acceptance``,
-        ``chains_stuck`` (fewer distinct particles than chains, or acceptance below the floor)
-        and ``warning`` (the message, empty when not stuck).
+        ``chains_stuck`` (fewer distinct particles than chains, or acceptance below the floor),
+        ``mcse`` and the fields of :func:`lineage_mcse`, and ``warning`` (the message, empty
+        when neither stuck nor collapsed).
     """
     x = np.asarray(particles, np.float64)
     n, num_chains = x.shape[0], int(settings["num_chains"])
@@ -389,6 +402,7 @@ def chain_diagnostics(
         ess = min(ess, float(ess_bound))
     floor = float(settings.get("acceptance_floor", 0.0))
     stuck = level > 0 and (distinct < num_chains or level_acceptance < floor)
+    errors = lineage_mcse(x, ess, distinct, ancestors)
     message = ""
     if stuck:
         message = (
@@ -397,6 +411,9 @@ def chain_diagnostics(
             f"chains); the effective sample size is {ess:.1f}, not {n}. Stop earlier "
             "(num_steps, final_threshold) or set acceptance_floor / min_distinct_fraction"
         )
+    if errors["collapsed"]:
+        note = f"ABCsubsim level {level}: {errors['mcse_note']}"
+        message = f"{message}; {errors['mcse_note']}" if message else note
     return {
         "ess": ess,
         "chain_ess": chain_value,
@@ -405,7 +422,78 @@ def chain_diagnostics(
         "level": int(level),
         "level_acceptance": float(level_acceptance),
         "chains_stuck": bool(stuck),
+        **errors,
         "warning": message,
+    }
+
+
+# Below this many effective lineages the spread between them says next to nothing about the
+# error (a t distribution with <= 2 degrees of freedom has no variance): no MCSE is reported.
+MIN_EFFECTIVE_LINEAGES = 3.0
+
+
+def lineage_mcse(particles: Any, ess: float, num_distinct: int, ancestors: Any = None) -> dict:
+    """Monte Carlo standard error of an ABCsubsim population's mean, from its lineages.
+
+    The particles descend from few level-0 draws and the chains barely move once the threshold
+    is small, so the spread of the population underestimates the posterior's and ``var / ESS``
+    the error.  The variance of the mean is the larger of ``var / ESS`` and
+    :func:`jaxabc.diagnostics.lineage_variance` over the level-0 lineages, times
+    ``nu / (nu - 2)`` with ``nu = K - 1`` for ``K`` effective lineages (the variance of a t
+    distribution: the lineage spread is itself estimated from ``K`` values).  With
+    ``K <= 3``, or a single distinct particle, the population has collapsed: the MCSE is
+    ``inf``.
+
+    Parameters
+    ----------
+    particles : array_like, shape (N, d)
+    ess : float
+        The population's effective sample size (:func:`chain_diagnostics`).
+    num_distinct : int
+    ancestors : array_like, shape (N,), optional
+        Level-0 ancestors; without them ``K`` is bounded by the distinct particles only.
+
+    Returns
+    -------
+    dict
+        ``mcse`` (list of d floats, ``inf`` when collapsed), ``num_lineages`` and
+        ``effective_lineages`` (None without ancestors), ``collapsed`` (bool) and
+        ``mcse_note`` (why no MCSE, empty when there is one).
+    """
+    x = np.asarray(particles, np.float64)
+    x = x.reshape(x.shape[0], -1)
+    n = x.shape[0]
+    weights = np.full(n, 1.0 / n)
+    var = x.var(axis=0, ddof=1) if n > 1 else np.zeros(x.shape[1])
+    variance = var / max(float(ess), 1.0)
+    num_lineages: int | None = None
+    effective: float | None = None
+    if ancestors is not None:
+        lineage = np.asarray(ancestors).reshape(-1)
+        num_lineages, effective = effective_lineages(weights, lineage)
+        variance = np.maximum(variance, lineage_variance(x, weights, lineage))
+    # Without ancestors the distinct particles bound the lineages from above.
+    bound = float(num_distinct) if effective is None else min(effective, float(num_distinct))
+    collapsed = num_distinct <= 1 or bound <= MIN_EFFECTIVE_LINEAGES
+    note = ""
+    if collapsed:
+        lineages = "" if num_lineages is None else f" from {num_lineages} lineage{'s' * (num_lineages != 1)}"
+        effective_text = "" if effective is None else f" ({effective:.1f} effective)"
+        note = (
+            f"collapsed: {num_distinct} distinct particle{'s' * (num_distinct != 1)}{lineages}{effective_text}; "
+            "MCSE not available (the population is a few draws repeated: run more particles "
+            "or stop at an earlier level)"
+        )
+        mcse = np.full(x.shape[1], np.inf)
+    else:
+        dof = bound - 1.0
+        mcse = np.sqrt(variance * dof / (dof - 2.0))
+    return {
+        "mcse": [float(v) for v in mcse],
+        "num_lineages": num_lineages,
+        "effective_lineages": effective,
+        "collapsed": bool(collapsed),
+        "mcse_note": note,
     }
 
 
@@ -422,7 +510,12 @@ def finalize(state: SubsimState, settings: dict) -> dict:
     """
     level = int(state.level)
     diagnostics = chain_diagnostics(
-        state.particles, settings, level, float(state.level_acceptance), float(population_ess_bound(state))
+        state.particles,
+        settings,
+        level,
+        float(state.level_acceptance),
+        float(population_ess_bound(state)),
+        ancestors=np.asarray(state.ancestors),
     )
     if diagnostics["warning"]:
         warnings.warn(diagnostics["warning"], UserWarning, stacklevel=2)

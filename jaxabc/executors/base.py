@@ -19,6 +19,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxabc.errors import STATUS_NONFINITE, STATUS_OK
+from jaxabc.executors.workers import COMPLEX_SUMMARIES
 
 __all__ = [
     "Executor",
@@ -133,7 +134,14 @@ def assemble_batch(
     ------
     ValueError
         If successful tasks returned summaries of different shapes.
+    TypeError
+        If the simulator returned complex summaries (a task's reason says so, see
+        :func:`jaxabc.executors.workers.run_one`): a mistake in the simulator, not a failed
+        simulation, so the run stops instead of recording every task as failed.
     """
+    for reason in reasons:
+        if reason.startswith(COMPLEX_SUMMARIES):
+            raise TypeError(reason)
     shapes = {o.shape for o in outputs if o is not None}
     if len(shapes) > 1:
         raise ValueError(

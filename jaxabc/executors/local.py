@@ -82,6 +82,12 @@ class ProcessPoolExecutor:
     summary_shape : tuple of int, optional
         Shape of one task's summaries, for a batch in which every task fails; learnt from the
         first successful task when not given.
+    max_tasks_per_worker : int, optional
+        Replace a worker process with a fresh one after it has run this many tasks (default:
+        never), for simulators that leak memory, file handles or threads.  Results do not
+        change: a task's key belongs to the task, not to the worker.  Each replacement pays a
+        worker's start-up (a Python interpreter and the simulator's imports), so keep it well
+        above 1 unless a task takes much longer than that.
 
     Raises
     ------
@@ -110,9 +116,16 @@ class ProcessPoolExecutor:
         start_method: str = "spawn",
         order: str | CostModel | None = None,
         summary_shape: tuple[int, ...] | None = None,
+        max_tasks_per_worker: int | None = None,
     ):
         if max_workers is not None and max_workers < 1:
             raise ValueError(f"max_workers must be at least 1, got {max_workers}")
+        if max_tasks_per_worker is not None and (
+            isinstance(max_tasks_per_worker, bool)
+            or not isinstance(max_tasks_per_worker, int | np.integer)
+            or max_tasks_per_worker < 1
+        ):
+            raise ValueError(f"max_tasks_per_worker must be a positive integer or None, got {max_tasks_per_worker!r}")
         if timeout is not None and timeout <= 0:
             raise ValueError(f"timeout must be positive, got {timeout}")
         if start_method not in ("spawn", "forkserver"):
@@ -122,7 +135,10 @@ class ProcessPoolExecutor:
         self.start_method = start_method
         self.cost_model = get_cost_model(order)
         self.summary_shape = None if summary_shape is None else tuple(summary_shape)
+        self.max_tasks_per_worker = None if max_tasks_per_worker is None else int(max_tasks_per_worker)
         self._workers: list[WorkerProcess] = []
+        self._tasks_run: dict[int, int] = {}  # worker id -> tasks it finished
+        self._retired: list[WorkerProcess] = []  # asked to exit (max_tasks_per_worker)
         self._simulate: Callable | None = None
         self._payload: bytes | None = None
         self._next_id = 0
@@ -145,6 +161,7 @@ class ProcessPoolExecutor:
             self._simulate = simulate
             for worker in self._workers:  # reuse the processes; they load the new simulator
                 worker.send_load(self._payload)
+        self._reap()
         while len(self._workers) < self.max_workers:
             self._spawn()
 
@@ -184,7 +201,14 @@ class ProcessPoolExecutor:
                         _, i, outputs[i], status[i], reasons[i], times[i], cpu[i] = finished
                         workers[i] = worker.wid
                         done += 1
-                        give(worker)
+                        if self._worn_out(worker):
+                            # Retire it; a fresh process takes the next task (if any is left;
+                            # otherwise the next map() tops the pool up).
+                            self._retire(worker)
+                            if pending:
+                                give(self._spawn())
+                        else:
+                            give(worker)
                         continue
                 elif worker.proc.sentinel in ready or not worker.proc.is_alive():
                     failure = STATUS_WORKER_DIED
@@ -195,6 +219,7 @@ class ProcessPoolExecutor:
                 i = worker.task
                 worker.kill()
                 self._workers.remove(worker)
+                self._tasks_run.pop(worker.wid, None)
                 if failure == STATUS_WORKER_DIED and not worker.ready and not self._any_ready:
                     # No worker ever started: a set-up error, not a failure of this task.
                     reason = worker.death_reason("starting")
@@ -216,6 +241,28 @@ class ProcessPoolExecutor:
             self.cost_model.observe(thetas, task_durations(batch.wall_time, batch.cpu_time))
         return batch
 
+    def _worn_out(self, worker: WorkerProcess) -> bool:
+        """Count a finished task; whether the worker has now run ``max_tasks_per_worker``."""
+        self._tasks_run[worker.wid] = self._tasks_run.get(worker.wid, 0) + 1
+        limit = self.max_tasks_per_worker
+        return limit is not None and self._tasks_run[worker.wid] >= limit
+
+    def _retire(self, worker: WorkerProcess) -> None:
+        """Ask an idle worker to exit, without waiting for it: the pool goes on meanwhile."""
+        self._workers.remove(worker)
+        self._tasks_run.pop(worker.wid, None)
+        try:
+            worker.conn.send(None)
+        except (OSError, ValueError):
+            pass
+        self._retired.append(worker)
+
+    def _reap(self) -> None:
+        """Close the retired workers that have exited (``stop`` kills the rest at close)."""
+        for worker in [w for w in self._retired if not w.proc.is_alive()]:
+            worker.stop(wait_seconds=0.0)
+            self._retired.remove(worker)
+
     def close(self) -> None:
         # Ask every worker first, then wait: they shut down in parallel.
         for worker in self._workers:
@@ -223,9 +270,11 @@ class ProcessPoolExecutor:
                 worker.conn.send(None)
             except (OSError, ValueError):
                 pass
-        for worker in self._workers:
+        for worker in self._workers + self._retired:
             worker.stop()
         self._workers.clear()
+        self._retired.clear()
+        self._tasks_run.clear()
         self._simulate = self._payload = None
 
     def __del__(self) -> None:

@@ -11,8 +11,16 @@ import numpy as np
 
 from jaxabc.errors import STATUS_NONFINITE, STATUS_OK
 from jaxabc.executors.base import SimulationBatch, mark_nonfinite, wrap_keys
+from jaxabc.executors.workers import complex_summaries_message
 
 __all__ = ["VmapExecutor"]
+
+
+def _refuse_complex(summaries: np.ndarray) -> None:
+    # The driver casts summaries to real floats for the distances, which would drop the
+    # imaginary part without a word.
+    if np.iscomplexobj(summaries):
+        raise TypeError(complex_summaries_message(summaries.dtype))
 
 
 class VmapExecutor:
@@ -30,7 +38,8 @@ class VmapExecutor:
     A simulator object with a ``simulate_batch(keys, thetas)`` attribute (for engines that
     manage state outside ``jit``, such as jax-md neighbour-list re-allocation) is called through
     it instead of ``jax.vmap``; it returns the summaries, or ``(summaries, ok)`` with ``ok`` a
-    boolean mask of members that ran cleanly.
+    boolean mask of members that ran cleanly.  Complex summaries are refused with ``TypeError``:
+    distances compare real numbers.
     """
 
     name = "vmap"
@@ -62,6 +71,7 @@ class VmapExecutor:
             out = fn(wrap_keys(keys), jnp.asarray(thetas))
             out, ok = out if isinstance(out, tuple) else (out, None)
             summaries = np.array(out)
+            _refuse_complex(summaries)
             ok = np.ones(m, bool) if ok is None else np.asarray(ok, bool)
             summaries[~ok] = np.nan
             status = np.where(ok, STATUS_OK, STATUS_NONFINITE).astype(np.int32)
@@ -82,6 +92,7 @@ class VmapExecutor:
             times[start:stop] = (time.perf_counter() - t0) / idx.size
             pieces.append(out[: idx.size])
         summaries = np.concatenate(pieces, axis=0)
+        _refuse_complex(summaries)
         batch = SimulationBatch(summaries, np.zeros(m, np.int32), [""] * m, times, np.zeros(m, np.int32))
         return mark_nonfinite(batch)
 

@@ -31,10 +31,12 @@ import numpy as np
 from jaxabc.errors import STATUS_FAILED, STATUS_OK, STATUS_TIMEOUT, STATUS_WORKER_DIED, SimulationFailure
 
 __all__ = [
+    "COMPLEX_SUMMARIES",
     "GUARD_HINT",
     "STARTUP_LIMIT",
     "TaskRunner",
     "WorkerProcess",
+    "complex_summaries_message",
     "pickle_simulator",
     "run_one",
     "timed_run",
@@ -51,10 +53,43 @@ GUARD_HINT = (
 )
 
 
+#: How a task's reason starts when its simulator returned complex summaries; the parent's
+#: :func:`jaxabc.executors.base.assemble_batch` turns it into a ``TypeError`` for the run.
+COMPLEX_SUMMARIES = "the simulator returned complex summaries"
+
+
+def complex_summaries_message(dtype: Any) -> str:
+    """Why complex summaries are refused, and what to return instead."""
+    return (
+        f"{COMPLEX_SUMMARIES} (dtype {np.dtype(dtype).name}): distances compare real numbers, and "
+        "casting would drop the imaginary part silently; return real summaries, e.g. both parts "
+        "side by side (jnp.concatenate([z.real, z.imag])) or the modulus (jnp.abs(z)), and "
+        "observed data to match"
+    )
+
+
 def run_one(simulate: Callable, key: np.ndarray, theta: np.ndarray) -> tuple[Any, int, str]:
-    """``(summaries or None, status, reason)`` of one task; never raises."""
+    """``(summaries or None, status, reason)`` of one task; never raises.
+
+    Complex summaries fail the task with a reason starting :data:`COMPLEX_SUMMARIES` (a cast to
+    float64 would keep only the real part); the executor refuses the batch for them.
+    """
     try:
-        out = np.asarray(simulate(key, theta), dtype=np.float64)
+        value = simulate(key, theta)
+        raw = np.asarray(value)
+        if raw.dtype == object:
+            # np.asarray(None, float) is NaN: say what came back instead of a silent failure.
+            return (
+                None,
+                STATUS_FAILED,
+                (
+                    f"the simulator returned {type(value).__name__}, not an array of numbers: "
+                    "simulate(key, theta) must return the summaries"
+                ),
+            )
+        if np.iscomplexobj(raw):
+            return None, STATUS_FAILED, complex_summaries_message(raw.dtype)
+        out = np.asarray(raw, dtype=np.float64)
         return out, STATUS_OK, ""
     except SimulationFailure as exc:
         return None, STATUS_FAILED, str(exc)
