@@ -33,22 +33,37 @@ A configuration file describes one calibration::
     folder = "runs/gaussian"
 
 The output folder receives ``result.npz``, ``posterior.png``, ``summary.txt`` and the
-checkpoint; ``--resume`` continues an interrupted run from that checkpoint.
+checkpoint; ``--resume`` continues an interrupted run from that checkpoint.  ``[model]`` may
+also give ``simulator_id`` (the simulator's identity in the checkpoint; for a factory it is
+``factory(options as JSON)`` by default).  An unknown table or key, or a value of the wrong
+type, is refused with the nearest valid name.
 
 Errors in the input (a missing file or key, malformed TOML, a file that is not a result, a run
 that refuses or fails) end with one line ``jaxabc: error: ...`` on stderr and exit code 2.
+Ctrl-C ends with one line ``jaxabc: interrupted; ...`` naming the command that resumes, and
+exit code 130.
 """
 
 from __future__ import annotations
 
+import _thread
 import argparse
+import difflib
+import hashlib
 import importlib
+import inspect
+import json
+import os
 import pickle
+import shlex
 import sys
+import threading
+import time
 import tomllib
 import zipfile
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 
@@ -66,6 +81,60 @@ REQUIRED: dict[str, tuple[str, ...]] = {
     "observed": (),
     "algorithm": ("name",),
 }
+
+#: Keyword arguments of :func:`jaxabc.run` that an ``[algorithm]`` table may set, with their
+#: TOML type (see :data:`_KINDS`).  The other keys of the table are the algorithm's own options.
+RUN_KEYS: dict[str, str] = {
+    "num_particles": "int",
+    "num_steps": "int",
+    "distance": "str",
+    "seed": "int",
+    "final_threshold": "number",
+    "max_simulations": "int",
+    "max_wall_time": "number",
+    "max_failure_fraction": "number",
+    "stop_after_iterations": "int",
+    "keep_summaries": "bool",
+    "dtype": "str",
+}
+
+#: Every table a configuration may have and the keys each may hold, with the type of each value.
+#: ``options`` tables are free-form (the factory's or the executor's keywords), except in
+#: ``[algorithm]``, where they are checked against the algorithm's builder like the table itself.
+SCHEMA: dict[str, dict[str, str]] = {
+    "model": {"simulator": "str", "factory": "str", "options": "table", "simulator_id": "str"},
+    "prior": {"names": "strs", "low": "numbers", "high": "numbers", "units": "strs"},
+    "observed": {"values": "numbers", "file": "str"},
+    "algorithm": {"name": "str", "options": "table", **RUN_KEYS},
+    "executor": {"name": "str", "options": "table"},
+    "output": {"folder": "str"},
+    "truth": {"values": "numbers"},
+}
+
+#: What each type of :data:`SCHEMA` means, for the error message.
+_KINDS: dict[str, str] = {
+    "str": "a string",
+    "int": "an integer",
+    "number": "a number",
+    "bool": "true or false",
+    "table": "a table, e.g. options = {}",
+    "numbers": "a list of numbers",
+    "strs": "a list of strings",
+}
+
+#: A builder's annotation (``from __future__ import annotations`` keeps them as text) and the
+#: TOML type it asks for; an option with another annotation is passed on unchecked.
+_ANNOTATIONS: dict[str, str] = {
+    "float": "number",
+    "int": "int",
+    "str": "str",
+    "bool": "bool",
+    "Sequence[float]": "numbers",
+}
+
+#: Builder parameters that a configuration does not set: the CLI passes them (prior, observed)
+#: or the driver derives them (the bound adaptive distance).
+_NOT_OPTIONS = frozenset({"prior", "observed", "adaptive_distance"})
 
 #: Errors that mean "the input or the run is wrong", not "jaxabc has a bug": main reports them
 #: in one line.  RuntimeError covers TooManyFailures and a process pool that cannot start;
@@ -104,12 +173,18 @@ def _existing_file(path: Path, what: str) -> Path:
 def load_config(path: str | Path) -> dict:
     """Read and validate a TOML configuration; paths become absolute.
 
+    Every table and key must be in :data:`SCHEMA` (the keys of ``[algorithm]`` and of its
+    ``options``: :data:`RUN_KEYS` and the named algorithm's builder options), with a value of
+    the type it names.
+
     Raises
     ------
     FileNotFoundError, IsADirectoryError
         No file at ``path``.
     ConfigError
-        Malformed TOML (with the line), a missing table or key (named), or a table of the wrong type.
+        Malformed TOML (with the line), a missing table or key (named), an unknown table or key
+        (with the nearest valid name), or a value of the wrong type (``[table] key`` and the
+        type expected).
     """
     path = _existing_file(Path(path), "configuration file")
     try:
@@ -119,6 +194,7 @@ def load_config(path: str | Path) -> dict:
         raise ConfigError(f"{path}: not valid TOML: {exc}") from None
     except UnicodeDecodeError as exc:
         raise ConfigError(f"{path}: not a text (UTF-8) TOML file: {exc}") from None
+    _check_tables(cfg, path)
     for section, keys in REQUIRED.items():
         if section not in cfg:
             raise ConfigError(f"{path}: missing [{section}] table (see `jaxabc --help`)")
@@ -133,6 +209,8 @@ def load_config(path: str | Path) -> dict:
     for section in ("model", "algorithm", "executor"):
         if not isinstance(cfg.get(section, {}).get("options", {}), dict):
             raise ConfigError(f"{path}: options in the [{section}] table must be a table, e.g. options = {{}}")
+    for section, value in cfg.items():
+        _check_keys(section, value, path)
     model = cfg["model"]
     if ("simulator" in model) == ("factory" in model):
         raise ConfigError(f"{path}: the [model] table needs exactly one of the keys 'simulator' or 'factory'")
@@ -144,6 +222,155 @@ def load_config(path: str | Path) -> dict:
     out = cfg.setdefault("output", {})
     out["folder"] = str((path.parent / out.get("folder", "jaxabc-run")).resolve())
     return cfg
+
+
+def _nearest(name: str, valid: Any) -> str | None:
+    """The valid name closest to a misspelt one, if any is close."""
+    close = difflib.get_close_matches(name, [str(v) for v in valid], n=1)
+    return close[0] if close else None
+
+
+def _check_tables(cfg: dict, path: Path) -> None:
+    """Refuse a table (or a top-level key) that is not in :data:`SCHEMA`, naming the nearest."""
+    for name, value in cfg.items():
+        if name in SCHEMA:
+            continue
+        if isinstance(value, dict):
+            near = _nearest(name, SCHEMA)
+            hint = f"did you mean [{near}]?" if near else "the tables are " + ", ".join(f"[{t}]" for t in SCHEMA)
+            raise ConfigError(f"unknown table [{name}] in {path}; {hint}")
+        # A key above the first table: say which table holds it, if one does.
+        owner = next((t for t, keys in SCHEMA.items() if name in keys), None)
+        near = _nearest(name, SCHEMA)
+        hint = (
+            f"did you mean {name!r} in the [{owner}] table?"
+            if owner
+            else f"did you mean the table [{near}]?"
+            if near
+            else "every key belongs in a table: " + ", ".join(f"[{t}]" for t in SCHEMA)
+        )
+        raise ConfigError(f"unknown top-level key {name!r} in {path}; {hint}")
+
+
+def _algorithm_keys(name: Any) -> tuple[dict[str, str | None], bool]:
+    """The keys an ``[algorithm]`` table may hold with their types (None: unchecked), and
+    whether the builder also takes any other keyword (``**options``)."""
+    from jaxabc.algorithms import BUILDERS
+
+    keys: dict[str, str | None] = dict(SCHEMA["algorithm"])
+    builder = BUILDERS.get(name) if isinstance(name, str) else None
+    if builder is None:
+        return keys, True  # an unknown algorithm: jaxabc.run names the valid ones
+    free = False
+    for param in inspect.signature(builder).parameters.values():
+        if param.kind is inspect.Parameter.VAR_KEYWORD:
+            free = True
+        elif param.name not in _NOT_OPTIONS and param.name not in keys:
+            text = str(param.annotation).removesuffix(" | None")
+            keys[param.name] = _ANNOTATIONS.get(text)
+    return keys, free
+
+
+def _check_keys(section: str, table: dict, path: Path) -> None:
+    """Refuse an unknown key of ``[section]`` (naming the nearest) or a value of the wrong type."""
+    if section == "algorithm":
+        known, free = _algorithm_keys(table.get("name"))
+    else:
+        known, free = dict[str, str | None](SCHEMA[section]), False
+    items = [(key, key, value) for key, value in table.items()]  # (as written, bare key, value)
+    options = table.get("options")
+    if section == "algorithm" and isinstance(options, dict):
+        # jaxabc.run takes an algorithm's options and the table's own keys alike.
+        for key, value in options.items():
+            if key in table:
+                raise ConfigError(
+                    f"{key!r} is given twice in the [algorithm] table of {path}: at the top and in options"
+                )
+            items.append((f"options.{key}", key, value))
+    for label, key, value in items:
+        nested = label != key
+        if key not in known or (nested and key in ("name", "options")):
+            if free:
+                continue
+            owner = next((t for t, keys in SCHEMA.items() if key in keys and t != section), None)
+            near = _nearest(key, [k for k in known if not nested or k not in ("name", "options")])
+            # Else a close key of another table (`unit` in [algorithm]: 'units' of [prior]).
+            elsewhere = [(t, _nearest(key, keys)) for t, keys in SCHEMA.items() if t != section]
+            other = next(((t, k) for t, k in elsewhere if k), None)
+            hint = (
+                f"it belongs in the [{owner}] table"
+                if owner and not nested
+                else f"did you mean {near!r}?"
+                if near
+                else f"did you mean {other[1]!r} in the [{other[0]}] table?"
+                if other and not nested
+                else "the keys are " + ", ".join(repr(k) for k in known)
+            )
+            raise ConfigError(f"unknown key {label!r} in the [{section}] table of {path}; {hint}")
+        kind = known[key]
+        if kind is not None and not _type_ok(kind, value):
+            raise ConfigError(
+                f"{path}: [{section}] {label} must be {_KINDS[kind]}, got {value!r} ({_toml_type(value)})"
+            )
+
+
+def _numeric(value: Any) -> bool:
+    """A number, or a (nested) list of numbers: TOML booleans are not numbers here."""
+    if isinstance(value, list):
+        return all(_numeric(v) for v in value)
+    return isinstance(value, int | float) and not isinstance(value, bool)
+
+
+def _type_ok(kind: str, value: Any) -> bool:
+    if kind == "str":
+        return isinstance(value, str)
+    if kind == "bool":
+        return isinstance(value, bool)
+    if kind == "int":
+        return isinstance(value, int) and not isinstance(value, bool)
+    if kind == "number":
+        return isinstance(value, int | float) and not isinstance(value, bool)
+    if kind == "table":
+        return isinstance(value, dict)
+    if kind == "strs":
+        return isinstance(value, list) and all(isinstance(v, str) for v in value)
+    if kind == "numbers":
+        return _numeric(value)
+    raise AssertionError(f"no type {kind!r} in _KINDS")
+
+
+def _toml_type(value: Any) -> str:
+    """The TOML name of a value's type, for an error message."""
+    for kind, name in ((bool, "a boolean"), (str, "a string"), (int, "an integer"), (float, "a float")):
+        if isinstance(value, kind):
+            return name
+    return "an array" if isinstance(value, list) else "a table" if isinstance(value, dict) else type(value).__name__
+
+
+def simulator_id_of(model: dict, simulate: Any = None) -> str | None:
+    """The simulator's identity in the checkpoint for a ``[model]`` table.
+
+    Its own ``simulator_id`` when given; for a factory, the factory and its options as
+    canonical JSON (``'md.helium:make_simulator({"preset":"cpu"})'``), so that a resume with
+    other options is refused even when the closure it returns cannot be fingerprinted, followed
+    by ``#`` and a digest of :func:`jaxabc.checkpoint.describe_callable` of ``simulate`` when
+    that can be fingerprinted (so that an edit of the factory's code is seen too); None (the
+    function's own identity) for ``simulator = "module:function"``.
+    """
+    if "simulator_id" in model:
+        return model["simulator_id"]
+    if "factory" not in model:
+        return None
+    options = json.dumps(model.get("options", {}), sort_keys=True, separators=(",", ":"), default=str)
+    identity = f"{model['factory']}({options})"
+    if simulate is not None:
+        from jaxabc.checkpoint import describe_callable, unfingerprintable_parts
+
+        description = describe_callable(simulate)
+        if not unfingerprintable_parts(description):
+            digest = hashlib.sha256(json.dumps(description, sort_keys=True).encode()).hexdigest()[:16]
+            identity += f"#{digest}"
+    return identity
 
 
 def run_config(cfg: dict, resume: bool = False, progress: bool = True, overwrite: bool = False):
@@ -182,6 +409,7 @@ def run_config(cfg: dict, resume: bool = False, progress: bool = True, overwrite
             overwrite=overwrite,
             progress=progress,
             metadata={"config": cfg},
+            simulator_id=simulator_id_of(model, simulate),
             **a,
             **options,
         )
@@ -219,13 +447,62 @@ def _load_result(path: str | Path):
         raise ValueError(f"{path} is not a jaxabc result file: {exc}") from None
 
 
-def _example(name: str, folder: Path, quick: bool) -> None:
+def run_state(folder: Path) -> Literal["none", "finished", "interrupted", "unreadable"]:
+    """What the checkpoint in ``folder`` holds: nothing, a run that ended (its stop reason is
+    recorded), a run stopped before its end (resumable), or a file that cannot be resumed."""
+    from jaxabc.checkpoint import CHECKPOINT_NAME, LEGACY_CHECKPOINT_NAME, CheckpointError, load
+
+    path = folder / CHECKPOINT_NAME
+    if not path.exists():
+        return "unreadable" if (folder / LEGACY_CHECKPOINT_NAME).exists() else "none"
+    try:
+        return "finished" if load(path).counters.get("stop_reason") else "interrupted"
+    except (CheckpointError, OSError):
+        return "unreadable"
+
+
+def _example_folder(folder: Path, resume: bool, overwrite: bool) -> None:
+    """Refuse to start an example over an interrupted run of it unless told which to do.
+
+    A finished run is the example's own output, so running the example again replaces it (with
+    a note on stderr): the main job must work a second time without flags.
+
+    Raises
+    ------
+    ValueError
+        Both ``resume`` and ``overwrite``.
+    jaxabc.checkpoint.CheckpointExists
+        Neither, and ``folder`` holds an interrupted run or a checkpoint that cannot be read.
+    """
+    from jaxabc.checkpoint import CHECKPOINT_NAME, CheckpointExists
+
+    if resume and overwrite:
+        raise ValueError("--resume and --overwrite contradict each other: choose one")
+    if resume or overwrite:
+        return
+    state = run_state(folder)
+    if state == "interrupted":
+        raise CheckpointExists(
+            f"{folder / CHECKPOINT_NAME} holds an interrupted run of this example: continue it with "
+            "--resume, or start over with --overwrite (which deletes it)"
+        )
+    if state == "unreadable":
+        raise CheckpointExists(
+            f"{folder} holds a checkpoint this jaxabc cannot resume (corrupt, or of an older version): "
+            "start over with --overwrite (which deletes it), or pass --resume to see why"
+        )
+    if state == "finished":
+        print(f"jaxabc: replacing the finished run in {folder} (--resume would reload it)", file=sys.stderr)
+
+
+def _example(name: str, folder: Path, quick: bool, resume: bool = False, overwrite: bool = False) -> None:
     import jax.numpy as jnp
 
     import jaxabc
     from jaxabc import examples
     from jaxabc.results import write_outputs
 
+    _example_folder(folder, resume, overwrite)
     if name == "gaussian":
         prior = jaxabc.Uniform([-10.0, -10.0], [10.0, 10.0], names=("a", "b"))
         result = jaxabc.run(
@@ -239,7 +516,9 @@ def _example(name: str, folder: Path, quick: bool) -> None:
             seed=0,
             progress=True,
             checkpoint_dir=folder,
-            overwrite=True,
+            # _example_folder has refused to replace an interrupted run without --overwrite.
+            resume=resume,
+            overwrite=not resume,
         )
         write_outputs(result, folder, truth=np.zeros(2))
         print(result.summary())
@@ -252,7 +531,9 @@ def _example(name: str, folder: Path, quick: bool) -> None:
             helium_calibration = importlib.import_module("md.helium_calibration")
         except ImportError as exc:
             raise RuntimeError(f"the helium example needs the md package (run from the repository): {exc}") from None
-        helium_calibration.main(["--output", str(folder), *(["--quick"] if quick else [])])
+        # It starts over unless resuming (its own rule), which _example_folder has made safe.
+        flags = [*(["--quick"] if quick else []), *(["--resume"] if resume else [])]
+        helium_calibration.main(["--output", str(folder), *flags])
         return
     raise ValueError(f"unknown example {name!r}: choose from {sorted(EXAMPLES)}")
 
@@ -274,23 +555,91 @@ def main(argv: list[str] | None = None) -> int:
     p_ex.add_argument("name", choices=sorted(EXAMPLES))
     p_ex.add_argument("--output", default=None, help="folder (default runs/NAME)")
     p_ex.add_argument("--quick", action="store_true", help="a smaller, faster variant")
+    p_ex.add_argument("--resume", action="store_true", help="continue an interrupted run of the example")
+    p_ex.add_argument(
+        "--overwrite", action="store_true", help="start over, replacing an interrupted run in the output folder"
+    )
     p_show = sub.add_parser("show", help="print the summary of a result file")
     p_show.add_argument("result")
     args = parser.parse_args(argv)
+    started = time.time()
+    folder: Path | None = None  # where this command checkpoints, once known
+    previous_hook = sys.unraisablehook
+    sys.unraisablehook = _reraise_interrupt(previous_hook)
     try:
         if args.command == "run":
-            result = run_config(
-                load_config(args.config), resume=args.resume, progress=not args.no_progress, overwrite=args.overwrite
-            )
+            cfg = load_config(args.config)
+            folder = Path(cfg["output"]["folder"])
+            result = run_config(cfg, resume=args.resume, progress=not args.no_progress, overwrite=args.overwrite)
             print(result.summary())
         elif args.command == "example":
-            _example(args.name, Path(args.output or f"runs/{args.name}"), args.quick)
+            folder = Path(args.output or f"runs/{args.name}")
+            _example(args.name, folder, args.quick, resume=args.resume, overwrite=args.overwrite)
         elif args.command == "show":
             print(_load_result(args.result).summary())
+    except KeyboardInterrupt:
+        # Ctrl-C is how a long run is paused, not a crash: say how to go on, in one line.
+        print(f"jaxabc: interrupted{_how_to_go_on(args, folder, started)}", file=sys.stderr)
+        if argv is None:
+            # The command itself, not a call from Python: end the process now.  Python's teardown
+            # after an interrupted XLA compilation can crash (SIGSEGV) or hang, and nothing is
+            # left to do: the checkpoint is on disk (written atomically, fsynced).
+            sys.stdout.flush()
+            sys.stderr.flush()
+            os._exit(130)
+        return 130
     except _USER_ERRORS as exc:
         print(f"jaxabc: error: {_one_line(exc)}", file=sys.stderr)
         return 2
+    finally:
+        sys.unraisablehook = previous_hook
     return 0
+
+
+def _reraise_interrupt(previous: Callable[[Any], object]) -> Callable[[Any], object]:
+    """An unraisable-exception hook that raises a swallowed Ctrl-C again.
+
+    A Ctrl-C that arrives while a garbage-collection callback runs (JAX registers one) is raised
+    inside it, where Python only prints it ("Exception ignored in ...") and the run goes on.
+    Interrupting the main thread again, from another thread a moment later (from here it would
+    be raised inside this hook, and swallowed too), raises it where it can end the command.
+    """
+
+    def hook(unraisable: Any) -> None:
+        if unraisable.exc_type is not None and issubclass(unraisable.exc_type, KeyboardInterrupt):
+            timer = threading.Timer(0.01, _thread.interrupt_main)
+            timer.daemon = True
+            timer.start()
+        else:
+            previous(unraisable)
+
+    return hook
+
+
+def _how_to_go_on(args: argparse.Namespace, folder: Path | None, started: float) -> str:
+    """The rest of the Ctrl-C line: the command that resumes, or the one that starts again.
+
+    The checkpoint is this command's own unless it was asked to overwrite one and has not yet
+    replaced it (the old file is older than the command).
+    """
+    if folder is None:
+        return ""
+    from jaxabc.checkpoint import CHECKPOINT_NAME
+
+    if args.command == "run":
+        words = ["jaxabc", "run", args.config, *(["--no-progress"] if args.no_progress else [])]
+    else:
+        output = ["--output", args.output] if args.output else []
+        words = ["jaxabc", "example", args.name, *output, *(["--quick"] if args.quick else [])]
+    path = folder / CHECKPOINT_NAME
+    state = run_state(folder)
+    own = state in ("interrupted", "finished") and path.stat().st_mtime >= started
+    if state == "interrupted" and (own or not args.overwrite):
+        return f"; the steps done are saved in {path}: continue with `{shlex.join([*words, '--resume'])}`"
+    if state == "finished" and own:
+        return f" after the run ended; `{shlex.join([*words, '--resume'])}` writes its outputs from {path}"
+    again = [*words, *(["--resume"] if args.resume else []), *(["--overwrite"] if args.overwrite else [])]
+    return f" before the first checkpoint: nothing to resume; start again with `{shlex.join(again)}`"
 
 
 def _one_line(exc: BaseException) -> str:
