@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-__all__ = ["CACHES", "REGISTRY", "TIMING_KEYS", "Entry", "by_name"]
+__all__ = ["CACHES", "REGISTRY", "TIMING_KEYS", "VERIFICATIONS", "Entry", "by_name"]
 
 #: Key patterns (fnmatch, on the key alone) that hold wall/CPU times, loads or rates derived from
 #: them: they differ from run to run and are left out of the exact reproduction comparison.
@@ -37,6 +37,10 @@ TIMING_KEYS = (
 #: JSON files under ``benchmarks/results/`` that are caches read by the scripts, not results: the
 #: water validation runs are keyed by (preset, length, theta) and reused by every dataset's run.
 CACHES = frozenset({"benchmarks/results/water_validation_runs.json"})
+
+#: The ledger of quick-mode checks (``benchmarks/verify.py``): for each result whose code changed,
+#: whether its quick mode still gives its saved numbers, and on which code.
+VERIFICATIONS = "benchmarks/results/verifications.json"
 
 
 @dataclass(frozen=True)
@@ -573,6 +577,17 @@ REGISTRY: tuple[Entry, ...] = (
         "python benchmarks/criticism_argon.py",
         long=True,
         estimated_cost_s=3000.0,
+    ),
+    Entry(
+        "reliability_probes",
+        f"{R}/reliability_probes.json",
+        "python benchmarks/reliability_probes.py --before 439269f",
+        quick="python benchmarks/reliability_probes.py --quick",
+        quick_output=f"{Q}/reliability_probes.json",
+        estimated_cost_s=900.0,
+        ignore_keys=("message",),
+        note="hostile-user probes, each in a fresh process, before (439269f) and after the trust fixes; "
+        "messages hold process ids and temporary paths, so the quick comparison checks the outcomes",
     ),
 )
 

@@ -1,13 +1,18 @@
-"""Which saved results does the current code still produce?  current / stale / unknown.
+"""Which saved results does the current code still produce?  Currency is numerical.
 
 For every entry of :data:`registry.REGISTRY` (and every other JSON in ``benchmarks/results/``)
 this compares the fingerprint recorded at write time (per-file AST hashes of the project modules
-the run imported, byte hashes of the data it declared) with the files as they are now:
+the run imported, byte hashes of the data it declared) with the files as they are now.  The
+fingerprint only decides whether a check must run; the numbers decide the state:
 
-- ``current``: nothing the result depends on changed (a reformatting or a docstring edit does not
-  count: code is hashed without docstrings, comments or layout);
-- ``stale``: some file changed or disappeared (they are named);
-- ``unknown``: the result records no provenance (written before it existed, or by hand).
+- ``current`` (code unchanged): nothing the result depends on changed (a reformatting or a
+  docstring edit does not count: code is hashed without docstrings, comments or layout);
+- ``current`` (code changed, quick mode reproduces): files changed, but ``benchmarks/verify.py``
+  reran the result's quick mode on the code as it is now and got the saved quick numbers;
+- ``changed`` (numbers changed): that check gave other numbers (the first differences are kept
+  in ``benchmarks/results/verifications.json``): rerun the result;
+- ``stale``: files changed and no check of the code as it is now exists (they are named);
+- ``unknown`` (no provenance): the result records none (written before it existed, or by hand).
 
 Modules that the current code would import but the recorded run did not (a new file after a
 split) are seen through the files that import them, which changed.
@@ -17,6 +22,7 @@ Usage::
     python benchmarks/status.py            # or: python -m benchmarks.status
     python benchmarks/status.py --quick    # the quick-mode results under benchmarks/results/quick/
     python benchmarks/status.py --json
+    python benchmarks/verify.py --budget 30m   # quick-mode checks of the stale results
 """
 
 from __future__ import annotations
@@ -32,7 +38,7 @@ from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import ROOT, code_hash, data_hash, legacy_code_hash
-from registry import CACHES, REGISTRY, TIMING_KEYS, Entry
+from registry import CACHES, REGISTRY, TIMING_KEYS, VERIFICATIONS, Entry
 
 __all__ = [
     "Status",
@@ -56,8 +62,9 @@ class Status:
 
     name: str
     output: str
-    state: str  # "current", "stale", "unknown" or "missing"
+    state: str  # "current", "changed", "stale", "unknown" or "missing"
     changed: list[str] = field(default_factory=list)
+    why: str = ""  # "code unchanged", "code changed, quick mode reproduces", "numbers changed", ...
     cost_s: float | None = None
     cost_source: str = "none"
     commit: str | None = None
@@ -123,7 +130,7 @@ def status_of(entry: Entry, quick: bool = False, root: Path = ROOT) -> Status:
     if prov is None and quick:
         prov = _provenance_of(data, entry.part)
     if prov is None:
-        st.state = "unknown"
+        st.state, st.why = "unknown", "no provenance"
         cost = legacy_cost(data, entry.legacy_cost_keys)
         if cost is not None:
             st.cost_s, st.cost_source = cost, "legacy wall-time fields"
@@ -131,7 +138,7 @@ def status_of(entry: Entry, quick: bool = False, root: Path = ROOT) -> Status:
             st.cost_s, st.cost_source = entry.estimated_cost_s, "registry estimate"
         return st
     st.changed = check_provenance(prov, root)
-    st.state = "stale" if st.changed else "current"
+    _numerical_state(st, entry, quick, root)
     st.cost_s, st.cost_source = prov.get("cost_s"), "recorded"
     body = data.get(entry.part, {}) if entry.part and not quick else data
     sittings = body.get("sittings") if isinstance(body, dict) else None
@@ -144,6 +151,37 @@ def status_of(entry: Entry, quick: bool = False, root: Path = ROOT) -> Status:
     return st
 
 
+def load_verifications(root: Path = ROOT) -> dict[str, Any]:
+    """The ledger of quick-mode checks, ``{entry name: record}`` (empty when none was made)."""
+    path = root / VERIFICATIONS
+    if not path.is_file():
+        return {}
+    return json.loads(path.read_text()).get("entries", {})
+
+
+def _numerical_state(st: Status, entry: Entry, quick: bool, root: Path) -> None:
+    """Set ``st.state``/``st.why`` from the fingerprint and, when code changed, the ledger."""
+    if not st.changed:
+        st.state, st.why = "current", "code unchanged"
+        return
+    st.state = "stale"
+    record = None if quick else load_verifications(root).get(entry.name)
+    if record is None:
+        st.why = "code changed, not checked" if entry.quick else "code changed; no quick mode to check it"
+        return
+    # The check holds for the code it ran on: the files its quick run imported, as they are now.
+    since = check_provenance({"fingerprint": record.get("fingerprint", {})}, root)
+    if since:
+        st.why = "code changed since the last check (" + ", ".join(since[:3]) + ")"
+        return
+    if record.get("outcome") == "reproduces":
+        st.state, st.why = "current", "code changed, quick mode reproduces"
+    elif record.get("outcome") == "numbers changed":
+        st.state, st.why = "changed", "numbers changed"
+    else:
+        st.why = f"check {record.get('outcome', '?')}: {record.get('detail', '')}".strip()
+
+
 def status_all(quick: bool = False, root: Path = ROOT) -> list[Status]:
     """Every registry entry (with a quick mode, for ``quick``) plus unregistered result JSONs."""
     out = [status_of(e, quick, root) for e in REGISTRY if not quick or e.quick_output]
@@ -151,13 +189,20 @@ def status_all(quick: bool = False, root: Path = ROOT) -> list[Status]:
         known = {e.output for e in REGISTRY}
         for path in sorted((root / "benchmarks" / "results").glob("*.json")):
             rel = path.relative_to(root).as_posix()
-            if rel not in known and rel not in CACHES:
+            if rel not in known and rel not in CACHES and rel != VERIFICATIONS:
                 data = json.loads(path.read_text())
                 prov = data.get("provenance") if isinstance(data, dict) else None
-                st = Status(path.stem, rel, "unknown", note="not in benchmarks/registry.py")
+                st = Status(path.stem, rel, "unknown", why="no provenance", note="not in benchmarks/registry.py")
                 if prov is not None:
                     st.changed = check_provenance(prov, root)
-                    st.state = "stale" if st.changed else "current"
+                    st.state, st.why = (
+                        ("stale", "code changed, not in the registry")
+                        if st.changed
+                        else (
+                            "current",
+                            "code unchanged",
+                        )
+                    )
                 out.append(st)
     return out
 
@@ -239,12 +284,16 @@ def format_cost(seconds: float | None) -> str:
 
 def render(rows: list[Status]) -> str:
     """Plain-text table of the statuses."""
-    lines = [f"{'result':34s} {'state':8s} {'cost':>9s}  {'commit':8s} {'date (UTC)':20s} what changed / note"]
+    lines = [f"{'result':34s} {'state':8s} {'cost':>9s}  {'commit':8s} {'date (UTC)':20s} why / what changed / note"]
     for s in rows:
         estimated = s.cost_source not in ("recorded", "none") and not s.cost_source.startswith("recorded over")
         cost = format_cost(s.cost_s) + ("*" if estimated else "")
         commit = (s.commit or "-")[:8] + ("+" if s.tree_clean is False else "")
         detail = ", ".join(s.changed[:6]) + (f" (+{len(s.changed) - 6} more)" if len(s.changed) > 6 else "")
+        if s.why and s.state != "stale":
+            detail = s.why
+        elif s.why:
+            detail = f"{s.why}: {detail}"
         if not detail:
             detail = {"unknown": "no provenance recorded", "missing": "not written yet"}.get(s.state, "")
         tag = " [long]" if s.long else ""

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import importlib.util
 import json
+import subprocess
 import sys
 import textwrap
 from pathlib import Path
@@ -294,7 +295,7 @@ def test_registry_is_consistent() -> None:
 
 def test_every_benchmark_script_saves_through_write_result() -> None:
     # Tools, and private helper modules (leading underscore), are not benchmarks.
-    tools = {"status.py", "regenerate.py", "registry.py", "make_docs.py"}
+    tools = {"status.py", "regenerate.py", "registry.py", "make_docs.py", "verify.py"}
     scripts = [p for p in (ROOT / "benchmarks").glob("*.py") if p.name not in tools and not p.name.startswith("_")]
     assert scripts
     registered = {e.full.split()[1] for e in registry.REGISTRY}
@@ -325,3 +326,73 @@ def test_generated_blocks_have_markers_and_name_their_source() -> None:
         assert "Source: `benchmarks/results/" in body or body.startswith("Not run yet"), name
     with pytest.raises(ValueError, match="lacks the markers"):
         make_docs.fill_blocks("no markers here", "md/water/README.md")
+
+
+# ----------------------------------------------------------------------------- numerical currency
+
+
+def _fake_quick_run(root: Path, value: float, entry: registry.Entry):
+    """Stands for the quick command: writes the quick JSON with this process's provenance."""
+
+    def run(argv, cwd, env):
+        _common.write_result(
+            root / entry.quick_output, {"value": value}, inputs=[root / "data.txt"], command=entry.quick
+        )
+        return subprocess.CompletedProcess(argv, 0, "", "")
+
+    return run
+
+
+def test_a_code_change_is_current_when_the_quick_mode_reproduces(fake_repo: Path, monkeypatch) -> None:
+    import verify
+
+    entry = registry.Entry(
+        "res", "benchmarks/results/res.json", "python x.py", quick="python x.py --quick",
+        quick_output="benchmarks/results/quick/res.json",
+    )  # fmt: skip
+    write_fake(fake_repo)
+    _common.write_result(fake_repo / entry.quick_output, {"value": 1.5}, inputs=[fake_repo / "data.txt"])
+    assert (status.status_of(entry, root=fake_repo).why) == "code unchanged"
+    module_file = fake_repo / "jaxabc/fake_dependency.py"
+    module_file.write_text(SOURCE.replace("return SCALE", "y = SCALE\n    return y"))  # a refactor
+    st = status.status_of(entry, root=fake_repo)
+    assert (st.state, st.why) == ("stale", "code changed, not checked")
+
+    saved = (fake_repo / entry.quick_output).read_text()
+    monkeypatch.setattr(verify, "_run_command", _fake_quick_run(fake_repo, 1.5, entry))
+    record = verify.check(entry, fake_repo)
+    assert record["outcome"] == "reproduces"
+    assert (fake_repo / entry.quick_output).read_text() == saved  # the saved quick JSON is restored
+    verify._write_ledger(entry.name, record, fake_repo)
+    st = status.status_of(entry, root=fake_repo)
+    assert (st.state, st.why) == ("current", "code changed, quick mode reproduces")
+
+    module_file.write_text(SOURCE.replace("SCALE = 2.0", "SCALE = 3.0"))  # a change of meaning
+    st = status.status_of(entry, root=fake_repo)
+    assert st.state == "stale" and st.why.startswith("code changed since the last check")
+    monkeypatch.setattr(verify, "_run_command", _fake_quick_run(fake_repo, 2.25, entry))
+    record = verify.check(entry, fake_repo)
+    assert record["outcome"] == "numbers changed" and record["differences"] == ["/value: 1.5 != 2.25"]
+    verify._write_ledger(entry.name, record, fake_repo)
+    st = status.status_of(entry, root=fake_repo)
+    assert (st.state, st.why) == ("changed", "numbers changed")
+
+
+def test_a_quick_json_from_other_code_cannot_vouch_for_the_result(fake_repo: Path, monkeypatch) -> None:
+    import verify
+
+    entry = registry.Entry(
+        "res", "benchmarks/results/res.json", "python x.py", quick="python x.py --quick",
+        quick_output="benchmarks/results/quick/res.json",
+    )  # fmt: skip
+    write_fake(fake_repo)
+    module_file = fake_repo / "jaxabc/fake_dependency.py"
+    module_file.write_text(SOURCE.replace("SCALE = 2.0", "SCALE = 3.0"))
+    _common.write_result(fake_repo / entry.quick_output, {"value": 1.5}, inputs=[fake_repo / "data.txt"])
+    assert verify.baseline_mismatch(entry, fake_repo) == ["jaxabc/fake_dependency.py"]
+    monkeypatch.setattr(verify, "_run_command", _fake_quick_run(fake_repo, 1.5, entry))
+    record = verify.check(entry, fake_repo)
+    assert record["outcome"] == "not applicable" and record["quick_reproduces"]
+    verify._write_ledger(entry.name, record, fake_repo)
+    st = status.status_of(entry, root=fake_repo)
+    assert st.state == "stale" and "other code than the result" in st.why

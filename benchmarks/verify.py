@@ -1,0 +1,186 @@
+"""Numerical currency: rerun the quick mode of each result whose code changed, compare its numbers.
+
+A result is current when the code it depends on is unchanged, or when its quick mode, rerun on the
+code as it is now, gives the numbers saved in its quick JSON (exactly, or within the registry's
+``compare_tolerance``; timing-like keys are left out).  This command makes those checks, cheapest
+first within a time budget, and records each in ``benchmarks/results/verifications.json`` with the
+fingerprint of the code it ran on; ``benchmarks/status.py`` reads it.  A refactor that changes no
+number then needs no long rerun, and a change that does is caught in minutes (``changed``).
+
+A check vouches for the full result only when the saved quick JSON was made from the same code as
+the full result (on the files both imported); otherwise it is recorded as ``not applicable`` and
+the result stays stale until it is rerun.  The saved quick JSON is restored after each check, so
+the tree stays as it was; only the ledger is written.
+
+Usage::
+
+    python benchmarks/verify.py --budget 30m             # the stale results that fit
+    python benchmarks/verify.py --only coverage --budget 10m
+    python benchmarks/verify.py --budget 1h --dry-run    # the plan only
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shutil
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _common import ROOT, git_state
+from regenerate import command_argv, parse_budget
+from registry import REGISTRY, VERIFICATIONS, Entry
+from status import compare_numbers, deterministic_view, format_cost, status_of
+
+__all__ = ["baseline_mismatch", "check", "main", "plan"]
+
+#: Seconds assumed for a quick mode whose saved JSON records no cost.
+DEFAULT_QUICK_COST_S = 300.0
+
+
+def _provenance(data: dict[str, Any], part: str | None) -> dict[str, Any] | None:
+    if part is not None and part in data.get("provenance_parts", {}):
+        return data["provenance_parts"][part]
+    return data.get("provenance")
+
+
+def baseline_mismatch(entry: Entry, root: Path = ROOT) -> list[str]:
+    """Code files the full result and its saved quick JSON both depend on but hashed differently.
+
+    Empty when the quick JSON was made from the same code as the full result, so that a quick
+    check on today's code speaks for the full result too.
+    """
+    assert entry.quick_output is not None, "only entries with a quick mode"
+    full = json.loads((root / entry.output).read_text())
+    quick = json.loads((root / entry.quick_output).read_text())
+    full_code = (_provenance(full, entry.part) or {}).get("fingerprint", {}).get("code", {})
+    quick_code = (_provenance(quick, entry.part) or {}).get("fingerprint", {}).get("code", {})
+    return sorted(f for f in set(full_code) & set(quick_code) if full_code[f] != quick_code[f])
+
+
+def _quick_cost(entry: Entry, root: Path = ROOT) -> float:
+    path = root / (entry.quick_output or "")
+    if path.is_file():
+        prov = _provenance(json.loads(path.read_text()), entry.part) or {}
+        if isinstance(prov.get("cost_s"), int | float):
+            return float(prov["cost_s"])
+    return DEFAULT_QUICK_COST_S
+
+
+def plan(entries: list[Entry], budget_s: float, include_current: bool = False) -> list[tuple[Entry, float, str]]:
+    """``(entry, quick cost, why)`` for every candidate, cheapest first; why is "" for those to run."""
+    rows = []
+    for e in entries:
+        st = status_of(e)
+        if not e.quick or not e.quick_output:
+            continue
+        if st.state in ("unknown", "missing"):
+            continue  # nothing to vouch for: a result without provenance needs a rerun
+        if st.state == "current" and not include_current:
+            continue
+        rows.append((e, _quick_cost(e)))
+    rows.sort(key=lambda r: r[1])
+    out, left = [], budget_s
+    for e, cost in rows:
+        missing = [p for p in e.requires if shutil.which(p) is None]
+        if missing:
+            out.append((e, cost, f"needs {', '.join(missing)}"))
+        elif cost > left:
+            out.append((e, cost, f"over the budget left ({format_cost(left)})"))
+        else:
+            out.append((e, cost, ""))
+            left -= cost
+    return out
+
+
+def _run_command(argv: list[str], root: Path, env: dict[str, str]) -> subprocess.CompletedProcess:
+    return subprocess.run(argv, cwd=root, env=env, capture_output=True, text=True)
+
+
+def check(entry: Entry, root: Path = ROOT) -> dict[str, Any]:
+    """Rerun ``entry``'s quick mode on the code as it is now; the ledger record of the outcome."""
+    assert entry.quick and entry.quick_output, "only entries with a quick mode"
+    record: dict[str, Any] = {"quick": entry.quick, **git_state(), "date_utc": time.strftime("%Y-%m-%d %H:%M:%S")}
+    mismatch = baseline_mismatch(entry, root)
+    saved_path = root / entry.quick_output
+    saved_text = saved_path.read_text()
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(root), os.environ.get("PYTHONPATH")]))}
+    t0 = time.perf_counter()
+    try:
+        run = _run_command(command_argv(entry.quick), root, env)
+        new_text = saved_path.read_text()
+    finally:
+        saved_path.write_text(saved_text)
+    record["seconds"] = round(time.perf_counter() - t0, 1)
+    if run.returncode != 0:
+        return {**record, "outcome": "failed", "detail": run.stderr.strip()[-1500:]}
+    new = json.loads(new_text)
+    record["fingerprint"] = (_provenance(new, entry.part) or {}).get("fingerprint", {})
+    diffs = compare_numbers(
+        deterministic_view(json.loads(saved_text), entry.ignore_keys),
+        deterministic_view(new, entry.ignore_keys),
+        entry.compare_tolerance,
+    )
+    if mismatch:
+        # The numbers still say whether today's code reproduces the quick JSON, but that JSON was
+        # made from other code than the full result, so it cannot vouch for it.
+        return {
+            **record,
+            "outcome": "not applicable",
+            "detail": "the saved quick JSON was made from other code than the result: " + ", ".join(mismatch[:5]),
+            "quick_reproduces": not diffs,
+        }
+    if diffs:
+        return {**record, "outcome": "numbers changed", "differences": diffs[:20], "num_differences": len(diffs)}
+    return {**record, "outcome": "reproduces"}
+
+
+def _write_ledger(name: str, record: dict[str, Any], root: Path = ROOT) -> None:
+    path = root / VERIFICATIONS
+    ledger = json.loads(path.read_text()) if path.is_file() else {}
+    ledger.setdefault(
+        "description",
+        "Quick-mode checks of results whose code changed (benchmarks/verify.py): outcome 'reproduces' "
+        "makes a result current for the code in 'fingerprint'.",
+    )
+    ledger.setdefault("entries", {})[name] = record
+    ledger["entries"] = dict(sorted(ledger["entries"].items()))
+    path.write_text(json.dumps(ledger, indent=1) + "\n")
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Check what fits the budget; exit 1 when any check found changed numbers or failed."""
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--budget", type=parse_budget, required=True, help="e.g. 30m, 1h, 900")
+    parser.add_argument("--only", nargs="+", metavar="NAME", help="registry names")
+    parser.add_argument("--include-current", action="store_true", help="check current results too")
+    parser.add_argument("--dry-run", action="store_true", help="list the plan, run nothing")
+    args = parser.parse_args(argv)
+    entries = [e for e in REGISTRY if args.only is None or e.name in args.only or e.name.split(":")[0] in args.only]
+    rows = plan(entries, args.budget, args.include_current or bool(args.only))
+    for e, cost, why in rows:
+        print(f"  {'check' if not why else 'skip ':5s} {e.name:40s} {format_cost(cost):>9s}  {why or e.quick}")
+    if args.dry_run:
+        return 0
+    bad = []
+    for e, _, why in rows:
+        if why:
+            continue
+        print(f"[{time.strftime('%H:%M:%S')}] {e.name}: {e.quick}", flush=True)
+        record = check(e)
+        _write_ledger(e.name, record)
+        print(f"[{time.strftime('%H:%M:%S')}] {e.name}: {record['outcome']} ({record['seconds']} s)", flush=True)
+        if record["outcome"] in ("numbers changed", "failed"):
+            bad.append(e.name)
+            for line in record.get("differences", [])[:5] or [record.get("detail", "")[-300:]]:
+                print(f"    {line}")
+    return 1 if bad else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
