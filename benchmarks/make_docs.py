@@ -26,6 +26,7 @@ from docpages.criticism import page_criticism, page_criticism_fluids
 from docpages.engine import page_abc_overhead, page_engine, page_speedup
 from docpages.helium import page_coverage, page_helium_table1, page_identifiability, page_lammps
 from docpages.model_choice import block_water_model_choice, block_water_model_outcome, page_water_model_choice
+from docpages.reliability import page_reliability
 from docpages.surrogate import (
     page_surrogate_classifier,
     page_surrogate_coverage,
@@ -47,7 +48,7 @@ def page_index() -> str:
         rows.append(
             [
                 f"`{e.name}`",
-                st.state,
+                f"{st.state} ({st.why})" if st.why else st.state,
                 format_cost(st.cost_s) + ("" if st.cost_source.startswith("recorded") else " (est.)"),
                 ", ".join(st.changed[:3]) + (" ..." if len(st.changed) > 3 else ""),
             ]
@@ -56,9 +57,10 @@ def page_index() -> str:
 
 Every number on these pages is read from `benchmarks/results/*.json` by `benchmarks/make_docs.py`;
 each table names its JSON and the commit that made it.  `python benchmarks/status.py` says which
-results the current code still produces, `python benchmarks/regenerate.py --budget 1h` reruns the
-stale ones that fit, and `python3 -m pytest -m slow tests/test_benchmarks_repro.py` checks that
-every benchmark's quick mode reproduces its saved numbers.
+results the current code still produces.  Currency is numerical: a result whose code changed is
+current again when `python benchmarks/verify.py --budget 30m` reruns its quick mode on today's
+code and gets its saved quick numbers ("code changed, quick mode reproduces"); where the numbers
+differ it is `changed`, and `python benchmarks/regenerate.py --budget 1h` reruns what fits.
 
 - [Helium Table 1](helium_table1.md) and [the choice of the CPU preset](helium_identifiability.md)
 - [Engine throughput](engine_throughput.md) and [agreement with LAMMPS](lammps_agreement.md)
@@ -70,6 +72,7 @@ every benchmark's quick mode reproduces its saved numbers.
 - [Water calibrations](water_calibrations.md) and [the quick preset's density relaxation](water_density_relaxation.md)
 - [Model criticism of water](criticism.md){_MODEL_CHOICE_LINK if "water_model_choice.md" in PAGES else ""}
 - [Model criticism of neon and argon](criticism_fluids.md)
+- [Reliability probes: what a hostile user sees](reliability.md)
 
 Status when these pages were generated:
 
@@ -99,6 +102,8 @@ PAGES: dict[str, Callable[[], str]] = {
 if (RESULTS / "water_model_choice.json").is_file():
     # Hours of GROMACS: a page once there is a result to show (every page names its JSON).
     PAGES["water_model_choice.md"] = page_water_model_choice
+if (RESULTS / "reliability_probes.json").is_file():
+    PAGES["reliability.md"] = page_reliability
 
 
 #: Generated blocks inside hand-written Markdown: ``<!-- generated: NAME -->`` ... ``<!-- /generated -->``.

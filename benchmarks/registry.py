@@ -579,6 +579,15 @@ REGISTRY: tuple[Entry, ...] = (
         estimated_cost_s=3000.0,
     ),
     Entry(
+        "mcse_calibration",
+        f"{R}/mcse_calibration.json",
+        "python benchmarks/mcse_calibration.py",
+        quick="python benchmarks/mcse_calibration.py --quick",
+        quick_output=f"{Q}/mcse_calibration.json",
+        estimated_cost_s=300.0,
+        note="z = error / reported MCSE over seeds, against the exact ABC-posterior mean (0 by symmetry)",
+    ),
+    Entry(
         "reliability_probes",
         f"{R}/reliability_probes.json",
         "python benchmarks/reliability_probes.py --before 439269f",
