@@ -179,7 +179,8 @@ def _numerical_state(st: Status, entry: Entry, quick: bool, root: Path) -> None:
     elif record.get("outcome") == "numbers changed":
         st.state, st.why = "changed", "numbers changed"
     else:
-        st.why = f"check {record.get('outcome', '?')}: {record.get('detail', '')}".strip()
+        last = (record.get("detail", "").strip().splitlines() or [""])[-1]
+        st.why = f"check {record.get('outcome', '?')}: {last[:160]}".strip()
 
 
 def status_all(quick: bool = False, root: Path = ROOT) -> list[Status]:
