@@ -35,7 +35,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import ROOT, git_state
 from regenerate import command_argv, parse_budget
 from registry import REGISTRY, VERIFICATIONS, Entry
-from status import compare_numbers, deterministic_view, format_cost, status_of
+from status import check_provenance, compare_numbers, deterministic_view, format_cost, load_verifications, status_of
 
 __all__ = ["baseline_mismatch", "check", "main", "plan"]
 
@@ -75,14 +75,17 @@ def _quick_cost(entry: Entry, root: Path = ROOT) -> float:
 def plan(entries: list[Entry], budget_s: float, include_current: bool = False) -> list[tuple[Entry, float, str]]:
     """``(entry, quick cost, why)`` for every candidate, cheapest first; why is "" for those to run."""
     rows = []
+    ledger = load_verifications()
     for e in entries:
         st = status_of(e)
         if not e.quick or not e.quick_output:
             continue
         if st.state in ("unknown", "missing"):
             continue  # nothing to vouch for: a result without provenance needs a rerun
-        if st.state == "current" and not include_current:
-            continue
+        record = ledger.get(e.name)
+        checked = record is not None and not check_provenance({"fingerprint": record.get("fingerprint", {})})
+        if not include_current and (st.state == "current" or (checked and "fingerprint" in record)):
+            continue  # current, or already checked on this very code (whatever the outcome)
         rows.append((e, _quick_cost(e)))
     rows.sort(key=lambda r: r[1])
     out, left = [], budget_s
@@ -109,13 +112,18 @@ def check(entry: Entry, root: Path = ROOT) -> dict[str, Any]:
     mismatch = baseline_mismatch(entry, root)
     saved_path = root / entry.quick_output
     saved_text = saved_path.read_text()
+    # A quick command may write other quick results too (criticism_water_joint's writes
+    # water_model_choice's): every saved quick JSON is put back as it was.
+    snapshot = {p: p.read_text() for p in saved_path.parent.glob("*.json")}
     env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(root), os.environ.get("PYTHONPATH")]))}
     t0 = time.perf_counter()
     try:
         run = _run_command(command_argv(entry.quick), root, env)
         new_text = saved_path.read_text()
     finally:
-        saved_path.write_text(saved_text)
+        for path, text in snapshot.items():
+            if not path.is_file() or path.read_text() != text:
+                path.write_text(text)
     record["seconds"] = round(time.perf_counter() - t0, 1)
     if run.returncode != 0:
         return {**record, "outcome": "failed", "detail": run.stderr.strip()[-1500:]}
