@@ -331,6 +331,16 @@ def test_generated_blocks_have_markers_and_name_their_source() -> None:
 # ----------------------------------------------------------------------------- numerical currency
 
 
+#: A result with a quick mode, as the numerical-currency tests use it.
+QUICK_ENTRY = registry.Entry(
+    "res",
+    "benchmarks/results/res.json",
+    "python x.py",
+    quick="python x.py --quick",
+    quick_output="benchmarks/results/quick/res.json",
+)
+
+
 def _fake_quick_run(root: Path, value: float, entry: registry.Entry):
     """Stands for the quick command: writes the quick JSON with this process's provenance."""
 
@@ -346,10 +356,7 @@ def _fake_quick_run(root: Path, value: float, entry: registry.Entry):
 def test_a_code_change_is_current_when_the_quick_mode_reproduces(fake_repo: Path, monkeypatch) -> None:
     import verify
 
-    entry = registry.Entry(
-        "res", "benchmarks/results/res.json", "python x.py", quick="python x.py --quick",
-        quick_output="benchmarks/results/quick/res.json",
-    )  # fmt: skip
+    entry = QUICK_ENTRY
     write_fake(fake_repo)
     _common.write_result(fake_repo / entry.quick_output, {"value": 1.5}, inputs=[fake_repo / "data.txt"])
     assert (status.status_of(entry, root=fake_repo).why) == "code unchanged"
@@ -381,10 +388,7 @@ def test_a_code_change_is_current_when_the_quick_mode_reproduces(fake_repo: Path
 def test_a_quick_json_from_other_code_cannot_vouch_for_the_result(fake_repo: Path, monkeypatch) -> None:
     import verify
 
-    entry = registry.Entry(
-        "res", "benchmarks/results/res.json", "python x.py", quick="python x.py --quick",
-        quick_output="benchmarks/results/quick/res.json",
-    )  # fmt: skip
+    entry = QUICK_ENTRY
     write_fake(fake_repo)
     module_file = fake_repo / "jaxabc/fake_dependency.py"
     module_file.write_text(SOURCE.replace("SCALE = 2.0", "SCALE = 3.0"))
