@@ -565,7 +565,8 @@ def main(argv: list[str] | None = None) -> int:
     started = time.time()
     folder: Path | None = None  # where this command checkpoints, once known
     previous_hook = sys.unraisablehook
-    sys.unraisablehook = _reraise_interrupt(previous_hook)
+    reraise = _ReraiseInterrupt(previous_hook)
+    sys.unraisablehook = reraise
     try:
         if args.command == "run":
             cfg = load_config(args.config)
@@ -592,28 +593,48 @@ def main(argv: list[str] | None = None) -> int:
         print(f"jaxabc: error: {_one_line(exc)}", file=sys.stderr)
         return 2
     finally:
+        reraise.close()
         sys.unraisablehook = previous_hook
     return 0
 
 
-def _reraise_interrupt(previous: Callable[[Any], object]) -> Callable[[Any], object]:
+class _ReraiseInterrupt:
     """An unraisable-exception hook that raises a swallowed Ctrl-C again.
 
     A Ctrl-C that arrives while a garbage-collection callback runs (JAX registers one) is raised
     inside it, where Python only prints it ("Exception ignored in ...") and the run goes on.
     Interrupting the main thread again, from another thread a moment later (from here it would
     be raised inside this hook, and swallowed too), raises it where it can end the command.
+    At most one interrupt is pending: every callback of a collection sees the same Ctrl-C, and
+    each would otherwise add one, to land after the command has returned. One that lands in a
+    callback again is swallowed again, and scheduled again. :meth:`close` cancels a pending one.
     """
 
-    def hook(unraisable: Any) -> None:
-        if unraisable.exc_type is not None and issubclass(unraisable.exc_type, KeyboardInterrupt):
-            timer = threading.Timer(0.01, _thread.interrupt_main)
-            timer.daemon = True
-            timer.start()
-        else:
-            previous(unraisable)
+    delay = 0.01  # seconds; long enough for the collection that swallowed the Ctrl-C to end
 
-    return hook
+    def __init__(self, previous: Callable[[Any], object]) -> None:
+        self.previous = previous
+        self.timer: threading.Timer | None = None
+        self.closed = False
+
+    def __call__(self, unraisable: Any) -> None:
+        if unraisable.exc_type is not None and issubclass(unraisable.exc_type, KeyboardInterrupt):
+            if self.timer is None and not self.closed:
+                self.timer = threading.Timer(self.delay, self._fire)
+                self.timer.daemon = True
+                self.timer.start()
+        else:
+            self.previous(unraisable)
+
+    def _fire(self) -> None:
+        self.timer = None
+        if not self.closed:
+            _thread.interrupt_main()
+
+    def close(self) -> None:
+        self.closed = True
+        if self.timer is not None:
+            self.timer.cancel()
 
 
 def _how_to_go_on(args: argparse.Namespace, folder: Path | None, started: float) -> str:

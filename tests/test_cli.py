@@ -9,6 +9,7 @@ import re
 import signal
 import subprocess
 import sys
+import threading
 import time
 import zipfile
 from pathlib import Path
@@ -17,7 +18,7 @@ import numpy as np
 import pytest
 
 import jaxabc
-from jaxabc import checkpoint
+from jaxabc import checkpoint, cli
 from jaxabc.cli import main
 
 CONFIG = """
@@ -138,6 +139,7 @@ def test_show_refuses_what_is_not_a_result(tmp_path: Path, capsys: pytest.Captur
 #: A module of simulators written next to a test's config and put on sys.path.
 SIMULATORS = """
 import os
+import threading
 import time
 
 import jax
@@ -264,10 +266,26 @@ def test_ctrl_c_swallowed_by_a_gc_callback_still_ends_the_command(
             time.sleep(0.01)
         raise AssertionError("the Ctrl-C was lost")
 
+    timers: list[threading.Timer] = []
+
+    class CountedTimer(threading.Timer):
+        def start(self) -> None:
+            timers.append(self)
+            super().start()
+
     monkeypatch.setattr(jaxabc, "run", run)
+    monkeypatch.setattr(cli.threading, "Timer", CountedTimer)
+    monkeypatch.setattr(cli._ReraiseInterrupt, "delay", 0.5)  # after every callback has run
     assert main(["example", "gaussian", "--output", str(tmp_path / "gauss")]) == 130
     err = capsys.readouterr().err
     assert "Exception ignored" not in err and err.strip().startswith("jaxabc: interrupted"), err
+    # The callbacks (this one at the start and at the end, then JAX's) each swallowed the Ctrl-C:
+    # it is raised again once, never after the command has returned.
+    assert len(timers) == 1
+    try:
+        time.sleep(0.2)
+    except KeyboardInterrupt:
+        pytest.fail("a second interrupt landed after the command returned")
 
 
 def test_example_with_resume_but_nothing_to_resume(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
