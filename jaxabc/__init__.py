@@ -12,7 +12,8 @@ __version__ = "0.1.0"
 from jaxabc import distances, kernels
 from jaxabc.algorithms import BUILDERS as ALGORITHMS
 from jaxabc.distances import AdaptivePNorm
-from jaxabc.errors import NoPosterior, SimulationFailure, TooManyFailures
+from jaxabc.errors import NoPosterior, PriorEdgeWarning, SimulationFailure, TooManyFailures
+from jaxabc.noise import Discrepancy
 from jaxabc.executors import (
     DaskExecutor,
     MPIExecutor,
@@ -79,11 +80,13 @@ __all__ = [
     "AdaptivePNorm",
     "CoverageStudy",
     "DaskExecutor",
+    "Discrepancy",
     "Independent",
     "MPIExecutor",
     "Model",
     "ModelChoiceResult",
     "NoPosterior",
+    "PriorEdgeWarning",
     "ProcessPoolExecutor",
     "SerialExecutor",
     "SimulationBatch",

@@ -28,7 +28,13 @@ __all__ = [
     "effective_lineages",
     "importance_variance",
     "lineage_variance",
+    "prior_edge_mass",
+    "prior_edge_messages",
 ]
+
+#: ``prior_edge_mass`` above this, at the default width, is a :class:`jaxabc.PriorEdgeWarning`.
+PRIOR_EDGE_LIMIT = 0.05
+PRIOR_EDGE_WIDTH = 0.02
 
 # ArviZ's multi-chain estimate needs this many draws per chain.
 _MIN_DRAWS_FOR_ARVIZ = 4
@@ -222,3 +228,60 @@ def lineage_variance(x: np.ndarray, weights: np.ndarray, lineage: np.ndarray) ->
     # sums[c] = W_c (m_c - mean), so W_c (m_c - mean)^2 = sums[c]^2 / W_c.
     spread = np.sum(sums**2 / per_lineage[:, None], axis=0) / (1.0 - concentration)
     return spread * concentration
+
+
+def prior_edge_mass(
+    particles: np.ndarray, weights: np.ndarray | None, low: np.ndarray, high: np.ndarray, width: float = PRIOR_EDGE_WIDTH
+) -> np.ndarray:
+    """Posterior mass near each bound of a box prior.
+
+    Parameters
+    ----------
+    particles : array, shape (n, d)
+    weights : array, shape (n,), or None for equal weights
+        Normalised here; non-finite or negative weights are an error.
+    low, high : array, shape (d,)
+        The box; a non-finite bound has no edge (mass 0 there).
+    width : float
+        In (0, 0.5): the band's width as a fraction of ``high - low``.
+
+    Returns
+    -------
+    numpy.ndarray, shape (d, 2)
+        ``[:, 0]`` the mass within ``width`` of the lower bound, ``[:, 1]`` of the upper bound.
+    """
+    x = np.asarray(particles, np.float64)
+    if x.ndim != 2:
+        raise ValueError(f"particles must have shape (n, d), got {x.shape}")
+    n, d = x.shape
+    w = np.full(n, 1.0 / max(n, 1)) if weights is None else np.asarray(weights, np.float64)
+    if w.shape != (n,) or not np.all(np.isfinite(w)) or np.any(w < 0) or n == 0 or w.sum() <= 0:
+        raise ValueError("weights must be n finite, non-negative numbers with a positive sum")
+    w = w / w.sum()
+    if not 0 < float(width) < 0.5:
+        raise ValueError(f"width must be a fraction of the range in (0, 0.5), got {width!r}")
+    lo = np.broadcast_to(np.asarray(low, np.float64), (d,))
+    hi = np.broadcast_to(np.asarray(high, np.float64), (d,))
+    span = hi - lo
+    finite = np.isfinite(span)
+    band = np.where(finite, width * np.where(finite, span, 0.0), 0.0)
+    near_low = (x <= (lo + band)[None, :]) & finite[None, :]
+    near_high = (x >= (hi - band)[None, :]) & finite[None, :]
+    return np.stack([w @ near_low, w @ near_high], axis=1)
+
+
+def prior_edge_messages(
+    mass: np.ndarray, names: tuple[str, ...] | list[str], low: np.ndarray, high: np.ndarray, width: float = PRIOR_EDGE_WIDTH
+) -> list[str]:
+    """One sentence per bound whose mass (from :func:`prior_edge_mass`) exceeds ``PRIOR_EDGE_LIMIT``."""
+    out = []
+    for i, name in enumerate(names):
+        for side, bound in ((0, low[i]), (1, high[i])):
+            if mass[i, side] > PRIOR_EDGE_LIMIT:
+                which = "lower" if side == 0 else "upper"
+                out.append(
+                    f"{mass[i, side]:.0%} of the posterior mass of {name} lies within {width:.0%} of the "
+                    f"range from its {which} bound {float(bound):.6g}: widen the prior there, or say "
+                    "which physical limit stops it"
+                )
+    return out

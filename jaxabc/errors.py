@@ -17,6 +17,7 @@ __all__ = [
     "STATUS_TIMEOUT",
     "STATUS_WORKER_DIED",
     "NoPosterior",
+    "PriorEdgeWarning",
     "SimulationFailure",
     "TooManyFailures",
 ]
@@ -57,3 +58,13 @@ class TooManyFailures(RuntimeError):
 
 class NoPosterior(RuntimeError):
     """Raised by the driver when a run ends before it has any accepted particle to return."""
+
+
+class PriorEdgeWarning(UserWarning):
+    """The posterior piles against a bound of the prior box.
+
+    More than 5 % of the posterior mass lies within 2 % of the range from a bound
+    (:func:`jaxabc.diagnostics.prior_edge_mass`): the data would move the parameter further, so
+    the posterior, and any evidence, depend on where the box was cut.  Widen the box there, or
+    say which physical limit stops it.
+    """
