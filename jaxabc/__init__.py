@@ -13,7 +13,6 @@ from jaxabc import distances, kernels
 from jaxabc.algorithms import BUILDERS as ALGORITHMS
 from jaxabc.distances import AdaptivePNorm
 from jaxabc.errors import NoPosterior, PriorEdgeWarning, SimulationFailure, TooManyFailures
-from jaxabc.noise import Discrepancy
 from jaxabc.executors import (
     DaskExecutor,
     MPIExecutor,
@@ -25,6 +24,7 @@ from jaxabc.executors import (
     mark_nonfinite,
     task_durations,
 )
+from jaxabc.noise import Discrepancy
 from jaxabc.priors import Uniform
 from jaxabc.priors_numpyro import Independent
 from jaxabc.results import ABCResult, load

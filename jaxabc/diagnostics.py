@@ -231,7 +231,11 @@ def lineage_variance(x: np.ndarray, weights: np.ndarray, lineage: np.ndarray) ->
 
 
 def prior_edge_mass(
-    particles: np.ndarray, weights: np.ndarray | None, low: np.ndarray, high: np.ndarray, width: float = PRIOR_EDGE_WIDTH
+    particles: np.ndarray,
+    weights: np.ndarray | None,
+    low: np.ndarray,
+    high: np.ndarray,
+    width: float = PRIOR_EDGE_WIDTH,
 ) -> np.ndarray:
     """Posterior mass near each bound of a box prior.
 
@@ -271,7 +275,11 @@ def prior_edge_mass(
 
 
 def prior_edge_messages(
-    mass: np.ndarray, names: tuple[str, ...] | list[str], low: np.ndarray, high: np.ndarray, width: float = PRIOR_EDGE_WIDTH
+    mass: np.ndarray,
+    names: tuple[str, ...] | list[str],
+    low: np.ndarray,
+    high: np.ndarray,
+    width: float = PRIOR_EDGE_WIDTH,
 ) -> list[str]:
     """One sentence per bound whose mass (from :func:`prior_edge_mass`) exceeds ``PRIOR_EDGE_LIMIT``."""
     out = []
