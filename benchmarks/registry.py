@@ -101,6 +101,8 @@ class Entry:
 R = "benchmarks/results"
 _GPU_NOTE = "made on a lent GPU machine (the device tool) with the cpu parts on its own CPU"
 Q = "benchmarks/results/quick"
+#: Per-simulation run caches: replayed by a rerun, never read by a page, not tracked (.gitignore).
+CACHE = "runs/cache"
 
 
 def _water_surrogate(data: str, statistics: str, checkpoint: str, what: str, predictive: bool = True) -> Entry:
@@ -122,9 +124,9 @@ def _water_surrogate(data: str, statistics: str, checkpoint: str, what: str, pre
 def _water_paper_preset(data: str) -> Entry:
     """The paper's own protocol (515 molecules, 100 ps) through the surrogate: hours of GROMACS.
 
-    Its checkpoint and run cache live in the results folder, so the same command continues it in
-    a later sitting (``--continue``), replaying the finished runs of a batch that a sitting cut
-    short (``--run-cache``).
+    Its checkpoint lives in the results folder and its run cache under ``runs/cache`` (not
+    tracked), so the same command continues it in a later sitting (``--continue``), replaying the
+    finished runs of a batch that a sitting cut short (``--run-cache``).
     """
     folder = f"{R}/water_paper_preset"
     return Entry(
@@ -132,8 +134,8 @@ def _water_paper_preset(data: str) -> Entry:
         f"{folder}/water_{data}_surrogate.json",
         f"python benchmarks/water_calibration.py --data {data} --statistics paper --preset paper "
         "--algorithm surrogate --max-simulations 200 --surrogate-tolerance 0.04 --workers 2 --predictive 10 "
-        f"--checkpoint-dir {folder}/checkpoint_{data} --continue --run-cache {folder}/checkpoint_{data}/run_cache "
-        f"--out-dir {folder} --no-progress",
+        f"--checkpoint-dir {folder}/checkpoint_{data} --continue "
+        f"--run-cache {CACHE}/water_paper_preset/run_cache_{data} --out-dir {folder} --no-progress",
         part="paper",
         long=True,
         estimated_cost_s=36000.0,
@@ -476,7 +478,7 @@ REGISTRY: tuple[Entry, ...] = (
         estimated_cost_s=1200.0,
         note="TIP4P's model-choice posterior draws in the paper preset beside the quick one, and its "
         "published parameters; needs water_model_choice first; runs cached under "
-        "benchmarks/results/water_model_choice/paper_check",
+        "runs/cache/water_model_paper_check (not tracked)",
         after=("water_model_choice",),
     ),
     Entry(
@@ -495,22 +497,22 @@ REGISTRY: tuple[Entry, ...] = (
         "criticism_water_joint",
         f"{R}/criticism_water_joint.json",
         "python benchmarks/criticism_water_joint.py --data xray --model TIP4P --workers 2 "
-        f"--cache-dir {R}/criticism_water_joint/xray_quick",
+        f"--cache-dir {CACHE}/criticism_water_joint/xray_quick",
         long=True,
         requires=("gmx",),
         quick="python benchmarks/criticism_water_joint.py --tiny --workers 2",
         quick_output=f"{Q}/criticism_water_joint.json",
         estimated_cost_s=7200.0,
         note="criticism of TIP4P on the joint data, surrogate refits; needs "
-        "water_model_choice first; its simulations are kept under benchmarks/results/"
-        "criticism_water_joint, so the same command continues an interrupted run",
+        "water_model_choice first; its simulations are cached under runs/cache/criticism_water_joint "
+        "(not tracked), so the same command continues an interrupted run",
         after=("water_model_choice",),
     ),
     Entry(
         "criticism_water_joint_tip3p",
         f"{R}/criticism_water_joint_tip3p.json",
         "python benchmarks/criticism_water_joint.py --data xray --model TIP3P --name criticism_water_joint_tip3p "
-        f"--workers 2 --cache-dir {R}/criticism_water_joint/xray_quick",
+        f"--workers 2 --cache-dir {CACHE}/criticism_water_joint/xray_quick",
         long=True,
         requires=("gmx",),
         estimated_cost_s=4000.0,

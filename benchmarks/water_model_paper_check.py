@@ -63,7 +63,7 @@ def parse_args(argv=None) -> argparse.Namespace:
     args.cache_dir = args.cache_dir or (
         ROOT / "runs" / "water_model_paper_check" / suffix
         if args.tiny
-        else RESULTS / "water_model_choice" / "paper_check"
+        else ROOT / "runs" / "cache" / "water_model_paper_check" / suffix
     )
     if args.tiny:
         args.runs, args.published_runs = 2, 1
