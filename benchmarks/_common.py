@@ -71,12 +71,17 @@ def machine() -> dict[str, Any]:
         load = list(os.getloadavg())
     except OSError:
         load = None
+    from md.lj.native import instruction_set
+
     return {
         "platform": platform.platform(),
         "cpu": cpu,
         "cpu_count": os.cpu_count(),
         "load_average": load,  # 1, 5, 15 min, at the time of writing
         "versions": versions(),
+        # The compiled LJ kernel is built with -march=native by default: results that use it
+        # reproduce bitwise only on the same instruction set (md.lj.native).
+        "native_kernel_instruction_set": instruction_set(),
     }
 
 

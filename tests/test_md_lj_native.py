@@ -140,3 +140,17 @@ def test_force_kernel_choice_is_checked(monkeypatch: pytest.MonkeyPatch) -> None
         monkeypatch.delenv("JAXABC_NATIVE_KERNELS")
         native._load.cache_clear()
     assert native.available()
+
+
+def test_instruction_set_is_recorded_and_a_baseline_can_be_chosen(monkeypatch: pytest.MonkeyPatch) -> None:
+    """-march=native results are CPU-specific: provenance names the instruction set, and
+    JAXABC_NATIVE_MARCH builds (and caches) for a baseline instead."""
+    monkeypatch.delenv("JAXABC_NATIVE_MARCH", raising=False)
+    here = native.instruction_set()
+    assert here["march"] == "native" and isinstance(here["resolved"], str) and here["resolved"]
+    native_path = native.library_path()
+    monkeypatch.setenv("JAXABC_NATIVE_MARCH", "x86-64-v2")
+    baseline = native.instruction_set()
+    assert baseline["march"] == baseline["resolved"] == "x86-64-v2"
+    assert native.library_path() != native_path
+    assert "-march=x86-64-v2" in native._flags()

@@ -9,6 +9,12 @@ and ``scan`` like any primitive). It is compiled on first use with the machine's
 source, compiler, jax version and CPU flags; ``scripts/setup.sh`` builds it ahead
 (``md.lj.native.main``).
 
+``-march=native`` makes the kernel's floating-point results (FMA contraction, vector width)
+specific to the CPU family that built it: results made with it reproduce bitwise only on the
+same instruction set, which :func:`instruction_set` names and benchmark provenance records.
+``JAXABC_NATIVE_MARCH=x86-64-v3`` (or any ``-march`` value) builds for a documented baseline
+instead, the same on every CPU that has it.
+
 Where it cannot be used (no compiler, a GPU backend, float64, or ``JAXABC_NATIVE_KERNELS=0``)
 the engine falls back to the pure-JAX kernel: :func:`unavailable_reason` says why, and
 ``LJEngine.force_kernel`` names the kernel an engine uses.  Only forces, the strain derivative
@@ -34,12 +40,61 @@ import numpy as np
 
 from md.lj.config import Array
 
-__all__ = ["SOURCE", "TARGET", "all_pairs", "available", "build", "library_path", "unavailable_reason"]
+__all__ = [
+    "SOURCE",
+    "TARGET",
+    "all_pairs",
+    "available",
+    "build",
+    "instruction_set",
+    "library_path",
+    "unavailable_reason",
+]
 
 SOURCE = Path(__file__).with_name("kernels") / "lj_all_pairs.cc"
 TARGET = "jaxabc_lj_all_pairs"
-_FLAGS = ("-O3", "-march=native", "-fno-math-errno", "-std=c++17", "-shared", "-fPIC", "-w")
+_BASE_FLAGS = ("-O3", "-fno-math-errno", "-std=c++17", "-shared", "-fPIC", "-w")
 _DISABLE = "JAXABC_NATIVE_KERNELS"
+_MARCH = "JAXABC_NATIVE_MARCH"
+
+
+def _march() -> str:
+    """The ``-march`` the kernel is built for: ``native`` unless ``JAXABC_NATIVE_MARCH`` says."""
+    return os.environ.get(_MARCH, "").strip() or "native"
+
+
+def _flags() -> tuple[str, ...]:
+    return (_BASE_FLAGS[0], f"-march={_march()}", *_BASE_FLAGS[1:])
+
+
+@functools.lru_cache(maxsize=4)
+def _resolved_march(compiler: str | None, march: str) -> str:
+    """What ``-march=native`` means on this CPU (GCC/Clang print it), else ``march`` itself."""
+    if compiler is None or march != "native":
+        return march
+    try:
+        out = subprocess.run(
+            [compiler, "-march=native", "-Q", "--help=target"], capture_output=True, text=True, timeout=30
+        ).stdout
+    except (OSError, subprocess.SubprocessError):
+        return march
+    for line in out.splitlines():
+        words = line.split()
+        if len(words) == 2 and words[0] == "-march=":
+            return words[1]
+    return march
+
+
+def instruction_set() -> dict[str, object]:
+    """The instruction set the kernel is (or would be) built for, for provenance.
+
+    Returns ``{"march": requested, "resolved": what native means here (e.g. "znver3"),
+    "simd": the vector extensions the CPU reports (avx2, avx512f, fma, ...)}``.  Results made
+    with a ``native`` kernel reproduce bitwise only where ``resolved`` and ``simd`` match.
+    """
+    flags = set(_cpu_flags().split())
+    simd = sorted(flags & {"sse4_2", "avx", "avx2", "fma", "avx512f", "avx512dq", "avx512vl", "neon", "asimd"})
+    return {"march": _march(), "resolved": _resolved_march(_compiler(), _march()), "simd": simd}
 
 
 class NativeBuildError(RuntimeError):
@@ -65,7 +120,7 @@ def library_path() -> Path:
     """Where the compiled library for this source, compiler, jax and CPU lives (may not exist)."""
     compiler = _compiler() or "none"
     key = hashlib.sha256()
-    for part in (SOURCE.read_bytes(), compiler.encode(), jax.__version__.encode(), " ".join(_FLAGS).encode()):
+    for part in (SOURCE.read_bytes(), compiler.encode(), jax.__version__.encode(), " ".join(_flags()).encode()):
         key.update(part)
     key.update(_cpu_flags().encode())
     root = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "jaxabc" / "native"
@@ -87,7 +142,7 @@ def build(force: bool = False) -> Path:
     path.parent.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory(dir=path.parent) as tmp:
         out = Path(tmp) / path.name
-        cmd = [compiler, *_FLAGS, f"-I{jax.ffi.include_dir()}", str(SOURCE), "-o", str(out)]
+        cmd = [compiler, *_flags(), f"-I{jax.ffi.include_dir()}", str(SOURCE), "-o", str(out)]
         proc = subprocess.run(cmd, capture_output=True, text=True)
         if proc.returncode != 0:
             raise NativeBuildError(f"{' '.join(cmd)} failed:\n{proc.stderr[-4000:]}")
