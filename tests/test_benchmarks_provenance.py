@@ -400,3 +400,25 @@ def test_a_quick_json_from_other_code_cannot_vouch_for_the_result(fake_repo: Pat
     verify._write_ledger(entry.name, record, fake_repo)
     st = status.status_of(entry, root=fake_repo)
     assert st.state == "stale" and "other code than the result" in st.why
+
+
+def test_results_pages_show_figures_that_exist_and_the_build_publishes_them() -> None:
+    """Every ``![...](figures/<rel>)`` on a results page is a saved, non-quick PNG under
+    benchmarks/results, and the MkDocs hook publishes exactly those under results/figures/."""
+    import importlib.util
+    import re
+
+    root = Path(__file__).resolve().parents[1]
+    shown = set()
+    for page in (root / "docs" / "results").glob("*.md"):
+        shown |= set(re.findall(r"!\[[^\]]*\]\(figures/([^)]+)\)", page.read_text()))
+    assert shown, "no results page shows a figure"
+    for rel in shown:
+        assert (root / "benchmarks" / "results" / rel).is_file() and not rel.startswith("quick/"), rel
+    spec = importlib.util.spec_from_file_location("mkdocs_figures", root / "benchmarks/docpages/mkdocs_figures.py")
+    assert spec is not None and spec.loader is not None
+    hook = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(hook)
+    published = {uri.removeprefix("results/figures/") for uri in hook.published()}
+    assert shown <= published
+    assert not any(p.startswith("quick/") for p in published)

@@ -55,6 +55,17 @@ def source(name: str, part: str | None = None, data: dict[str, Any] | None = Non
     )
 
 
+def figure(rel: str, caption: str) -> str:
+    """A Markdown image of ``benchmarks/results/<rel>`` (published by ``mkdocs_figures.py``).
+
+    Raises FileNotFoundError when the figure is not saved, so that a page never links to nothing.
+    """
+    path = RESULTS / rel
+    if not path.is_file() or path.suffix != ".png" or rel.startswith("quick/"):
+        raise FileNotFoundError(f"no published figure benchmarks/results/{rel}")
+    return f"![{caption}](figures/{rel})\n\n*{caption}* (`benchmarks/results/{rel}`)"
+
+
 def table(header: Sequence[str], rows: Sequence[Sequence[Any]]) -> str:
     """A Markdown table."""
     lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]

@@ -2,9 +2,28 @@
 
 from __future__ import annotations
 
+from _common import RESULTS
 from status import format_cost
 
-from docpages.common import cause_rows, f, g, load, misfit_rows, source, table
+from docpages.common import cause_rows, f, figure, g, load, misfit_rows, source, table
+
+_FIGURES = (
+    ("misfits", "standardised misfit of each summary"),
+    ("causes", "score of each candidate cause"),
+    ("state_points", "misfit at each state point"),
+    ("extension", "posterior of the extended model"),
+    ("gain", "held-out predictive density, base against extended"),
+)
+
+
+def _figures(name: str) -> str:
+    """The criticism's saved figures (``benchmarks/results/<name>/*.png``), those that exist."""
+    shown = [
+        figure(f"{name}/{kind}.png", f"{name}: {what}")
+        for kind, what in _FIGURES
+        if (RESULTS / name / f"{kind}.png").is_file()
+    ]
+    return "\n\n".join(shown) + "\n" if shown else ""
 
 
 def page_criticism() -> str:
@@ -32,6 +51,7 @@ def page_criticism() -> str:
             f"Verdict: {d['verdict']}\n",
             table(["misfit", "observed", "predictive 90 % band", "z", "adjusted p", ""], misfits) + "\n",
             table(["cause", "score", "explains", "adjusted p", "ambiguous", "note"], causes) + "\n",
+            _figures(name),
             f"Refit with the top cause: {est}.  Held-out delta log predictive density "
             f"{f(gain['delta_lpd'], 2)} +- {f(gain['delta_lpd_se'], 2)} (exceeds its uncertainty: "
             f"{'yes' if gain['significant'] else 'no'}); the new parameter's posterior is "
@@ -68,6 +88,7 @@ def page_criticism_fluids() -> str:
             f"Verdict: {d['verdict']}\n",
             table(["misfit", "observed", "predictive 90 % band", "z", "adjusted p", ""], misfits) + "\n",
             table(["cause", "score", "explains", "adjusted p", "ambiguous", "note"], causes) + "\n",
+            _figures(name),
         ]
         ext = (d.get("physical_comparison") or {}).get("extension")
         gain = d.get("gain") or {}

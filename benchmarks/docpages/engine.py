@@ -5,8 +5,9 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
+from _common import RESULTS
 
-from docpages.common import f, load, source, table
+from docpages.common import f, figure, load, source, table
 
 
 def page_engine() -> str:
@@ -231,8 +232,14 @@ def _speedup_tables(name: str) -> str:
         rows.append(cells)
     settings = d["model"]["settings"]
     durations = d["distribution"].get("source", "")
+    plot = f"{name}.png"
     out = [
         source(name, "model", d) + "\n",
+        *(
+            [figure(plot, f"{name}: makespan over the bound for each queue order") + "\n"]
+            if (RESULTS / plot).is_file()
+            else []
+        ),
         f"N = {settings['num_particles']}, alpha {settings['alpha']}, P0 {settings['p0']}, "
         f"{settings['steps']} steps, {settings['reps']} repetitions; durations: {durations}" + "\n",
         table(

@@ -5,8 +5,13 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
+from _common import RESULTS
 
-from docpages.common import f, load, source, span, table
+from docpages.common import f, figure, load, source, span, table
+
+
+def _figure_if_saved(rel: str, caption: str) -> str:
+    return figure(rel, caption) if (RESULTS / rel).is_file() else ""
 
 
 def page_helium_table1() -> str:
@@ -51,6 +56,8 @@ N_step = {setup["num_steps"]}, preset `{setup["preset"]}`; {len(setup["seeds"])}
 the truth {setup["truth"]} (nm, zJ), gamma_final the final threshold.
 
 {source("helium_table1")}
+
+{_figure_if_saved("helium_table1.png", "Helium Table 1: posteriors of the repetitions")}
 
 {table(["algorithm", "d_E (here)", "gamma_final (here)", "simulations", "d_E (paper)", "gamma_final (paper)"], rows)}
 

@@ -2,15 +2,32 @@
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Any
 
-from docpages.common import cause_rows, f, load, misfit_rows, source, table
+from _common import RESULTS
+
+from docpages.common import cause_rows, f, figure, load, misfit_rows, source, table
 from md.water.models import PAPER_TIP4P_ESTIMATES
 
 #: Saved paper-preset checks of models of the model choice, one result each.
 PAPER_CHECKS = ("water_model_paper_check", "water_model_paper_check_tip3p")
 #: Saved criticisms of models of the model choice, one result each.
 CRITICISMS = ("criticism_water_joint", "criticism_water_joint_tip3p")
+
+
+def _saved_figures(d: dict) -> list[str]:
+    """The g_OO bands of every model, and the paper-style figure, where saved."""
+    bands = f"{Path(d['saved_result']).relative_to('benchmarks/results').as_posix()}/predictive_goo.png"
+    shown = [
+        (bands, "g_OO bands of every model over the measured curve"),
+        (
+            "water_model_choice/figure_water_model_choice.png",
+            "g_OO and g_OH side by side, g_OH against Soper's neutron curve "
+            "(paper_figures/figure_water_model_choice.py)",
+        ),
+    ]
+    return [figure(rel, caption) + "\n" for rel, caption in shown if (RESULTS / rel).is_file()]
 
 
 def page_water_model_choice() -> str:
@@ -54,10 +71,7 @@ def page_water_model_choice() -> str:
             "Posterior predictive (median [5 %, 95 %] over runs at posterior draws; simulated values, "
             "without the measurement error):\n",
             table(["model", *bands["scalar_names"], "runs"], rows) + "\n",
-            f"g_OO bands of every model over the measured curve: `{d['saved_result']}/predictive_goo.png`; "
-            "g_OO and g_OH side by side, g_OH against Soper's neutron curve: "
-            "`benchmarks/results/water_model_choice/figure_water_model_choice.png` "
-            "(`paper_figures/figure_water_model_choice.py`).\n",
+            *_saved_figures(d),
         ]
     for name in PAPER_CHECKS:
         check = load(name)

@@ -10,7 +10,7 @@ import numpy as np
 from _common import RESULTS, ROOT
 from status import format_cost
 
-from docpages.common import f, git, load, source, sourced_table, table
+from docpages.common import f, figure, git, load, source, sourced_table, table
 from jaxabc.surrogate.diagnostics import MISFIT_P_VALUE
 
 WATER_LABELS = {
@@ -379,9 +379,8 @@ in `benchmarks/registry.py`), resumable across sittings.
             f"Held out: 95 % predictive coverage {f(sur['holdout_coverage_95'], 2)}, mean squared "
             f"standardised error {f(sur['holdout_mean_squared_error'], 2)}. The wall time also counts runs "
             "that designs made by earlier code asked for, so it bounds this design's cost from above. "
-            "The posterior-predictive g_OO band is "
-            "`water_xray_paper_surrogate_predictive.png` in the results folder; the quick preset's "
-            "estimate on the same data and statistics is in the side-by-side table below."
+            "The quick preset's estimate on the same data and statistics is in the side-by-side "
+            "table below."
         )
         return (
             head
@@ -389,6 +388,12 @@ in `benchmarks/registry.py`), resumable across sittings.
             + table(header, [row])
             + "\n\n"
             + detail
+            + "\n\n"
+            + "\n\n".join(
+                figure(f"water_paper_preset/water_xray_paper_surrogate_{kind}.png", f"paper preset, X-ray: {kind}")
+                for kind in ("posterior", "predictive")
+                if (folder / f"water_xray_paper_surrogate_{kind}.png").is_file()
+            )
             + "\n\n- "
             + source("water_paper_preset/water_xray_surrogate", "paper", d)
             + "\n"
@@ -423,6 +428,12 @@ In progress: {len(runs)} GROMACS runs cached ({failed} failed; at most 200 in th
 `python benchmarks/regenerate.py --only water_xray_surrogate_paper_preset:paper --budget 12h` continues it.
 """
     )
+
+
+def _predictive_figures() -> str:
+    """The saved posterior-predictive g_OO bands of the quick-preset calibrations."""
+    paths = sorted(RESULTS.glob("water_*_predictive.png"))
+    return "\n\n".join(figure(p.name, p.stem.removesuffix("_predictive").replace("_", " ")) for p in paths)
 
 
 _MEASURED_GOO = {
@@ -582,9 +593,9 @@ these use the quick preset.
 
 Posterior-predictive g_OO: the first peak of the median of `--predictive` GROMACS runs at posterior
 draws (position, height [quartiles of the height there]), beside the measured curve's first peak.
-The bands themselves are plotted in `benchmarks/results/water_<data>_<statistics>[_surrogate]_predictive.png`.
-
 {table(["data", "statistics", "method", "predictive first peak", "measured first peak"], peaks)}
+
+{_predictive_figures()}
 """
 
 
