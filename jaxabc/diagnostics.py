@@ -17,6 +17,7 @@ from the lineages, :func:`importance_variance` without them.
 from __future__ import annotations
 
 import warnings
+from typing import Any
 
 import numpy as np
 
@@ -30,6 +31,7 @@ __all__ = [
     "lineage_variance",
     "prior_edge_mass",
     "prior_edge_messages",
+    "prior_limit_notes",
 ]
 
 #: ``prior_edge_mass`` above this, at the default width, is a :class:`jaxabc.PriorEdgeWarning`.
@@ -280,16 +282,49 @@ def prior_edge_messages(
     low: np.ndarray,
     high: np.ndarray,
     width: float = PRIOR_EDGE_WIDTH,
+    limits: Any = None,
 ) -> list[str]:
-    """One sentence per bound whose mass (from :func:`prior_edge_mass`) exceeds ``PRIOR_EDGE_LIMIT``."""
+    """One sentence per bound whose mass (from :func:`prior_edge_mass`) exceeds ``PRIOR_EDGE_LIMIT``.
+
+    ``limits`` (per parameter, ``(lower, upper)`` flags, as :class:`jaxabc.Uniform`'s) marks
+    bounds that are physical limits: those are left out, see :func:`prior_limit_notes`.
+    """
+    out = []
+    for i, name, side, bound in _piled(mass, names, low, high, limits, physical=False):
+        which = "lower" if side == 0 else "upper"
+        out.append(
+            f"{mass[i, side]:.0%} of the posterior mass of {name} lies within {width:.0%} of the "
+            f"range from its {which} bound {float(bound):.6g}: widen the prior there, or say "
+            "which physical limit stops it"
+        )
+    return out
+
+
+def prior_limit_notes(
+    mass: np.ndarray,
+    names: tuple[str, ...] | list[str],
+    low: np.ndarray,
+    high: np.ndarray,
+    width: float = PRIOR_EDGE_WIDTH,
+    limits: Any = None,
+) -> list[str]:
+    """Sentences for posteriors piled at a bound that is a physical limit (no warning: the box
+    cannot be widened there; the posterior says the data favour the limit)."""
+    out = []
+    for i, name, side, bound in _piled(mass, names, low, high, limits, physical=True):
+        which = "lower" if side == 0 else "upper"
+        out.append(
+            f"{mass[i, side]:.0%} of the posterior mass of {name} lies within {width:.0%} of the "
+            f"range from its {which} bound {float(bound):.6g}, a physical limit"
+        )
+    return out
+
+
+def _piled(mass: np.ndarray, names: Any, low: np.ndarray, high: np.ndarray, limits: Any, physical: bool) -> list:
+    flags = [(False, False)] * len(names) if limits is None else [tuple(map(bool, pair)) for pair in limits]
     out = []
     for i, name in enumerate(names):
         for side, bound in ((0, low[i]), (1, high[i])):
-            if mass[i, side] > PRIOR_EDGE_LIMIT:
-                which = "lower" if side == 0 else "upper"
-                out.append(
-                    f"{mass[i, side]:.0%} of the posterior mass of {name} lies within {width:.0%} of the "
-                    f"range from its {which} bound {float(bound):.6g}: widen the prior there, or say "
-                    "which physical limit stops it"
-                )
+            if mass[i, side] > PRIOR_EDGE_LIMIT and flags[i][side] == physical:
+                out.append((i, name, side, bound))
     return out

@@ -17,7 +17,14 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-__all__ = ["Discrepancy", "MeasurementError", "ResolvedDiscrepancy", "observation_covariance"]
+__all__ = [
+    "Discrepancy",
+    "MeasurementError",
+    "ModelDiscrepancy",
+    "ResolvedDiscrepancy",
+    "observation_covariance",
+    "wrap_for_abc",
+]
 
 # The error's key is folded from the simulation's key with this tag, so it never equals a key
 # the simulator itself draws from.
@@ -25,8 +32,33 @@ _TAG = 0x6E6F6973  # "nois"
 _DISCREPANCY_TAG = 0x64697363  # "disc"
 
 
+def _is_typed_key(key: Any) -> bool:
+    return bool(jnp.issubdtype(getattr(key, "dtype", np.uint32), jax.dtypes.prng_key))
+
+
+def _host_normal(key: Any, tag: int, shape: tuple[int, ...]) -> np.ndarray:
+    """Standard normals (float64) from a raw ``uint32[2]`` key folded with ``tag``: the same
+    float32 draws a typed key gives under ``vmap``, so every executor sees the same error."""
+    raw = jax.random.wrap_key_data(jnp.asarray(np.asarray(key), dtype=jnp.uint32))
+    return np.asarray(jax.random.normal(jax.random.fold_in(raw, tag), shape, jnp.float32), np.float64)
+
+
+def _inner_name(simulate: Callable) -> str:
+    return getattr(simulate, "__qualname__", type(simulate).__qualname__)
+
+
+def _square_root(cov: np.ndarray) -> np.ndarray:
+    """A factor ``L`` with ``L @ L.T == cov``: Cholesky, or an eigen square root when ``cov`` is
+    positive semi-definite but singular (a summary that is an exact function of others)."""
+    try:
+        return np.linalg.cholesky(cov)
+    except np.linalg.LinAlgError:
+        w, v = np.linalg.eigh(cov)
+        return v * np.sqrt(np.clip(w, 0.0, None))
+
+
 class MeasurementError:
-    """``simulate`` with independent Gaussian measurement error added to its summaries.
+    """``simulate`` with Gaussian measurement error added to its summaries.
 
     Picklable when ``simulate`` is, so it runs on process pools and MPI like the simulator.
 
@@ -34,9 +66,15 @@ class MeasurementError:
     ----------
     simulate : callable ``(key, theta) -> summaries``
         A JAX function (typed keys, ``vmap``) or a host simulator (raw ``uint32[2]`` keys).
-    sd : array_like, shape of the summaries
-        Standard deviation of each summary's measurement error, in the summaries' units;
-        0 where the data state none.  Non-negative and finite.
+    sd : array_like, shape of the summaries, optional
+        Standard deviation of each summary's independent measurement error, in the summaries'
+        units; 0 where the data state none.  Non-negative and finite.
+    cov : array_like, shape (n, n), optional
+        Instead of ``sd``: the covariance of the error over the flattened summaries
+        (``n = summaries.size``), symmetric positive semi-definite, in squared summary units.
+        The error is ``L @ z`` with ``z`` standard normal and ``L`` the Cholesky factor of
+        ``cov`` (an eigen square root when ``cov`` is singular).  A diagonal ``cov`` is the
+        ``sd = sqrt(diag(cov))`` form, draw for draw.
 
     Notes
     -----
@@ -44,32 +82,85 @@ class MeasurementError:
     simulations (NaN summaries, :class:`jaxabc.SimulationFailure`) stay failed.
     """
 
-    def __init__(self, simulate: Callable, sd: Any) -> None:
+    def __init__(self, simulate: Callable, sd: Any = None, *, cov: Any = None) -> None:
         if not callable(simulate):
             raise TypeError("simulate must be a callable simulate(key, theta) -> summaries")
-        sd = np.asarray(sd, np.float64)
-        if not np.all(np.isfinite(sd)) or np.any(sd < 0):
-            raise ValueError(f"measurement sd must be finite and >= 0 (0 where none is stated), got {sd.tolist()}")
+        if (sd is None) == (cov is None):
+            raise TypeError("MeasurementError takes a standard deviation sd or a covariance cov, exactly one")
         self.simulate = simulate
-        self.sd = sd
+        self.factor: np.ndarray | None = None
+        if cov is not None:
+            cov = np.asarray(cov, np.float64)
+            if cov.ndim != 2 or cov.shape[0] != cov.shape[1] or cov.shape[0] == 0:
+                raise ValueError(f"measurement covariance must be a square matrix (n, n), got shape {cov.shape}")
+            cov = observation_covariance(cov, (cov.shape[0],))  # finite, symmetric, PSD
+            if np.count_nonzero(cov - np.diag(np.diag(cov))) == 0:
+                sd = np.sqrt(np.diag(cov))
+            else:
+                self.factor = _square_root(cov)
+        if self.factor is None:
+            sd = np.asarray(sd, np.float64)
+            if not np.all(np.isfinite(sd)) or np.any(sd < 0):
+                raise ValueError(f"measurement sd must be finite and >= 0 (0 where none is stated), got {sd.tolist()}")
+            self.sd: np.ndarray | None = sd
+            what = f"sd={sd.tolist()}" if sd.size <= 16 else f"sd=<{sd.size} values>"
+        else:
+            self.sd = None
+            n = self.factor.shape[0]
+            what = f"cov=<{n}x{n}>"
         # Checkpoints name the simulator by module:qualname: say what is wrapped, and with what.
-        inner = getattr(simulate, "__qualname__", type(simulate).__qualname__)
-        self.__qualname__ = f"MeasurementError[{inner}, sd={sd.tolist()}]"
+        self.__qualname__ = f"MeasurementError[{_inner_name(simulate)}, {what}]"
 
     def __repr__(self) -> str:
-        return f"MeasurementError({self.simulate!r}, sd={self.sd.tolist()})"
+        if self.factor is not None:
+            return f"MeasurementError({self.simulate!r}, cov={(self.factor @ self.factor.T).tolist()})"
+        return f"MeasurementError({self.simulate!r}, sd={np.asarray(self.sd).tolist()})"
+
+    def _key(self) -> tuple:
+        arr = self.factor if self.factor is not None else self.sd
+        assert arr is not None
+        return (self.factor is not None, arr.shape, arr.tobytes())
+
+    def __eq__(self, other: object) -> bool:
+        # Equal wrappers share compiled programs (the fused and vmap caches are keyed on them).
+        if type(other) is not type(self):
+            return NotImplemented
+        assert isinstance(other, MeasurementError)
+        return self.simulate == other.simulate and self._key() == other._key()
+
+    def __hash__(self) -> int:
+        return hash((type(self).__name__, self.simulate, self._key()))
+
+    def _check(self, shape: tuple[int, ...]) -> None:
+        n = int(np.prod(shape)) if len(shape) else 1
+        if self.factor is not None:
+            if self.factor.shape[0] != n:
+                raise ValueError(
+                    f"measurement covariance is {self.factor.shape[0]}x{self.factor.shape[0]}, but the "
+                    f"summaries have {n} values (shape {tuple(shape)})"
+                )
+        elif self.sd is not None and self.sd.shape not in ((), tuple(shape)) and self.sd.size != n:
+            raise ValueError(f"measurement sd has shape {self.sd.shape}, the summaries {tuple(shape)}")
+
+    def _sd(self, shape: tuple[int, ...]) -> np.ndarray:
+        assert self.sd is not None
+        return self.sd if self.sd.shape in ((), tuple(shape)) else self.sd.reshape(shape)
 
     def __call__(self, key: Any, theta: Any) -> Any:
         out = self.simulate(key, theta)
-        if jnp.issubdtype(getattr(key, "dtype", np.uint32), jax.dtypes.prng_key):
-            e = jax.random.normal(jax.random.fold_in(key, _TAG), jnp.shape(out), jnp.result_type(out))
-            return out + jnp.asarray(self.sd, jnp.result_type(out)) * e
-        raw = jax.random.wrap_key_data(jnp.asarray(np.asarray(key), dtype=jnp.uint32))
-        e = np.asarray(jax.random.normal(jax.random.fold_in(raw, _TAG), np.shape(out), jnp.float32), np.float64)
+        if _is_typed_key(key):
+            shape, dtype = jnp.shape(out), jnp.result_type(out)
+            self._check(shape)
+            z = jax.random.normal(jax.random.fold_in(key, _TAG), shape, dtype)
+            if self.factor is None:
+                return out + jnp.asarray(self._sd(shape), dtype) * z
+            return out + jnp.reshape(jnp.asarray(self.factor, dtype) @ jnp.ravel(z), shape)
         out = np.asarray(out, np.float64)
-        if self.sd.shape not in ((), out.shape):
-            raise ValueError(f"measurement sd has shape {self.sd.shape}, the summaries {out.shape}")
-        return out + self.sd * e
+        self._check(out.shape)
+        z = _host_normal(key, _TAG, out.shape)
+        if self.factor is None:
+            return out + self._sd(out.shape) * z
+        return out + (self.factor @ z.ravel()).reshape(out.shape)
 
 
 def observation_covariance(error: Any, shape: tuple[int, ...]) -> np.ndarray:
@@ -197,3 +288,167 @@ class Discrepancy:
             raise ValueError(f"Discrepancy max_sd has {max_sd.size} values for {len(groups)} groups")
         names = tuple(f"discrepancy_sd[{name}]" for name in groups)
         return ResolvedDiscrepancy(membership, np.array(max_sd, np.float64), names)
+
+
+class ModelDiscrepancy:
+    """``simulate`` with an unknown Gaussian discrepancy per group of summaries.
+
+    Called with ``theta' = (theta, delta)``, ``theta`` the model's ``d`` parameters and ``delta``
+    the ``G`` group standard deviations, it returns ``simulate(key, theta) + sqrt(v) * z`` with
+    ``v = discrepancy.variance(delta)`` and ``z`` standard normal drawn from a key folded with
+    its own tag (never the simulator's key, nor the measurement error's).  Picklable when
+    ``simulate`` is.
+
+    Parameters
+    ----------
+    simulate : callable ``(key, theta) -> summaries``
+        A JAX function (typed keys) or a host simulator (raw ``uint32[2]`` keys).
+    discrepancy : ResolvedDiscrepancy
+        The groups, checked against the summaries (:meth:`Discrepancy.resolve`).
+    num_parameters : int
+        ``d``, the model's own parameters: the first ``d`` entries of ``theta'``.
+    """
+
+    def __init__(self, simulate: Callable, discrepancy: ResolvedDiscrepancy, num_parameters: int) -> None:
+        if not callable(simulate):
+            raise TypeError("simulate must be a callable simulate(key, theta) -> summaries")
+        if not isinstance(discrepancy, ResolvedDiscrepancy):
+            raise TypeError("ModelDiscrepancy needs a ResolvedDiscrepancy: call Discrepancy.resolve(shape) first")
+        self.simulate = simulate
+        self.discrepancy = ResolvedDiscrepancy(
+            np.asarray(discrepancy.membership, np.float64),
+            np.asarray(discrepancy.max_sd, np.float64),
+            tuple(discrepancy.names),
+        )
+        self.num_parameters = int(num_parameters)
+        groups = ", ".join(self.discrepancy.names)
+        self.__qualname__ = f"ModelDiscrepancy[{_inner_name(simulate)}, {groups}]"
+
+    def __repr__(self) -> str:
+        return f"ModelDiscrepancy({self.simulate!r}, names={list(self.discrepancy.names)}, d={self.num_parameters})"
+
+    def _key(self) -> tuple:
+        r = self.discrepancy
+        return (self.num_parameters, r.membership.shape, r.membership.tobytes(), r.max_sd.tobytes(), r.names)
+
+    def __eq__(self, other: object) -> bool:
+        if type(other) is not type(self):
+            return NotImplemented
+        assert isinstance(other, ModelDiscrepancy)
+        return self.simulate == other.simulate and self._key() == other._key()
+
+    def __hash__(self) -> int:
+        return hash((type(self).__name__, self.simulate, self._key()))
+
+    def _check(self, theta_shape: tuple[int, ...], out_shape: tuple[int, ...]) -> None:
+        g, n = self.discrepancy.membership.shape
+        if theta_shape != (self.num_parameters + g,):
+            raise ValueError(
+                f"ModelDiscrepancy expects {self.num_parameters} parameters and {g} discrepancy sds, "
+                f"got theta of shape {theta_shape}"
+            )
+        size = int(np.prod(out_shape)) if len(out_shape) else 1
+        if size != n:
+            raise ValueError(
+                f"the discrepancy groups cover {n} summaries, the simulator returned {size} (shape {out_shape})"
+            )
+
+    def __call__(self, key: Any, theta: Any) -> Any:
+        d = self.num_parameters
+        if _is_typed_key(key):
+            out = self.simulate(key, theta[:d])
+            shape, dtype = jnp.shape(out), jnp.result_type(out)
+            self._check(tuple(jnp.shape(theta)), shape)
+            delta = jnp.asarray(theta[d:], dtype)
+            var = (delta**2) @ jnp.asarray(self.discrepancy.membership, dtype)
+            z = jax.random.normal(jax.random.fold_in(key, _DISCREPANCY_TAG), shape, dtype)
+            return out + jnp.reshape(jnp.sqrt(var), shape) * z
+        theta = np.asarray(theta)
+        out = np.asarray(self.simulate(key, theta[:d]), np.float64)
+        self._check(theta.shape, out.shape)
+        var = self.discrepancy.variance(np.asarray(theta[d:], np.float64))
+        return out + np.sqrt(var).reshape(out.shape) * _host_normal(key, _DISCREPANCY_TAG, out.shape)
+
+
+#: Units of the discrepancy parameters in the augmented prior.
+DISCREPANCY_UNITS = "summary units"
+
+
+def wrap_for_abc(
+    simulate: Callable,
+    prior: Any,
+    observed_shape: tuple[int, ...],
+    observation_error: Any = None,
+    discrepancy: Discrepancy | ResolvedDiscrepancy | None = None,
+) -> tuple[Callable, Any]:
+    """The simulator and prior an ABC algorithm runs with measurement error and discrepancy.
+
+    Noisy ABC (Wilkinson 2013): every simulation gets its own draw of the measurement error, so
+    ABC targets the posterior of the model plus that error.  A discrepancy (Kennedy & O'Hagan
+    2001) adds ``G`` parameters, the group standard deviations, each uniform on
+    ``[0, max_sd_g]``, to the prior, and their Gaussian error to every simulation.
+
+    Parameters
+    ----------
+    simulate : callable ``(key, theta) -> summaries``
+    prior : Uniform
+        With a discrepancy it must be a :class:`jaxabc.Uniform` (names and units).
+    observed_shape : tuple of int
+        The observed summaries' shape: the error's and the groups' frame.
+    observation_error : float, array or (n, n) covariance, optional
+        As :func:`observation_covariance` reads it.
+    discrepancy : Discrepancy or ResolvedDiscrepancy, optional
+
+    Returns
+    -------
+    simulate : callable
+        ``MeasurementError(ModelDiscrepancy(simulate, ...), cov=...)``, or the parts that apply;
+        ``simulate`` itself when neither is given.
+    prior : Uniform
+        ``prior`` with the discrepancy parameters appended (names ``discrepancy_sd[<group>]``,
+        units ``"summary units"``), or ``prior`` itself.
+
+    Raises
+    ------
+    ValueError
+        A bad error or group (see :func:`observation_covariance`, :meth:`Discrepancy.resolve`),
+        or a discrepancy name that is already a parameter's.
+    TypeError
+        ``discrepancy`` of another type, or a prior other than ``Uniform`` with a discrepancy.
+    """
+    from jaxabc.priors import Uniform
+
+    shape = tuple(int(s) for s in observed_shape)
+    if discrepancy is not None:
+        if isinstance(discrepancy, Discrepancy):
+            resolved = discrepancy.resolve(shape)
+        elif isinstance(discrepancy, ResolvedDiscrepancy):
+            resolved = discrepancy
+            n = int(np.prod(shape)) if len(shape) else 1
+            if resolved.membership.shape[1] != n:
+                raise ValueError(f"the discrepancy covers {resolved.membership.shape[1]} summaries, the data have {n}")
+        else:
+            raise TypeError(f"discrepancy must be a jaxabc.Discrepancy, got {type(discrepancy).__name__}")
+        if not isinstance(prior, Uniform):
+            raise TypeError(
+                f"a discrepancy adds uniform parameters to the prior, which must then be a jaxabc.Uniform, "
+                f"not {type(prior).__name__}"
+            )
+        clash = sorted(set(prior.names) & set(resolved.names))
+        if clash:
+            raise ValueError(
+                f"the prior already has parameters named {clash}: rename them, the discrepancy needs these names"
+            )
+        d = prior.dim
+        prior = Uniform(
+            np.concatenate([np.asarray(prior.low, np.float64), np.zeros(len(resolved.names))]),
+            np.concatenate([np.asarray(prior.high, np.float64), resolved.max_sd]),
+            names=(*prior.names, *resolved.names),
+            units=(*getattr(prior, "units", ("",) * d), *(DISCREPANCY_UNITS,) * len(resolved.names)),
+            # A standard deviation cannot be negative: 0 is a physical limit, max_sd a choice.
+            limits=(*prior.limits, *((True, False),) * len(resolved.names)),
+        )
+        simulate = ModelDiscrepancy(simulate, resolved, d)
+    if observation_error is not None:
+        simulate = MeasurementError(simulate, cov=observation_covariance(observation_error, shape))
+    return simulate, prior

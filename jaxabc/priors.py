@@ -47,6 +47,11 @@ class Uniform:
         One name per parameter (default ``theta0, theta1, ...``).
     units : sequence of str, optional
         One unit string per parameter, used in reports and plots.
+    limits : sequence of (bool, bool), optional
+        Per parameter, whether its lower and upper bounds are physical limits rather than choices
+        (a standard deviation cannot be negative).  A posterior piled against such a bound is
+        not a :class:`jaxabc.PriorEdgeWarning`: widening the box there is impossible.  Default:
+        every bound is a choice.
 
     Examples
     --------
@@ -62,6 +67,7 @@ class Uniform:
         high: Sequence[float] | jax.Array,
         names: Sequence[str] | None = None,
         units: Sequence[str] | None = None,
+        limits: Sequence[Sequence[bool]] | None = None,
     ) -> None:
         low_np = np.atleast_1d(np.asarray(low, dtype=np.float64))
         high_np = np.atleast_1d(np.asarray(high, dtype=np.float64))
@@ -90,10 +96,16 @@ class Uniform:
                     f"prior bounds for {name!r} are degenerate: low == high == {lo}; fix the "
                     "parameter in the simulator instead of giving it a zero-width prior"
                 )
+        if limits is None:
+            limits = ((False, False),) * low_np.size
+        limits = tuple((bool(lo), bool(hi)) for lo, hi in limits)
+        if len(limits) != low_np.size:
+            raise ValueError(f"got {len(limits)} (lower, upper) limit flags for {low_np.size} parameters")
         self.low = jnp.asarray(low_np)
         self.high = jnp.asarray(high_np)
         self.names = names
         self.units = units
+        self.limits = limits
 
     @property
     def dim(self) -> int:
@@ -120,18 +132,21 @@ class Uniform:
 
     def to_dict(self) -> dict:
         """JSON-serialisable description, stored in result files."""
-        return {
+        out = {
             "type": "Uniform",
             "low": np.asarray(self.low).tolist(),
             "high": np.asarray(self.high).tolist(),
             "names": list(self.names),
             "units": list(self.units),
         }
+        if any(any(pair) for pair in self.limits):  # absent otherwise: older files stay identical
+            out["limits"] = [list(pair) for pair in self.limits]
+        return out
 
     @classmethod
     def from_dict(cls, data: dict) -> Uniform:
         """Inverse of :meth:`to_dict`."""
-        return cls(data["low"], data["high"], data.get("names"), data.get("units"))
+        return cls(data["low"], data["high"], data.get("names"), data.get("units"), data.get("limits"))
 
     def __repr__(self) -> str:
         parts = ", ".join(

@@ -14,6 +14,7 @@ The MCSE of the posterior mean of ABCsubsim and APMCABC comes from their particl
 
 from __future__ import annotations
 
+import inspect
 import json
 import os
 import platform
@@ -27,6 +28,14 @@ from typing import Any
 
 import numpy as np
 
+from jaxabc.diagnostics import (
+    PRIOR_EDGE_LIMIT,
+    PRIOR_EDGE_WIDTH,
+    prior_edge_mass,
+    prior_edge_messages,
+    prior_limit_notes,
+)
+from jaxabc.errors import PriorEdgeWarning
 from jaxabc.priors import Uniform
 
 __all__ = ["ABCResult", "load", "versions", "write_outputs"]
@@ -102,10 +111,13 @@ class ABCResult:
         Monte Carlo diagnostics of the final population (for ABCsubsim: distinct particles,
         chain ESS, whether the chains stopped moving; for ABCsubsim and APMCABC: ``mcse``,
         ``num_lineages``, ``effective_lineages``, ``collapsed`` and ``mcse_note``); filled in
-        on construction.
+        on construction; ``diagnostics["prior_edge"]`` (every result) holds the posterior mass
+        near each bound of the prior box (see :meth:`prior_edge_mass`) and the sentences for the
+        bounds where it exceeds 5 %.
     check : bool
         Warn on construction when the final population is degenerate (ABCsubsim chains that
-        stopped moving); :func:`load` passes False.
+        stopped moving), and with a :class:`jaxabc.PriorEdgeWarning` when the posterior piles
+        against a bound of the prior; :func:`load` and :meth:`from_sample` pass False.
     """
 
     particles: np.ndarray
@@ -129,6 +141,19 @@ class ABCResult:
     check: InitVar[bool] = True
 
     def __post_init__(self, check: bool) -> None:
+        self._check_chains(check)
+        edge = self._prior_edge_diagnostics()
+        if edge is None:
+            return
+        self.diagnostics = {**self.diagnostics, "prior_edge": edge}
+        if check and edge["messages"]:
+            model = self.settings.get("model") if isinstance(self.settings, dict) else None
+            prefix = f"model {model!r}: " if model is not None else ""
+            # One warning per result, pointed at the user's call (run, run_fused, ...).
+            warnings.warn(prefix + "; ".join(edge["messages"]), PriorEdgeWarning, stacklevel=_user_stacklevel())
+
+    def _check_chains(self, check: bool) -> None:
+        """ABCsubsim's chain diagnostics, computed on construction (see ``diagnostics``)."""
         # "mcse": diagnostics from before the lineage MCSE (older files) are recomputed.
         if not self._is_chain_population() or "mcse" in self.diagnostics:
             return
@@ -147,7 +172,73 @@ class ABCResult:
             ess[-1] = self.diagnostics["ess"]
             self.ess = ess
         if check and self.diagnostics["warning"]:
-            warnings.warn(self.diagnostics["warning"], UserWarning, stacklevel=3)
+            warnings.warn(self.diagnostics["warning"], UserWarning, stacklevel=_user_stacklevel())
+
+    def _prior_box(self) -> tuple[np.ndarray, np.ndarray]:
+        """The prior's box ``(low, high)``, float64, shape (d,) each; ``inf`` where it has none.
+
+        :class:`~jaxabc.Uniform` and :class:`~jaxabc.Independent` (whose box is each
+        distribution's support cut by its ``bounds``: where the kernels truncate the posterior)
+        both have ``low`` and ``high``; a prior without them, or with a non-finite bound, has no
+        edge there.
+        """
+        d = np.shape(self.particles)[1]
+        out = []
+        for attr, missing in (("low", -np.inf), ("high", np.inf)):
+            value = getattr(self.prior, attr, None)
+            bound = np.full(d, missing) if value is None else np.asarray(value, np.float64).reshape(-1)
+            out.append(np.array(np.broadcast_to(bound, (d,))))
+        return out[0], out[1]
+
+    def prior_edge_mass(self, width: float = PRIOR_EDGE_WIDTH) -> np.ndarray:
+        """Posterior mass near each bound of the prior box.
+
+        The weighted share of the final population within ``width * (high - low)`` of each
+        bound of the prior box (:func:`jaxabc.diagnostics.prior_edge_mass`).  A posterior that
+        piles against a bound (more than 5 % of its mass within 2 % of the range, the rule of
+        :class:`jaxabc.PriorEdgeWarning`) is one the data would move further: it, and any
+        evidence, depend on where the box was cut.  A flat posterior holds ``width`` at each
+        bound.
+
+        Parameters
+        ----------
+        width : float
+            The band's width as a fraction of the range ``high - low``, in (0, 0.5).
+
+        Returns
+        -------
+        numpy.ndarray, shape (d, 2)
+            ``[j, 0]`` the posterior mass of parameter ``j`` within the band above its lower
+            bound, ``[j, 1]`` within the band below its upper bound; each in [0, 1].  A
+            non-finite bound (a prior without a box there) has mass 0.
+
+        Raises
+        ------
+        ValueError
+            If ``width`` is not in (0, 0.5).
+        """
+        if not 0.0 < float(width) < 0.5:
+            raise ValueError(f"width must be a fraction of the range in (0, 0.5), got {width!r}")
+        low, high = self._prior_box()
+        return prior_edge_mass(self.particles, self.weights, low, high, width)
+
+    def _prior_edge_diagnostics(self) -> dict | None:
+        """``diagnostics["prior_edge"]``: the mass at the default width and the sentences for
+        the bounds past the limit; None for a population it cannot be computed on (weights that
+        are not a distribution, particles that do not match the prior)."""
+        try:
+            mass = self.prior_edge_mass()
+            low, high = self._prior_box()
+        except (ValueError, TypeError, IndexError):
+            return None
+        limits = getattr(self.prior, "limits", None)
+        return {
+            "width": PRIOR_EDGE_WIDTH,
+            "limit": PRIOR_EDGE_LIMIT,
+            "mass": mass.tolist(),
+            "messages": prior_edge_messages(mass, self.names, low, high, PRIOR_EDGE_WIDTH, limits),
+            "at_physical_limits": prior_limit_notes(mass, self.names, low, high, PRIOR_EDGE_WIDTH, limits),
+        }
 
     def _is_chain_population(self) -> bool:
         """ABCsubsim's population (equal weights, chains stored step-major), intact."""
@@ -194,6 +285,8 @@ class ABCResult:
             settings={},
             prior=prior,
             seed=0,
+            # Not a run's result (e.g. one of the many posteriors of a coverage study): no warning.
+            check=False,
         )
 
     @property
@@ -356,6 +449,11 @@ class ABCResult:
         ]
         if self.diagnostics.get("warning"):
             lines.append(f"  warning: {self.diagnostics['warning']}")
+        edge = self.diagnostics.get("prior_edge") or {}
+        if edge.get("messages"):
+            lines.append(f"  prior edge: {'; '.join(edge['messages'])}")
+        if edge.get("at_physical_limits"):
+            lines.append(f"  at a physical limit: {'; '.join(edge['at_physical_limits'])}")
         if not np.all(np.isfinite(err)):
             # Say why in words: "+- inf" alone reads like a bug.
             note = self.diagnostics.get("mcse_note") or "collapsed: fewer than 2 distinct particles; MCSE not available"
@@ -464,6 +562,29 @@ class ABCResult:
         from jaxabc._result_views import plot_posterior
 
         return plot_posterior(self, path, truth=truth, params=params, ax=ax)
+
+
+def _user_stacklevel() -> int:
+    """The ``stacklevel`` that points a warning of :meth:`ABCResult.__post_init__` (or of a method
+    it calls) at the first frame outside jaxabc: the user's ``run(...)``, not the assembly.
+
+    The frames below that one are jaxabc's own and the dataclass's generated ``__init__`` (whose
+    file name is ``"<string>"``), found as the frame that called ``__post_init__``.
+    """
+    package = str(Path(__file__).parent) + os.sep
+    frame = inspect.currentframe()
+    frame = frame.f_back if frame is not None else None  # the frame that calls warnings.warn
+    level = 1
+    while frame is not None and frame.f_code.co_name != "__post_init__":
+        frame, level = frame.f_back, level + 1
+    if frame is None:
+        return 2
+    frame, level = frame.f_back, level + 1  # the generated __init__
+    while frame is not None and frame.f_back is not None:
+        frame, level = frame.f_back, level + 1
+        if not frame.f_code.co_filename.startswith(package):
+            break
+    return level
 
 
 def _json_default(obj: Any) -> Any:

@@ -13,6 +13,7 @@ is required come from the :class:`~jaxabc.algorithms.base.ABCAlgorithm` fields.
 
 from __future__ import annotations
 
+import inspect
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -22,6 +23,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxabc import algorithms as _algorithms
 from jaxabc import checkpoint as _ckpt
 from jaxabc._driver import (
     Context,
@@ -54,6 +56,7 @@ from jaxabc.errors import STATUS_OK, TooManyFailures
 from jaxabc.executors import Executor, get_executor
 from jaxabc.fused import DRIVER as FUSED_DRIVER
 from jaxabc.fused import _run_fused_body
+from jaxabc.noise import Discrepancy, ResolvedDiscrepancy, observation_covariance, wrap_for_abc
 from jaxabc.priors import Uniform
 from jaxabc.results import ABCResult
 
@@ -322,6 +325,80 @@ def _adaptive_setup(distance: Any, algorithm: Any, obs: np.ndarray, options: dic
     return spec.record_distance()
 
 
+#: The ABC algorithms: measurement error and discrepancy enter them through the simulator and
+#: the prior (noisy ABC).  Other builders (the surrogate) take them as builder options.
+_ABC_ALGORITHMS = ("apmcabc", "pmcabc", "abcsubsim", "rejection")
+
+
+def _builder_takes(name: str, option: str) -> bool:
+    """Whether the builder ``name`` takes ``option``, following the surrogate's lazy wrapper
+    (``**options`` passed on to :func:`jaxabc.surrogate.build`)."""
+    if builder_accepts(name, option):
+        return True
+    if name == "surrogate":
+        from jaxabc.surrogate import build
+
+        return option in inspect.signature(build).parameters
+    return False
+
+
+def _measured_data(
+    algorithm: str | ABCAlgorithm,
+    simulate: Callable,
+    prior: Any,
+    obs: np.ndarray,
+    observation_error: Any,
+    discrepancy: Any,
+    options: dict,
+) -> tuple[Callable, Any, dict]:
+    """Apply ``observation_error`` and ``discrepancy`` to a calibration.
+
+    Returns the simulator and prior the algorithm runs with (wrapped and augmented for the ABC
+    algorithms, unchanged for builders that take the options themselves, into whose
+    ``options`` they are then put) and the settings to record, JSON-normal, for the result and
+    the checkpoint fingerprint.
+    """
+    if observation_error is None and discrepancy is None:
+        return simulate, prior, {}
+    cov = None if observation_error is None else observation_covariance(observation_error, obs.shape)
+    if discrepancy is not None and not isinstance(discrepancy, Discrepancy):
+        raise TypeError(f"discrepancy must be a jaxabc.Discrepancy(max_sd, groups), got {type(discrepancy).__name__}")
+    resolved: ResolvedDiscrepancy | None = None if discrepancy is None else discrepancy.resolve(obs.shape)
+    settings: dict[str, Any] = {}
+    if cov is not None:
+        settings["observation_error"] = cov.tolist()
+    if discrepancy is not None:
+        settings["discrepancy"] = discrepancy.describe()
+    name = algorithm if isinstance(algorithm, str) else algorithm.name
+    if isinstance(algorithm, str) and name not in _ABC_ALGORITHMS and name in _algorithms.BUILDERS:
+        # Not an ABC algorithm (the surrogate): it models the error in its likelihood.
+        for option, value in (("observation_error", cov), ("discrepancy", resolved)):
+            if value is None:
+                continue
+            if not _builder_takes(name, option):
+                raise ValueError(
+                    f"the {name} in this version does not take {option}: run an ABC algorithm "
+                    f"({', '.join(_ABC_ALGORITHMS)}) with it, or leave it out"
+                )
+            options[option] = value
+        return simulate, prior, settings
+    if isinstance(algorithm, ABCAlgorithm) and name not in _ABC_ALGORITHMS:
+        raise ValueError(
+            f"observation_error and discrepancy reach an algorithm object {name!r} only through its "
+            "builder: pass the algorithm by name, or give them to the function that built it"
+        )
+    simulate, augmented = wrap_for_abc(simulate, prior, obs.shape, cov, resolved)
+    if isinstance(algorithm, ABCAlgorithm) and resolved is not None:
+        dim = jax.eval_shape(algorithm.initial_proposal, jax.random.key(0)).thetas.shape[-1]
+        if dim != augmented.dim:
+            raise ValueError(
+                f"with a discrepancy the run has {augmented.dim} parameters ({prior.dim} of the model, "
+                f"{len(resolved.names)} discrepancy sds), but this {name} object was built for {dim}: "
+                "pass the algorithm by name, or build it with the prior of jaxabc.noise.wrap_for_abc"
+            )
+    return simulate, augmented, settings
+
+
 @overload
 def run(
     algorithm: list[Any] | tuple[Any, ...],
@@ -366,6 +443,8 @@ def run(
     progress: bool = False,
     dtype: str = "float32",
     metadata: dict | None = None,
+    observation_error: Any = None,
+    discrepancy: Discrepancy | None = None,
     **algorithm_options: Any,
 ) -> ABCResult | ModelChoiceResult:
     """Calibrate ``simulate`` against ``observed`` with an ABC algorithm.
@@ -429,9 +508,10 @@ def run(
     resume : bool
         Continue from the checkpoint in ``checkpoint_dir``; the result equals that of the
         uninterrupted run.  Refused when the problem differs (prior, observed values, distance,
-        simulator, algorithm and settings, seed, ``num_particles``, dtype; a partial's or
-        closure's bound values count, see :func:`jaxabc.checkpoint.describe_callable`) or when
-        another run holds the folder (:class:`jaxabc.checkpoint.FolderInUse`).  A run that had
+        simulator, algorithm and settings, ``observation_error``, ``discrepancy``, seed,
+        ``num_particles``, dtype; a partial's or closure's bound values count, see
+        :func:`jaxabc.checkpoint.describe_callable`) or when another run holds the folder
+        (:class:`jaxabc.checkpoint.FolderInUse`).  A run that had
         ended on ``num_steps``, ``final_threshold``, ``max_simulations`` or ``max_wall_time``
         goes on when this call's rule allows more.
     overwrite : bool
@@ -451,6 +531,34 @@ def run(
         for the duration of the run only.
     metadata : dict, optional
         Stored in the result.
+    observation_error : float, array_like or (n, n) array, optional
+        The measurement error of ``observed``, in the summaries' units: one standard deviation
+        for all summaries, one per summary (``observed``'s shape, or flattened ``(n,)``; 0 where
+        the data state none), or a covariance ``(n, n)`` over the flattened summaries (squared
+        units, symmetric positive semi-definite).  Read by
+        :func:`jaxabc.noise.observation_covariance`; negative, non-finite, misshapen or
+        non-PSD values are refused with ``ValueError``.  The ABC algorithms run *noisy ABC*:
+        every simulated summary vector gets its own draw of the error, from the simulation's key
+        (so a seed fixes it on every executor), and ABC then targets the posterior of the model
+        plus that error rather than treating the data as exact (Wilkinson 2013, "Approximate
+        Bayesian computation (ABC) gives exact results under the assumption of model error",
+        Stat. Appl. Genet. Mol. Biol. 12, 129).  ``"surrogate"`` takes it as a builder option
+        (its synthetic likelihood adds the covariance).  Recorded as the covariance list in
+        ``result.settings["observation_error"]`` and in the checkpoint fingerprint.
+    discrepancy : jaxabc.Discrepancy, optional
+        Model discrepancy (Kennedy & O'Hagan 2001, "Bayesian calibration of computer models",
+        J. R. Stat. Soc. B 63, 425), a variance per group of summaries: the model reproduces the
+        data up to independent Gaussian errors of unknown standard deviation ``delta_g`` per
+        group.  For the ABC algorithms the prior gains ``G`` uniform parameters
+        ``[0, max_sd_g]`` (summary units), named ``discrepancy_sd[<group>]``, and each
+        simulation adds ``N(0, delta_g^2)`` to the summaries of group ``g``: the result's
+        particles have ``d + G`` columns and ``result.prior`` is the augmented prior.
+        ``"surrogate"`` takes the resolved groups as a builder option.  Recorded as
+        ``result.settings["discrepancy"]`` (:meth:`jaxabc.Discrepancy.describe`) and in the
+        checkpoint fingerprint; groups naming summaries that do not exist are refused with
+        ``ValueError``.
+
+        For a list of models (model choice) both options are passed on to it unchanged.
     **algorithm_options
         Passed to the algorithm's builder (see :mod:`jaxabc.algorithms`).
 
@@ -487,6 +595,10 @@ def run(
     t_start = time.perf_counter()
     validate_arguments(dtype, num_particles, num_steps, max_failure_fraction, simulate, prior)
     obs = validate_observed(observed, dtype, distance)
+    # Noisy ABC and discrepancy: a wrapped simulator and an augmented prior (or builder options).
+    simulate, prior, measured = _measured_data(
+        algorithm, simulate, prior, obs, observation_error, discrepancy, algorithm_options
+    )
     if isinstance(distance, AdaptivePNorm) or is_adaptive(distance):
         # The algorithm computes the adaptive distances; the driver records a fixed one.
         distance = _adaptive_setup(distance, algorithm, obs, algorithm_options)
@@ -503,6 +615,12 @@ def run(
                 if value is not None and builder_accepts(algorithm, option):
                     algorithm_options.setdefault(option, value)
         compiled = compile_algorithm(algorithm, prior, num_particles, algorithm_options, dtype)
+        if measured:
+            # In the settings, so that results record them and a resume with others is refused
+            # (the checkpoint fingerprint holds the settings), on the fused and the host driver.
+            extra = {k: v for k, v in measured.items() if k not in compiled.algorithm.settings}
+            settings = {**compiled.algorithm.settings, **extra}
+            compiled = compiled._replace(algorithm=compiled.algorithm._replace(settings=settings))
         algo = compiled.algorithm
         check_stopping_rule(algo, num_steps, final_threshold, max_simulations, max_wall_time)
         fused = executor is None and _fused_applies(
