@@ -70,6 +70,7 @@ __all__ = [
     "WATER_BASE_NAMES",
     "LJSetup",
     "apply_lj_measurement_effects",
+    "feynman_hibbs_expected",
     "lj_catalogue",
     "lj_groups",
     "make_lj_simulator_with_effects",
@@ -82,8 +83,44 @@ WATER_BASE_NAMES = ("sigma_ow_nm", "epsilon_ow_kj_mol")
 YEH_HUMMER_XI = 2.837297
 
 
-def lj_catalogue() -> Catalogue:
-    """The Lennard-Jones fluid catalogue (order = ``theta_full`` order after sigma, epsilon)."""
+def feynman_hibbs_expected(mass_amu: float, temperature_k: float, sigma_nm: float) -> float:
+    """The physical strength of ``feynman_hibbs`` in this catalogue's units (``s / 0.01``).
+
+    The quadratic Feynman-Hibbs correction at its physical value (``fh_scale = 1``, Feynman &
+    Hibbs 1965; Sese 1993) has the dimensionless strength ``s = hbar^2 / (24 mu k_B T sigma^2)``
+    with ``mu = m / 2`` the pair's reduced mass.  It depends on the fluid and the temperature
+    (neon, 20.18 u at 30 K with sigma 0.2775 nm: about 0.087; helium-4 at 10 K, 0.256 nm:
+    about 1.5, beyond this catalogue's prior), so :func:`lj_catalogue` sets no expected strength unless
+    given one.
+    """
+    kt = 0.00831446261815324 * temperature_k  # kJ/mol (R in kJ / (mol K))
+    s = HBAR_KJ_MOL_PS**2 / (24.0 * 0.5 * mass_amu * kt * sigma_nm**2)
+    return float(s / FH_STRENGTH_PER_UNIT)
+
+
+def lj_catalogue(expected: dict[str, float] | None = None) -> Catalogue:
+    """The Lennard-Jones fluid catalogue (order = ``theta_full`` order after sigma, epsilon).
+
+    ``expected`` maps effect names to the strength physics expects for the fluid at hand (e.g.
+    ``{"feynman_hibbs": feynman_hibbs_expected(20.18, 30.0, 0.2775)}`` for neon): criticism then
+    reports the power of the data to detect each there (``jaxabc.criticism.power``).  None by
+    default: in these generic reduced units no effect has a fluid-independent physical value
+    (Feynman-Hibbs scales as 1 / (m T sigma^2), Axilrod-Teller's nu* = C9 / (eps sigma^9) is
+    per fluid, Yeh-Hummer's 1/eta* is the state point's viscosity, thermostat damping is the
+    user's own setting), and a power estimate costs ``num_power_replicates`` analyses per effect.
+    """
+    cat = _lj_catalogue()
+    if not expected:
+        return cat
+    unknown = set(expected) - set(cat.names)
+    if unknown:
+        raise ValueError(f"expected strengths for unknown effects {sorted(unknown)}: effects are {cat.names}")
+    return Catalogue(
+        [dataclasses.replace(e, expected=expected.get(e.name, e.expected)) for e in cat], cat.name, cat.notes
+    )
+
+
+def _lj_catalogue() -> Catalogue:
     return Catalogue(
         [
             Effect(

@@ -10,6 +10,9 @@
     report.cause_analysis.unexplained  # residual after them still significant: cause not catalogued
     report.extension    # ABCResult over base parameters + the top effect
     report.gain         # held-out measures with standard errors
+    report.power        # per effect with an expected strength: power to name it there, with s.e.
+    report.undetectable # causes these data could not have seen (not ruled out)
+    report.design_advice  # with candidates=CandidateObservables(...): what to measure next
     report.write("report_dir/")
 
 ``simulate_with_effects(key, theta_full) -> summaries (s,)`` takes the base parameters followed
@@ -20,6 +23,16 @@ base simulator.  It is a single-theta function, so ``jax.vmap`` batches it.
 from jaxabc.criticism.causes import Catalogue, Cause, Effect
 from jaxabc.criticism.core import critique
 from jaxabc.criticism.misfit import Misfit, adjust_pvalues
+from jaxabc.criticism.power import CandidateObservables
 from jaxabc.criticism.report import CritiqueReport
 
-__all__ = ["Catalogue", "Cause", "CritiqueReport", "Effect", "Misfit", "adjust_pvalues", "critique"]
+__all__ = [
+    "CandidateObservables",
+    "Catalogue",
+    "Cause",
+    "CritiqueReport",
+    "Effect",
+    "Misfit",
+    "adjust_pvalues",
+    "critique",
+]

@@ -68,6 +68,11 @@ class Effect:
         Names of effects (or base parameters) it is exactly or nearly confusable with.
     step : float, optional
         Finite-difference step for its sensitivity (default a fifth of the prior half-range).
+    expected : float, optional
+        The strength physics expects (e.g. ``1.0`` for a Feynman-Hibbs ``fh_scale``), inside the
+        prior box.  Criticism then reports the power of the data design to detect the effect
+        there (:mod:`jaxabc.criticism.power`), so that a low rank is not read as evidence
+        against an effect the data could not have seen.  None (default): no known strength.
     """
 
     name: str
@@ -80,8 +85,16 @@ class Effect:
     separated_by: str = ""
     confusable_with: tuple[str, ...] = ()
     step: float | None = None
+    expected: float | None = None
 
     def __post_init__(self) -> None:
+        if self.expected is not None:
+            if not np.isfinite(self.expected) or not self.low <= self.expected <= self.high:
+                raise ValueError(
+                    f"effect {self.name!r}: expected strength {self.expected} lies outside its prior "
+                    f"[{self.low}, {self.high}]"
+                )
+            object.__setattr__(self, "expected", float(self.expected))
         if not self.low < self.high:
             raise ValueError(f"effect {self.name!r}: prior low={self.low} must be below high={self.high}")
         if not self.low <= self.null <= self.high:
@@ -172,13 +185,25 @@ class Cause(tuple):
     ``significant``, ``fraction_explained``, ``estimate`` (linearised eta), ``max_snr``,
     ``ambiguous`` (bool), ``invisible`` (bool), ``note`` (str), ``acts_on`` (group names),
     ``needed`` (bool: selected by the conditional test), ``conditional_score`` and
-    ``conditional_p_value`` (what it adds beyond the effects selected before it).
+    ``conditional_p_value`` (what it adds beyond the effects selected before it).  With an
+    ``Effect.expected`` strength: ``expected``, ``power`` (share of data sets simulated at that
+    strength in which the pipeline names it), ``power_se`` (binomial standard error),
+    ``power_interval`` (95 % Wilson), ``detectable`` (False: not named here and power below
+    the threshold) and ``design_advice`` (candidate observables, best first); otherwise these
+    are None (also for causes unpickled from before they existed).
     """
 
     # Set per instance from ``details``; declared for type checkers.
     adjusted_p_value: float
     ambiguous: bool
     invisible: bool
+    # Defaults for causes without a power estimate (and for pickles that predate it).
+    expected: float | None = None
+    power: float | None = None
+    power_se: float | None = None
+    power_interval: tuple[float, float] | None = None
+    detectable: bool | None = None
+    design_advice: list | None = None
 
     def __new__(cls, name: str, score: float, **details):
         obj = super().__new__(cls, (name, float(score)))

@@ -14,7 +14,7 @@ Summary *groups* (regions) are named index sets of the summary vector, e.g.
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import jax
@@ -29,6 +29,7 @@ __all__ = [
     "posterior_predictive",
     "shrunk_covariance",
     "simulate_many",
+    "with_replicates",
 ]
 
 IndexSpec = slice | Sequence[int] | np.ndarray | range | str
@@ -186,6 +187,34 @@ class PosteriorPredictive:
         return np.stack([np.quantile(v, q, axis=0), np.quantile(v, 1.0 - q, axis=0)], axis=-1)
 
 
+def _noise_model(replicates: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Shrunk noise covariance of the replicates and the mask of summaries that vary."""
+    cov = shrunk_covariance(replicates)
+    scale = np.maximum(np.abs(replicates).max(axis=0), 1e-300)
+    return cov, np.sqrt(np.diag(cov)) > 1e-9 * scale
+
+
+def with_replicates(predictive: PosteriorPredictive, keys: jax.Array, replicates: np.ndarray) -> PosteriorPredictive:
+    """``predictive`` with its replicates at the estimate replaced by ``replicates`` (keys ``keys``).
+
+    The noise covariance and the active mask are recomputed as :func:`posterior_predictive` does;
+    the posterior draws are kept.  Used by the power estimate: a fresh noise yardstick per
+    replicate data set, as a fresh run of the criticism would have.
+    """
+    ok = np.all(np.isfinite(replicates), axis=1)
+    if ok.sum() < 10:
+        raise RuntimeError(f"only {ok.sum()} of {len(ok)} replicates simulated successfully")
+    cov, active = _noise_model(replicates[ok])
+    return replace(
+        predictive,
+        replicates=replicates[ok],
+        replicate_keys=keys[np.flatnonzero(ok)],
+        noise_cov=cov,
+        active=active,
+        extra=dict(predictive.extra),
+    )
+
+
 def posterior_predictive(
     simulate: Callable,
     theta_draws: np.ndarray,
@@ -231,9 +260,7 @@ def posterior_predictive(
     if len(names) != s:
         raise ValueError(f"got {len(names)} summary names for {s} summaries")
     reps_ok = reps[ok_r]
-    cov = shrunk_covariance(reps_ok)
-    scale = np.maximum(np.abs(reps_ok).max(axis=0), 1e-300)
-    active = np.sqrt(np.diag(cov)) > 1e-9 * scale
+    cov, active = _noise_model(reps_ok)
     return PosteriorPredictive(
         theta_hat=np.asarray(theta_hat, np.float64),
         draws_theta=theta_draws[ok_d],

@@ -47,6 +47,14 @@ class CritiqueReport:
     gain : dict
         Held-out measures with standard errors (see :mod:`jaxabc.criticism.gain`).
     ambiguities : list of str
+    power : dict
+        Per effect with an expected strength: ``expected``, ``power``, ``se``, ``interval``,
+        ``num_datasets``, ``num_named``, ``num_failed`` (see :mod:`jaxabc.criticism.power`).
+    design_advice : dict
+        Per undetectable effect: candidate observables ranked by the signal they would add.
+    power_estimates : dict
+        The :class:`jaxabc.criticism.power.EffectPower` objects behind ``power``, with the
+        replicate data sets (not written to disk).
     """
 
     misfits: list
@@ -66,6 +74,27 @@ class CritiqueReport:
     settings: dict = field(default_factory=dict)
     extension_draws: np.ndarray | None = None
     base_draws: np.ndarray | None = None
+    power: dict = field(default_factory=dict)
+    design_advice: dict = field(default_factory=dict)
+    power_estimates: dict = field(default_factory=dict, repr=False)
+
+    @property
+    def undetectable(self) -> list:
+        """Causes these data could not have seen: not named, power below the threshold."""
+        return [c for c in self.causes if getattr(c, "detectable", None) is False]
+
+    def _unseen_clause(self) -> str:
+        unseen = self.undetectable
+        if not unseen:
+            return ""
+        parts = []
+        for c in unseen:
+            part = f"{c.name} (power {c.power:.2f} ± {c.power_se:.2f} at its expected strength {c.expected:g})"
+            rows = getattr(c, "design_advice", None) or []
+            if rows and np.isfinite(rows[0]["gain"]) and rows[0]["gain"] > 0:
+                part += f", best added observable {rows[0]['name']}"
+            parts.append(part)
+        return "; not detectable with these data, so not ruled out: " + ", ".join(parts)
 
     @property
     def flagged(self) -> bool:
@@ -75,12 +104,13 @@ class CritiqueReport:
     @property
     def verdict(self) -> str:
         """One sentence."""
+        unseen = self._unseen_clause()
         if not self.misfits:
-            return "No misfit: the calibrated model reproduces every summary and region within its noise."
+            return f"No misfit: the calibrated model reproduces every summary and region within its noise{unseen}."
         top = self.misfits[0]
         visible = [c for c in self.causes if not c.invisible]
         if not visible:
-            return f"Misfit in {top.name}, but no catalogue effect is visible in these summaries."
+            return f"Misfit in {top.name}, but no catalogue effect is visible in these summaries{unseen}."
         c = visible[0]
         ca = self.cause_analysis
         if ca is not None and ca.unexplained:
@@ -120,7 +150,7 @@ class CritiqueReport:
                 f"; held-out gain of the extension: delta log predictive density {g['delta_lpd']:.1f} "
                 f"+- {g['delta_lpd_se']:.1f} ({counts})"
             )
-        return f"Misfit in {top.name}; {why}{tail}."
+        return f"Misfit in {top.name}; {why}{tail}{unseen}."
 
     # -- text ---------------------------------------------------------------------------------
 
@@ -160,10 +190,18 @@ class CritiqueReport:
                     needed=getattr(c, "needed", False),
                     conditional_score=getattr(c, "conditional_score", None),
                     conditional_p_value=getattr(c, "conditional_p_value", None),
+                    expected=getattr(c, "expected", None),
+                    power=getattr(c, "power", None),
+                    power_se=getattr(c, "power_se", None),
+                    power_interval=getattr(c, "power_interval", None),
+                    detectable=getattr(c, "detectable", None),
                 )
                 for c in self.causes
             ],
             "ambiguities": self.ambiguities,
+            "power": self.power,
+            "undetectable": [c.name for c in self.undetectable],
+            "design_advice": self.design_advice,
             "gain": self.gain,
             "settings": self.settings,
         }
@@ -237,6 +275,52 @@ class CritiqueReport:
             lines += ["", "Ambiguities:"] + [f"- {a}" for a in self.ambiguities]
         if "causes" in figures:
             lines += ["", f"![causes]({figures['causes']})"]
+        if self.power:
+            n = self.settings.get("num_power_replicates")
+            lines += [
+                "",
+                "## Could these data have seen it? Detection power",
+                "",
+                f"Share of {n} data sets simulated from the base posterior with the effect at its expected "
+                "strength in which this pipeline (refit, misfit tests, ranking, joint test) names it; "
+                "binomial standard error and 95% Wilson interval.  An effect not named here with power "
+                f"below {self.settings.get('power_threshold', 0.5)} is not detectable with these data: "
+                "its rank is no evidence against it.",
+                "",
+                "| effect | expected strength | power | s.e. | 95% interval | named here | reading |",
+                "|---|---|---|---|---|---|---|",
+            ]
+            needed = set(ca.needed) if ca is not None else set()
+            by_name = {c.name: c for c in self.causes}
+            for name, pw in self.power.items():
+                c = by_name.get(name)
+                reading = (
+                    "not detectable with these data"
+                    if c is not None and getattr(c, "detectable", None) is False
+                    else "detectable"
+                )
+                lo, hi = pw["interval"]
+                lines.append(
+                    f"| {name} | {pw['expected']:g} | {pw['power']:.2f} | {pw['se']:.2f} | [{lo:.2f}, {hi:.2f}] | "
+                    f"{'yes' if name in needed else 'no'} | {reading} |"
+                )
+        if self.design_advice:
+            lines += [
+                "",
+                "## Design advice: what would make them visible",
+                "",
+                "Candidate observables ranked by the signal (noise sd) the effect would leave at its expected "
+                "strength in the design with the candidate added, after the base parameters absorb what they "
+                "can; `raw` is the candidate's own response before that absorption.",
+            ]
+            for name, rows in self.design_advice.items():
+                lines += ["", f"**{name}**", "", "| rank | candidate | signal with it | without | raw | absorbed |"]
+                lines.append("|---|---|---|---|---|---|")
+                for i, r in enumerate(rows):
+                    lines.append(
+                        f"| {i + 1} | {r['name']} | {r['snr']:.3g} | {r['current_snr']:.3g} | {r['raw_snr']:.3g} | "
+                        + (f"{100 * r['absorbed']:.0f}% |" if np.isfinite(r["absorbed"]) else "- |")
+                    )
         if self.extension is not None:
             lines += ["", "## Extension", "", "```", self.extension.summary(), "```"]
             if "extension" in figures:
