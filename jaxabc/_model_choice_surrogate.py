@@ -23,7 +23,8 @@ from typing import Any
 import jax
 import numpy as np
 
-from jaxabc._model_choice_result import ModelChoiceResult, _file_stem, probabilities_with_errors
+from jaxabc._model_choice_result import ModelChoiceResult, _file_stem, check_prior_edges, probabilities_with_errors
+from jaxabc.errors import PriorEdgeWarning
 from jaxabc.seeding import seed_from_key
 
 __all__ = ["METHOD", "MISFIT_ALPHA", "probability_intervals", "run_from_driver", "run_model_choice_surrogate"]
@@ -63,6 +64,8 @@ def run_model_choice_surrogate(
     progress: bool = False,
     metadata: dict | None = None,
     driver: Callable[..., Any] | None = None,
+    observation_error: Any = None,
+    discrepancy: Any = None,
     **surrogate_options: Any,
 ) -> ModelChoiceResult:
     """Posterior probabilities of competing models from their surrogate evidences.
@@ -94,6 +97,11 @@ def run_model_choice_surrogate(
     driver : callable, optional
         :func:`jaxabc.run`, which calibrates each model (``jaxabc.run`` passes itself; the
         default imports it).
+    observation_error, discrepancy : optional
+        The data's measurement error and a model discrepancy, as for :func:`jaxabc.run`, the
+        same for every model: given to each model's surrogate builder
+        (:func:`jaxabc.surrogate.build`, which takes the raw values), so each synthetic
+        likelihood, and so each evidence, includes them.
     **surrogate_options
         Passed to :func:`jaxabc.surrogate.build` (not ``mode``, ``max_outputs`` or
         ``observed``: the evidence needs the synthetic likelihood on the raw summaries).
@@ -142,6 +150,9 @@ def run_model_choice_surrogate(
     key = jax.random.key(seed)
     folder = None if checkpoint_dir is None else Path(checkpoint_dir)
     posteriors = []
+    measured = {
+        k: v for k, v in (("observation_error", observation_error), ("discrepancy", discrepancy)) if v is not None
+    }
     for m, model in enumerate(ms):
         model_seed = seed_from_key(jax.random.fold_in(key, m))
         algo = build(
@@ -150,6 +161,7 @@ def run_model_choice_surrogate(
             observed=obs,
             max_simulations=int(simulations_per_model),
             max_outputs=max(obs.size, 1),
+            **measured,
             **surrogate_options,
         )
         algo = with_evidence(algo, model.prior, obs, seed=model_seed)
@@ -158,6 +170,8 @@ def run_model_choice_surrogate(
         with warnings.catch_warnings():
             # A model finished in an earlier sitting is reused on purpose: no "nothing was run".
             warnings.filterwarnings("ignore", message="the run in .* had already ended")
+            # The prior-edge check runs once below, per model and naming it.
+            warnings.simplefilter("ignore", PriorEdgeWarning)
             posterior = calibrate(
                 algo,
                 model.simulate,
@@ -200,8 +214,10 @@ def run_model_choice_surrogate(
             "have made the data"
         )
     sims = np.array([[p.num_simulations for p in posteriors]])
-    return ModelChoiceResult(
-        names=tuple(m.name for m in ms),
+    names = tuple(m.name for m in ms)
+    edges = check_prior_edges(names, posteriors)
+    result = ModelChoiceResult(
+        names=names,
         probabilities=probs,
         standard_errors=ses,
         log_evidence=log_z,
@@ -224,9 +240,23 @@ def run_model_choice_surrogate(
             "probability_interval_95": interval.tolist(),
             "misfit_p_values": misfit_p,
             "misspecified": misspecified,
+            **{k: _jsonable(v) for k, v in measured.items()},
             **(metadata or {}),
         },
+        prior_edge=edges,
     )
+    result.sensitivity()
+    return result
+
+
+def _jsonable(value: Any) -> Any:
+    """A measurement error or discrepancy for the result's metadata."""
+    if hasattr(value, "describe"):
+        return value.describe()
+    try:
+        return np.asarray(value, np.float64).tolist()
+    except (TypeError, ValueError):
+        return repr(value)
 
 
 def run_from_driver(arguments: dict[str, Any], driver: Callable[..., Any]) -> Any:
@@ -264,5 +294,7 @@ def run_from_driver(arguments: dict[str, Any], driver: Callable[..., Any]) -> An
         progress=arguments["progress"],
         metadata=arguments["metadata"],
         driver=driver,
+        observation_error=arguments.get("observation_error"),
+        discrepancy=arguments.get("discrepancy"),
         **options,
     )

@@ -47,6 +47,17 @@ factor of the summaries, which equals the Bayes factor of the full data only whe
 summaries are sufficient across the models jointly (Robert, Cornuet, Marin & Pillai 2011,
 PNAS 108, 15112; Didelot et al. 2011): the sum of counts is sufficient for a Poisson and for a
 geometric model separately, but not for choosing between them.
+
+What the prior boxes do: an evidence averages the likelihood over the prior, so a box twice as
+wide where the data say nothing halves it.  Every result carries
+:meth:`ModelChoiceResult.sensitivity` rows (each model's box, and all of them, scaled by 0.5
+and 2 about the centre): a narrower box is computed from the run, ``Z' = Z P(theta in B' |
+data) vol(B) / vol(B')``, with no new simulation; a wider one is reported as needing
+simulations there, with the lower bound the run does give, and :func:`rerun_with_boxes`
+computes it.  :meth:`ModelChoiceResult.verdict` names a preferred model only when its
+probability interval clears every other model's at the run's boxes and in every computed row;
+each model whose posterior piles against a bound of its box gets a
+:class:`jaxabc.PriorEdgeWarning` naming it.
 """
 
 from __future__ import annotations
@@ -73,18 +84,33 @@ from jaxabc._driver_checks import (
     validate_observed,
     validate_seed,
 )
-from jaxabc._model_choice_result import ModelChoiceResult, load_model_choice, probabilities_with_errors
+from jaxabc._model_choice_result import (
+    STATUS_NEEDS_SIMULATIONS,
+    STATUS_REUSED,
+    ModelChoiceResult,
+    SensitivityRow,
+    Verdict,
+    check_prior_edges,
+    load_model_choice,
+    probabilities_with_errors,
+)
 from jaxabc._model_choice_smc import ALGORITHM_NAME, Context, ModelTrack, Settings, next_threshold
 from jaxabc.checkpoint import FolderLock, prepare_folder, require_fingerprintable
 from jaxabc.distances import get_distance
+from jaxabc.errors import PriorEdgeWarning
 from jaxabc.executors import Executor, get_executor
 from jaxabc.results import versions
 
 __all__ = [
     "ALGORITHM_NAME",
+    "STATUS_NEEDS_SIMULATIONS",
+    "STATUS_REUSED",
     "Model",
     "ModelChoiceResult",
+    "SensitivityRow",
+    "Verdict",
     "load_model_choice",
+    "rerun_with_boxes",
     "run_from_driver",
     "run_model_choice",
 ]
@@ -299,7 +325,12 @@ def _assemble(
             UserWarning,
             stacklevel=_caller_stacklevel(),
         )
-    posteriors = tuple(t.result(ctx, final, dtype, wall, stop_reason) for t in tracks)
+    with warnings.catch_warnings():
+        # The prior-edge check runs once below, per model and naming it (not per ABCResult).
+        warnings.simplefilter("ignore", PriorEdgeWarning)
+        posteriors = tuple(t.result(ctx, final, dtype, wall, stop_reason) for t in tracks)
+    names = tuple(t.name for t in tracks)
+    edges = check_prior_edges(names, posteriors)
     meta: dict[str, Any] = {
         "versions": versions(),
         "executor": ctx.executor.name,
@@ -308,8 +339,8 @@ def _assemble(
         "method": METHOD,
     }
     meta.update(metadata or {})
-    return ModelChoiceResult(
-        names=tuple(t.name for t in tracks),
+    result = ModelChoiceResult(
+        names=names,
         probabilities=probs[final],
         standard_errors=errors[final],
         log_evidence=log_z[final],
@@ -327,7 +358,10 @@ def _assemble(
         stop_reason=stop_reason,
         wall_time=wall,
         metadata=meta,
+        prior_edge=edges,
     )
+    result.sensitivity()
+    return result
 
 
 def _upper_bounds(
@@ -390,6 +424,8 @@ def run_model_choice(
     progress: bool = False,
     dtype: str = "float32",
     metadata: dict | None = None,
+    observation_error: Any = None,
+    discrepancy: Any = None,
 ) -> ModelChoiceResult:
     """Posterior probabilities of competing models at a shared ABC tolerance.
 
@@ -452,10 +488,18 @@ def run_model_choice(
         Precision of the parameters handed to the simulators and of the distances.
     metadata : dict, optional
         Stored in the result.
+    observation_error, discrepancy : optional
+        The data's measurement error and a model-discrepancy term, as for :func:`jaxabc.run`:
+        every model's simulator and prior are wrapped by :func:`jaxabc.noise.wrap_for_abc`
+        (the same error for every model), so each model is compared *with* them.
 
     Returns
     -------
     ModelChoiceResult
+        With each model's prior-edge check (``prior_edge``; a
+        :class:`jaxabc.PriorEdgeWarning` names each model whose posterior piles against a
+        bound), the box-sensitivity rows for scales 0.5 and 2 (``sensitivity_table``) and
+        :meth:`~ModelChoiceResult.verdict`.
 
     Raises
     ------
@@ -486,6 +530,20 @@ def run_model_choice(
     seed = validate_seed(seed)
     obs = validate_observed(observed, dtype, distance)
     get_distance(distance)  # an unknown name fails here, before any simulation
+    if observation_error is not None or discrepancy is not None:
+        from jaxabc.noise import observation_covariance, wrap_for_abc
+
+        # Noisy ABC for every model alike (Wilkinson 2013): the error is the data's, not a model's.
+        model_list = [
+            Model(m.name, *wrap_for_abc(m.simulate, m.prior, tuple(obs.shape), observation_error, discrepancy))
+            for m in model_list
+        ]
+        measured: dict[str, Any] = {}
+        if observation_error is not None:
+            measured["observation_error"] = observation_covariance(observation_error, tuple(obs.shape)).tolist()
+        if discrepancy is not None:
+            measured["discrepancy"] = discrepancy.describe() if hasattr(discrepancy, "describe") else repr(discrepancy)
+        metadata = {**measured, **(metadata or {})}
     with precision(dtype):
         jdtype = jnp.float64 if dtype == "float64" else jnp.float32
         priors = [cast_prior(m.prior, jdtype) for m in model_list]
@@ -593,6 +651,7 @@ _PASSED_ON = (
     "metadata",
 )
 _OPTIONS = ("quantile", "model_prior", "covariance_factor", "defensive_fraction")
+_NOISE_OPTIONS = ("observation_error", "discrepancy")
 
 
 def check_driver_arguments(arguments: dict[str, Any]) -> Any:
@@ -629,6 +688,8 @@ def run_from_driver(arguments: dict[str, Any]) -> Any:
     if unknown:
         raise TypeError(f"unknown option(s) {unknown} for model choice: it accepts {list(_OPTIONS)}")
     passed = {k: arguments[k] for k in _PASSED_ON}
+    # jaxabc.run's measurement error and discrepancy, forwarded where given.
+    passed.update({k: arguments[k] for k in _NOISE_OPTIONS if arguments.get(k) is not None})
     num_particles = arguments["num_particles"]
     return run_model_choice(
         models,
@@ -638,3 +699,80 @@ def run_from_driver(arguments: dict[str, Any]) -> Any:
         **passed,
         **options,
     )
+
+
+# ----------------------------------------------------------------------------- wider boxes
+
+
+def _replace_box(prior: Any, value: Any, name: str) -> Any:
+    """``prior`` on another box: ``value`` a width factor about the centre, ``(low, high)`` or a prior."""
+    if hasattr(value, "sample") and hasattr(value, "low"):
+        return value
+    low0 = np.asarray(prior.low, np.float64).reshape(-1)
+    high0 = np.asarray(prior.high, np.float64).reshape(-1)
+    if np.ndim(value) == 0:
+        scale = float(value)
+        if not (math.isfinite(scale) and scale > 0):
+            raise ValueError(f"the box factor for {name!r} must be positive and finite, got {value!r}")
+        centre, half = 0.5 * (low0 + high0), 0.5 * scale * (high0 - low0)
+        low, high = centre - half, centre + half
+    else:
+        pair = np.asarray(value, np.float64)
+        if pair.shape not in ((2, low0.size), (2,)) or (pair.shape == (2,) and low0.size != 1):
+            raise ValueError(
+                f"the box for {name!r}: give (low, high) with {low0.size} value(s) each, a width factor "
+                f"or a prior; got shape {pair.shape}"
+            )
+        low, high = pair.reshape(2, -1)
+    if type(prior).__name__ == "Uniform":
+        return type(prior)(low, high, names=prior.names, units=getattr(prior, "units", None))
+    distributions = getattr(prior, "distributions", None)
+    if isinstance(distributions, dict):
+        bounds = {n: (float(lo), float(hi)) for n, lo, hi in zip(prior.names, low, high, strict=True)}
+        units = dict(zip(prior.names, getattr(prior, "units", ("",) * len(bounds)), strict=True))
+        return type(prior)(bounds=bounds, units=units, **distributions)
+    raise TypeError(f"model {name!r}: cannot move the box of a {type(prior).__name__} prior; pass the new prior itself")
+
+
+def rerun_with_boxes(models: Sequence[Model | tuple], boxes: dict[str, Any], **run_options: Any) -> Any:
+    """Model choice again with some models' prior boxes replaced.
+
+    The rows of :meth:`ModelChoiceResult.sensitivity` whose box reaches outside a model's run
+    box (status :data:`STATUS_NEEDS_SIMULATIONS`) need simulations there; this runs them.
+    With the same ``run_options`` as the first run (``observed``, ``num_particles``,
+    ``final_threshold``, ``seed``, ``method``, ``observation_error``, ...) the result compares
+    like with like; its own :meth:`~ModelChoiceResult.verdict` then says whether the
+    preference survives the wider box.
+
+    Parameters
+    ----------
+    models : sequence
+        The models of the first run (any form :func:`jaxabc.run` takes).
+    boxes : dict
+        ``{model name: new box}``, the box a width factor about its centre (``2.0``),
+        ``(low, high)`` (one value per parameter) or a prior; models not named keep theirs.
+    **run_options
+        Passed to ``jaxabc.run(models, **run_options)``.
+
+    Returns
+    -------
+    ModelChoiceResult
+
+    Examples
+    --------
+    >>> wide = rerun_with_boxes(models, {"near": 2.0}, observed=data, num_particles=500,
+    ...                         final_threshold=0.05, num_steps=20)  # doctest: +SKIP
+    >>> wide.verdict()  # doctest: +SKIP
+    """
+    from jaxabc.run import run
+
+    model_list = as_models(list(models))
+    names = [m.name for m in model_list]
+    unknown = sorted(set(boxes) - set(names))
+    if unknown:
+        raise KeyError(f"no model named {unknown}: the models are {names}")
+    replaced = [
+        Model(m.name, m.simulate, _replace_box(m.prior, boxes[m.name], m.name)) if m.name in boxes else m
+        for m in model_list
+    ]
+    return run(replaced, **run_options)
