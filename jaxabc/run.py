@@ -711,4 +711,6 @@ def run(
                 lock.release()
             if own_executor:
                 ex.close()
-        return assemble(ctx, prog, dtype, metadata, seed, prior)
+        # A surrogate with a discrepancy samples theta and the discrepancy sds: its result's prior
+        # is the augmented box (the simulator, the design and the fingerprint keep theta's).
+        return assemble(ctx, prog, dtype, metadata, seed, getattr(algo, "augmented_prior", None) or prior)

@@ -8,11 +8,12 @@ See ``docs/guide/surrogate.md``.
 """
 
 from jaxabc.surrogate import abc_mode, design, diagnostics, emulator, sampling
-from jaxabc.surrogate.algorithm import MODES, EmulatorFailure, SurrogateState, build
+from jaxabc.surrogate.algorithm import MODES, EmulatorFailure, SurrogateAlgorithm, SurrogateState, build
 
 __all__ = [
     "MODES",
     "EmulatorFailure",
+    "SurrogateAlgorithm",
     "SurrogateState",
     "abc_mode",
     "build",

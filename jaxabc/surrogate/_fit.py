@@ -3,6 +3,8 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -23,10 +25,17 @@ def fit_likelihood(
     max_simulations: int,
     log_min_feasibility: jax.Array,
     drop: np.ndarray | None = None,
+    *,
+    observation_error: np.ndarray | None = None,
+    discrepancy: Any = None,
 ) -> tuple[emulator.OutputTransform, emulator.Emulator, sampling.LikelihoodModel, np.ndarray]:
     """Emulator on the successful design rows of ``state`` (a SurrogateState); ``drop`` (bool,
     shape (M,)) leaves rows out.  Returns (transform, emulator, likelihood model, z_all), z_all
     every row's summaries in emulated-output coordinates.
+
+    ``observation_error`` (k, k), the measurement covariance in summary units, and
+    ``discrepancy`` (a :class:`jaxabc.noise.ResolvedDiscrepancy`) are mapped into the emulated
+    outputs' coordinates (:func:`.sampling.output_map`) and carried by the model.
 
     Raises
     ------
@@ -56,7 +65,55 @@ def fit_likelihood(
     corr = _noise_correlation(loo, active)
     feas = sampling.fit_feasibility(x_all[used], ok[used], size=int(max_simulations))
     z_obs = transform.apply(jnp.asarray(np.asarray(observed, np.float64).reshape(-1)))
+    extra = measured_data_terms(transform, observation_error, discrepancy)
     model = sampling.LikelihoodModel(
-        emu, z_obs, jnp.linalg.cholesky(jnp.asarray(corr)), feas, jnp.asarray(active), log_min_feasibility
+        emu, z_obs, jnp.linalg.cholesky(jnp.asarray(corr)), feas, jnp.asarray(active), log_min_feasibility, *extra
     )
     return transform, emu, model, z_all
+
+
+def measured_data_terms(
+    transform: emulator.OutputTransform, observation_error: np.ndarray | None, discrepancy: Any
+) -> tuple[jax.Array | None, jax.Array | None, jax.Array | None]:
+    """``(observation_cov (q, q), discrepancy_basis (G, q, q), discrepancy_max_sd (G,))`` of
+    :class:`.sampling.LikelihoodModel` (None where not given): ``T M T^T`` and ``T diag(m_g) T^T``."""
+    t = sampling.output_map(transform)
+    obs_cov = basis = max_sd = None
+    if observation_error is not None:
+        m = np.asarray(observation_error, np.float64)
+        c = t @ m @ t.T
+        obs_cov = jnp.asarray(0.5 * (c + c.T))
+    if discrepancy is not None:
+        member = np.asarray(discrepancy.membership, np.float64)
+        basis = jnp.asarray(np.einsum("qk,gk,pk->gqp", t, member, t))
+        max_sd = jnp.asarray(np.asarray(discrepancy.max_sd, np.float64))
+    return obs_cov, basis, max_sd
+
+
+def measured_data_settings(observation_error: np.ndarray | None, discrepancy: Any) -> dict:
+    """The settings entries (JSON) that describe them; empty when neither is given, so that runs
+    without them keep their checkpoint fingerprints."""
+    out: dict = {}
+    if observation_error is not None:
+        out["observation_error"] = np.asarray(observation_error, np.float64).tolist()
+    if discrepancy is not None:
+        out["discrepancy"] = {
+            "membership": np.asarray(discrepancy.membership, np.float64).tolist(),
+            "max_sd": np.asarray(discrepancy.max_sd, np.float64).tolist(),
+            "names": list(discrepancy.names),
+        }
+    return out
+
+
+def measured_data_from_settings(settings: dict) -> tuple[np.ndarray | None, Any]:
+    """Inverse of :func:`measured_data_settings`: ``(observation_error, ResolvedDiscrepancy)``."""
+    from jaxabc.noise import ResolvedDiscrepancy
+
+    error = settings.get("observation_error")
+    disc = settings.get("discrepancy")
+    resolved = None
+    if disc is not None:
+        resolved = ResolvedDiscrepancy(
+            np.asarray(disc["membership"], np.float64), np.asarray(disc["max_sd"], np.float64), tuple(disc["names"])
+        )
+    return (None if error is None else np.asarray(error, np.float64)), resolved

@@ -20,7 +20,10 @@ def _untested_share(
     model: sampling.LikelihoodModel, candidates: np.ndarray, draws: np.ndarray, log_weights: np.ndarray
 ) -> float:
     """Posterior weight of unit-box ``draws (P, d)`` (``log_weights (P,)``, ``-inf`` pads) where the
-    success classifier is below :func:`.design.design_level` over ``candidates (n, d)``."""
+    success classifier is below :func:`.design.design_level` over ``candidates (n, d)`` (extra
+    columns, the discrepancy sds of augmented points, are ignored)."""
+    candidates = np.asarray(sampling.theta_columns(model, np.asarray(candidates)))
+    draws = np.asarray(sampling.theta_columns(model, np.asarray(draws)))
     level = design.design_level(np.asarray(sampling.feasibility(model.feasible, jnp.asarray(candidates))))
     p = np.asarray(sampling.feasibility(model.feasible, jnp.asarray(draws)))
     lw = np.asarray(log_weights, np.float64)

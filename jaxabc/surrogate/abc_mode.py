@@ -13,6 +13,11 @@ summaries in their own units.  A draw fails (NaN, distance ``+inf``) with probab
 ``1 - p_feasible(x)``, as a real run would.  With more summaries than emulated outputs (PCA),
 the observed vector is projected onto the same principal subspace before the comparison.
 
+Measured data add their error to every draw, in summary units before the transform: the
+measurement error ``F e3`` (``F F^T = M``, the builder's ``observation_error``) and, with a
+model discrepancy, ``sqrt(delta^2 @ membership) * e4``, ``delta`` the group sds that then
+extend ``theta`` (and APMCABC's prior box, by ``[0, max_sd]``).
+
 APMCABC (:mod:`jaxabc.algorithms.apmc`) then runs on this simulator through
 :func:`jaxabc.algorithms.make_jax_step`: every generation is one jitted call, the emulator and
 the observed data are traced arguments (a refitted emulator or new data never recompile), and
@@ -41,6 +46,10 @@ from jaxabc.priors import Uniform
 from jaxabc.surrogate.emulator import Emulator, OutputTransform, predict
 from jaxabc.surrogate.sampling import Feasibility, feasibility, log_feasibility, log_level, nearest_runs_cut
 
+#: Tags of the keys of the measurement and discrepancy errors, folded from a draw's key.
+_MEASUREMENT_TAG = 0x6D656173  # "meas"
+_DISCREPANCY_TAG = 0x64697363  # "disc"
+
 __all__ = ["ABCPosterior", "EmulatedSimulator", "emulated_simulator", "emulated_summaries", "run_abc"]
 
 
@@ -62,6 +71,15 @@ class EmulatedSimulator(NamedTuple):
     log_min_feasibility : float or array, shape ()
         Where ``log p_feasible`` is below this, every emulated run fails (the posterior's
         constraint, see :mod:`.sampling`).
+    rotation : array, shape (k, q), optional
+        The transform's rotation (to map raw-unit errors into emulated outputs).
+    observation_factor : array, shape (k, k), optional
+        ``F`` with ``F F^T = M``, the measurement covariance (summary units): each draw adds
+        ``F e3``, ``e3 ~ N(0, I)``.
+    membership : array, shape (G, k), optional
+        Discrepancy groups; ``theta`` then has ``d + G`` entries, the last ``G`` the group sds
+        (``low``, ``high`` the augmented box), and each draw adds ``sqrt(delta^2 @ membership)
+        * e4``.
     """
 
     emulator: Emulator
@@ -73,6 +91,9 @@ class EmulatedSimulator(NamedTuple):
     low: jax.Array
     high: jax.Array
     log_min_feasibility: jax.Array | float = float("-inf")
+    rotation: jax.Array | None = None
+    observation_factor: jax.Array | None = None
+    membership: jax.Array | None = None
 
 
 class ABCPosterior(NamedTuple):
@@ -109,9 +130,27 @@ def emulated_simulator(
     low: np.ndarray,
     high: np.ndarray,
     min_feasibility: float = 0.0,
+    observation_error: np.ndarray | None = None,
+    discrepancy: Any = None,
 ) -> EmulatedSimulator:
-    """Bundle a fitted emulator and its output transform into an :class:`EmulatedSimulator`."""
+    """Bundle a fitted emulator and its output transform into an :class:`EmulatedSimulator`.
+
+    ``observation_error`` (k, k): the measurement covariance in summary units, drawn into every
+    emulated simulation.  ``discrepancy`` (a :class:`jaxabc.noise.ResolvedDiscrepancy`): its group
+    sds join ``theta`` (the box ``low``, ``high`` is extended by ``[0, max_sd]``) and draw a
+    discrepancy error of their size.
+    """
     back = jnp.linalg.pinv(transform.rotation)
+    low, high = np.asarray(low, np.float64), np.asarray(high, np.float64)
+    factor = membership = None
+    if observation_error is not None:
+        # A square root that allows a singular covariance (sd 0 where the data state none).
+        vals, vecs = np.linalg.eigh(np.asarray(observation_error, np.float64))
+        factor = jnp.asarray(vecs * np.sqrt(np.maximum(vals, 0.0)))
+    if discrepancy is not None:
+        membership = jnp.asarray(np.asarray(discrepancy.membership, np.float64))
+        low = np.concatenate([low, np.zeros(len(discrepancy.max_sd))])
+        high = np.concatenate([high, np.asarray(discrepancy.max_sd, np.float64)])
     return EmulatedSimulator(
         emulator,
         jnp.asarray(noise_chol),
@@ -122,14 +161,22 @@ def emulated_simulator(
         jnp.asarray(low),
         jnp.asarray(high),
         log_level(min_feasibility),
+        transform.rotation if (factor is not None or membership is not None) else None,
+        factor,
+        membership,
     )
 
 
 def emulated_summaries(model: EmulatedSimulator, key: jax.Array, theta: jax.Array) -> jax.Array:
-    """One emulated simulation at ``theta (d,)`` (prior units): summaries ``(k,)``, NaN when the
-    draw lands in the fitted failure region.  A pure-JAX ``simulate(key, theta)`` once ``model``
-    is bound."""
-    x = (theta - model.low) / (model.high - model.low)
+    """One emulated simulation at ``theta (d,)`` (prior units; ``(d + G,)`` with a discrepancy):
+    summaries ``(k,)``, NaN when the draw lands in the fitted failure region.  A pure-JAX
+    ``simulate(key, theta)`` once ``model`` is bound.
+
+    Measurement and discrepancy errors are drawn in summary units and mapped into emulated
+    outputs like the summaries (``z = T y + c``): with a projection their part along the dropped
+    principal directions is dropped too, as the observed data's is (:func:`project_observed`)."""
+    d = model.emulator.x.shape[1]
+    x = ((theta - model.low) / (model.high - model.low))[:d]
     mean, var = predict(model.emulator, x[None, :])
     k_latent, k_noise, k_fail = jax.random.split(key, 3)
     q = mean.shape[1]
@@ -139,6 +186,17 @@ def emulated_summaries(model: EmulatedSimulator, key: jax.Array, theta: jax.Arra
         + jnp.sqrt(var[0]) * jax.random.normal(k_latent, (q,), mean.dtype)
         + noise_sd * (model.noise_chol @ jax.random.normal(k_noise, (q,), mean.dtype))
     )
+    if model.rotation is not None:
+        k = model.summary_mean.shape[0]
+        # Keys folded from the draw's key: without these terms the stream is unchanged.
+        error = jnp.zeros(k, mean.dtype)
+        if model.observation_factor is not None:
+            e3 = jax.random.normal(jax.random.fold_in(key, _MEASUREMENT_TAG), (k,), mean.dtype)
+            error = error + model.observation_factor @ e3
+        if model.membership is not None:
+            e4 = jax.random.normal(jax.random.fold_in(key, _DISCREPANCY_TAG), (k,), mean.dtype)
+            error = error + jnp.sqrt(theta[d:] ** 2 @ model.membership) * e4
+        z = z + (error / model.summary_scale) @ model.rotation
     y = model.summary_mean + model.summary_scale * (z @ model.back_rotation)
     ok = jax.random.uniform(k_fail, (), mean.dtype) < feasibility(model.feasible, x[None, :])[0]
     # The cuts of the synthetic likelihood (sampling.log_feasibility_term), as hard failures.

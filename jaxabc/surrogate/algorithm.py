@@ -31,10 +31,17 @@ from jax.tree_util import keystr, tree_flatten_with_path
 from jaxabc.algorithms.base import ABCAlgorithm, Info, Proposal
 from jaxabc.distances import get_distance
 from jaxabc.surrogate import abc_mode, design, diagnostics, emulator, evidence, sampling
-from jaxabc.surrogate._fit import ROLE_DESIGN, ROLE_EMPTY, ROLE_FAILED_HOLDOUT, ROLE_HOLDOUT, fit_likelihood
+from jaxabc.surrogate._fit import (
+    ROLE_DESIGN,
+    ROLE_EMPTY,
+    ROLE_FAILED_HOLDOUT,
+    ROLE_HOLDOUT,
+    fit_likelihood,
+    measured_data_settings,
+)
 from jaxabc.surrogate._support import _FLAG, _evaluate, _failure_text, _misfit_text, _untested_share
 
-__all__ = ["MODES", "EmulatorFailure", "SurrogateState", "build"]
+__all__ = ["MODES", "EmulatorFailure", "SurrogateAlgorithm", "SurrogateState", "build"]
 
 MODES = ("synthetic_likelihood", "abc")
 
@@ -71,8 +78,9 @@ class SurrogateState(NamedTuple):
     num_pending : array, shape ()
     pending_group : array of int, shape (B,)
         Replicate group of each pending run (-1: none).
-    draws : array, shape (P, d)
-        The current posterior draws (importance resampled during design; NUTS, or the APMCABC
+    draws : array, shape (P, d + G)
+        The current posterior draws (theta, then the ``G`` discrepancy sds when the run has a
+        discrepancy) (importance resampled during design; NUTS, or the APMCABC
         population in ABC mode, once validating).
     log_weights : array, shape (P,)
         Their log weights (zero except for the APMCABC population).
@@ -87,7 +95,7 @@ class SurrogateState(NamedTuple):
     joint_mean_squared_error, joint_ok : array, shape ()
         Held-out Mahalanobis distance per output under the fitted noise correlation, and
         whether it passed (:func:`.diagnostics.holdout_check`).
-    rhat : array, shape (d,)
+    rhat : array, shape (d + G,)
         Split-R-hat of the NUTS chains (NaN before, and in ABC mode).
     abc_threshold, abc_generations, abc_emulated : array, shape ()
         ABC mode: final tolerance, APMCABC generations and emulated simulations of the last
@@ -175,6 +183,75 @@ def posterior_ess(state: Any, num_chains: int, abc: bool) -> float:
     return chain_ess(draws.reshape(num_chains, -1, draws.shape[1]))
 
 
+class SurrogateAlgorithm(ABCAlgorithm):
+    """The surrogate's :class:`~jaxabc.algorithms.base.ABCAlgorithm`, with the prior of its
+    posterior's columns (``_replace`` keeps the class, and this reads ``settings``)."""
+
+    __slots__ = ()
+
+    @property
+    def augmented_prior(self) -> Any:
+        """The :class:`jaxabc.Uniform` of the posterior draws, theta's box then ``[0, max_sd_g]``
+        per discrepancy group (names ``discrepancy_sd[<group>]``); None without a discrepancy,
+        when the draws are theta's and the prior is the one given to the builder."""
+        spec = self.settings.get("augmented_prior")
+        if spec is None:
+            return None
+        from jaxabc.priors import Uniform
+
+        return Uniform.from_dict(spec)
+
+
+def _observation_error(error: Any, shape: tuple[int, ...]) -> np.ndarray | None:
+    """``observation_error`` as the (k, k) covariance of :func:`jaxabc.noise.observation_covariance`."""
+    if error is None:
+        return None
+    from jaxabc.noise import observation_covariance
+
+    try:
+        return observation_covariance(error, tuple(shape))
+    except ValueError as exc:
+        raise ValueError(f"surrogate: {exc}") from None
+
+
+def _discrepancy(discrepancy: Any, shape: tuple[int, ...]) -> Any:
+    """``discrepancy`` as a :class:`jaxabc.noise.ResolvedDiscrepancy` checked against ``shape``."""
+    if discrepancy is None:
+        return None
+    from jaxabc.noise import Discrepancy, ResolvedDiscrepancy
+
+    k = int(np.prod(shape)) if len(shape) else 1
+    if isinstance(discrepancy, Discrepancy):
+        try:
+            return discrepancy.resolve(tuple(shape))
+        except ValueError as exc:
+            raise ValueError(f"surrogate: {exc}") from None
+    if not isinstance(discrepancy, ResolvedDiscrepancy):
+        raise TypeError(
+            f"discrepancy must be a jaxabc.noise.Discrepancy or ResolvedDiscrepancy, got {type(discrepancy).__name__}"
+        )
+    member = np.asarray(discrepancy.membership, np.float64)
+    max_sd = np.asarray(discrepancy.max_sd, np.float64)
+    if member.ndim != 2 or member.shape[1] != k:
+        raise ValueError(
+            f"surrogate: discrepancy membership has shape {member.shape}, but the observed data have {k} "
+            f"summaries: it must be (G, {k}) (resolve the Discrepancy against the observed summaries)"
+        )
+    g = member.shape[0]
+    if g == 0:
+        raise ValueError("surrogate: discrepancy has no groups")
+    if max_sd.shape != (g,) or len(discrepancy.names) != g:
+        raise ValueError(
+            f"surrogate: discrepancy has {g} groups but max_sd of shape {max_sd.shape} and "
+            f"{len(discrepancy.names)} names: give one of each per group"
+        )
+    if not np.all(np.isfinite(max_sd)) or np.any(max_sd <= 0):
+        raise ValueError(f"surrogate: discrepancy max_sd must be positive and finite, got {max_sd.tolist()}")
+    if not np.all((member == 0) | (member == 1)) or np.any(member.sum(axis=0) > 1):
+        raise ValueError("surrogate: discrepancy membership must be 0/1 with every summary in at most one group")
+    return ResolvedDiscrepancy(member, max_sd, tuple(str(n) for n in discrepancy.names))
+
+
 def _int_seed(key: jax.Array) -> int:
     return int(jax.random.randint(key, (), 0, 2**31 - 1))
 
@@ -203,6 +280,8 @@ def build(
     abc_alpha: float = 0.5,
     abc_acceptance_cutoff: float = 0.03,
     abc_max_generations: int = 60,
+    observation_error: Any = None,
+    discrepancy: Any = None,
 ) -> Any:
     """Build the surrogate (GP-emulator synthetic-likelihood) algorithm.
 
@@ -263,11 +342,35 @@ def build(
     abc_max_generations : int
         ABC mode: a bound on APMCABC generations (emulated simulations are cheap; the cutoff
         normally ends the run first).
+    observation_error : array (k, k), optional
+        Covariance of the observed summaries' measurement error over the flattened summaries,
+        in summary units (:func:`jaxabc.noise.observation_covariance` gives it; a standard
+        deviation per summary, or one for all, is normalised with it).  Added to the synthetic
+        likelihood's covariance wherever it is used (design, posterior, evidence, the observed-
+        data misfit) and drawn into every emulated simulation in ABC mode; mapped into the
+        emulated outputs as ``T M T^T`` (:func:`.sampling.output_map`; with a projection onto
+        principal components, its part along the dropped directions is dropped with them).  The
+        held-out validation compares real simulations with the emulator and does not use it.
+    discrepancy : ResolvedDiscrepancy or Discrepancy, optional
+        Model discrepancy: ``G`` group sds ``delta_g ~ U(0, max_sd_g)`` sampled with ``theta``,
+        adding ``diag(discrepancy.variance(delta))`` (summary units) to the likelihood's
+        covariance.  The posterior draws then have ``d + G`` columns; the returned algorithm's
+        ``augmented_prior`` is the matching :class:`jaxabc.Uniform` (names
+        ``discrepancy.names``).  A :class:`jaxabc.noise.Discrepancy` is resolved against
+        ``observed``.
 
     Returns
     -------
     ABCAlgorithm
-        ``host=True``, ``uses_summaries=True``; ``finalize`` returns the diagnostics.
+        ``host=True``, ``uses_summaries=True``; ``finalize`` returns the diagnostics.  A
+        :class:`SurrogateAlgorithm`, whose ``augmented_prior`` is the prior of the posterior's
+        columns (None without a discrepancy: the prior given).
+
+    Raises
+    ------
+    ValueError
+        Bad settings; an ``observation_error`` or ``discrepancy`` that does not fit the
+        observed summaries (the message says which shape was expected).
     """
     low = np.asarray(prior.low, np.float64)
     high = np.asarray(prior.high, np.float64)
@@ -276,6 +379,13 @@ def build(
     k = obs.size
     if not np.all(np.isfinite(obs)):
         raise ValueError("observed summaries must be finite")
+    obs_error = _observation_error(observation_error, obs.shape)
+    disc = _discrepancy(discrepancy, obs.shape)
+    # Parameters sampled: theta (d), then the discrepancy sds (G); the box of all of them.
+    G = 0 if disc is None else len(disc.max_sd)
+    D = d + G
+    low_all = np.concatenate([low, np.zeros(G)])
+    high_all = np.concatenate([high, np.zeros(0) if disc is None else disc.max_sd])
     num_initial = max(20, 10 * d) if num_initial is None else int(num_initial)
     if mode not in MODES:
         raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
@@ -326,6 +436,20 @@ def build(
         "max_emulator_ratio": float(max_emulator_ratio),
         "min_feasibility": float(min_feasibility),
     }
+    # Only when given, so that runs without them keep their checkpoint fingerprints.
+    settings |= measured_data_settings(obs_error, disc)
+    if disc is not None:
+        names = tuple(getattr(prior, "names", None) or (f"theta{i}" for i in range(d)))
+        units = tuple(getattr(prior, "units", None) or ("",) * d)
+        settings["augmented_prior"] = {
+            "type": "Uniform",
+            "low": low_all.tolist(),
+            "high": high_all.tolist(),
+            "names": [*names, *disc.names],
+            "units": [*units, *("summary units",) * G],
+            # A standard deviation cannot be negative: 0 is a physical limit, max_sd a choice.
+            "limits": [*([False, False] for _ in range(d)), *([True, False] for _ in range(G))],
+        }
     if abc:
         # Only in ABC mode, so that synthetic-likelihood checkpoints keep their fingerprints.
         settings |= {
@@ -344,6 +468,14 @@ def build(
     def to_theta(x: np.ndarray) -> np.ndarray:
         return low + x * (high - low)
 
+    def to_unit_all(values: np.ndarray) -> np.ndarray:
+        """Posterior draws (theta and discrepancy sds) to the augmented unit box."""
+        return (values - low_all) / (high_all - low_all)
+
+    def to_values(x: np.ndarray) -> np.ndarray:
+        """Augmented unit-box points to posterior draws (theta, then discrepancy sds)."""
+        return low_all + x * (high_all - low_all)
+
     def empty_state() -> SurrogateState:
         return SurrogateState(
             thetas=np.zeros((M, d)),
@@ -356,7 +488,7 @@ def build(
             round=np.int64(0),
             pending=np.zeros((B, d)),
             num_pending=np.int64(0),
-            draws=np.zeros((num_particles, d)),
+            draws=np.zeros((num_particles, D)),
             log_weights=np.zeros(num_particles),
             hyper=np.zeros((q, d + 2)),
             holdout_errors=np.full((num_holdout, q), np.nan),
@@ -365,7 +497,7 @@ def build(
             coverage=np.float64(np.nan),
             mean_squared_error=np.float64(np.nan),
             emulator_ratio=np.float64(np.nan),
-            rhat=np.full(d, np.nan),
+            rhat=np.full(D, np.nan),
             abc_threshold=np.float64(np.nan),
             abc_generations=np.int64(0),
             abc_emulated=np.int64(0),
@@ -409,7 +541,17 @@ def build(
 
     def fit(state: SurrogateState):
         """Emulator on the design rows; returns (transform, emulator, likelihood model, z_all)."""
-        return fit_likelihood(state, low, high, obs, max_outputs, M, log_min_feasibility)
+        return fit_likelihood(
+            state,
+            low,
+            high,
+            obs,
+            max_outputs,
+            M,
+            log_min_feasibility,
+            observation_error=obs_error,
+            discrepancy=disc,
+        )
 
     def evaluate(model: sampling.LikelihoodModel, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         # In chunks of the candidate count: one compiled shape, bounded memory.
@@ -418,9 +560,10 @@ def build(
 
     def importance_posterior(rng: np.random.Generator, model: sampling.LikelihoodModel, size: int | None = None):
         """Candidate points with self-normalised importance weights of the surrogate posterior
-        (``size`` of them in the second, local pass; default ``num_candidates``)."""
+        (``size`` of them in the second, local pass; default ``num_candidates``), in the
+        augmented box (theta, then the discrepancy sds)."""
         cand, (lp, ratio) = design.importance_pool(
-            rng, d, size or num_candidates, partial(evaluate, model), first_num=num_candidates
+            rng, D, size or num_candidates, partial(evaluate, model), first_num=num_candidates
         )
         logw = lp - cand.log_q
         w = np.exp(logw - np.max(logw))
@@ -503,7 +646,7 @@ def build(
         rng = np.random.default_rng(_int_seed(key))
         x, lp, ratio, w = importance_posterior(rng, model)
         emulator_ratio = float(w @ ratio)
-        draws = to_theta(x[rng.choice(len(x), size=num_particles, p=w)])
+        draws = to_values(x[rng.choice(len(x), size=num_particles, p=w)])
         hyper = np.asarray(np.column_stack([emu.log_amp, emu.log_ls, emu.log_noise]))
         state = state._replace(
             draws=draws, log_weights=np.zeros(num_particles), hyper=hyper, emulator_ratio=np.float64(emulator_ratio)
@@ -516,19 +659,22 @@ def build(
             return start_validation(key, state, model, x, w)
         # The posterior density already holds p_feasible once; a second factor is the chance
         # that the run succeeds and teaches the emulator anything.
-        p_ok = np.asarray(sampling.feasibility(model.feasible, jnp.asarray(x)))
+        # With a discrepancy the candidates are (theta, delta) points: the acquisition weighs
+        # each by the joint posterior, and the batch is spread over theta alone.
+        xt = x[:, :d]
+        p_ok = np.asarray(sampling.feasibility(model.feasible, jnp.asarray(xt)))
         acquisition = design.acquisition(lp, ratio, p_ok)
         # Penalise around each pick on the scale of the posterior (half its sd), or of the
         # emulator where that is shorter: GP length scales often exceed the posterior, and a
         # penalty that wide would push the batch into the corners of the box.  Failed runs are
         # penalised too: the emulator learnt nothing there.
-        post_sd = np.sqrt(w @ (x - w @ x) ** 2)
+        post_sd = np.sqrt(w @ (xt - w @ xt) ** 2)
         scale = design.penalty_radius(np.exp(np.min(np.asarray(emu.log_ls), axis=0)), post_sd)
         used = state.role != ROLE_EMPTY
         failed = to_unit(state.thetas[used & ~state.ok])
-        idx = design.select_batch(x, acquisition, scale, batch_size, avoid=failed)
+        idx = design.select_batch(xt, acquisition, scale, batch_size, avoid=failed)
         pending = np.zeros((B, d))
-        pending[:batch_size] = to_theta(x[idx])
+        pending[:batch_size] = to_theta(xt[idx])
         return state._replace(pending=pending, num_pending=np.int64(batch_size), phase=np.int64(DESIGN))
 
     def start_validation(key, state, model, x, w) -> SurrogateState:
@@ -537,8 +683,8 @@ def build(
         xc = np.clip(x, 1e-9, 1 - 1e-9)
         u = np.log(xc) - np.log1p(-xc)
         mu = w @ u
-        metric = (u - mu).T @ ((u - mu) * w[:, None]) + 1e-8 * np.eye(d)
-        step_size = 0.9 * d**-0.25
+        metric = (u - mu).T @ ((u - mu) * w[:, None]) + 1e-8 * np.eye(D)
+        step_size = 0.9 * D**-0.25
         for _ in range(4):
             draws, acceptance = sampling.nuts(
                 jax.random.fold_in(key, 2),
@@ -556,11 +702,11 @@ def build(
                 break
             step_size /= 2
         rhat = np.asarray(sampling.split_rhat(draws))
-        flat = np.asarray(draws).reshape(-1, d)
+        flat = np.asarray(draws).reshape(-1, D)
         log_weights = np.zeros(num_particles)
         # Held-out points spread over the whole sample (one from each chain in turn).
         pick = np.asarray(draws)[:, :: max(1, draws.shape[1] * num_chains // num_holdout)].transpose(1, 0, 2)
-        pick = pick.reshape(-1, d)[:num_holdout]
+        pick = pick.reshape(-1, D)[:num_holdout]
         sd_is = np.sqrt(w @ (x - w @ x) ** 2)
         shift = np.abs(flat.mean(axis=0) - w @ x) / np.maximum(sd_is, 1e-12)
         if not np.all(rhat <= RHAT_MAX) or np.any(shift > MAX_MEAN_SHIFT):
@@ -574,9 +720,9 @@ def build(
                 rng.choice(keep, size=num_holdout, p=np.exp(log_weights[keep]) / np.exp(log_weights[keep]).sum())
             ]
         pending = np.zeros((B, d))
-        pending[:num_holdout] = to_theta(pick)
+        pending[:num_holdout] = to_theta(pick[:, :d])  # held-out runs at theta's columns
         return state._replace(
-            draws=to_theta(flat),
+            draws=to_values(flat),
             log_weights=log_weights,
             untested_share=np.float64(_untested_share(model, x, flat, log_weights)),
             rhat=rhat,
@@ -588,7 +734,15 @@ def build(
     def start_abc_validation(key, state, transform, model) -> SurrogateState:
         """ABC mode: APMCABC on the emulated simulator, then held-out points resampled from it."""
         emulated = abc_mode.emulated_simulator(
-            model.emulator, transform, model.noise_chol, model.feasible, low, high, min_feasibility
+            model.emulator,
+            transform,
+            model.noise_chol,
+            model.feasible,
+            low,
+            high,
+            min_feasibility,
+            observation_error=obs_error,
+            discrepancy=disc,
         )
         post = abc_mode.run_abc(
             jax.random.fold_in(key, 4),
@@ -614,9 +768,9 @@ def build(
         # Systematic resampling: held-out points spread over the weighted sample.
         idx = np.searchsorted(np.cumsum(w), (rng.uniform() + np.arange(num_holdout)) / num_holdout)
         pending = np.zeros((B, d))
-        pending[:num_holdout] = post.particles[np.minimum(idx, num_particles - 1)]
+        pending[:num_holdout] = post.particles[np.minimum(idx, num_particles - 1)][:, :d]
         cand = design.candidates(rng, d, num_candidates)
-        share = _untested_share(model, cand.x, to_unit(np.asarray(post.particles)), np.asarray(post.log_weights))
+        share = _untested_share(model, cand.x, to_unit(np.asarray(post.particles)[:, :d]), np.asarray(post.log_weights))
         return state._replace(
             draws=post.particles,
             log_weights=post.log_weights,
@@ -742,7 +896,7 @@ def build(
         with jax.enable_x64(True), _single_threaded_blas():
             transform, _, model, _ = fit(state)
             lw = np.asarray(state.log_weights, np.float64)
-            x = to_unit(np.asarray(state.draws, np.float64))
+            x = to_unit_all(np.asarray(state.draws, np.float64))
             return evidence.observed_misfit(model, transform, x, np.exp(lw - np.max(lw)))
 
     def finalize(state: SurrogateState) -> dict:
@@ -807,7 +961,7 @@ def build(
             raise ValueError(f"checkpoint lacks surrogate state entries {missing}")
         return SurrogateState(*[np.asarray(flat[keystr(p)], dtype=np.asarray(v).dtype) for p, v in leaves])
 
-    return ABCAlgorithm(
+    return SurrogateAlgorithm(
         name="surrogate",
         initial_proposal=initial_proposal,
         init=init,

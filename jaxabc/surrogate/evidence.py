@@ -22,6 +22,11 @@ standardises with its own design), so it is added here.  When more summaries tha
 ``max_outputs`` were projected onto principal components the likelihood is of a model-specific
 projection and no evidence comparable across models exists: the evidence is then NaN.
 
+With measured data (the builder's ``observation_error``) ``Sigma`` holds the measurement
+covariance too; with a model discrepancy (``discrepancy``) the group sds ``delta`` join
+``theta``: the integral runs over the augmented unit box, the uniform prior of ``delta`` on
+``[0, max_sd]`` included, and ``Sigma`` holds ``diag(variance(delta))``.
+
 What the error does not contain: the design's own randomness beyond what the jackknife sees
 (it is first order), and the choice of the design points, which follow each model's posterior.
 Model probabilities from these
@@ -42,7 +47,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxabc.surrogate import design, emulator, sampling
-from jaxabc.surrogate._fit import ROLE_EMPTY, ROLE_HOLDOUT, fit_likelihood
+from jaxabc.surrogate._fit import ROLE_EMPTY, ROLE_HOLDOUT, fit_likelihood, measured_data_from_settings
 from jaxabc.surrogate._support import _evaluate
 
 __all__ = ["Evidence", "evidence_from_state", "likelihood_from_state", "observed_misfit", "with_evidence"]
@@ -77,7 +82,10 @@ def likelihood_from_state(
     algorithm's settings (``max_outputs``, ``max_simulations``, ``min_feasibility``).  The
     refit is the run's own last fit (:func:`._fit.fit_likelihood`, a deterministic
     optimisation on the same rows); ``drop`` (bool, shape (M,)) leaves rows out (the jackknife).
+    A measurement error and a discrepancy in ``settings`` (``observation_error``,
+    ``discrepancy``) enter the model as in the run.
     """
+    observation_error, discrepancy = measured_data_from_settings(settings)
     transform, _, model, _ = fit_likelihood(
         state,
         low,
@@ -87,6 +95,8 @@ def likelihood_from_state(
         int(settings["max_simulations"]),
         sampling.log_level(float(settings["min_feasibility"])),
         drop,
+        observation_error=observation_error,
+        discrepancy=discrepancy,
     )
     return transform, model
 
@@ -99,7 +109,7 @@ def _points(model: sampling.LikelihoodModel, rng: np.random.Generator, num_sampl
     """The importance-sampling points: half Sobol over the box, half a Gaussian fitted to a
     first uniform pass and refined while it resolves the density poorly (the defensive
     mixture, :func:`.design.importance_pool`), with their log proposal density."""
-    d = model.emulator.x.shape[1]
+    d = sampling.num_parameters(model)  # theta's columns, and the discrepancy sds' if any
     try:
         points, _ = design.importance_pool(rng, d, num_samples, lambda x: (_log_density(model, x),))
     except FloatingPointError:
@@ -173,11 +183,14 @@ def observed_misfit(
 ) -> dict[str, Any]:
     """How far the observed summaries lie from the posterior predictive of the emulated model.
 
-    ``x_draws (P, d)``: posterior draws in the unit box, ``weights (P,)`` their weights (equal
-    if ``None``; zero weights drop a draw).  The predictive covariance is the simulator's noise
-    plus the emulator's variance plus the spread of the emulated mean over the draws, so the
-    check includes the parameters' uncertainty.  Returns the posterior mean of each output's
-    standardised residual ``(z_obs - mu) / sqrt(noise^2 + var)`` (``None`` for outputs left
+    ``x_draws (P, d)``: posterior draws in the unit box (``(P, d + G)`` with a discrepancy),
+    ``weights (P,)`` their weights (equal if ``None``; zero weights drop a draw).  The
+    predictive covariance is the simulator's noise plus the emulator's variance plus the spread
+    of the emulated mean over the draws, so the check includes the parameters' uncertainty;
+    plus the measurement error and the posterior mean of the discrepancy covariance when the
+    model has them (:class:`.sampling.LikelihoodModel`).  Returns the posterior mean of each
+    output's standardised residual ``(z_obs - mu) / sqrt(noise^2 + var + extra)`` (``extra``
+    those two terms' variance; ``None`` for outputs left
     out; in summary order unless the outputs were projected), the squared Mahalanobis distance
     of the observed summaries over the active outputs, its degrees of freedom and the
     chi-square tail probability: a small ``p_value`` says no parameter value reproduces the
@@ -190,19 +203,31 @@ def observed_misfit(
         raise ValueError("observed_misfit: weights must be (P,), non-negative and not all zero")
     keep = w > 0
     x, w = np.asarray(x_draws)[keep], w[keep] / w[keep].sum()
+    if x.shape[1] != sampling.num_parameters(model):
+        raise ValueError(
+            f"observed_misfit: draws have {x.shape[1]} columns, the model {sampling.num_parameters(model)} "
+            "(theta, then the discrepancy sds)"
+        )
     active = np.asarray(model.active, bool)
     means, variances = [], []
     for i in range(0, len(x), _CHUNK):
-        m, v = emulator.predict(model.emulator, jnp.asarray(x[i : i + _CHUNK]))
+        m, v = emulator.predict(model.emulator, jnp.asarray(sampling.theta_columns(model, x[i : i + _CHUNK])))
         means.append(np.asarray(m, np.float64))
         variances.append(np.asarray(v, np.float64))
     mean, var = np.concatenate(means), np.concatenate(variances)
     noise_sd = np.exp(np.asarray(model.emulator.log_noise, np.float64))
     z_obs = np.asarray(model.z_obs, np.float64)
-    r = w @ ((z_obs - mean) / np.sqrt(noise_sd**2 + var))
+    # Measurement error and the discrepancy's posterior mean covariance (emulated coordinates).
+    extra = np.zeros((len(noise_sd), len(noise_sd)))
+    if model.observation_cov is not None:
+        extra += np.asarray(model.observation_cov, np.float64)
+    if model.discrepancy_basis is not None and model.discrepancy_max_sd is not None:
+        delta2 = (x[:, len(x[0]) - len(model.discrepancy_max_sd) :] * np.asarray(model.discrepancy_max_sd)) ** 2
+        extra += np.einsum("g,gij->ij", w @ delta2, np.asarray(model.discrepancy_basis, np.float64))
+    r = w @ ((z_obs - mean) / np.sqrt(noise_sd**2 + var + np.diag(extra)))
     centre = w @ mean
     chol = np.asarray(model.noise_chol, np.float64)
-    cov = noise_sd[:, None] * (chol @ chol.T) * noise_sd[None, :] + np.diag(w @ var)
+    cov = noise_sd[:, None] * (chol @ chol.T) * noise_sd[None, :] + np.diag(w @ var) + extra
     cov += (mean - centre).T @ ((mean - centre) * w[:, None])
     e = (z_obs - centre)[active]
     c = cov[np.ix_(active, active)]

@@ -17,6 +17,14 @@ model), that variance makes the infeasible region look like the best fit, and a 
 
 NUTS runs on ``u = logit(x)`` with ``x`` the unit-box coordinates, so draws never leave the
 prior's support.
+
+Measured data: the covariance ``M`` of the observed summaries' measurement error (summary
+units) enters as ``T M T^T``, ``T`` the linear part of the output transform
+(:func:`output_map`), so that ``Sigma = Sigma_noise + diag(var) + T M T^T`` (Wilkinson 2013).
+A model discrepancy with ``G`` group sds ``delta_g ~ U(0, max_sd_g)`` adds
+``sum_g delta_g^2 T diag(membership_g) T^T``; the group sds are then sampled with ``theta``:
+points have ``d + G`` unit-box columns, of which the emulator and the feasibility classifier
+see the first ``d``.
 """
 
 from __future__ import annotations
@@ -38,6 +46,7 @@ __all__ = [
     "Feasibility",
     "GPClassifier",
     "LikelihoodModel",
+    "discrepancy_cov",
     "feasibility",
     "fit_feasibility",
     "fit_gp_classifier",
@@ -48,9 +57,12 @@ __all__ = [
     "log_posterior",
     "nearest_runs_cut",
     "nearest_runs_succeed",
+    "num_parameters",
     "nuts",
+    "output_map",
     "quadratic_log_success",
     "split_rhat",
+    "theta_columns",
 ]
 
 
@@ -309,6 +321,15 @@ class LikelihoodModel(NamedTuple):
     log_min_feasibility : array, shape ()
         ``log`` of the constraint level; below it the log density drops by
         ``_CUT_SLOPE`` per nat.
+    observation_cov : array, shape (q, q), optional
+        Covariance of the observed summaries' measurement error mapped into emulated-output
+        coordinates (``T M T^T``, :func:`output_map`); added to the likelihood's covariance.
+    discrepancy_basis : array, shape (G, q, q), optional
+        ``T diag(membership_g) T^T`` per discrepancy group: the covariance of a unit discrepancy
+        sd in group ``g``, in emulated-output coordinates.  With it the model's points have
+        ``d + G`` columns, the last ``G`` the unit-box coordinates of the group sds.
+    discrepancy_max_sd : array, shape (G,), optional
+        Upper bounds of the group sds' uniform priors (summary units): ``delta = x[d:] * max_sd``.
     """
 
     emulator: Emulator
@@ -317,6 +338,9 @@ class LikelihoodModel(NamedTuple):
     feasible: Feasibility
     active: jax.Array
     log_min_feasibility: jax.Array
+    observation_cov: jax.Array | None = None
+    discrepancy_basis: jax.Array | None = None
+    discrepancy_max_sd: jax.Array | None = None
 
 
 #: Slope of the constraint below ``min_feasibility`` (per nat of log p), on top of its step
@@ -332,33 +356,80 @@ _CUT_SLOPE = 1000.0
 _CUT_STEP = 1e12
 
 
+def output_map(transform: Any) -> np.ndarray:
+    """The linear part ``T (q, k)`` of an :class:`~.emulator.OutputTransform`, ``z = T y + c``.
+
+    A covariance ``C`` of the raw summaries is ``T C T^T`` in emulated-output coordinates.  With
+    a projection (``q < k`` principal components) this is exact for the projected summaries the
+    likelihood is a density of: the error along the dropped directions never enters it, just as
+    the data and the simulator noise along them do not.
+    """
+    rotation = np.asarray(transform.rotation, np.float64)
+    scale = np.asarray(transform.scale, np.float64)
+    return (rotation / scale[:, None]).T
+
+
+def num_parameters(model: LikelihoodModel) -> int:
+    """Columns of the model's unit-box points: ``d``, plus ``G`` discrepancy sds."""
+    extra = 0 if model.discrepancy_max_sd is None else int(model.discrepancy_max_sd.shape[0])
+    return int(model.emulator.x.shape[1]) + extra
+
+
+def theta_columns(model: LikelihoodModel, x: Any) -> Any:
+    """The emulator's part ``x[..., :d]`` of augmented unit-box points (``d`` read from the
+    feasibility classifier, which every model carries)."""
+    return x[..., : model.feasible.runs_x.shape[-1]]
+
+
+def discrepancy_cov(model: LikelihoodModel, x: jax.Array) -> jax.Array | None:
+    """The discrepancy covariance ``(n, q, q)`` in emulated-output coordinates at augmented
+    unit-box points ``x (n, d + G)`` (None without a discrepancy)."""
+    if model.discrepancy_basis is None or model.discrepancy_max_sd is None:
+        return None
+    delta = x[:, model.emulator.x.shape[1] :] * model.discrepancy_max_sd
+    return jnp.einsum("ng,gij->nij", delta**2, model.discrepancy_basis)
+
+
 def log_likelihood_terms(model: LikelihoodModel, x: jax.Array) -> tuple[jax.Array, jax.Array]:
     """Synthetic log-likelihood at unit-box points ``x (n, d)`` and the emulator-to-noise variance
-    ratio ``mean_j var_j(x) / noise_j^2`` (how much the emulator's uncertainty adds), both (n,)."""
-    mean, var = predict(model.emulator, x)
+    ratio ``mean_j var_j(x) / noise_j^2`` (how much the emulator's uncertainty adds), both (n,).
+
+    The covariance is the simulator noise plus the emulator's variance, plus the measurement
+    error (``model.observation_cov``) and the discrepancy at ``x``'s group sds when the model
+    has them (``x`` then has ``d + G`` columns)."""
+    mean, var = predict(model.emulator, theta_columns(model, x))
     noise_sd = jnp.exp(model.emulator.log_noise)
     corr = model.noise_chol @ model.noise_chol.T
     cov = noise_sd[:, None] * corr * noise_sd[None, :]
+    if model.observation_cov is not None:
+        cov = cov + model.observation_cov
 
     active = model.active
     # Inactive outputs drop out: unit variance, no correlation, zero residual.
     both = active[:, None] & active[None, :]
     cov = jnp.where(both, cov, jnp.eye(cov.shape[0], dtype=cov.dtype))
 
-    def one(m, v):
+    def one(m, v, extra):
         c = cov + jnp.diag(jnp.where(active, v, 0.0))
+        if extra is not None:
+            c = c + jnp.where(both, extra, 0.0)
         chol = jnp.linalg.cholesky(c)
         r = jax.scipy.linalg.solve_triangular(chol, jnp.where(active, model.z_obs - m, 0.0), lower=True)
         return -0.5 * jnp.sum(r * r) - jnp.sum(jnp.log(jnp.diag(chol)))
 
-    loglik = jax.vmap(one)(mean, var)
+    disc = discrepancy_cov(model, x)
+    if disc is None:
+        loglik = jax.vmap(lambda m, v: one(m, v, None))(mean, var)
+    else:
+        loglik = jax.vmap(one)(mean, var, disc)
     ratio = jnp.sum(jnp.where(active, var / noise_sd**2, 0.0), axis=1) / jnp.maximum(jnp.sum(active), 1)
     return loglik, ratio
 
 
 def log_feasibility_term(model: LikelihoodModel, x: jax.Array) -> jax.Array:
     """``log p_feasible`` plus the constraints (below ``min_feasibility``; where the nearest runs
-    failed), at ``x (n, d)``: (n,)."""
+    failed), at ``x (n, d)`` (or ``(n, d + G)``, the feasibility seeing ``theta`` only): (n,)."""
+    x = theta_columns(model, x)
     lf = log_feasibility(model.feasible, x)
     below = lf < model.log_min_feasibility
     cut = jnp.where(nearest_runs_cut(model.feasible, x) | below, _CUT_STEP, 0.0)
