@@ -2,19 +2,26 @@
 
 Models: TIP4P, TIP4P/2005, TIP4P-Ew, SPC/E and TIP3P (:mod:`md.water.models`), each with its
 published charges and geometry and its O-O Lennard-Jones pair calibrated under a uniform prior
-centred on the published values (:func:`md.water.models.model_prior`).  Data: the joint
-measured summaries of :mod:`md.water.joint_data` (g(r) statistics of the X-ray or neutron data,
-self-diffusion, enthalpy of vaporisation); only the summaries the data file marks *fitted*
-enter the distance, the held-out ones (the density) stay in the cache for criticism.
+around the published values (:func:`md.water.models.model_prior`; ``--prior-width wide`` lets
+epsilon run from 0.6x to 2.5x the published value).  Data: the joint measured summaries of
+:mod:`md.water.joint_data` (g(r) statistics of the X-ray or neutron data including the second
+shell of g_OO, self-diffusion, enthalpy of vaporisation); only the summaries the data file marks
+*fitted* enter the distance, the held-out ones (the density) stay in the cache for criticism.
+GROMACS runs at the data's temperature (295.15 K for the X-ray data, whose scalars are then
+taken at 295.15 K), and the simulated D is Yeh-Hummer corrected to an infinite box
+(:mod:`md.water.finite_size`).
 
 Method ``--method surrogate`` (the default): :func:`jaxabc.run` over the five models with
 ``method="surrogate"``: one GP-surrogate calibration per model on ``--budget-per-model`` GROMACS
 runs, model probabilities from the synthetic-likelihood evidences
-(:mod:`jaxabc.surrogate.evidence`).  The stated measurement errors of the data (the g(r)
-statistics' from the curves' pointwise errors, :func:`md.water.datasets.statistic_errors`;
-self-diffusion; enthalpy of vaporisation) are added to every simulation (:class:`jaxabc.noise.MeasurementError`,
-Wilkinson 2013), so a summary is fitted within its measurement error, not within the
-simulation's much smaller noise.  Each model checkpoints to ``--checkpoint-dir/<model>``;
+(:mod:`jaxabc.surrogate.evidence`).  The data's measurement errors
+(:func:`md.water.joint_data.observation_sd`: each summary's stated error, or a documented
+estimate, with the curves' pointwise errors propagated as a floor) go to ``jaxabc.run(...,
+observation_error=sd)``: added analytically to the surrogate's likelihood, as noisy ABC
+(Wilkinson 2013) for ABC-SMC, so a summary is fitted within its measurement error, not within
+the simulation's much smaller noise.  ``--discrepancy`` adds a model-discrepancy sd per group
+of summaries (:class:`jaxabc.Discrepancy`, :func:`discrepancy_for`), inferred with the
+parameters.  Each model checkpoints to ``--checkpoint-dir/<model>``;
 ``--resume`` continues model by model.
 
 Method ``--method abc_smc``: :func:`jaxabc.run` over the five ``(name, simulate, prior)`` models
@@ -33,6 +40,7 @@ Usage (from the repository root)::
 
     python benchmarks/water_model_choice.py --data xray --workers 2          # hours of GROMACS
     python benchmarks/water_model_choice.py --data xray --continue           # continue it, or start
+    python benchmarks/water_model_choice.py --data xray --prior-width wide --discrepancy --workers 2
     python benchmarks/water_model_choice.py --tiny                           # smoke test, minutes
 
 ``--tiny`` runs 2 ps simulations (the surrogate on 50 per model; ABC-SMC on 3 pilot runs and
@@ -61,9 +69,10 @@ import jax.numpy as jnp  # noqa: E402
 import jaxabc  # noqa: E402
 from jaxabc.model_choice import Model  # noqa: E402
 from jaxabc.noise import MeasurementError  # noqa: E402
-from md.water.joint_data import JOINT_DATA_FILE, joint_observed, joint_record  # noqa: E402
+from md.water.finite_size import MODEL_VISCOSITY_298K, model_viscosity_mpa_s  # noqa: E402
+from md.water.joint_data import JOINT_DATA_FILE, joint_observed, joint_record, observation_sd  # noqa: E402
 from md.water.model_simulator import CachedSummaries, WaterModelSimulator  # noqa: E402
-from md.water.models import MODELS, model_prior, polarisation_correction_kj_mol  # noqa: E402
+from md.water.models import MODELS, WIDE_EPSILON_FACTORS, model_prior, polarisation_correction_kj_mol  # noqa: E402
 
 sys.path.insert(0, str(ROOT / "benchmarks"))
 from _common import command_line, guard_resume, write_result  # noqa: E402
@@ -100,6 +109,17 @@ def parse_arguments(argv=None) -> argparse.Namespace:
     parser.add_argument("--max-hours", type=float, default=None, help="stop after this wall time (resumable)")
     parser.add_argument("--md-steps", type=int, default=None, help="override the preset's NPT steps (smoke only)")
     parser.add_argument("--cache-dir", type=Path, default=None, help="default runs/water_model_choice/<data>_<preset>")
+    parser.add_argument(
+        "--prior-width",
+        default="default",
+        help="'default' (sigma +-5 %%, epsilon +-40 %%), 'wide' (sigma +-5 %%, epsilon x[0.6, 2.5]), "
+        "'S,E' (half-widths as fractions) or 'S,LOW,HIGH' (sigma half-width, epsilon bounds as factors)",
+    )
+    parser.add_argument(
+        "--discrepancy",
+        action="store_true",
+        help="infer a model-discrepancy sd per group of summaries (g_OO heights, g_OO lengths, D, hvap)",
+    )
     parser.add_argument("--tiny", action="store_true", help="smoke test: tiny budgets, 2 ps runs, quick JSON")
     parser.add_argument("--no-progress", action="store_true")
     args = parser.parse_args(argv)
@@ -112,14 +132,35 @@ def parse_arguments(argv=None) -> argparse.Namespace:
     args.checkpoint_dir = args.checkpoint_dir or args.cache_dir / "surrogate"
     if args.continue_run and any(args.checkpoint_dir.glob("*/checkpoint.npz")):
         args.resume = True
+    args.prior_options = prior_options(args.prior_width)
+    # The data's temperature (295.15 K for X-ray), the temperature the simulations run at.
+    args.temperature_k = joint_observed(args.data).temperature_k
     return args
 
 
-def protocol_overrides(args) -> dict:
-    if args.md_steps is None:
+def prior_options(width: str) -> dict:
+    """``model_prior`` keyword arguments for ``--prior-width``."""
+    if width == "default":
         return {}
+    if width == "wide":
+        return {"epsilon_factors": WIDE_EPSILON_FACTORS}
+    try:
+        values = [float(v) for v in width.split(",")]
+    except ValueError:
+        values = []
+    if len(values) == 2:
+        return {"relative_half_width": tuple(values)}
+    if len(values) == 3:
+        return {"relative_half_width": (values[0], 0.4), "epsilon_factors": tuple(values[1:])}
+    raise SystemExit(f"--prior-width must be 'default', 'wide', 'S,E' or 'S,LOW,HIGH', got {width!r}")
+
+
+def protocol_overrides(args) -> dict:
+    overrides = {"temperature_k": args.temperature_k}
+    if args.md_steps is None:
+        return overrides
     # Keep the last 80 % of a shortened run, as water_calibration.py does.
-    return {"num_steps": args.md_steps, "analysis_start_ps": 0.2 * args.md_steps * 0.002}
+    return {**overrides, "num_steps": args.md_steps, "analysis_start_ps": 0.2 * args.md_steps * 0.002}
 
 
 def make_models(args, fitted: np.ndarray) -> list[Model]:
@@ -127,8 +168,59 @@ def make_models(args, fitted: np.ndarray) -> list[Model]:
     for model in MODELS.values():
         simulate = WaterModelSimulator(model, args.preset, "robust", args.data, **protocol_overrides(args))
         cached = CachedSummaries(simulate, fitted, args.cache_dir)
-        models.append(Model(model.name, cached, model_prior(model)))
+        models.append(Model(model.name, cached, model_prior(model, **args.prior_options)))
     return models
+
+
+#: Discrepancy groups by unit: g values, lengths (nm: positions and the S3/S6 integrals), D,
+#: enthalpy; and each group's prior bound, several times the largest misfit the first model
+#: choice found (S7 0.4, S5 0.05 nm, D 2.7e-5 cm2/s, hvap 5 kJ/mol; water_model_choice.json).
+DISCREPANCY_GROUPS = {
+    "gOO_heights": (("S1", "S4", "S7", "g_oo_min1", "g_oo_max2"), 1.0),
+    "gOO_lengths_nm": (("S2", "S3", "S5", "S6", "S8", "r_oo_max2_nm"), 0.2),
+    "D": (("S9",), 10.0),
+    "hvap": (("hvap_kj_mol",), 20.0),
+}
+
+
+def discrepancy_for(fitted_names: list[str]) -> jaxabc.Discrepancy:
+    """A :class:`jaxabc.Discrepancy` over the fitted summaries (indices into the fitted vector)."""
+    groups, max_sd = {}, []
+    for group, (names, bound) in DISCREPANCY_GROUPS.items():
+        idx = [fitted_names.index(n) for n in names if n in fitted_names]
+        if idx:
+            groups[group] = idx
+            max_sd.append(bound)
+    return jaxabc.Discrepancy(max_sd, groups)
+
+
+def _run_accepts(name: str) -> bool:
+    import inspect
+
+    return name in inspect.signature(jaxabc.run).parameters
+
+
+def noise_options(args, data, models: list[Model]) -> tuple[list[Model], dict, str]:
+    """The models and ``jaxabc.run`` keywords that carry the measurement error (and discrepancy).
+
+    ``observation_error=`` when ``jaxabc.run`` accepts it; otherwise every simulation gets the
+    error added (:class:`jaxabc.noise.MeasurementError`), as before that option existed.
+    """
+    sd = observation_sd(args.data)
+    fitted_names = [n for n, f in zip(data.names, data.fitted, strict=True) if f]
+    options: dict = {}
+    if _run_accepts("observation_error"):
+        options["observation_error"] = sd
+        how = "jaxabc.run(observation_error=sd)"
+    else:
+        # TODO: remove once every supported jaxabc.run takes observation_error.
+        models = [Model(m.name, MeasurementError(m.simulate, sd), m.prior) for m in models]
+        how = "MeasurementError(simulate, sd)"
+    if args.discrepancy:
+        if not _run_accepts("discrepancy"):
+            raise SystemExit("--discrepancy needs a jaxabc.run that accepts discrepancy=")
+        options["discrepancy"] = discrepancy_for(fitted_names)
+    return models, options, how
 
 
 def pilot_scales(args, models: list[Model], executor) -> tuple[np.ndarray, dict]:
@@ -157,16 +249,18 @@ def scaled_mean_abs(scale: np.ndarray):
     return distance
 
 
-def measurement_sd(data) -> np.ndarray:
-    """Stated measurement errors of the fitted summaries (0 where the data state none)."""
-    errors = np.asarray(data.errors, np.float64)[data.fitted]
-    return np.where(np.isfinite(errors), errors, 0.0)
+def simulator_id(args) -> str:
+    """Names everything a checkpoint's simulations depend on, so a resume cannot mix them."""
+    width = ",".join(f"{k}={v}" for k, v in sorted(args.prior_options.items())) or "default"
+    return (
+        f"water_model_choice:{args.data}:{args.preset}:{args.md_steps}:T={args.temperature_k}"
+        f":summaries=14:yeh_hummer:prior={width}"
+    )
 
 
 def run_surrogate(args, data, models: list[Model], executor):
-    """Model choice by surrogate evidence, the measurement errors added to every simulation."""
-    sd = measurement_sd(data)
-    noisy = [Model(m.name, MeasurementError(m.simulate, sd), m.prior) for m in models]
+    """Model choice by surrogate evidence, with the data's measurement errors."""
+    noisy, options, _ = noise_options(args, data, models)
     guard_resume(args.checkpoint_dir, args.resume, modules=("jaxabc.surrogate", "jaxabc.model_choice"))
     return jaxabc.run(
         noisy,
@@ -178,16 +272,18 @@ def run_surrogate(args, data, models: list[Model], executor):
         executor=executor,
         checkpoint_dir=args.checkpoint_dir,
         resume=args.resume,
-        simulator_id=f"water_model_choice:{args.data}:{args.preset}:{args.md_steps}",
+        simulator_id=simulator_id(args),
         progress=not args.no_progress,
         batch_size=2 * args.workers,
+        **options,
     )
 
 
 def run_abc_smc(args, data, models: list[Model], executor):
     scales, pilot = pilot_scales(args, models, executor)
+    noisy, options, _ = noise_options(args, data, models)
     result = jaxabc.run(
-        models,
+        noisy,
         observed=data.observed[data.fitted],
         num_particles=args.particles,
         num_steps=args.steps,
@@ -199,6 +295,7 @@ def run_abc_smc(args, data, models: list[Model], executor):
         max_wall_time=None if args.max_hours is None else 3600.0 * args.max_hours,
         progress=not args.no_progress,
         dtype="float64",
+        **options,
     )
     return result, scales, pilot
 
@@ -276,8 +373,11 @@ def predictive_bands(args, result) -> dict:
         draws = post.resample(args.predictive, seed=args.seed)
         stem = name.replace("/", "_")
         for i, theta in enumerate(draws):
-            # Keyed by theta too: a rerun with another posterior must not replay these runs.
-            digest = hashlib.sha256(np.asarray(theta, np.float64).tobytes()).hexdigest()[:12]
+            # Keyed by theta and the simulator too: a rerun with another posterior or protocol
+            # must not replay these runs.
+            digest = hashlib.sha256(np.asarray(theta, np.float64).tobytes() + simulator_id(args).encode()).hexdigest()[
+                :12
+            ]
             path = folder / f"{stem}-{args.seed}-{i}-{digest}.npz"
             tasks.append((name, args.preset, args.data, protocol_overrides(args), i, theta, str(path)))
             owners.append(name)
@@ -332,6 +432,7 @@ def main(argv=None) -> None:
     timeout_s = models[0].simulate.simulate.protocol.timeout_s + 60
     executor = jaxabc.ProcessPoolExecutor(max_workers=args.workers, timeout=timeout_s)
     scales, pilot = None, None
+    _, noise_kwargs, noise_how = noise_options(args, data, models)
     try:
         if args.method == "surrogate":
             result = run_surrogate(args, data, models, executor)
@@ -361,6 +462,10 @@ def main(argv=None) -> None:
             "seed": args.seed,
             "md_steps": args.md_steps,
             "workers": args.workers,
+            "temperature_k": args.temperature_k,
+            "prior_width": args.prior_width,
+            "prior_options": {k: list(v) for k, v in args.prior_options.items()},
+            "discrepancy": None if "discrepancy" not in noise_kwargs else noise_kwargs["discrepancy"].describe(),
         },
         "summaries": {
             "names": list(data.names),
@@ -371,9 +476,17 @@ def main(argv=None) -> None:
             "distance_scales": None
             if scales is None
             else dict(zip(fitted_names, np.asarray(scales).tolist(), strict=True)),
-            "measurement_sd_added": dict(zip(fitted_names, measurement_sd(data).tolist(), strict=True))
-            if args.method == "surrogate"
-            else None,
+            "observation_sd": dict(zip(fitted_names, observation_sd(args.data).tolist(), strict=True)),
+            "observation_error_via": noise_how,
+            "propagated_pointwise_errors": [None if np.isnan(e) else float(e) for e in data.propagated],
+        },
+        "finite_size": {
+            "method": "Yeh & Hummer 2004: D_inf = D_box + xi kB T / (6 pi eta L), xi = 2.837297; L the run's mean box "
+            "edge; eta the model's published 298 K viscosity scaled by water's eta(T)/eta(298 K)",
+            "viscosity_mpa_s_at_temperature": {
+                name: model_viscosity_mpa_s(name, args.temperature_k) for name in MODELS
+            },
+            "viscosity_298K_sources": {name: v["source"] for name, v in MODEL_VISCOSITY_298K.items()},
         },
         "data_record": joint_record(),
         "pilot": pilot,
@@ -384,8 +497,8 @@ def main(argv=None) -> None:
                 "charge_h_e": m.charge_h_e,
                 "om_distance_nm": m.om_distance_nm,
                 "published_lj": list(m.lj),
-                "prior_low": np.asarray(model_prior(m).low).tolist(),
-                "prior_high": np.asarray(model_prior(m).high).tolist(),
+                "prior_low": np.asarray(model_prior(m, **args.prior_options).low).tolist(),
+                "prior_high": np.asarray(model_prior(m, **args.prior_options).high).tolist(),
                 "dipole_debye": m.dipole_debye,
                 "polarisation_correction_kj_mol": polarisation_correction_kj_mol(m),
             }

@@ -13,7 +13,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from jaxabc.diagnostics import PRIOR_EDGE_WIDTH, prior_edge_mass, prior_edge_messages
+from jaxabc.diagnostics import PRIOR_EDGE_WIDTH, prior_edge_mass, prior_edge_messages, prior_limit_notes
 from jaxabc.errors import PriorEdgeWarning
 from jaxabc.results import ABCResult
 
@@ -98,7 +98,7 @@ def probability_bounds(
     up = np.full(log_z.shape, np.inf) if log_evidence_upper_bounds is None else np.asarray(log_evidence_upper_bounds)
     up = np.where(np.isnan(up), np.inf, up)
     finite = np.isfinite(log_z)
-    with np.errstate(invalid="ignore"):
+    with np.errstate(invalid="ignore", over="ignore"):
         lo = np.where(finite, log_z - z * se, -np.inf)
         hi = np.where(finite, log_z + z * se, np.where(np.isnan(log_z), np.inf, up))
     log_p = np.log(np.asarray(model_prior, np.float64))
@@ -368,8 +368,10 @@ def check_prior_edges(names: Sequence[str], posteriors: Sequence[ABCResult], war
         except ValueError:
             continue
         params = list(post.names)
-        messages = prior_edge_messages(mass, params, low, high, PRIOR_EDGE_WIDTH)
-        out[name] = {"parameters": params, "mass": mass.tolist(), "messages": messages}
+        limits = getattr(post.prior, "limits", None)
+        messages = prior_edge_messages(mass, params, low, high, PRIOR_EDGE_WIDTH, limits)
+        notes = prior_limit_notes(mass, params, low, high, PRIOR_EDGE_WIDTH, limits)
+        out[name] = {"parameters": params, "mass": mass.tolist(), "messages": messages, "at_physical_limits": notes}
         if warn and messages:
             warnings.warn(
                 f"model {name!r}: " + "; ".join(messages) + ": its evidence, and the model probabilities, "
@@ -523,7 +525,18 @@ class ModelChoiceResult:
         if not np.all(np.isfinite(high - low)):
             raise ValueError(f"model {self.names[i]!r} has an unbounded prior: give its boxes explicitly")
         centre, half = 0.5 * (low + high), 0.5 * scale * (high - low)
-        return centre - half, centre + half
+        new_low, new_high = centre - half, centre + half
+        # A bound that is a physical limit (a discrepancy sd's 0) stays: the width is scaled from it.
+        limits = np.asarray(getattr(post.prior, "limits", None) or [(False, False)] * low.size, bool)
+        width = scale * (high - low)
+        new_low = np.where(
+            limits[:, 0] & ~limits[:, 1], low, np.where(limits[:, 1] & ~limits[:, 0], high - width, new_low)
+        )
+        new_high = np.where(
+            limits[:, 0] & ~limits[:, 1], low + width, np.where(limits[:, 1] & ~limits[:, 0], high, new_high)
+        )
+        both = limits[:, 0] & limits[:, 1]
+        return np.where(both, low, new_low), np.where(both, high, new_high)
 
     def _user_boxes(self, name: str, value: Any) -> list[tuple[np.ndarray, np.ndarray]]:
         i = self._index(name)
@@ -675,7 +688,9 @@ class ModelChoiceResult:
             )
         flips, unchecked, by_bound, computed = [], [], [], 0
         for row in self.sensitivity_table:
-            if row.computed:
+            if row.computed and not np.any(np.isfinite(row.probabilities)):
+                unchecked.append(f"{row.label} (no finite probabilities)")
+            elif row.computed:
                 computed += 1
                 b = int(np.nanargmax(row.probabilities))
                 if b != best:

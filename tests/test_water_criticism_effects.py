@@ -94,6 +94,7 @@ def test_joint_simulator_applies_the_effects_to_model_protocol_and_summaries(mon
             hvap_kj_mol=44.0,
             curves=curves,
             run=SimpleNamespace(num_molecules=216),
+            second_shell=np.array([0.84, 0.45, 1.12]),
         )
 
     monkeypatch.setattr(model_simulator.WaterModelSimulator, "run", run)
@@ -101,7 +102,7 @@ def test_joint_simulator_applies_the_effects_to_model_protocol_and_summaries(mon
     assert sim.effects == [e.name for e in sim.catalogue]
     key = np.zeros(2, np.uint32)
     nulls = sim(key, [0.3159, 0.77, 0.0, 0.0, 0.0, 0.0, 0.0])
-    np.testing.assert_array_equal(nulls, np.concatenate([STATS, [DENSITY, 44.0]]))
+    np.testing.assert_array_equal(nulls, np.concatenate([STATS, [DENSITY, 44.0], [0.84, 0.45, 1.12]]))
     assert calls[-1][0] == sim.model and calls[-1][1] == sim.base.protocol.temperature_k
 
     sim(key, [0.3159, 0.77, 0.05, 0.001, 10.0, 0.0, 0.0])

@@ -175,6 +175,9 @@ def fluid_catalogue(physical_nu: float | None = None) -> Catalogue:
                 "physical",
                 "several temperatures (it scales as 1/T, sigma does not) and B2 at low T",
                 ("sigma_nm",),
+                # The quadratic Feynman-Hibbs term at its own strength (Feynman & Hibbs 1965; for
+                # neon, Sese 1994): the criticism reports its detection power there.
+                expected=1.0,
             ),
             Effect(
                 "density_error",

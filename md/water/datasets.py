@@ -49,6 +49,7 @@ from md.water.statistics import (
     paper_oo_statistics,
     robust_oh_statistics,
     robust_oo_statistics,
+    second_shell_statistics,
 )
 
 __all__ = [
@@ -66,6 +67,8 @@ __all__ = [
     "observed_statistics",
     "published_posterior",
     "published_statistics",
+    "second_shell_errors",
+    "second_shell_observed",
     "statistic_errors",
     "xray_goo",
 ]
@@ -311,6 +314,39 @@ def statistic_errors(kind: str, num_draws: int = 400, seed: int = 0) -> tuple[np
             z = _correlated_normals(rng, curve.r_nm, length, num_draws)
             values = np.array([np.asarray(statistics(curve.r_nm, curve.g + curve.error * zi)) for zi in z])
             by_assumption[a, where] = np.nanstd(values, axis=0, ddof=1)
+    return np.max(by_assumption, axis=0), by_assumption
+
+
+def second_shell_observed(kind: str) -> np.ndarray:
+    """Measured ``[g at the first g_OO minimum, r (nm) and g of the second maximum]``
+    (:func:`md.water.statistics.second_shell_statistics`) of the X-ray or neutron g_OO."""
+    if kind not in ("xray", "neutron"):
+        raise ValueError(f"kind must be 'xray' or 'neutron', got {kind!r}")
+    curve = xray_goo() if kind == "xray" else neutron_curves()["OO"]
+    return np.asarray(second_shell_statistics(curve.r_nm, curve.g), np.float64)
+
+
+@cache
+def second_shell_errors(kind: str, num_draws: int = 400, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """Errors of :func:`second_shell_observed` from the curve's pointwise errors.
+
+    Propagated exactly as :func:`statistic_errors` (the largest sd over the correlation
+    assumptions of :data:`ERROR_CORRELATION_LENGTHS_NM`, ``num_draws`` redraws each).
+
+    Returns
+    -------
+    adopted : np.ndarray, shape (3,)
+    by_assumption : np.ndarray, shape (len(ERROR_CORRELATION_LENGTHS_NM), 3)
+    """
+    if kind not in ("xray", "neutron"):
+        raise ValueError(f"kind must be 'xray' or 'neutron', got {kind!r}")
+    rng = np.random.default_rng(seed)
+    curve = xray_goo() if kind == "xray" else neutron_curves()["OO"]
+    by_assumption = np.full((len(ERROR_CORRELATION_LENGTHS_NM), 3), np.nan)
+    for a, length in enumerate(ERROR_CORRELATION_LENGTHS_NM):
+        z = _correlated_normals(rng, curve.r_nm, length, num_draws)
+        values = np.array([np.asarray(second_shell_statistics(curve.r_nm, curve.g + curve.error * zi)) for zi in z])
+        by_assumption[a] = np.nanstd(values, axis=0, ddof=1)
     return np.max(by_assumption, axis=0), by_assumption
 
 

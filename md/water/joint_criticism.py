@@ -2,9 +2,12 @@
 
 :func:`joint_catalogue` is the water catalogue (:func:`md.water.criticism.water_catalogue`)
 for one model: a 3-site model has no M site, so ``msite_shift`` is left out.
-:class:`WaterModelWithEffects` is the matching ``simulate(key, theta_full)`` returning the 11
+:class:`WaterModelWithEffects` is the matching ``simulate(key, theta_full)`` returning the 14
 joint summaries of :class:`md.water.model_simulator.WaterModelSimulator` (S1..S9, density,
-enthalpy of vaporisation) with the effects applied:
+enthalpy of vaporisation, second shell of g_OO) with the effects applied.  S9 already carries
+the simulator's Yeh-Hummer correction with the model's published viscosity, so
+``finite_box_diffusion`` adds a further shift on top of it (a residual, e.g. a viscosity that
+differs from the published one):
 
 * ``charge_scale``: ``q_H -> q_H (1 + eta)`` (``q_O`` or ``q_M = -2 q_H``); the enthalpy's
   self-polarisation correction follows the new dipole;
@@ -40,7 +43,7 @@ def joint_catalogue(model: WaterModel | str) -> Catalogue:
 
 
 class WaterModelWithEffects:
-    """Picklable host ``simulate(key, theta_full) -> (11,)`` for criticism of one water model.
+    """Picklable host ``simulate(key, theta_full) -> (14,)`` for criticism of one water model.
 
     ``theta_full = (sigma_OO, epsilon_OO, *effects)`` with the effects in the order of
     :func:`joint_catalogue` ``(model)``; at their nulls it equals
@@ -106,11 +109,18 @@ class WaterModelWithEffects:
         simulate = self.simulator_for(eta)
         out = simulate.run(key, theta_full[:2])
         stats = np.array(out.statistics, np.float64)
+        second_shell = np.asarray(out.second_shell, np.float64)
         w = eta.get("oh_contamination", 0.0)
         if w != 0.0:
+            from md.water.statistics import second_shell_statistics
+
             c = out.curves
             g_oh = np.interp(c.r_oo_nm, c.r_oh_nm, c.g_oh)
-            stats = summary_statistics(c._replace(g_oo=(1.0 - w) * c.g_oo + w * g_oh), simulate.statistics)
+            mixed = (1.0 - w) * c.g_oo + w * g_oh
+            d = stats[8]  # the simulator's (finite-size corrected) D; the mixing does not touch it
+            stats = summary_statistics(c._replace(g_oo=mixed), simulate.statistics)
+            stats[8] = d
+            second_shell = np.asarray(second_shell_statistics(c.r_oo_nm, mixed), np.float64)
         fluidity = eta.get("finite_box_diffusion", 0.0)
         if fluidity != 0.0:
             stats[8] += diffusion_shift(
@@ -121,4 +131,4 @@ class WaterModelWithEffects:
                 simulate.statistics,
             )
         stats = np.where(OBSERVED_KINDS[simulate.observed_kind], stats, 0.0)
-        return np.concatenate([stats, [out.density_kg_m3, out.hvap_kj_mol]])
+        return np.concatenate([stats, [out.density_kg_m3, out.hvap_kj_mol], second_shell])

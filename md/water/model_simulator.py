@@ -11,13 +11,20 @@ seeding, temporary directories and :class:`jaxabc.errors.SimulationFailure` stat
   GROMACS's equilibrated 3-site box ``spc216.gro`` with
   :func:`md.water.models.three_site_topology_text`.
 
-A call returns the joint summaries, shape (11,): S1..S9 of :mod:`md.water.statistics`
-(unobserved ones zeroed as in ``TIP4PSimulator``), the mean density (kg/m3) and the enthalpy of
-vaporisation (kJ/mol) over the analysed frames,
+A call returns the joint summaries, shape (14,): S1..S9 of :mod:`md.water.statistics`
+(unobserved ones zeroed as in ``TIP4PSimulator``; S9 is the finite-size corrected D, below), the
+mean density (kg/m3), the enthalpy of vaporisation (kJ/mol) over the analysed frames and the
+second-shell summaries of g_OO (:func:`md.water.statistics.second_shell_statistics`: g at the
+first minimum, position and height of the second maximum).  The enthalpy is
 ``dH_vap = -<U_pot>/N + R T - E_pol(model)``: the ideal-gas ``pV = RT`` of the vapour and
 Berendsen et al.'s (1987) self-polarisation correction
 (:func:`md.water.models.polarisation_correction_kj_mol`), so that it compares with the measured
 value directly (:mod:`md.water.joint_data` states what else is left out).
+
+Self-diffusion: the robust S9 is ``D_box + xi k_B T / (6 pi eta L)`` (Yeh & Hummer 2004), with
+``L`` the mean box edge over the analysed frames, ``T`` the protocol's temperature and ``eta``
+the model's viscosity (:func:`md.water.finite_size.model_viscosity_mpa_s`); the uncorrected
+value and the shift are in :class:`ModelOutput`.  ``finite_size_correction=False`` turns it off.
 """
 
 from __future__ import annotations
@@ -34,6 +41,7 @@ import numpy as np
 
 from jaxabc.errors import SimulationFailure
 from md.water.analysis import WaterCurves, compute_curves, load_trajectory
+from md.water.finite_size import correct_diffusion, model_viscosity_mpa_s
 
 # Private helpers of the frozen runner, reused so that the 3-site path fails exactly as the
 # 4-site one does (same timeouts, exit-status and NaN-energy checks).
@@ -56,7 +64,7 @@ from md.water.models import (
 )
 from md.water.protocol import Protocol
 from md.water.simulator import OBSERVED_KINDS, TIP4PSimulator
-from md.water.statistics import summary_statistics
+from md.water.statistics import SECOND_SHELL_NAMES, second_shell_statistics, summary_statistics
 
 __all__ = ["JOINT_SUMMARY_NAMES", "CachedSummaries", "ModelOutput", "WaterModelSimulator", "make_model_simulator"]
 
@@ -65,7 +73,9 @@ JOINT_SUMMARY_NAMES: tuple[str, ...] = (
     *(f"S{i}" for i in range(1, 10)),
     "density_kg_m3",
     "hvap_kj_mol",
+    *SECOND_SHELL_NAMES,
 )
+_LEGACY_NUM_SUMMARIES = 11
 #: Molar gas constant (kJ/mol/K).
 GAS_CONSTANT_KJ_MOL_K = 8.314462618e-3
 
@@ -76,7 +86,7 @@ class ModelOutput(NamedTuple):
     Attributes
     ----------
     statistics : np.ndarray, shape (9,)
-        S1..S9, unobserved entries not zeroed.
+        S1..S9, unobserved entries not zeroed; S9 finite-size corrected (when enabled).
     density_kg_m3 : float
     potential_kj_mol : float
         Mean potential energy per molecule over the analysed frames.
@@ -84,6 +94,11 @@ class ModelOutput(NamedTuple):
         ``-potential_kj_mol + R T - E_pol``.
     curves : WaterCurves
     run : GromacsRun
+    second_shell : np.ndarray, shape (3,)
+        ``[g_OO at the first minimum, r (nm) and g of the second maximum]``.
+    finite_size : dict
+        The Yeh-Hummer correction applied to S9: ``d_box`` (uncorrected S9), ``shift``,
+        ``box_nm``, ``viscosity_mpa_s``, ``temperature_k`` (``shift`` 0.0 when disabled).
     """
 
     statistics: np.ndarray
@@ -92,6 +107,8 @@ class ModelOutput(NamedTuple):
     hvap_kj_mol: float
     curves: WaterCurves
     run: GromacsRun
+    second_shell: np.ndarray | None = None
+    finite_size: dict | None = None
 
 
 def _mean_potential(run: GromacsRun, gmx: str, start_ps: float, deadline: float) -> float:
@@ -184,7 +201,7 @@ def run_gromacs_three_site(
 
 
 class WaterModelSimulator(TIP4PSimulator):
-    """Picklable ``simulate(key, theta) -> np.ndarray (11,)`` for one published water model.
+    """Picklable ``simulate(key, theta) -> np.ndarray (14,)`` for one published water model.
 
     Parameters
     ----------
@@ -208,16 +225,19 @@ class WaterModelSimulator(TIP4PSimulator):
         statistics: str = "robust",
         observed_kind: str = "simulated",
         gmx: str | None = None,
+        finite_size_correction: bool = True,
         **protocol_overrides,
     ) -> None:
         self.model = get_model(model)
+        self.finite_size_correction = bool(finite_size_correction)
         base = self.model.tip4p_parameters() if self.model.num_sites == 4 else None
         super().__init__(preset, statistics, observed_kind, gmx, base_parameters=base, **protocol_overrides)
 
     def __repr__(self) -> str:
         return (
             f"WaterModelSimulator(model={self.model.name!r}, preset={self.protocol.name!r}, "
-            f"statistics={self.statistics!r}, observed_kind={self.observed_kind!r})"
+            f"statistics={self.statistics!r}, observed_kind={self.observed_kind!r}, "
+            f"finite_size_correction={self.finite_size_correction!r}, summaries={len(JOINT_SUMMARY_NAMES)})"
         )
 
     def parameters(self, theta) -> TIP4PParameters:
@@ -257,7 +277,27 @@ class WaterModelSimulator(TIP4PSimulator):
         potential = _mean_potential(run, self.gmx, self.protocol.analysis_start_ps, deadline) / run.num_molecules
         rt = GAS_CONSTANT_KJ_MOL_K * self.protocol.temperature_k
         hvap = -potential + rt - polarisation_correction_kj_mol(model)
-        return ModelOutput(statistics, density, potential, hvap, curves, run)
+        second_shell = np.asarray(second_shell_statistics(curves.r_oo_nm, curves.g_oo), np.float64)
+        if not np.all(np.isfinite(second_shell)):
+            raise SimulationFailure(f"no second-shell summaries of g_OO (density {density:.4g} kg/m3)")
+        statistics, finite_size = self._finite_size(statistics, trajectory.box_nm)
+        return ModelOutput(statistics, density, potential, hvap, curves, run, second_shell, finite_size)
+
+    def _finite_size(self, statistics: np.ndarray, box_nm: np.ndarray) -> tuple[np.ndarray, dict]:
+        """S9 with the Yeh-Hummer correction (see the module docstring) and its record."""
+        temperature = float(self.protocol.temperature_k)
+        edge = float(np.mean(np.cbrt(np.prod(np.asarray(box_nm, np.float64), axis=1))))
+        eta = model_viscosity_mpa_s(self.model, temperature)
+        d_box = float(statistics[8])
+        record = {"d_box": d_box, "shift": 0.0, "box_nm": edge, "viscosity_mpa_s": eta, "temperature_k": temperature}
+        if not self.finite_size_correction:
+            return statistics, record
+        _, shift = correct_diffusion(d_box, edge, eta, temperature)
+        # robust S9 is D in 1e-5 cm^2/s; paper S9 is the MSD slope 6 D in nm^2/ps (1e-5 cm^2/s = 1e-3 nm^2/ps).
+        statistics = statistics.copy()
+        statistics[8] = d_box + (shift if self.statistics == "robust" else 6.0 * shift * 1e-3)
+        record["shift"] = shift
+        return statistics, record
 
     def run(self, key, theta, keep_directory: str | os.PathLike | None = None) -> ModelOutput:  # type: ignore[override]
         """Simulate and analyse; see :meth:`TIP4PSimulator.run`.
@@ -269,10 +309,10 @@ class WaterModelSimulator(TIP4PSimulator):
         return super().run(key, theta, keep_directory)  # type: ignore[return-value]
 
     def __call__(self, key, theta) -> np.ndarray:
-        """Joint summaries, shape (11,), float64, in :data:`JOINT_SUMMARY_NAMES` order."""
+        """Joint summaries, shape (14,), float64, in :data:`JOINT_SUMMARY_NAMES` order."""
         out = self.run(key, theta)
         statistics = np.where(OBSERVED_KINDS[self.observed_kind], out.statistics, 0.0)
-        return np.concatenate([statistics, [out.density_kg_m3, out.hvap_kj_mol]])
+        return np.concatenate([statistics, [out.density_kg_m3, out.hvap_kj_mol], out.second_shell])
 
 
 def make_model_simulator(model: WaterModel | str, preset: str | Protocol = "quick", **options) -> WaterModelSimulator:
@@ -283,7 +323,7 @@ def make_model_simulator(model: WaterModel | str, preset: str | Protocol = "quic
 class CachedSummaries:
     """Picklable ``simulate(key, theta)`` returning the ``fitted`` joint summaries, with a disk cache.
 
-    Every simulation's full output (all 11 joint summaries, or its failure reason) is stored in
+    Every simulation's full output (all 14 joint summaries, or its failure reason) is stored in
     ``cache_dir`` under a hash of the simulator (model, preset, protocol), the key and theta,
     so that (a) a rerun with the same seed after an interruption replays finished simulations
     instead of repeating them, and (b) held-out summaries stay available for criticism.
@@ -291,14 +331,19 @@ class CachedSummaries:
     Parameters
     ----------
     simulate : WaterModelSimulator
-    fitted : array_like of bool, shape (11,)
-        Which joint summaries the call returns (the distance sees only these).
+    fitted : array_like of bool, shape (14,)
+        Which joint summaries the call returns (the distance sees only these); a mask of
+        shape (11,) (before the second-shell summaries) is padded with False.
     cache_dir : path-like, optional
         Created if missing; no caching when None.
     """
 
     def __init__(self, simulate: WaterModelSimulator, fitted, cache_dir: str | os.PathLike | None = None) -> None:
         fitted = np.asarray(fitted, dtype=bool)
+        if fitted.shape == (_LEGACY_NUM_SUMMARIES,):
+            # A mask over the 11 summaries before the second shell was appended (S1..S9,
+            # density, hvap): the same positions, the second shell not returned.
+            fitted = np.concatenate([fitted, np.zeros(len(JOINT_SUMMARY_NAMES) - _LEGACY_NUM_SUMMARIES, bool)])
         if fitted.shape != (len(JOINT_SUMMARY_NAMES),) or not fitted.any():
             raise ValueError(f"fitted must be a boolean mask of shape ({len(JOINT_SUMMARY_NAMES)},) with a True entry")
         self.simulate = simulate
@@ -327,7 +372,7 @@ class CachedSummaries:
         return self.cache_dir / f"{self.simulate.model.slug}-{digest.hexdigest()[:24]}.npz"
 
     def full(self, key, theta) -> np.ndarray:
-        """All 11 joint summaries (from the cache when present).
+        """All 14 joint summaries (from the cache when present).
 
         Raises
         ------
@@ -355,4 +400,8 @@ class CachedSummaries:
 
     def __call__(self, key, theta) -> np.ndarray:
         """The fitted summaries, shape ``(fitted.sum(),)``."""
-        return self.full(key, theta)[self.fitted]
+        summaries = self.full(key, theta)
+        mask = self.fitted
+        if summaries.size < mask.size and not mask[summaries.size :].any():
+            mask = mask[: summaries.size]  # a simulator of the 11 summaries before the second shell
+        return summaries[mask]

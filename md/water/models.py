@@ -39,6 +39,7 @@ __all__ = [
     "MODELS",
     "MODEL_NAMES",
     "PAPER_TIP4P_ESTIMATES",
+    "WIDE_EPSILON_FACTORS",
     "WaterModel",
     "get_model",
     "model_prior",
@@ -220,6 +221,13 @@ PAPER_TIP4P_ESTIMATES: dict[str, dict[str, Any]] = {
 }
 
 
+#: Epsilon bounds (multiples of the published value) of the wide prior: TIP4P and TIP3P stay
+#: liquid in the quick preset up to 3x (measured, ``benchmarks/results/water_prior_range.json``);
+#: their g_OO loses the tetrahedral first minimum (it moves from 0.33-0.36 nm to 0.45 nm) beyond
+#: 1.6x (TIP4P) or from 1.4x (TIP3P), so 2.5x spans everything water-like with room to spare.
+WIDE_EPSILON_FACTORS: tuple[float, float] = (0.6, 2.5)
+
+
 def get_model(name: str | WaterModel) -> WaterModel:
     """Look a model up by name (case and punctuation ignored: ``"tip4p2005"`` works)."""
     if isinstance(name, WaterModel):
@@ -319,8 +327,12 @@ def topology_for(model: WaterModel | str, num_molecules: int) -> str:
     return three_site_topology_text(num_molecules, model)
 
 
-def model_prior(model: WaterModel | str, relative_half_width: tuple[float, float] = (0.05, 0.4)):
-    """A uniform prior on ``(sigma_OO, epsilon_OO)`` centred on the model's published values.
+def model_prior(
+    model: WaterModel | str,
+    relative_half_width: tuple[float, float] = (0.05, 0.4),
+    epsilon_factors: tuple[float, float] | None = None,
+):
+    """A uniform prior on ``(sigma_OO, epsilon_OO)`` around the model's published values.
 
     Parameters
     ----------
@@ -329,6 +341,11 @@ def model_prior(model: WaterModel | str, relative_half_width: tuple[float, float
         Half-widths as fractions of the published sigma and epsilon; each in (0, 1).  The
         default keeps every model's box inside the range where the quick preset stays liquid
         for TIP4P (the paper's prior U[0.281, 0.53] x U[0.2, 0.9] is mostly vapour).
+    epsilon_factors : (float, float), optional
+        Bounds of epsilon as multiples of the published value, e.g. ``(0.6, 2.5)``; replaces
+        the epsilon half-width (an asymmetric box: epsilon cannot go below 0, and the
+        calibrations pile against +40 %).  :data:`WIDE_EPSILON_FACTORS` is the range measured
+        to stay liquid in the quick preset (``benchmarks/results/water_prior_range.json``).
 
     Returns
     -------
@@ -342,9 +359,15 @@ def model_prior(model: WaterModel | str, relative_half_width: tuple[float, float
     if widths.shape != (2,) or not np.all((widths > 0) & (widths < 1)):
         raise ValueError(f"relative_half_width must be two fractions in (0, 1), got {relative_half_width!r}")
     centre = np.asarray(model.lj)
+    low, high = centre * (1 - widths), centre * (1 + widths)
+    if epsilon_factors is not None:
+        factors = np.asarray(epsilon_factors, dtype=float)
+        if factors.shape != (2,) or not (np.all(np.isfinite(factors)) and 0 < factors[0] < factors[1]):
+            raise ValueError(f"epsilon_factors must be (low, high) with 0 < low < high, got {epsilon_factors!r}")
+        low[1], high[1] = centre[1] * factors
     return Uniform(
-        low=(centre * (1 - widths)).tolist(),
-        high=(centre * (1 + widths)).tolist(),
+        low=low.tolist(),
+        high=high.tolist(),
         names=("sigma_OO", "epsilon_OO"),
         units=("nm", "kJ/mol"),
     )

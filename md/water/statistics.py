@@ -102,6 +102,8 @@ from md.water.analysis import WaterCurves, fit_msd_slope
 
 __all__ = [
     "ROBUST_GRID_NM",
+    "SECOND_SHELL_NAMES",
+    "SECOND_SHELL_WINDOW_NM",
     "STATISTIC_NAMES",
     "STATISTIC_UNITS",
     "VARIANTS",
@@ -110,6 +112,7 @@ __all__ = [
     "paper_oo_statistics",
     "robust_oh_statistics",
     "robust_oo_statistics",
+    "second_shell_statistics",
     "summary_statistics",
 ]
 
@@ -356,6 +359,44 @@ def robust_oo_statistics(r_nm: jax.Array, g: jax.Array) -> jax.Array:
     covered = ~jnp.any(jnp.isnan(g) & (r >= lo - 0.002) & (r <= hi))
     g = jnp.nan_to_num(g)
     values = jnp.stack([_integral(r, g, lo, hi) / (hi - lo), r_min, _integral(r, g, lo, r_min), height, r_peak])
+    return jnp.where(covered & peak_ok & min_ok, values, jnp.nan)
+
+
+#: Names of :func:`second_shell_statistics`' outputs, as they appear in the joint summaries.
+SECOND_SHELL_NAMES = ("g_oo_min1", "r_oo_max2_nm", "g_oo_max2")
+#: Fixed window (nm) searched for the second g_OO maximum (measured water: 0.45 nm).  Fixed, not
+#: relative to the first minimum, so that a model whose second shell has (nearly) vanished
+#: (TIP3P) still returns a number: the largest smoothed g in the window, possibly at its edge.
+SECOND_SHELL_WINDOW_NM = (0.40, 0.56)
+
+
+@_float64
+@jax.jit
+def second_shell_statistics(r_nm: jax.Array, g: jax.Array) -> jax.Array:
+    """Depth of the first g_OO minimum and position and height of the second maximum.
+
+    Same resampling (0.002 nm grid), Savitzky-Golay smoothing and parabolic sub-bin vertex as
+    :func:`robust_oo_statistics`; the first minimum is found exactly as its S5.
+
+    Returns
+    -------
+    jax.Array, shape (3,)
+        ``[g at the first minimum, r (nm) of the second maximum, g there]``.  The second
+        maximum is the largest smoothed g in :data:`SECOND_SHELL_WINDOW_NM`; when the curve
+        has no turning point there it is reported at the window's edge (continuous in the
+        curve, never NaN for a liquid).  NaN if the curve does not cover [0.2, 0.8] nm or the
+        first peak/minimum is not interior (as for S4..S8).
+    """
+    r, g = _resample(r_nm, g)
+    smooth = _smooth(jnp.nan_to_num(g))
+    lo, hi = 0.2, 0.8
+    r_peak, _, peak_ok = _robust_extremum(r, smooth, lo, hi, maximum=True)
+    _, g_min, min_ok = _robust_extremum(r, smooth, r_peak + 1e-6, jnp.minimum(1.6 * r_peak, hi), maximum=False)
+    w_lo, w_hi = SECOND_SHELL_WINDOW_NM
+    r_max2, g_max2, _ = _robust_extremum(r, smooth, w_lo, w_hi, maximum=True)
+    r_max2 = jnp.clip(r_max2, w_lo, w_hi)
+    covered = ~jnp.any(jnp.isnan(g) & (r >= lo - 0.002) & (r <= hi))
+    values = jnp.stack([g_min, r_max2, g_max2])
     return jnp.where(covered & peak_ok & min_ok, values, jnp.nan)
 
 
