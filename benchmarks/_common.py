@@ -292,6 +292,9 @@ def command_line(argv: list[str] | None = None) -> str:
     argv = list(sys.argv if argv is None else argv)
     if argv and argv[0].endswith(".py"):
         argv[0] = relative(argv[0])
+        # Benchmarks run as modules of the ``benchmarks`` package (``python -m benchmarks.<name>``).
+        if argv[0].startswith("benchmarks/") and "/" not in argv[0].removeprefix("benchmarks/"):
+            return shlex.join(["python", "-m", argv[0].removesuffix(".py").replace("/", "."), *argv[1:]])
     return shlex.join(["python", *argv])
 
 

@@ -33,8 +33,8 @@ the host driver at the largest size.
 
 Writes ``benchmarks/results/abc_overhead.json``.  Usage::
 
-    python benchmarks/abc_overhead.py                 # N in {1000, 5000}
-    python benchmarks/abc_overhead.py --sizes 1000 --skip-peers
+    python -m benchmarks.abc_overhead                 # N in {1000, 5000}
+    python -m benchmarks.abc_overhead --sizes 1000 --skip-peers
 """
 
 from __future__ import annotations
@@ -51,12 +51,10 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _common import write_result
-
 # The jaxabc runs happen in child processes; importing what they run here puts those modules
 # in this result's fingerprint, so an edit to the fused path marks the result stale.
 import jaxabc.fused  # noqa: F401
+from benchmarks._common import write_result
 
 ROOT = Path(__file__).resolve().parents[1]
 

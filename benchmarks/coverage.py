@@ -15,27 +15,23 @@ particles.  This benchmark measures what their "95 % intervals" are worth.
 
 Usage::
 
-    python benchmarks/coverage.py            # about 3 minutes on 2 cores
-    python benchmarks/coverage.py --quick    # 40 data sets, N = 100: results/quick/coverage.json
+    python -m benchmarks.coverage            # about 3 minutes on 2 cores
+    python -m benchmarks.coverage --quick    # 40 data sets, N = 100: results/quick/coverage.json
 """
 
 from __future__ import annotations
 
 import argparse
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
+import jaxabc
+from benchmarks._common import command_line, write_result
+from jaxabc.examples import correlated_simulate, correlated_truth_and_data
+
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-
-import jaxabc  # noqa: E402
-from jaxabc.examples import correlated_simulate, correlated_truth_and_data  # noqa: E402
-
-sys.path.insert(0, str(ROOT / "benchmarks"))
-from _common import command_line, write_result  # noqa: E402
 
 RESULTS = ROOT / "benchmarks" / "results"
 SIGMA = np.array([[1.0, 0.8], [0.8, 1.0]])

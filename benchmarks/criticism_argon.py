@@ -6,16 +6,14 @@ saves ``benchmarks/results/criticism_argon.json`` through ``_common.write_result
 
 Usage::
 
-    python benchmarks/criticism_argon.py
+    python -m benchmarks.criticism_argon
 """
 
 from __future__ import annotations
 
 import sys
-from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from criticism_neon import main
+from benchmarks.criticism_neon import main
 
 if __name__ == "__main__":
     # Through argv, so that the result records a command that reruns argon.

@@ -19,9 +19,9 @@ argon: Tegeler et al. 1999), which are fitted to measurements -- not raw measure
 
 Usage::
 
-    python benchmarks/criticism_neon.py                 # under an hour on 2 cores
-    python benchmarks/criticism_neon.py --fluid argon   # what criticism_argon.py runs
-    python benchmarks/criticism_neon.py --tiny          # plumbing smoke test, numbers meaningless
+    python -m benchmarks.criticism_neon                 # under an hour on 2 cores
+    python -m benchmarks.criticism_neon --fluid argon   # what criticism_argon.py runs
+    python -m benchmarks.criticism_neon --tiny          # plumbing smoke test, numbers meaningless
 """
 
 from __future__ import annotations
@@ -37,13 +37,11 @@ import jax.numpy as jnp
 import numpy as np
 
 import jaxabc
+from benchmarks._common import QUICK_RESULTS, RESULTS, command_line, declare_input, write_result
 from jaxabc.criticism import critique
 from md.fluids import DATA, LITERATURE_LJ
 from md.fluids.simulator import BASE_NAMES, FluidConfig, fluid_setup
 from md.fluids.three_body import c9_reduced
-
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _common import QUICK_RESULTS, RESULTS, command_line, declare_input, write_result
 
 #: Per fluid: training state-point rows, held-out rows, B2 temperatures (fit / held out), prior box.
 DESIGN: dict[str, dict[str, Any]] = {

@@ -20,8 +20,8 @@ meaningless).
 
 Usage::
 
-    python benchmarks/criticism_water.py --data xray --workers 16
-    python benchmarks/criticism_water.py --tiny
+    python -m benchmarks.criticism_water --data xray --workers 16
+    python -m benchmarks.criticism_water --tiny
 """
 
 from __future__ import annotations
@@ -34,11 +34,9 @@ from pathlib import Path
 import numpy as np
 
 import jaxabc
+from benchmarks._common import QUICK_RESULTS, command_line, declare_input, write_result
 from jaxabc.criticism import critique
 from md.water.criticism import WaterSimulatorWithEffects, water_catalogue
-
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _common import QUICK_RESULTS, command_line, declare_input, write_result
 
 RESULTS = Path(__file__).resolve().parent / "results"
 #: Density of water at 298.15 K, 1 atm (kg/m^3).

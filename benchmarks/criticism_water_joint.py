@@ -21,8 +21,8 @@ interruption replays the finished simulations and continues.
 
 Usage::
 
-    python benchmarks/criticism_water_joint.py --data xray --workers 2    # hours of GROMACS
-    python benchmarks/criticism_water_joint.py --tiny                     # plumbing smoke test
+    python -m benchmarks.criticism_water_joint --data xray --workers 2    # hours of GROMACS
+    python -m benchmarks.criticism_water_joint --tiny                     # plumbing smoke test
 
 ``--model M --name criticism_water_joint_m`` criticises another model into its own result.
 
@@ -34,25 +34,21 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
+import jaxabc
+from benchmarks._common import QUICK_RESULTS, RESULTS, command_line, model_selection_record, write_result
+from jaxabc.criticism import critique
+from jaxabc.model_choice import load_model_choice
+from jaxabc.noise import MeasurementError
+from md.water.joint_criticism import WaterModelWithEffects
+from md.water.joint_data import JOINT_DATA_FILE, joint_observed, joint_record
+from md.water.model_simulator import CachedSummaries
+
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-
-import jaxabc  # noqa: E402
-from jaxabc.criticism import critique  # noqa: E402
-from jaxabc.model_choice import load_model_choice  # noqa: E402
-from jaxabc.noise import MeasurementError  # noqa: E402
-from md.water.joint_criticism import WaterModelWithEffects  # noqa: E402
-from md.water.joint_data import JOINT_DATA_FILE, joint_observed, joint_record  # noqa: E402
-from md.water.model_simulator import CachedSummaries  # noqa: E402
-
-sys.path.insert(0, str(ROOT / "benchmarks"))
-from _common import QUICK_RESULTS, RESULTS, command_line, model_selection_record, write_result  # noqa: E402
 
 GROUPS = {
     "g_OH (S1-S3)": [0, 1, 2],
@@ -105,7 +101,7 @@ def main(argv=None) -> dict:
     t0 = time.perf_counter()
     if args.tiny and not (args.model_choice / "model_choice.json").exists():
         # The smoke test needs the tiny model choice (minutes): run it, or replay its checkpoints.
-        import water_model_choice
+        from benchmarks import water_model_choice
 
         water_model_choice.main(["--tiny", "--resume", "--no-progress", "--workers", str(args.workers)])
     choice = load_model_choice(args.model_choice)

@@ -11,7 +11,7 @@ and writes atom-steps per second, system-steps per second, and both per core to
 ``benchmarks/results/engine_throughput.json``.  jax-md uses every core XLA gives it (2 here);
 LAMMPS one.  The machine is shared, so numbers carry the noise of whatever else runs.
 
-Run: ``nice -n 5 python benchmarks/engine_throughput.py [--quick]``.
+Run: ``nice -n 5 python -m benchmarks.engine_throughput [--quick]``.
 
 ``--small-system`` (implies ``--single-core``'s one XLA thread) times the 32-atom ``cpu``
 preset, batched over parameters, against LAMMPS on the same system, in system-steps per
@@ -59,10 +59,8 @@ import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
+from benchmarks._common import write_result  # noqa: E402
 from md import helium, lammps_reference  # noqa: E402
-
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _common import write_result  # noqa: E402
 
 RESULTS = (
     Path(__file__).resolve().parent

@@ -20,8 +20,8 @@ Every measurement that fails records its error instead of stopping the run.  Wri
 ``benchmarks/results/gpu_throughput.json`` (or ``--output``), one part per backend
 (``--part``), so GPU and CPU rows of the same machine sit side by side.
 
-Run: ``python benchmarks/gpu_throughput.py --part gpu`` on the GPU machine, then
-``python benchmarks/gpu_throughput.py --part cpu --cpu --quick`` on the same one.
+Run: ``python -m benchmarks.gpu_throughput --part gpu`` on the GPU machine, then
+``python -m benchmarks.gpu_throughput --part cpu --cpu --quick`` on the same one.
 """
 
 from __future__ import annotations
@@ -43,10 +43,8 @@ import jax  # noqa: E402
 import numpy as np  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "benchmarks"))
 
-from _common import RESULTS, command_line, write_result  # noqa: E402
+from benchmarks._common import RESULTS, command_line, write_result  # noqa: E402
 
 
 def device_record() -> dict:
@@ -73,8 +71,7 @@ def guarded(fn, *args, **kwargs) -> dict:
 
 
 def engine_rows(preset_name: str, batches: list[int], num_blocks: int, vmap_all: bool) -> list[dict]:
-    from engine_throughput import time_jax_md
-
+    from benchmarks.engine_throughput import time_jax_md
     from md import helium
 
     rows = []

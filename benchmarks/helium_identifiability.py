@@ -14,7 +14,7 @@ interval) this script
 A grid point is *separated* when its KL exceeds the 95th percentile of the seed noise.  Writes
 ``benchmarks/results/helium_identifiability.json``.
 
-Run: ``nice -n 5 python benchmarks/helium_identifiability.py`` (about 10 minutes on 2 cores for
+Run: ``nice -n 5 python -m benchmarks.helium_identifiability`` (about 10 minutes on 2 cores for
 the default candidates; ``--quick`` for a 2-minute smoke run).
 """
 
@@ -28,8 +28,8 @@ from pathlib import Path
 import jax
 import jax.numpy as jnp
 import numpy as np
-from _common import QUICK_RESULTS, write_result
 
+from benchmarks._common import QUICK_RESULTS, write_result
 from md import helium
 
 try:  # the core's definition; a local copy with the same definition until it exists

@@ -8,7 +8,7 @@ at a second parameter point) with ``--preset`` (``cpu`` or the published ``paper
 difference in units of its standard error (z), and the jax-md-vs-LAMMPS KL next to the jax-md
 seed-to-seed KL.
 
-Run: ``nice -n 5 python benchmarks/helium_lammps_agreement.py`` (about 1 minute), or
+Run: ``nice -n 5 python -m benchmarks.helium_lammps_agreement`` (about 1 minute), or
 ``--preset paper --seeds 4`` (about 15 minutes on 2 cores).  Entries of other presets already in
 the JSON are kept.
 """
@@ -23,10 +23,8 @@ from pathlib import Path
 import jax
 import numpy as np
 
+from benchmarks._common import write_result
 from md import helium, lammps_reference
-
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _common import write_result
 
 RESULTS = Path(__file__).resolve().parent / "results" / "helium_lammps_agreement.json"
 

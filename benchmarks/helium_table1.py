@@ -15,26 +15,23 @@ gamma_final 0.67.
 
 Usage::
 
-    python benchmarks/helium_table1.py                      # CPU preset, 300 particles
-    python benchmarks/helium_table1.py --num-particles 1000
-    python benchmarks/helium_table1.py --quick              # 50 particles, 3 steps, seed 0: ~1 min,
+    python -m benchmarks.helium_table1                      # CPU preset, 300 particles
+    python -m benchmarks.helium_table1 --num-particles 1000
+    python -m benchmarks.helium_table1 --quick              # 50 particles, 3 steps, seed 0: ~1 min,
                                                             # writes benchmarks/results/quick/ only
 """
 
 from __future__ import annotations
 
 import argparse
-import sys
 import time
 from pathlib import Path
 
 import jax
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _common import RESULTS, write_result
-
 import jaxabc
+from benchmarks._common import RESULTS, write_result
 from md import helium
 from md.helium_calibration import make_model
 

@@ -23,9 +23,9 @@ load average before and after is recorded with them.
 
 Usage::
 
-    nice -n 5 python benchmarks/imbalance.py                       # water 24 + helium 32, ~5 min
-    python benchmarks/imbalance.py --systems water --num 96 --workers 8
-    python benchmarks/imbalance.py --systems helium --helium-num 64
+    nice -n 5 python -m benchmarks.imbalance                       # water 24 + helium 32, ~5 min
+    python -m benchmarks.imbalance --systems water --num 96 --workers 8
+    python -m benchmarks.imbalance --systems helium --helium-num 64
 
 Writes ``benchmarks/results/imbalance.json`` (merging systems already there that were not rerun)
 and ``benchmarks/results/imbalance.png`` (drawn by ``paper_figures/figure3_imbalance.py``).
@@ -37,22 +37,17 @@ import argparse
 import json
 import os
 import runpy
-import sys
 import time
 from pathlib import Path
 
+import jax
 import numpy as np
 
+import jaxabc
+from benchmarks._common import command_line, machine, write_result
+from jaxabc.errors import STATUS_NAMES, STATUS_OK
+
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-
-import jax  # noqa: E402
-
-import jaxabc  # noqa: E402
-from jaxabc.errors import STATUS_NAMES, STATUS_OK  # noqa: E402
-
-sys.path.insert(0, str(ROOT / "benchmarks"))
-from _common import command_line, machine, write_result  # noqa: E402
 
 RESULTS = ROOT / "benchmarks" / "results"
 #: The paper's water prior (sigma_OW nm, epsilon_OW kJ/mol).

@@ -6,8 +6,8 @@ the file (``git log``), marked as such, with the later commits that touched the 
 
 Usage::
 
-    python benchmarks/make_docs.py            # rewrite docs/results/
-    python benchmarks/make_docs.py --check    # exit 1 if a page differs from what the JSON gives
+    python -m benchmarks.make_docs            # rewrite docs/results/
+    python -m benchmarks.make_docs --check    # exit 1 if a page differs from what the JSON gives
 """
 
 from __future__ import annotations
@@ -17,26 +17,27 @@ import sys
 from collections.abc import Callable
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _common import RESULTS, ROOT
-
-sys.path.insert(0, str(ROOT))  # md.water.models, for the paper's TIP4P estimates
-from docpages.common import DOCS, table
-from docpages.criticism import page_criticism, page_criticism_fluids
-from docpages.engine import page_abc_overhead, page_engine, page_speedup
-from docpages.helium import page_coverage, page_helium_table1, page_identifiability, page_lammps
-from docpages.model_choice import block_water_model_choice, block_water_model_outcome, page_water_model_choice
-from docpages.reliability import page_reliability
-from docpages.surrogate import (
+from benchmarks._common import RESULTS, ROOT
+from benchmarks.docpages.common import DOCS, table
+from benchmarks.docpages.criticism import page_criticism, page_criticism_fluids
+from benchmarks.docpages.engine import page_abc_overhead, page_engine, page_speedup
+from benchmarks.docpages.helium import page_coverage, page_helium_table1, page_identifiability, page_lammps
+from benchmarks.docpages.model_choice import (
+    block_water_model_choice,
+    block_water_model_outcome,
+    page_water_model_choice,
+)
+from benchmarks.docpages.reliability import page_reliability
+from benchmarks.docpages.surrogate import (
     page_surrogate_classifier,
     page_surrogate_coverage,
     page_surrogate_helium,
     page_surrogate_peers,
 )
-from docpages.water import block_water_calibrations, block_water_validation, page_water
-from docpages.water_jaxmd import page_density_relaxation, page_water_jaxmd
-from registry import REGISTRY
-from status import format_cost, status_of
+from benchmarks.docpages.water import block_water_calibrations, block_water_validation, page_water
+from benchmarks.docpages.water_jaxmd import page_density_relaxation, page_water_jaxmd
+from benchmarks.registry import REGISTRY
+from benchmarks.status import format_cost, status_of
 
 _MODEL_CHOICE_LINK = " and [which water model the data prefer](water_model_choice.md)"
 
@@ -56,11 +57,11 @@ def page_index() -> str:
     return f"""# Results
 
 Every number on these pages is read from `benchmarks/results/*.json` by `benchmarks/make_docs.py`;
-each table names its JSON and the commit that made it.  `python benchmarks/status.py` says which
+each table names its JSON and the commit that made it.  `python -m benchmarks.status` says which
 results the current code still produces.  Currency is numerical: a result whose code changed is
-current again when `python benchmarks/verify.py --budget 30m` reruns its quick mode on today's
+current again when `python -m benchmarks.verify --budget 30m` reruns its quick mode on today's
 code and gets its saved quick numbers ("code changed, quick mode reproduces"); where the numbers
-differ it is `changed`, and `python benchmarks/regenerate.py --budget 1h` reruns what fits.
+differ it is `changed`, and `python -m benchmarks.regenerate --budget 1h` reruns what fits.
 
 - [Helium Table 1](helium_table1.md) and [the choice of the CPU preset](helium_identifiability.md)
 - [Engine throughput](engine_throughput.md) and [agreement with LAMMPS](lammps_agreement.md)
@@ -155,7 +156,7 @@ def main(argv: list[str] | None = None) -> int:
         elif new != old:
             path.write_text(new)
     if differ:
-        print(f"out of date: {', '.join(differ)} (run python benchmarks/make_docs.py)")
+        print(f"out of date: {', '.join(differ)} (run python -m benchmarks.make_docs)")
         return 1
     return 0
 

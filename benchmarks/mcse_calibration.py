@@ -15,26 +15,22 @@ runs (the fix changed no particle).
 
 Usage::
 
-    python benchmarks/mcse_calibration.py                 # 20 and 200 seeds per case
-    python benchmarks/mcse_calibration.py --quick         # 20 seeds, under benchmarks/results/quick
+    python -m benchmarks.mcse_calibration                 # 20 and 200 seeds per case
+    python -m benchmarks.mcse_calibration --quick         # 20 seeds, under benchmarks/results/quick
 """
 
 from __future__ import annotations
 
 import argparse
-import sys
 import time
 import warnings
-from pathlib import Path
 
 import jax.numpy as jnp
 import numpy as np
 
 import jaxabc
+from benchmarks._common import write_result
 from jaxabc import examples
-
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _common import write_result
 
 CASES = {
     "abcsubsim_N300_5levels": (

@@ -10,10 +10,10 @@ they run only when the budget holds them.
 
 Usage::
 
-    python benchmarks/regenerate.py --budget 1h --dry-run
-    python benchmarks/regenerate.py --budget 1h
-    python benchmarks/regenerate.py --quick --budget 15m      # the quick-mode JSONs
-    python benchmarks/regenerate.py --only coverage helium_table1 --budget 2h
+    python -m benchmarks.regenerate --budget 1h --dry-run
+    python -m benchmarks.regenerate --budget 1h
+    python -m benchmarks.regenerate --quick --budget 15m      # the quick-mode JSONs
+    python -m benchmarks.regenerate --only coverage helium_table1 --budget 2h
 """
 
 from __future__ import annotations
@@ -26,12 +26,10 @@ import shutil
 import subprocess
 import sys
 import time
-from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _common import ROOT
-from registry import REGISTRY, Entry
-from status import Status, format_cost, status_of
+from benchmarks._common import ROOT
+from benchmarks.registry import REGISTRY, Entry
+from benchmarks.status import Status, format_cost, status_of
 
 __all__ = ["command_argv", "main", "parse_budget", "plan"]
 

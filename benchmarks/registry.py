@@ -110,7 +110,7 @@ def _water_surrogate(data: str, statistics: str, checkpoint: str, what: str, pre
     return Entry(
         f"water_{data}_surrogate:{statistics}",
         f"{R}/water_{data}_surrogate.json",
-        f"python benchmarks/water_calibration.py --data {data} --statistics {statistics} --algorithm surrogate "
+        f"python -m benchmarks.water_calibration --data {data} --statistics {statistics} --algorithm surrogate "
         f"--max-simulations 300 --workers 2{' --predictive 20' if predictive else ''} "
         f"--checkpoint-dir /tmp/{checkpoint}_ckpt --no-progress",
         part=statistics,
@@ -132,7 +132,7 @@ def _water_paper_preset(data: str) -> Entry:
     return Entry(
         f"water_{data}_surrogate_paper_preset:paper",
         f"{folder}/water_{data}_surrogate.json",
-        f"python benchmarks/water_calibration.py --data {data} --statistics paper --preset paper "
+        f"python -m benchmarks.water_calibration --data {data} --statistics paper --preset paper "
         "--algorithm surrogate --max-simulations 200 --surrogate-tolerance 0.04 --workers 2 --predictive 10 "
         f"--checkpoint-dir {folder}/checkpoint_{data} --continue "
         f"--run-cache {CACHE}/water_paper_preset/run_cache_{data} --out-dir {folder} --no-progress",
@@ -148,16 +148,16 @@ REGISTRY: tuple[Entry, ...] = (
     Entry(
         "helium_table1",
         f"{R}/helium_table1.json",
-        "python benchmarks/helium_table1.py --num-particles 500 --seeds 0 1 2",
-        quick="python benchmarks/helium_table1.py --quick",
+        "python -m benchmarks.helium_table1 --num-particles 500 --seeds 0 1 2",
+        quick="python -m benchmarks.helium_table1 --quick",
         quick_output=f"{Q}/helium_table1.json",
         legacy_cost_keys=("total_wall_time_s",),
     ),
     Entry(
         "helium_identifiability",
         f"{R}/helium_identifiability.json",
-        "python benchmarks/helium_identifiability.py",
-        quick="python benchmarks/helium_identifiability.py --quick",
+        "python -m benchmarks.helium_identifiability",
+        quick="python -m benchmarks.helium_identifiability --quick",
         quick_output=f"{Q}/helium_identifiability.json",
         estimated_cost_s=600.0,
         note="no recorded time; the script's docstring says about 10 minutes on 2 cores",
@@ -165,9 +165,9 @@ REGISTRY: tuple[Entry, ...] = (
     Entry(
         "helium_lammps_agreement:cpu",
         f"{R}/helium_lammps_agreement.json",
-        "python benchmarks/helium_lammps_agreement.py",
+        "python -m benchmarks.helium_lammps_agreement",
         part="cpu",
-        quick=f"python benchmarks/helium_lammps_agreement.py --seeds 4 --output {Q}/helium_lammps_agreement.json",
+        quick=f"python -m benchmarks.helium_lammps_agreement --seeds 4 --output {Q}/helium_lammps_agreement.json",
         quick_output=f"{Q}/helium_lammps_agreement.json",
         estimated_cost_s=120.0,
         requires=("lmp",),
@@ -176,7 +176,7 @@ REGISTRY: tuple[Entry, ...] = (
     Entry(
         "helium_lammps_agreement:paper",
         f"{R}/helium_lammps_agreement.json",
-        "python benchmarks/helium_lammps_agreement.py --preset paper --seeds 4",
+        "python -m benchmarks.helium_lammps_agreement --preset paper --seeds 4",
         part="paper",
         estimated_cost_s=900.0,
         requires=("lmp",),
@@ -185,16 +185,16 @@ REGISTRY: tuple[Entry, ...] = (
     Entry(
         "coverage",
         f"{R}/coverage.json",
-        "python benchmarks/coverage.py",
-        quick="python benchmarks/coverage.py --quick",
+        "python -m benchmarks.coverage",
+        quick="python -m benchmarks.coverage --quick",
         quick_output=f"{Q}/coverage.json",
         legacy_cost_keys=("cases/*/seconds",),
     ),
     Entry(
         "abc_overhead",
         f"{R}/abc_overhead.json",
-        "python benchmarks/abc_overhead.py --sizes 1000 5000",
-        quick=f"python benchmarks/abc_overhead.py --sizes 1000 --skip-peers --output {Q}/abc_overhead.json",
+        "python -m benchmarks.abc_overhead --sizes 1000 5000",
+        quick=f"python -m benchmarks.abc_overhead --sizes 1000 --skip-peers --output {Q}/abc_overhead.json",
         quick_output=f"{Q}/abc_overhead.json",
         estimated_cost_s=1800.0,
         note="timings only: the quick comparison checks the rows' settings, not their times; the full "
@@ -203,8 +203,8 @@ REGISTRY: tuple[Entry, ...] = (
     Entry(
         "surrogate_helium",
         f"{R}/surrogate_helium.json",
-        "python benchmarks/surrogate_helium.py",
-        quick="python benchmarks/surrogate_helium.py --quick",
+        "python -m benchmarks.surrogate_helium",
+        quick="python -m benchmarks.surrogate_helium --quick",
         quick_output=f"{Q}/surrogate_helium.json",
         estimated_cost_s=1800.0,
         note="simulations the GP surrogate needs to match the Table 1 APMCABC accuracy, against a long "
@@ -213,8 +213,8 @@ REGISTRY: tuple[Entry, ...] = (
     Entry(
         "surrogate_helium_noise",
         f"{R}/surrogate_helium_noise.json",
-        "python benchmarks/surrogate_helium_noise.py",
-        quick="python benchmarks/surrogate_helium_noise.py --quick",
+        "python -m benchmarks.surrogate_helium_noise",
+        quick="python -m benchmarks.surrogate_helium_noise --quick",
         quick_output=f"{Q}/surrogate_helium_noise.json",
         estimated_cost_s=180.0,
         note="the surrogate's constant noise model against replicate runs at its helium posterior",
@@ -222,8 +222,8 @@ REGISTRY: tuple[Entry, ...] = (
     Entry(
         "surrogate_peers",
         f"{R}/surrogate_peers.json",
-        "python benchmarks/surrogate_peers.py",
-        quick="python benchmarks/surrogate_peers.py --quick",
+        "python -m benchmarks.surrogate_peers",
+        quick="python -m benchmarks.surrogate_peers --quick",
         quick_output=f"{Q}/surrogate_peers.json",
         estimated_cost_s=1200.0,
         note="GP surrogate against ELFI's BOLFI and pyABC at equal simulation budgets on an exact problem",
@@ -231,22 +231,22 @@ REGISTRY: tuple[Entry, ...] = (
     Entry(
         "water_misfit",
         f"{R}/water_misfit.json",
-        "python benchmarks/water_misfit.py",
+        "python -m benchmarks.water_misfit",
         estimated_cost_s=120.0,
         note="the paper-preset X-ray surrogate's observed-data misfit, from its saved checkpoint (no GROMACS)",
     ),
     Entry(
         "surrogate_classifier_replay",
         f"{R}/surrogate_classifier_replay.json",
-        "python benchmarks/surrogate_classifier_replay.py",
+        "python -m benchmarks.surrogate_classifier_replay",
         estimated_cost_s=600.0,
         note="the success classifier scored on the saved water surrogate runs (reads their .npz records)",
     ),
     Entry(
         "engine_throughput",
         f"{R}/engine_throughput.json",
-        "python benchmarks/engine_throughput.py",
-        quick=f"python benchmarks/engine_throughput.py --quick --output {Q}/engine_throughput.json",
+        "python -m benchmarks.engine_throughput",
+        quick=f"python -m benchmarks.engine_throughput --quick --output {Q}/engine_throughput.json",
         quick_output=f"{Q}/engine_throughput.json",
         estimated_cost_s=600.0,
         requires=("lmp",),
@@ -255,7 +255,7 @@ REGISTRY: tuple[Entry, ...] = (
     Entry(
         "engine_throughput_single_core",
         f"{R}/engine_throughput_single_core.json",
-        "python benchmarks/engine_throughput.py --single-core --quick",
+        "python -m benchmarks.engine_throughput --single-core --quick",
         estimated_cost_s=600.0,
         requires=("lmp",),
         note="timings on one pinned core; run on a quiet machine",
@@ -263,7 +263,7 @@ REGISTRY: tuple[Entry, ...] = (
     Entry(
         "engine_throughput_small_system",
         f"{R}/engine_throughput_small_system.json",
-        "python benchmarks/engine_throughput.py --small-system --main-job",
+        "python -m benchmarks.engine_throughput --small-system --main-job",
         estimated_cost_s=600.0,
         requires=("lmp",),
         note="the 32-atom CPU preset batched over parameters against LAMMPS, in system-steps per CPU "
@@ -273,7 +273,7 @@ REGISTRY: tuple[Entry, ...] = (
         Entry(
             f"gpu_throughput:{part}",
             f"{R}/gpu_throughput.json",
-            f"python benchmarks/gpu_throughput.py --part {part}{flags}",
+            f"python -m benchmarks.gpu_throughput --part {part}{flags}",
             part=part,
             estimated_cost_s=cost,
             requires=("nvidia-smi",),
@@ -289,7 +289,7 @@ REGISTRY: tuple[Entry, ...] = (
     Entry(
         "imbalance:water",
         f"{R}/imbalance.json",
-        "python benchmarks/imbalance.py --systems water --num 24 --workers 2",
+        "python -m benchmarks.imbalance --systems water --num 24 --workers 2",
         part="water",
         legacy_cost_keys=("systems/water/batch_wall_seconds",),
         requires=("gmx",),
@@ -297,9 +297,9 @@ REGISTRY: tuple[Entry, ...] = (
     Entry(
         "imbalance:helium",
         f"{R}/imbalance.json",
-        "python benchmarks/imbalance.py --systems helium --helium-num 32",
+        "python -m benchmarks.imbalance --systems helium --helium-num 32",
         part="helium",
-        quick="python benchmarks/imbalance.py --quick",
+        quick="python -m benchmarks.imbalance --quick",
         quick_output=f"{Q}/imbalance.json",
         ignore_keys=("stats_all", "stats_ok", "stats_failed"),
         legacy_cost_keys=("systems/helium/wall_time_s/*", "systems/helium/compile_seconds"),
@@ -307,9 +307,9 @@ REGISTRY: tuple[Entry, ...] = (
     Entry(
         "speedup:model",
         f"{R}/speedup.json",
-        "python benchmarks/speedup.py --parts model --records benchmarks/results/water_neutron_robust.npz",
+        "python -m benchmarks.speedup --parts model --records benchmarks/results/water_neutron_robust.npz",
         part="model",
-        quick="python benchmarks/speedup.py --parts model --records benchmarks/results/water_neutron_robust.npz "
+        quick="python -m benchmarks.speedup --parts model --records benchmarks/results/water_neutron_robust.npz "
         f"--reps 1 --num-particles 500 --output {Q}/speedup.json --figure {Q}/speedup.png",
         quick_output=f"{Q}/speedup.json",
         legacy_cost_keys=("model/seconds",),
@@ -317,7 +317,7 @@ REGISTRY: tuple[Entry, ...] = (
     Entry(
         "speedup:ranks",
         f"{R}/speedup.json",
-        "python benchmarks/speedup.py --parts ranks --records benchmarks/results/water_neutron_robust.npz "
+        "python -m benchmarks.speedup --parts ranks --records benchmarks/results/water_neutron_robust.npz "
         "--ranks 1 2 4 8 16 32",
         part="ranks",
         estimated_cost_s=900.0,
@@ -327,7 +327,7 @@ REGISTRY: tuple[Entry, ...] = (
     Entry(
         "speedup:real",
         f"{R}/speedup.json",
-        "python benchmarks/speedup.py --parts real",
+        "python -m benchmarks.speedup --parts real",
         part="real",
         estimated_cost_s=600.0,
         requires=("mpiexec", "gmx"),
@@ -336,7 +336,7 @@ REGISTRY: tuple[Entry, ...] = (
     Entry(
         "speedup_model_simulated_records",
         f"{R}/speedup_model_simulated_records.json",
-        "python benchmarks/speedup.py --parts model --records benchmarks/results/water_simulated_robust.npz "
+        "python -m benchmarks.speedup --parts model --records benchmarks/results/water_simulated_robust.npz "
         "--output benchmarks/results/speedup_model_simulated_records.json "
         "--figure benchmarks/results/speedup_model_simulated_records.png",
         part="model",
@@ -345,8 +345,8 @@ REGISTRY: tuple[Entry, ...] = (
     Entry(
         "water_example_curves",
         f"{R}/water_example_curves.json",
-        "python benchmarks/water_example_curves.py",
-        quick="python benchmarks/water_example_curves.py --quick",
+        "python -m benchmarks.water_example_curves",
+        quick="python -m benchmarks.water_example_curves --quick",
         quick_output=f"{Q}/water_example_curves.json",
         legacy_cost_keys=("setup/total_wall_time_s",),
         requires=("gmx",),
@@ -356,12 +356,12 @@ REGISTRY: tuple[Entry, ...] = (
     Entry(
         "water_simulated:robust",
         f"{R}/water_simulated.json",
-        "python benchmarks/water_calibration.py --data simulated --statistics robust --workers 2 --predictive 20",
+        "python -m benchmarks.water_calibration --data simulated --statistics robust --workers 2 --predictive 20",
         part="robust",
         long=True,
         legacy_cost_keys=("robust/wall_time_s",),
         requires=("gmx",),
-        quick="python benchmarks/water_calibration.py --quick --data simulated --statistics robust --workers 2",
+        quick="python -m benchmarks.water_calibration --quick --data simulated --statistics robust --workers 2",
         quick_output=f"{Q}/water_simulated.json",
     ),
     _water_surrogate(
@@ -381,7 +381,7 @@ REGISTRY: tuple[Entry, ...] = (
     Entry(
         "water_xray:robust",
         f"{R}/water_xray.json",
-        "python benchmarks/water_calibration.py --data xray --statistics robust --workers 2 --predictive 20 "
+        "python -m benchmarks.water_calibration --data xray --statistics robust --workers 2 --predictive 20 "
         "--validation-ps 500",
         part="robust",
         long=True,
@@ -391,7 +391,7 @@ REGISTRY: tuple[Entry, ...] = (
     Entry(
         "water_xray:paper",
         f"{R}/water_xray.json",
-        "python benchmarks/water_calibration.py --data xray --statistics paper --particles 50 --workers 2 "
+        "python -m benchmarks.water_calibration --data xray --statistics paper --particles 50 --workers 2 "
         "--predictive 20",
         part="paper",
         long=True,
@@ -401,7 +401,7 @@ REGISTRY: tuple[Entry, ...] = (
     Entry(
         "water_neutron:robust",
         f"{R}/water_neutron.json",
-        "python benchmarks/water_calibration.py --data neutron --statistics robust --workers 2 --predictive 20 "
+        "python -m benchmarks.water_calibration --data neutron --statistics robust --workers 2 --predictive 20 "
         "--validation-ps 500",
         part="robust",
         long=True,
@@ -411,7 +411,7 @@ REGISTRY: tuple[Entry, ...] = (
     Entry(
         "water_neutron:paper",
         f"{R}/water_neutron.json",
-        "python benchmarks/water_calibration.py --data neutron --statistics paper --particles 50 --workers 2 "
+        "python -m benchmarks.water_calibration --data neutron --statistics paper --particles 50 --workers 2 "
         "--predictive 20",
         part="paper",
         long=True,
@@ -421,20 +421,20 @@ REGISTRY: tuple[Entry, ...] = (
     Entry(
         "criticism_water",
         f"{R}/criticism_water.json",
-        "python benchmarks/criticism_water.py --data xray --base-result benchmarks/results/water_xray_robust.npz "
+        "python -m benchmarks.criticism_water --data xray --base-result benchmarks/results/water_xray_robust.npz "
         "--held-out density --workers 2 --num-draws 40 --num-replicates 32 --num-gradient-replicates 12 "
         "--num-refit-iterations 2 --refit-particles 40 --refit-alpha 0.3 --refit-steps 6",
         long=True,
         legacy_cost_keys=("wall_time_s",),
         requires=("gmx",),
-        quick="python benchmarks/criticism_water.py --tiny --workers 2",
+        quick="python -m benchmarks.criticism_water --tiny --workers 2",
         quick_output=f"{Q}/criticism_water.json",
         after=("water_xray:robust",),
     ),
     Entry(
         "criticism_water_neutron",
         f"{R}/criticism_water_neutron.json",
-        "python benchmarks/criticism_water.py --data neutron --base-result "
+        "python -m benchmarks.criticism_water --data neutron --base-result "
         "benchmarks/results/water_neutron_robust.npz --held-out density --workers 2 --num-draws 40 "
         "--num-replicates 32 --num-gradient-replicates 12 --num-refit-iterations 2 --refit-particles 40 "
         "--refit-alpha 0.3 --refit-steps 6",
@@ -446,8 +446,8 @@ REGISTRY: tuple[Entry, ...] = (
     Entry(
         "surrogate_coverage",
         f"{R}/surrogate_coverage.json",
-        "python benchmarks/surrogate_coverage.py --datasets 40",
-        quick="python benchmarks/surrogate_coverage.py --quick",
+        "python -m benchmarks.surrogate_coverage --datasets 40",
+        quick="python -m benchmarks.surrogate_coverage --quick",
         quick_output=f"{Q}/surrogate_coverage.json",
         estimated_cost_s=2400.0,
         note="simulation-based calibration of the surrogate (one jaxabc.run per data set) next to "
@@ -456,11 +456,11 @@ REGISTRY: tuple[Entry, ...] = (
     Entry(
         "water_model_choice",
         f"{R}/water_model_choice.json",
-        "python benchmarks/water_model_choice.py --data xray --workers 2 --no-progress --continue "
+        "python -m benchmarks.water_model_choice --data xray --workers 2 --no-progress --continue "
         f"--cache-dir {R}/water_model_choice/xray_quick",
         long=True,
         requires=("gmx",),
-        quick="python benchmarks/water_model_choice.py --tiny --workers 2 --no-progress",
+        quick="python -m benchmarks.water_model_choice --tiny --workers 2 --no-progress",
         quick_output=f"{Q}/water_model_choice.json",
         estimated_cost_s=9000.0,
         note="model choice over five rigid water models by surrogate evidence (200 GROMACS runs each); "
@@ -470,10 +470,10 @@ REGISTRY: tuple[Entry, ...] = (
     Entry(
         "water_model_paper_check",
         f"{R}/water_model_paper_check.json",
-        "python benchmarks/water_model_paper_check.py --data xray --model TIP4P --workers 2",
+        "python -m benchmarks.water_model_paper_check --data xray --model TIP4P --workers 2",
         long=True,
         requires=("gmx",),
-        quick="python benchmarks/water_model_paper_check.py --tiny --workers 2",
+        quick="python -m benchmarks.water_model_paper_check --tiny --workers 2",
         quick_output=f"{Q}/water_model_paper_check.json",
         estimated_cost_s=1200.0,
         note="TIP4P's model-choice posterior draws in the paper preset beside the quick one, and its "
@@ -484,7 +484,7 @@ REGISTRY: tuple[Entry, ...] = (
     Entry(
         "water_model_paper_check_tip3p",
         f"{R}/water_model_paper_check_tip3p.json",
-        "python benchmarks/water_model_paper_check.py --data xray --model TIP3P --name water_model_paper_check_tip3p "
+        "python -m benchmarks.water_model_paper_check --data xray --model TIP3P --name water_model_paper_check_tip3p "
         "--workers 2",
         long=True,
         requires=("gmx",),
@@ -496,11 +496,11 @@ REGISTRY: tuple[Entry, ...] = (
     Entry(
         "criticism_water_joint",
         f"{R}/criticism_water_joint.json",
-        "python benchmarks/criticism_water_joint.py --data xray --model TIP4P --workers 2 "
+        "python -m benchmarks.criticism_water_joint --data xray --model TIP4P --workers 2 "
         f"--cache-dir {CACHE}/criticism_water_joint/xray_quick",
         long=True,
         requires=("gmx",),
-        quick="python benchmarks/criticism_water_joint.py --tiny --workers 2",
+        quick="python -m benchmarks.criticism_water_joint --tiny --workers 2",
         quick_output=f"{Q}/criticism_water_joint.json",
         estimated_cost_s=7200.0,
         note="criticism of TIP4P on the joint data, surrogate refits; needs "
@@ -511,7 +511,7 @@ REGISTRY: tuple[Entry, ...] = (
     Entry(
         "criticism_water_joint_tip3p",
         f"{R}/criticism_water_joint_tip3p.json",
-        "python benchmarks/criticism_water_joint.py --data xray --model TIP3P --name criticism_water_joint_tip3p "
+        "python -m benchmarks.criticism_water_joint --data xray --model TIP3P --name criticism_water_joint_tip3p "
         f"--workers 2 --cache-dir {CACHE}/criticism_water_joint/xray_quick",
         long=True,
         requires=("gmx",),
@@ -523,8 +523,8 @@ REGISTRY: tuple[Entry, ...] = (
     Entry(
         "water_density_relaxation",
         f"{R}/water_density_relaxation.json",
-        "python benchmarks/water_density_relaxation.py --workers 2",
-        quick="python benchmarks/water_density_relaxation.py --quick",
+        "python -m benchmarks.water_density_relaxation --workers 2",
+        quick="python -m benchmarks.water_density_relaxation --quick",
         quick_output=f"{Q}/water_density_relaxation.json",
         estimated_cost_s=1100.0,
         requires=("gmx",),
@@ -533,15 +533,15 @@ REGISTRY: tuple[Entry, ...] = (
     Entry(
         "water_jaxmd_speed",
         f"{R}/water_jaxmd_speed.json",
-        "python benchmarks/water_jaxmd_speed.py",
+        "python -m benchmarks.water_jaxmd_speed",
         requires=("gmx",),
         note="timings of the jax-md TIP4P engine against GROMACS on one core; run on a quiet machine",
     ),
     Entry(
         "water_jaxmd_density",
         f"{R}/water_jaxmd_density.json",
-        "python benchmarks/water_jaxmd_density.py",
-        quick="python benchmarks/water_jaxmd_density.py --quick",
+        "python -m benchmarks.water_jaxmd_density",
+        quick="python -m benchmarks.water_jaxmd_density --quick",
         quick_output=f"{Q}/water_jaxmd_density.json",
         estimated_cost_s=1000.0,
         requires=("gmx",),
@@ -550,7 +550,7 @@ REGISTRY: tuple[Entry, ...] = (
     Entry(
         "water_jaxmd_agreement",
         f"{R}/water_jaxmd_agreement.json",
-        "python benchmarks/water_jaxmd_agreement.py",
+        "python -m benchmarks.water_jaxmd_agreement",
         long=True,
         estimated_cost_s=2700.0,
         requires=("gmx",),
@@ -559,7 +559,7 @@ REGISTRY: tuple[Entry, ...] = (
     Entry(
         "water_jaxmd_agreement_1fs",
         f"{R}/water_jaxmd_agreement_1fs.json",
-        "python benchmarks/water_jaxmd_agreement.py --timestep-ps 0.001 --output water_jaxmd_agreement_1fs",
+        "python -m benchmarks.water_jaxmd_agreement --timestep-ps 0.001 --output water_jaxmd_agreement_1fs",
         long=True,
         estimated_cost_s=1800.0,
         requires=("gmx",),
@@ -568,23 +568,23 @@ REGISTRY: tuple[Entry, ...] = (
     Entry(
         "criticism_neon",
         f"{R}/criticism_neon.json",
-        "python benchmarks/criticism_neon.py",
+        "python -m benchmarks.criticism_neon",
         long=True,
         estimated_cost_s=2400.0,
-        note="smoke run of the plumbing: python benchmarks/criticism_neon.py --tiny (numbers meaningless)",
+        note="smoke run of the plumbing: python -m benchmarks.criticism_neon --tiny (numbers meaningless)",
     ),
     Entry(
         "criticism_argon",
         f"{R}/criticism_argon.json",
-        "python benchmarks/criticism_argon.py",
+        "python -m benchmarks.criticism_argon",
         long=True,
         estimated_cost_s=3000.0,
     ),
     Entry(
         "mcse_calibration",
         f"{R}/mcse_calibration.json",
-        "python benchmarks/mcse_calibration.py",
-        quick="python benchmarks/mcse_calibration.py --quick",
+        "python -m benchmarks.mcse_calibration",
+        quick="python -m benchmarks.mcse_calibration --quick",
         quick_output=f"{Q}/mcse_calibration.json",
         estimated_cost_s=300.0,
         note="z = error / reported MCSE over seeds, against the exact ABC-posterior mean (0 by symmetry)",
@@ -592,8 +592,8 @@ REGISTRY: tuple[Entry, ...] = (
     Entry(
         "reliability_probes",
         f"{R}/reliability_probes.json",
-        "python benchmarks/reliability_probes.py --before 439269f",
-        quick="python benchmarks/reliability_probes.py --quick",
+        "python -m benchmarks.reliability_probes --before 439269f",
+        quick="python -m benchmarks.reliability_probes --quick",
         quick_output=f"{Q}/reliability_probes.json",
         estimated_cost_s=900.0,
         ignore_keys=("message",),

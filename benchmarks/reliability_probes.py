@@ -21,7 +21,7 @@ as well, so the page shows each probe's outcome before and after in one run.
 
 Usage::
 
-    python benchmarks/reliability_probes.py [--before /tmp/oldtree] [--only NAME ...]
+    python -m benchmarks.reliability_probes [--before /tmp/oldtree] [--only NAME ...]
 """
 
 from __future__ import annotations
@@ -38,8 +38,7 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _common import ROOT, write_result
+from benchmarks._common import ROOT, write_result
 
 PRELUDE = """
 import functools, json, os, signal, subprocess, sys, time, warnings

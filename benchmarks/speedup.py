@@ -35,10 +35,10 @@ evaluated, not tuned for; the JSON lists the ``n`` where no schedule can meet th
 
 Usage::
 
-    nice -n 5 python benchmarks/speedup.py                    # all parts, about 5-8 minutes
-    python benchmarks/speedup.py --parts model                # seconds
-    python benchmarks/speedup.py --ranks 1 2 4 8 16 32 64 --sleep-mean 0.05
-    python benchmarks/speedup.py --parts real --real-num 16
+    nice -n 5 python -m benchmarks.speedup                    # all parts, about 5-8 minutes
+    python -m benchmarks.speedup --parts model                # seconds
+    python -m benchmarks.speedup --ranks 1 2 4 8 16 32 64 --sleep-mean 0.05
+    python -m benchmarks.speedup --parts real --real-num 16
 
 Writes ``benchmarks/results/speedup.json`` and ``benchmarks/results/speedup.png`` (drawn by
 ``paper_figures/figure4_speedup.py``).
@@ -60,7 +60,6 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
 
 from jaxabc.scheduling import (  # noqa: E402  (after the path set-up: run as a script)
     dynamic_makespan,
@@ -859,8 +858,7 @@ def main(argv: list[str] | None = None) -> None:
             "how": "actual GROMACS simulations on 1 and 2 MPI worker ranks (this machine: 2 shared cores)",
             **real_study(args.real_num, args.seed, args.timeout),
         }
-    sys.path.insert(0, str(ROOT / "benchmarks"))
-    from _common import write_result
+    from benchmarks._common import write_result
 
     out.pop("machine", None)  # written before provenance existed; the provenance holds the machine now
     source = args.records or args.imbalance

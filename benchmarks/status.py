@@ -19,10 +19,10 @@ split) are seen through the files that import them, which changed.
 
 Usage::
 
-    python benchmarks/status.py            # or: python -m benchmarks.status
-    python benchmarks/status.py --quick    # the quick-mode results under benchmarks/results/quick/
-    python benchmarks/status.py --json
-    python benchmarks/verify.py --budget 30m   # quick-mode checks of the stale results
+    python -m benchmarks.status            # or: python -m benchmarks.status
+    python -m benchmarks.status --quick    # the quick-mode results under benchmarks/results/quick/
+    python -m benchmarks.status --json
+    python -m benchmarks.verify --budget 30m   # quick-mode checks of the stale results
 """
 
 from __future__ import annotations
@@ -36,9 +36,8 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _common import ROOT, code_hash, data_hash, legacy_code_hash
-from registry import CACHES, REGISTRY, TIMING_KEYS, VERIFICATIONS, Entry
+from benchmarks._common import ROOT, code_hash, data_hash, legacy_code_hash
+from benchmarks.registry import CACHES, REGISTRY, TIMING_KEYS, VERIFICATIONS, Entry
 
 __all__ = [
     "Status",

@@ -15,28 +15,24 @@ the record, so this scores the classifiers on the same points, not the designs.
 
 Usage::
 
-    python benchmarks/surrogate_classifier_replay.py
+    python -m benchmarks.surrogate_classifier_replay
 """
 
 from __future__ import annotations
 
 import argparse
 import json
-import sys
 import warnings
 from pathlib import Path
 
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from benchmarks._common import machine, relative, write_result
+from jaxabc.surrogate import design, sampling
+
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-
-import jax  # noqa: E402
-import jax.numpy as jnp  # noqa: E402
-import numpy as np  # noqa: E402
-
-from jaxabc.surrogate import design, sampling  # noqa: E402
-
-sys.path.insert(0, str(ROOT / "benchmarks"))
-from _common import machine, relative, write_result  # noqa: E402
 
 RECORDS = sorted((ROOT / "benchmarks" / "results").glob("water_*_surrogate.npz"))
 

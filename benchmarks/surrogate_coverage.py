@@ -19,30 +19,25 @@ its quoted error is a lower bound.
 
 Usage::
 
-    python benchmarks/surrogate_coverage.py --datasets 40    # about 20 min of CPU
-    python benchmarks/surrogate_coverage.py --quick          # 6 data sets: results/quick/
+    python -m benchmarks.surrogate_coverage --datasets 40    # about 20 min of CPU
+    python -m benchmarks.surrogate_coverage --quick          # 6 data sets: results/quick/
 """
 
 from __future__ import annotations
 
 import argparse
-import sys
 import time
 from pathlib import Path
 
+import jax
 import numpy as np
 
+import jaxabc
+from benchmarks._common import command_line, write_result
+from jaxabc.coverage import CoverageStudy
+from jaxabc.examples import correlated_simulate, correlated_truth_and_data
+
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-
-import jax  # noqa: E402
-
-import jaxabc  # noqa: E402
-from jaxabc.coverage import CoverageStudy  # noqa: E402
-from jaxabc.examples import correlated_simulate, correlated_truth_and_data  # noqa: E402
-
-sys.path.insert(0, str(ROOT / "benchmarks"))
-from _common import command_line, write_result  # noqa: E402
 
 INTERVAL_LEVELS = (0.5, 0.9, 0.95)
 PROBLEM = (

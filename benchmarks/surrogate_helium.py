@@ -22,30 +22,26 @@ every distance.
 
 Usage::
 
-    python benchmarks/surrogate_helium.py                 # its cost is recorded in the JSON
-    python benchmarks/surrogate_helium.py --quick         # plumbing check: results/quick/
+    python -m benchmarks.surrogate_helium                 # its cost is recorded in the JSON
+    python -m benchmarks.surrogate_helium --quick         # plumbing check: results/quick/
 """
 
 from __future__ import annotations
 
 import argparse
-import sys
 import time
 from pathlib import Path
 
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+import jaxabc
+from benchmarks._common import write_result
+from md import helium
+from md.helium_calibration import make_model
+
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-
-import jax  # noqa: E402
-import jax.numpy as jnp  # noqa: E402
-import numpy as np  # noqa: E402
-
-import jaxabc  # noqa: E402
-from md import helium  # noqa: E402
-from md.helium_calibration import make_model  # noqa: E402
-
-sys.path.insert(0, str(ROOT / "benchmarks"))
-from _common import write_result  # noqa: E402
 
 LEVELS = np.linspace(0.03, 0.97, 16)
 

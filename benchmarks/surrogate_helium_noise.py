@@ -21,32 +21,28 @@ whose covariance is pooled over a box around the posterior.
 
 Usage::
 
-    python benchmarks/surrogate_helium_noise.py
-    python benchmarks/surrogate_helium_noise.py --quick     # plumbing check: results/quick/
+    python -m benchmarks.surrogate_helium_noise
+    python -m benchmarks.surrogate_helium_noise --quick     # plumbing check: results/quick/
 """
 
 from __future__ import annotations
 
 import argparse
-import sys
 import tempfile
 from pathlib import Path
 
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+import jaxabc
+from benchmarks._common import write_result
+from benchmarks.surrogate_helium import quantile_problem
+from jaxabc import checkpoint
+from jaxabc.surrogate import build, emulator, sampling
+from jaxabc.surrogate._fit import fit_likelihood
+
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-
-import jax  # noqa: E402
-import jax.numpy as jnp  # noqa: E402
-import numpy as np  # noqa: E402
-
-import jaxabc  # noqa: E402
-from jaxabc import checkpoint  # noqa: E402
-from jaxabc.surrogate import build, emulator, sampling  # noqa: E402
-from jaxabc.surrogate._fit import fit_likelihood  # noqa: E402
-
-sys.path.insert(0, str(ROOT / "benchmarks"))
-from _common import write_result  # noqa: E402
-from surrogate_helium import quantile_problem  # noqa: E402
 
 
 def _mean_abs_corr(cov: np.ndarray) -> float:

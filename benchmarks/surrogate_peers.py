@@ -21,30 +21,26 @@ time is each method's run in its own process, imports excluded.
 
 Usage::
 
-    python benchmarks/surrogate_peers.py                  # budgets 50 100 200, seed 0
-    python benchmarks/surrogate_peers.py --quick          # budget 60, seed 0: results/quick/
+    python -m benchmarks.surrogate_peers                  # budgets 50 100 200, seed 0
+    python -m benchmarks.surrogate_peers --quick          # budget 60, seed 0: results/quick/
 """
 
 from __future__ import annotations
 
 import argparse
 import json
-import sys
 import time
 from pathlib import Path
 
+import jax
 import numpy as np
 
+import jaxabc
+from benchmarks._common import command_line, write_result
+from benchmarks.abc_overhead import PEERS, make_venv, run_process
+from jaxabc.examples import correlated_simulate
+
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "benchmarks"))
-
-import jax  # noqa: E402
-from _common import command_line, write_result  # noqa: E402
-from abc_overhead import PEERS, make_venv, run_process  # noqa: E402
-
-import jaxabc  # noqa: E402
-from jaxabc.examples import correlated_simulate  # noqa: E402
 
 COV = np.array([[1.0, 0.8], [0.8, 1.0]])
 PROBLEM = "x = theta + L z, Cov(L z) = [[1, 0.8], [0.8, 1]], prior U[-10, 10]^2, posterior N(x_obs, Cov)"

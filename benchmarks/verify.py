@@ -14,9 +14,9 @@ the tree stays as it was; only the ledger is written.
 
 Usage::
 
-    python benchmarks/verify.py --budget 30m             # the stale results that fit
-    python benchmarks/verify.py --only coverage --budget 10m
-    python benchmarks/verify.py --budget 1h --dry-run    # the plan only
+    python -m benchmarks.verify --budget 30m             # the stale results that fit
+    python -m benchmarks.verify --only coverage --budget 10m
+    python -m benchmarks.verify --budget 1h --dry-run    # the plan only
 """
 
 from __future__ import annotations
@@ -31,11 +31,17 @@ import time
 from pathlib import Path
 from typing import Any
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _common import ROOT, git_state
-from regenerate import command_argv, parse_budget
-from registry import REGISTRY, VERIFICATIONS, Entry
-from status import check_provenance, compare_numbers, deterministic_view, format_cost, load_verifications, status_of
+from benchmarks._common import ROOT, git_state
+from benchmarks.regenerate import command_argv, parse_budget
+from benchmarks.registry import REGISTRY, VERIFICATIONS, Entry
+from benchmarks.status import (
+    check_provenance,
+    compare_numbers,
+    deterministic_view,
+    format_cost,
+    load_verifications,
+    status_of,
+)
 
 __all__ = ["baseline_mismatch", "check", "main", "plan"]
 

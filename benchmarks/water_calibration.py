@@ -18,12 +18,12 @@ estimate and at TIP4P, from ``gmx energy`` / ``gmx dipoles`` on NPT runs of T ps
 
 Usage (all cores, one single-threaded ``gmx mdrun`` per worker)::
 
-    python benchmarks/water_calibration.py --data simulated --statistics robust
-    python benchmarks/water_calibration.py --data xray --statistics paper --predictive 20
-    python benchmarks/water_calibration.py --data neutron --statistics robust --validation-ps 1000
-    python benchmarks/water_calibration.py --quick --data simulated    # a few min: 30 particles, 2 steps,
+    python -m benchmarks.water_calibration --data simulated --statistics robust
+    python -m benchmarks.water_calibration --data xray --statistics paper --predictive 20
+    python -m benchmarks.water_calibration --data neutron --statistics robust --validation-ps 1000
+    python -m benchmarks.water_calibration --quick --data simulated    # a few min: 30 particles, 2 steps,
                                                                        # 5 ps runs, into results/quick/
-    python benchmarks/water_calibration.py --data simulated --algorithm surrogate --max-simulations 300
+    python -m benchmarks.water_calibration --data simulated --algorithm surrogate --max-simulations 300
     mpiexec -n 9 python -m mpi4py.futures benchmarks/water_calibration.py --data xray --executor mpi
 
 Executors: ``--executor pool`` (default) runs ``--workers`` local processes; ``--executor mpi``
@@ -68,22 +68,12 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+import jax
+import jax.numpy as jnp
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-
-import jax  # noqa: E402
-import jax.numpy as jnp  # noqa: E402
-
-import jaxabc  # noqa: E402
-from md.water import datasets, make_simulator  # noqa: E402
-from md.water.gromacs import TIP4P_PARAMETERS, find_gmx  # noqa: E402
-from md.water.models import PAPER_TIP4P_ESTIMATES  # noqa: E402
-from md.water.statistics import ROBUST_GRID_NM, STATISTIC_NAMES, STATISTIC_UNITS  # noqa: E402
-
-sys.path.insert(0, str(ROOT / "benchmarks"))
-from _common import (  # noqa: E402
+import jaxabc
+from benchmarks._common import (
     QUICK_RESULTS,
     code_hash,
     command_line,
@@ -91,10 +81,15 @@ from _common import (  # noqa: E402
     guard_resume,
     write_result,
 )
+from jaxabc.checkpoint import simulator_identity
+from jaxabc.errors import SimulationFailure
+from jaxabc.surrogate.design import MIN_DESIGN_SUCCESS
+from md.water import datasets, make_simulator
+from md.water.gromacs import TIP4P_PARAMETERS, find_gmx
+from md.water.models import PAPER_TIP4P_ESTIMATES
+from md.water.statistics import ROBUST_GRID_NM, STATISTIC_NAMES, STATISTIC_UNITS
 
-from jaxabc.checkpoint import simulator_identity  # noqa: E402
-from jaxabc.errors import SimulationFailure  # noqa: E402
-from jaxabc.surrogate.design import MIN_DESIGN_SUCCESS  # noqa: E402
+ROOT = Path(__file__).resolve().parents[1]
 
 TIP4P_THETA = np.array([TIP4P_PARAMETERS.sigma_ow_nm, TIP4P_PARAMETERS.epsilon_ow_kj_mol])
 PRIOR_LOW, PRIOR_HIGH = (0.281, 0.2), (0.53, 0.9)

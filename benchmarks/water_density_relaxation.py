@@ -42,8 +42,8 @@ beside it.
 
 Usage (from the repository root)::
 
-    nice -n 15 python benchmarks/water_density_relaxation.py --workers 2    # 9 points x 3 seeds
-    nice -n 15 python benchmarks/water_density_relaxation.py --quick        # 2 points, 1 seed
+    nice -n 15 python -m benchmarks.water_density_relaxation --workers 2    # 9 points x 3 seeds
+    nice -n 15 python -m benchmarks.water_density_relaxation --quick        # 2 points, 1 seed
 
 Cost: the full run is 27 GROMACS runs of 65 ps (3.25 times a ``quick`` run); the JSON records
 its cost and each run's CPU and wall time.  ``--quick`` runs TIP4P and the outer
@@ -57,18 +57,15 @@ diffusion, which this script does not measure.
 from __future__ import annotations
 
 import argparse
-import sys
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "benchmarks"))
+from benchmarks._common import write_result
 
-from _common import write_result  # noqa: E402
+ROOT = Path(__file__).resolve().parents[1]
 
 __all__ = [
     "DensitySeries",

@@ -17,14 +17,13 @@ Writes ``benchmarks/results/water_example_curves.json`` (drawn by
 
 Usage::
 
-    nice -n 15 python benchmarks/water_example_curves.py [--seed 0]
-    python benchmarks/water_example_curves.py --quick   # same run, written to results/quick/
+    nice -n 15 python -m benchmarks.water_example_curves [--seed 0]
+    python -m benchmarks.water_example_curves --quick   # same run, written to results/quick/
 """
 
 from __future__ import annotations
 
 import argparse
-import sys
 import tempfile
 import time
 from pathlib import Path
@@ -32,10 +31,7 @@ from typing import Any
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from _common import command_line, write_result
-
+from benchmarks._common import command_line, write_result
 from md.water import make_simulator
 from md.water.analysis import WaterCurves, compute_curves, load_trajectory
 from md.water.gromacs import TIP4P_PARAMETERS

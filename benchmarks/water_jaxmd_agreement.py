@@ -15,7 +15,7 @@ every seed and the difference in units of the combined standard error.  ``--time
 both engines at another step with the same times (5 ps, frames every 0.2 ps, 15 ps), which
 separates integrator error from a difference in the model.
 
-Run: ``nice -n 15 python benchmarks/water_jaxmd_agreement.py [--seeds 6] [--timestep-ps 0.001
+Run: ``nice -n 15 python -m benchmarks.water_jaxmd_agreement [--seeds 6] [--timestep-ps 0.001
 --output water_jaxmd_agreement_1fs] [--quick]``.
 """
 
@@ -26,7 +26,6 @@ import dataclasses
 import os
 import re
 import subprocess
-import sys
 import tempfile
 from pathlib import Path
 
@@ -34,11 +33,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-import _common
-
+from benchmarks import _common
 from md.lj.npt import jax_md_float32
 from md.units import BOLTZMANN_KJ_MOL_K
 from md.water import analysis, statistics

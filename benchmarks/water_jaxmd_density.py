@@ -21,7 +21,7 @@ also keeps each seed's means, an autocorrelation-corrected standard error of eac
 series (arviz ESS), jax-md's acceptance rates and proposal widths, and the CPU seconds of each
 engine.
 
-Run: ``nice -n 15 python benchmarks/water_jaxmd_density.py [--seeds 4] [--quick]``.  The full
+Run: ``nice -n 15 python -m benchmarks.water_jaxmd_density [--seeds 4] [--quick]``.  The full
 run (4 seeds, 10 ps equilibration, 30 ps production each) is mostly jax-md's time (its cost is
 recorded in the JSON); ``--quick`` (2 seeds, 1 + 1 ps) writes to ``results/quick/``.
 """
@@ -33,7 +33,6 @@ import os
 import re
 import resource
 import subprocess
-import sys
 import tempfile
 import time
 from pathlib import Path
@@ -43,11 +42,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-import _common
-
+from benchmarks import _common
 from md.lj.npt import jax_md_float32
 from md.water.gromacs import _gmx_data_dir, find_gmx
 from md.water.jaxmd.engine import RigidWater

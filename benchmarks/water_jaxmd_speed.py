@@ -18,7 +18,7 @@ Also written: the mean potential energy per molecule over each run (one short ru
 equilibrium comparison).  No GPU was available when this was written; ``--device`` runs the
 JAX part on whatever JAX's default backend is and records its name.
 
-Run: ``nice -n 15 python benchmarks/water_jaxmd_speed.py [--quick]``.
+Run: ``nice -n 15 python -m benchmarks.water_jaxmd_speed [--quick]``.
 """
 
 from __future__ import annotations
@@ -42,11 +42,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-import _common
-
+from benchmarks import _common
 from md.lj.npt import jax_md_float32
 from md.water.gromacs import _gmx_data_dir, find_gmx
 from md.water.jaxmd.engine import RigidWater

@@ -16,29 +16,25 @@ No GROMACS run is made: everything comes from the saved design.
 
 Usage::
 
-    python benchmarks/water_misfit.py
+    python -m benchmarks.water_misfit
 """
 
 from __future__ import annotations
 
 import argparse
 import json
-import sys
 from pathlib import Path
 
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from benchmarks._common import machine, relative, write_result
+from jaxabc.priors import Uniform
+from jaxabc.surrogate import build, emulator, evidence, sampling
+from md.water.gromacs import TIP4P_PARAMETERS
+
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-
-import jax  # noqa: E402
-import jax.numpy as jnp  # noqa: E402
-import numpy as np  # noqa: E402
-
-from jaxabc.priors import Uniform  # noqa: E402
-from jaxabc.surrogate import build, emulator, evidence, sampling  # noqa: E402
-from md.water.gromacs import TIP4P_PARAMETERS  # noqa: E402
-
-sys.path.insert(0, str(ROOT / "benchmarks"))
-from _common import machine, relative, write_result  # noqa: E402
 
 FOLDER = ROOT / "benchmarks" / "results" / "water_paper_preset"
 CHECKPOINT = FOLDER / "checkpoint_xray" / "checkpoint.npz"

@@ -38,10 +38,10 @@ cache and continues where it stopped.
 
 Usage (from the repository root)::
 
-    python benchmarks/water_model_choice.py --data xray --workers 2          # hours of GROMACS
-    python benchmarks/water_model_choice.py --data xray --continue           # continue it, or start
-    python benchmarks/water_model_choice.py --data xray --prior-width wide --discrepancy --workers 2
-    python benchmarks/water_model_choice.py --tiny                           # smoke test, minutes
+    python -m benchmarks.water_model_choice --data xray --workers 2          # hours of GROMACS
+    python -m benchmarks.water_model_choice --data xray --continue           # continue it, or start
+    python -m benchmarks.water_model_choice --data xray --prior-width wide --discrepancy --workers 2
+    python -m benchmarks.water_model_choice --tiny                           # smoke test, minutes
 
 ``--tiny`` runs 2 ps simulations (the surrogate on 50 per model; ABC-SMC on 3 pilot runs and
 4 particles per model for 2 generations) and writes
@@ -54,28 +54,23 @@ from __future__ import annotations
 import argparse
 import hashlib
 import os
-import sys
 import time
 from pathlib import Path
 
+import jax
+import jax.numpy as jnp
 import numpy as np
 
+import jaxabc
+from benchmarks._common import command_line, guard_resume, write_result
+from jaxabc.model_choice import Model
+from jaxabc.noise import MeasurementError
+from md.water.finite_size import MODEL_VISCOSITY_298K, model_viscosity_mpa_s
+from md.water.joint_data import JOINT_DATA_FILE, joint_observed, joint_record, observation_sd
+from md.water.model_simulator import CachedSummaries, WaterModelSimulator
+from md.water.models import MODELS, WIDE_EPSILON_FACTORS, model_prior, polarisation_correction_kj_mol
+
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-
-import jax  # noqa: E402
-import jax.numpy as jnp  # noqa: E402
-
-import jaxabc  # noqa: E402
-from jaxabc.model_choice import Model  # noqa: E402
-from jaxabc.noise import MeasurementError  # noqa: E402
-from md.water.finite_size import MODEL_VISCOSITY_298K, model_viscosity_mpa_s  # noqa: E402
-from md.water.joint_data import JOINT_DATA_FILE, joint_observed, joint_record, observation_sd  # noqa: E402
-from md.water.model_simulator import CachedSummaries, WaterModelSimulator  # noqa: E402
-from md.water.models import MODELS, WIDE_EPSILON_FACTORS, model_prior, polarisation_correction_kj_mol  # noqa: E402
-
-sys.path.insert(0, str(ROOT / "benchmarks"))
-from _common import command_line, guard_resume, write_result  # noqa: E402
 
 DATA_FILES = {
     "xray": [JOINT_DATA_FILE, ROOT / "md/water/data/skinner2013_gOO_295K_nm.csv"],
@@ -108,7 +103,14 @@ def parse_arguments(argv=None) -> argparse.Namespace:
     parser.add_argument("--max-simulations", type=int, default=None)
     parser.add_argument("--max-hours", type=float, default=None, help="stop after this wall time (resumable)")
     parser.add_argument("--md-steps", type=int, default=None, help="override the preset's NPT steps (smoke only)")
-    parser.add_argument("--cache-dir", type=Path, default=None, help="default runs/water_model_choice/<data>_<preset>")
+    parser.add_argument("--cache-dir", type=Path, default=None, help="default runs/cache/water_model_choice/<variant>")
+    parser.add_argument(
+        "--result-dir",
+        type=Path,
+        default=None,
+        help="per-model posteriors and figures (default benchmarks/results/water_model_choice/<variant>)",
+    )
+    parser.add_argument("--name", default="water_model_choice", help="result JSON name (a variant's own)")
     parser.add_argument(
         "--prior-width",
         default="default",
@@ -128,7 +130,18 @@ def parse_arguments(argv=None) -> argparse.Namespace:
         args.md_steps = args.md_steps or 1000
         args.budget_per_model, args.predictive = 50, 2
     suffix = f"{args.data}_{args.preset}" + ("_tiny" if args.tiny else "")
-    args.cache_dir = args.cache_dir or ROOT / "runs" / "water_model_choice" / suffix
+    variant = (
+        suffix
+        + ("" if args.prior_width == "default" else f"_{args.prior_width}")
+        + ("_discrepancy" if args.discrepancy else "")
+        + ("" if args.seed == 0 else f"_seed{args.seed}")
+    )
+    # Simulations and checkpoints are a cache (runs/ is not tracked); the posteriors a page shows
+    # are results.
+    args.cache_dir = args.cache_dir or ROOT / "runs" / "cache" / "water_model_choice" / variant
+    args.result_dir = args.result_dir or (
+        args.cache_dir / "result" if args.tiny else ROOT / "benchmarks" / "results" / "water_model_choice" / variant
+    )
     args.checkpoint_dir = args.checkpoint_dir or args.cache_dir / "surrogate"
     if args.continue_run and any(args.checkpoint_dir.glob("*/checkpoint.npz")):
         args.resume = True
@@ -443,7 +456,9 @@ def main(argv=None) -> None:
     print(result.summary())
     # The per-model posteriors (npz) beside the simulations: the criticism of the preferred
     # model starts from them (benchmarks/criticism_water_joint.py).
-    saved = result.save(args.cache_dir / "result", overwrite=True)
+    saved = result.save(args.result_dir, overwrite=True)
+    verdict = result.verdict()
+    print(f"verdict: {verdict.status}{' ' + verdict.model if verdict.model else ''}: {verdict.reason}")
     bands = predictive_bands(args, result) if args.predictive else None
     if bands is not None:
         plot_predictive(bands, args.data, saved.parent / "predictive_goo.png")
@@ -505,15 +520,24 @@ def main(argv=None) -> None:
             for m in MODELS.values()
         },
         "model_choice": result.to_dict(),
+        "verdict": {"status": verdict.status, "model": verdict.model, "reason": verdict.reason},
+        "sensitivity": [
+            {
+                "label": row.label,
+                "status": row.status,
+                "probabilities": np.asarray(row.probabilities, np.float64).tolist(),
+                "intervals": np.asarray(row.intervals, np.float64).tolist(),
+            }
+            for row in result.sensitivity_table
+        ],
+        "prior_edge": result.prior_edge,
         "per_model": model_rows(result),
         "predictive": bands,
         "cache_dir": os.path.relpath(args.cache_dir, ROOT),
         "saved_result": os.path.relpath(saved.parent, ROOT),
         "wall_time_s": time.perf_counter() - start,
     }
-    path = write_result(
-        "water_model_choice", payload, quick=args.tiny, inputs=DATA_FILES[args.data], command=command_line(argv)
-    )
+    path = write_result(args.name, payload, quick=args.tiny, inputs=DATA_FILES[args.data], command=command_line(argv))
     print(f"wrote {path}")
 
 

@@ -13,8 +13,8 @@ rerunning the command after an interruption replays the finished runs and contin
 
 Usage::
 
-    python benchmarks/water_model_paper_check.py --data xray --workers 2    # ~15 min on 2 cores
-    python benchmarks/water_model_paper_check.py --tiny                     # plumbing smoke test
+    python -m benchmarks.water_model_paper_check --data xray --workers 2    # ~15 min on 2 cores
+    python -m benchmarks.water_model_paper_check --tiny                     # plumbing smoke test
 
 ``--tiny`` runs 2 ps simulations in the quick preset only, from the tiny model choice's result;
 its numbers mean nothing.
@@ -23,25 +23,20 @@ its numbers mean nothing.
 from __future__ import annotations
 
 import argparse
-import sys
 import time
 from pathlib import Path
 
+import jax
 import numpy as np
 
+import jaxabc
+from benchmarks._common import QUICK_RESULTS, RESULTS, command_line, model_selection_record, write_result
+from jaxabc.model_choice import load_model_choice
+from md.water.joint_data import JOINT_DATA_FILE, joint_observed, joint_record
+from md.water.model_simulator import CachedSummaries, WaterModelSimulator
+from md.water.models import get_model
+
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-
-import jax  # noqa: E402
-
-import jaxabc  # noqa: E402
-from jaxabc.model_choice import load_model_choice  # noqa: E402
-from md.water.joint_data import JOINT_DATA_FILE, joint_observed, joint_record  # noqa: E402
-from md.water.model_simulator import CachedSummaries, WaterModelSimulator  # noqa: E402
-from md.water.models import get_model  # noqa: E402
-
-sys.path.insert(0, str(ROOT / "benchmarks"))
-from _common import QUICK_RESULTS, RESULTS, command_line, model_selection_record, write_result  # noqa: E402
 
 
 def parse_args(argv=None) -> argparse.Namespace:

@@ -68,7 +68,7 @@ def available(data: str) -> tuple[dict, list[str]]:
     if not path.exists():
         print(
             f"skipping {data}: {path.relative_to(ROOT)} not found "
-            f"(run: python benchmarks/water_calibration.py --data {data} --statistics robust --predictive 20)"
+            f"(run: python -m benchmarks.water_calibration --data {data} --statistics robust --predictive 20)"
         )
         return {}, []
     table = json.loads(path.read_text())

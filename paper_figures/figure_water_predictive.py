@@ -60,7 +60,7 @@ def entries() -> list[tuple[str, str, dict, dict]]:
         if not path.exists():
             print(
                 f"skipping {data}: {path.relative_to(ROOT)} not found "
-                f"(run: python benchmarks/water_calibration.py --data {data} --statistics robust --predictive 20)"
+                f"(run: python -m benchmarks.water_calibration --data {data} --statistics robust --predictive 20)"
             )
             continue
         table = json.loads(path.read_text())

@@ -14,13 +14,9 @@ from pathlib import Path
 
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "benchmarks"))
+from benchmarks import _common, regenerate, registry, status
 
-import _common  # noqa: E402
-import regenerate  # noqa: E402
-import registry  # noqa: E402
-import status  # noqa: E402
+ROOT = Path(__file__).resolve().parents[1]
 
 SOURCE = textwrap.dedent('''
     """Module docstring."""
@@ -94,7 +90,7 @@ def write_fake(root: Path, name: str = "res", **kwargs) -> Path:
         root / "benchmarks" / "results" / f"{name}.json",
         {"value": 1.5},
         inputs=[root / "data.txt"],
-        command="python benchmarks/fake.py",
+        command="python -m benchmarks.fake",
         **kwargs,
     )
 
@@ -103,7 +99,7 @@ def test_write_result_records_provenance(fake_repo: Path) -> None:
     data = json.loads(write_fake(fake_repo).read_text())
     prov = data["provenance"]
     assert data["value"] == 1.5 and data["benchmark"] == "res"
-    assert prov["command"] == "python benchmarks/fake.py"
+    assert prov["command"] == "python -m benchmarks.fake"
     assert prov["fingerprint"]["code"] == {
         "jaxabc/fake_dependency.py": _common.code_hash(fake_repo / "jaxabc/fake_dependency.py")
     }
@@ -166,7 +162,7 @@ def test_parts_keep_each_commands_provenance(fake_repo: Path) -> None:
     _common.write_result(path, json.loads(path.read_text()), part=["paper", "gpu"], command="python other.py")
     data = json.loads(path.read_text())
     assert set(data["provenance_parts"]) == {"cpu", "paper", "gpu"}
-    assert data["provenance_parts"]["cpu"]["command"] == "python benchmarks/fake.py"
+    assert data["provenance_parts"]["cpu"]["command"] == "python -m benchmarks.fake"
     assert data["provenance_parts"]["paper"]["command"] == "python other.py"
 
 
@@ -281,8 +277,8 @@ def test_registry_is_consistent() -> None:
     names = [e.name for e in registry.REGISTRY]
     assert len(names) == len(set(names))
     for e in registry.REGISTRY:
-        script = e.full.split()[1]
-        assert (ROOT / script).is_file(), e.name
+        module = e.full.split()[2]
+        assert (ROOT / (module.replace(".", "/") + ".py")).is_file(), e.name
         assert e.output.startswith("benchmarks/results/") and e.output.endswith(".json")
         assert (e.quick is None) == (e.quick_output is None), e.name
         if e.quick_output:
@@ -298,14 +294,26 @@ def test_every_benchmark_script_saves_through_write_result() -> None:
     tools = {"status.py", "regenerate.py", "registry.py", "make_docs.py", "verify.py"}
     scripts = [p for p in (ROOT / "benchmarks").glob("*.py") if p.name not in tools and not p.name.startswith("_")]
     assert scripts
-    registered = {e.full.split()[1] for e in registry.REGISTRY}
+    registered = {e.full.split()[2] for e in registry.REGISTRY if e.full.split()[1] == "-m"}
     for script in scripts:
         assert "write_result(" in script.read_text(), f"{script.name} must save its JSON through write_result"
-        assert f"benchmarks/{script.name}" in registered, f"{script.name} has no entry in registry.py"
+        assert f"benchmarks.{script.stem}" in registered, f"{script.name} has no entry in registry.py"
+
+
+def test_benchmarks_are_a_package_run_with_python_m() -> None:
+    """``python -m benchmarks.<name>``: no script edits sys.path, every command is a module run."""
+    for path in [*(ROOT / "benchmarks").glob("*.py"), *(ROOT / "benchmarks" / "docpages").glob("*.py")]:
+        assert "sys.path.insert" not in path.read_text(), path.name
+    for e in registry.REGISTRY:
+        for command in (e.full, e.quick):
+            if command:
+                assert command.startswith("python -m benchmarks."), (e.name, command)
+    script = str(ROOT / "benchmarks" / "coverage.py")
+    assert _common.command_line([script, "--quick"]) == "python -m benchmarks.coverage --quick"
 
 
 def test_results_pages_render_and_name_their_sources() -> None:
-    import make_docs
+    from benchmarks import make_docs
 
     for name, render in make_docs.PAGES.items():
         text = render()
@@ -316,7 +324,7 @@ def test_results_pages_render_and_name_their_sources() -> None:
 
 
 def test_generated_blocks_have_markers_and_name_their_source() -> None:
-    import make_docs
+    from benchmarks import make_docs
 
     for name, (rel, render) in make_docs.BLOCKS.items():
         text = (ROOT / rel).read_text()
@@ -354,7 +362,7 @@ def _fake_quick_run(root: Path, value: float, entry: registry.Entry):
 
 
 def test_a_code_change_is_current_when_the_quick_mode_reproduces(fake_repo: Path, monkeypatch) -> None:
-    import verify
+    from benchmarks import verify
 
     entry = QUICK_ENTRY
     write_fake(fake_repo)
@@ -386,7 +394,7 @@ def test_a_code_change_is_current_when_the_quick_mode_reproduces(fake_repo: Path
 
 
 def test_a_quick_json_from_other_code_cannot_vouch_for_the_result(fake_repo: Path, monkeypatch) -> None:
-    import verify
+    from benchmarks import verify
 
     entry = QUICK_ENTRY
     write_fake(fake_repo)

@@ -14,7 +14,7 @@ recorded and current versions and CPU so that the cause is visible.
 
 Slow (one quick run each, up to a few minutes on 2 cores): ``python3 -m pytest -m slow
 tests/test_benchmarks_repro.py``.  To refresh the saved quick JSONs after an intended change:
-``python benchmarks/regenerate.py --quick --budget 1h``.
+``python -m benchmarks.regenerate --quick --budget 1h``.
 """
 
 from __future__ import annotations
@@ -23,18 +23,14 @@ import json
 import os
 import shutil
 import subprocess
-import sys
 from pathlib import Path
 
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "benchmarks"))
+from benchmarks import _common, registry, status
+from benchmarks.regenerate import command_argv
 
-import _common  # noqa: E402
-import registry  # noqa: E402
-import status  # noqa: E402
-from regenerate import command_argv  # noqa: E402
+ROOT = Path(__file__).resolve().parents[1]
 
 QUICK = [e for e in registry.REGISTRY if e.quick]
 
@@ -48,7 +44,7 @@ def test_quick_mode_reproduces_saved_json(entry: registry.Entry) -> None:
         pytest.skip(f"{entry.name} needs {', '.join(missing)}")
     saved_path = ROOT / entry.quick_output
     assert saved_path.is_file(), (
-        f"{entry.quick_output} is not saved: run `python benchmarks/regenerate.py --quick --only {entry.name} "
+        f"{entry.quick_output} is not saved: run `python -m benchmarks.regenerate --quick --only {entry.name} "
         "--budget 1h` and commit it"
     )
     saved_text = saved_path.read_text()

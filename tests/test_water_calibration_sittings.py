@@ -3,17 +3,13 @@
 from __future__ import annotations
 
 import json
-import sys
 import time
-from pathlib import Path
 
 import numpy as np
 import pytest
 
+from benchmarks import water_calibration as wc
 from jaxabc.errors import SimulationFailure
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
-import water_calibration as wc
 
 
 class _Simulator:
@@ -95,7 +91,7 @@ def test_the_sitting_clock_adds_sittings_and_keeps_a_killed_one(tmp_path):
 
 
 def test_resuming_checkpoints_of_other_code_is_refused(tmp_path):
-    import _common
+    from benchmarks import _common
 
     _common.guard_resume(tmp_path, resuming=True)  # nothing to resume yet: no refusal
     _common.guard_resume(tmp_path, resuming=False, modules=("jaxabc.surrogate",))

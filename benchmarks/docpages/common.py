@@ -7,8 +7,8 @@ import subprocess
 from collections.abc import Sequence
 from typing import Any
 
-from _common import RESULTS, ROOT
-from status import format_cost
+from benchmarks._common import RESULTS, ROOT
+from benchmarks.status import format_cost
 
 DOCS = ROOT / "docs" / "results"
 

@@ -2,10 +2,9 @@
 
 from __future__ import annotations
 
-from _common import RESULTS
-from status import format_cost
-
-from docpages.common import cause_rows, f, figure, g, load, misfit_rows, source, table
+from benchmarks._common import RESULTS
+from benchmarks.docpages.common import cause_rows, f, figure, g, load, misfit_rows, source, table
+from benchmarks.status import format_cost
 
 _FIGURES = (
     ("misfits", "standardised misfit of each summary"),

@@ -5,9 +5,9 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
-from _common import RESULTS
 
-from docpages.common import f, figure, load, source, span, table
+from benchmarks._common import RESULTS
+from benchmarks.docpages.common import f, figure, load, source, span, table
 
 
 def _figure_if_saved(rel: str, caption: str) -> str:

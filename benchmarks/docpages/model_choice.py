@@ -5,9 +5,8 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from _common import RESULTS
-
-from docpages.common import cause_rows, f, figure, load, misfit_rows, source, table
+from benchmarks._common import RESULTS
+from benchmarks.docpages.common import cause_rows, f, figure, load, misfit_rows, source, table
 from md.water.models import PAPER_TIP4P_ESTIMATES
 
 #: Saved paper-preset checks of models of the model choice, one result each.
@@ -254,7 +253,7 @@ def block_water_model_choice() -> str:
     """The side-by-side table of the water model choice, for ``md/water/README.md``."""
     d = load("water_model_choice")
     if d is None:
-        return "Not run yet: `python benchmarks/regenerate.py --only water_model_choice --budget 4h`."
+        return "Not run yet: `python -m benchmarks.regenerate --only water_model_choice --budget 4h`."
     return "\n\n".join([source("water_model_choice", data=d), side_by_side(d)])
 
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from collections import Counter
 
-from docpages.common import load, source, table
+from benchmarks.docpages.common import load, source, table
 
 GOOD = ("correct", "clear error")
 
@@ -12,7 +12,7 @@ GOOD = ("correct", "clear error")
 def page_reliability() -> str:
     d = load("reliability_probes")
     if d is None:
-        return "# Reliability probes\n\nNot saved yet: run `python benchmarks/reliability_probes.py --before REV`.\n"
+        return "# Reliability probes\n\nNot saved yet: run `python -m benchmarks.reliability_probes --before REV`.\n"
     probes = d["probes"]
     has_before = all("before" in p for p in probes)
     rows = []

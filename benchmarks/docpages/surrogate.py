@@ -7,7 +7,7 @@ from typing import Any
 
 import numpy as np
 
-from docpages.common import f, g, load, source, table
+from benchmarks.docpages.common import f, g, load, source, table
 
 
 def page_surrogate_coverage() -> str:
@@ -124,7 +124,7 @@ def page_surrogate_helium() -> str:
     d = load("surrogate_helium")
     title = "# Surrogate against APMCABC on helium"
     if d is None:
-        return f"{title}\n\nNot saved yet: run `python benchmarks/surrogate_helium.py`.\n"
+        return f"{title}\n\nNot saved yet: run `python -m benchmarks.surrogate_helium`.\n"
     refs, bases, summ = d["references"], d["apmcabc"], d["summary"]
 
     def row(label: str, r: dict[str, Any], acc: dict[str, Any], extra: str) -> list[str]:
@@ -272,7 +272,7 @@ def page_surrogate_peers() -> str:
     d = load("surrogate_peers")
     title = "# Surrogate against BOLFI and pyABC"
     if d is None:
-        return f"{title}\n\nNot saved yet: run `python benchmarks/surrogate_peers.py`.\n"
+        return f"{title}\n\nNot saved yet: run `python -m benchmarks.surrogate_peers`.\n"
     labels = {"jaxabc_surrogate": "jaxabc surrogate", "bolfi": "ELFI BOLFI", "pyabc_abcsmc": "pyABC ABC-SMC"}
     rows = []
     for r in d["rows"]:

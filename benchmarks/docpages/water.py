@@ -7,10 +7,10 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from _common import RESULTS, ROOT
-from status import format_cost
 
-from docpages.common import f, figure, git, load, source, sourced_table, table
+from benchmarks._common import RESULTS, ROOT
+from benchmarks.docpages.common import f, figure, git, load, source, sourced_table, table
+from benchmarks.status import format_cost
 from jaxabc.surrogate.diagnostics import MISFIT_P_VALUE
 
 WATER_LABELS = {
@@ -425,7 +425,7 @@ in `benchmarks/registry.py`), resumable across sittings.
         + f"""
 In progress: {len(runs)} GROMACS runs cached ({failed} failed; at most 200 in the design) in
 {len(sittings)} sitting(s), {format_cost(seconds)} of wall time; {design}.
-`python benchmarks/regenerate.py --only water_xray_surrogate_paper_preset:paper --budget 12h` continues it.
+`python -m benchmarks.regenerate --only water_xray_surrogate_paper_preset:paper --budget 12h` continues it.
 """
     )
 
@@ -603,7 +603,7 @@ def block_water_calibrations() -> str:
     """The measured-data calibrations beside the paper's, for ``md/water/README.md``."""
     rows, _ = _water_side_by_side_rows()
     if not rows:
-        return "Not run yet: `python benchmarks/regenerate.py --only water_xray water_neutron --budget 8h`."
+        return "Not run yet: `python -m benchmarks.regenerate --only water_xray water_neutron --budget 8h`."
     names = [n for d in ("xray", "neutron") for n in (f"water_{d}", f"water_{d}_surrogate") if load(n)]
     return sourced_table(names, _SIDE_BY_SIDE_HEADER, rows)
 

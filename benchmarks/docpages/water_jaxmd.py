@@ -4,14 +4,14 @@ from __future__ import annotations
 
 from typing import Any
 
-from docpages.common import f, g, load, source, span, table
+from benchmarks.docpages.common import f, g, load, source, span, table
 
 
 def page_density_relaxation() -> str:
     d = load("water_density_relaxation")
     title = "# Has the quick preset's density relaxed?"
     if d is None:
-        return f"{title}\n\nNot saved yet: run `python benchmarks/water_density_relaxation.py --workers 2`.\n"
+        return f"{title}\n\nNot saved yet: run `python -m benchmarks.water_density_relaxation --workers 2`.\n"
     st, v = d["setup"], d["verdict"]
 
     def se(x: float | None, e: float | None) -> str:
@@ -99,7 +99,7 @@ def page_water_jaxmd() -> str:
     ]
     d = load("water_jaxmd_speed")
     if d is None:
-        return "\n".join([*parts, "Not measured yet: run `python benchmarks/water_jaxmd_speed.py`.\n"])
+        return "\n".join([*parts, "Not measured yet: run `python -m benchmarks.water_jaxmd_speed`.\n"])
     rows = [
         [
             f"jax-md, batch {r['batch']}",
