@@ -469,6 +469,16 @@ REGISTRY: tuple[Entry, ...] = (
         "same command continues an interrupted run",
     ),
     Entry(
+        "water_published_predictive",
+        f"{R}/water_published_predictive.json",
+        "python -m benchmarks.water_published_predictive --data xray --runs 3 --workers 2",
+        long=True,
+        requires=("gmx",),
+        estimated_cost_s=300.0,
+        note="each water model at its published parameters on the model choice's protocol and summaries "
+        "(295 K for the X-ray data), beside the measured values: the calibrated predictive's reference",
+    ),
+    Entry(
         "water_model_paper_check",
         f"{R}/water_model_paper_check.json",
         "python -m benchmarks.water_model_paper_check --data xray --model TIP4P --workers 2",

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import gc
+import itertools
 import json
 import os
 import re
@@ -266,11 +267,11 @@ def test_ctrl_c_swallowed_by_a_gc_callback_still_ends_the_command(
             time.sleep(0.01)
         raise AssertionError("the Ctrl-C was lost")
 
-    timers: list[threading.Timer] = []
+    started: list[float] = []
 
     class CountedTimer(threading.Timer):
         def start(self) -> None:
-            timers.append(self)
+            started.append(time.monotonic())
             super().start()
 
     monkeypatch.setattr(jaxabc, "run", run)
@@ -280,8 +281,9 @@ def test_ctrl_c_swallowed_by_a_gc_callback_still_ends_the_command(
     err = capsys.readouterr().err
     assert "Exception ignored" not in err and err.strip().startswith("jaxabc: interrupted"), err
     # The callbacks (this one at the start and at the end, then JAX's) each swallowed the Ctrl-C:
-    # it is raised again once, never after the command has returned.
-    assert len(timers) == 1
+    # one interrupt is pending at a time (another only once it has fired, when a slow collection
+    # swallowed it again), and none lands after the command has returned.
+    assert started and all(b - a >= 0.45 for a, b in itertools.pairwise(started))
     try:
         time.sleep(0.2)
     except KeyboardInterrupt:

@@ -41,14 +41,18 @@ def page_water_model_choice() -> str:
     ]
     d = load("water_model_choice")
     summaries = d["summaries"]
-    added = summaries.get("measurement_sd_added") or {}
+    added = summaries.get("observation_sd") or summaries.get("measurement_sd_added") or {}
+    settings = d.get("settings", {})
     parts += [
         source("water_model_choice", data=d) + "\n",
-        f"Data: {d['data']}; fitted summaries {', '.join(summaries['fitted'])}; held out "
-        f"{', '.join(summaries['held_out'])}; measurement errors added to every simulation: "
+        f"Data: {d['data']} at {settings.get('temperature_k', 298.15)} K; fitted summaries "
+        f"{', '.join(summaries['fitted'])}; held out {', '.join(summaries['held_out'])}; measurement errors "
+        f"(each source's stated error, {summaries.get('observation_error_via', 'added to every simulation')}): "
         + ", ".join(f"{k} {f(v, 3)}" for k, v in added.items() if v)
+        + f"; prior width: {settings.get('prior_width', 'default')}"
         + f"; method: {d['model_choice']['metadata'].get('method', d['method'])}.\n",
         f"Stopped: {d['model_choice']['stop_reason']}.\n",
+        *_verdict(d),
         table(_HEADER, [_row(name, row, d["models"][name]) for name, row in d["per_model"].items()]) + "\n",
         "Side by side with the published parameters and the paper's TIP4P calibration:\n",
         side_by_side(d) + "\n",
@@ -72,6 +76,7 @@ def page_water_model_choice() -> str:
             table(["model", *bands["scalar_names"], "runs"], rows) + "\n",
             *_saved_figures(d),
         ]
+    parts += _published()
     for name in PAPER_CHECKS:
         check = load(name)
         if check is not None:
@@ -81,6 +86,107 @@ def page_water_model_choice() -> str:
         if c is not None:
             parts += _criticism(name, c)
     return "\n".join(parts)
+
+
+def _published() -> list[str]:
+    """Each model at its published parameters on the same protocol (water_published_predictive.json)."""
+    p = load("water_published_predictive")
+    if p is None:
+        return []
+    names = [n for n, fit in zip(p["summary_names"], p["fitted"], strict=True) if fit]
+    index = [p["summary_names"].index(n) for n in names]
+    rows = [["measured", *(f"{p['observed'][i]:.4g} +- {p['stated_errors'][i]:.2g}" for i in index), "-"]]
+    for name, m in p["models"].items():
+        if "mean" not in m:
+            rows.append([name, *("-" for _ in index), f"0 ({len(m['failures'])} failed)"])
+            continue
+        z = ["-" if v is None else f"{v:+.1f}" for v in m["z"]]
+        cells = [f"{m['mean'][i]:.4g} ({z[i]})" for i in index]
+        rows.append([name, *cells, f"{m['num_runs']} ({len(m['failures'])} failed)"])
+    return [
+        f"Each model at its published parameters, same protocol ({p['temperature_k']} K), mean over "
+        f"{p['runs_per_model']} runs (z: standardised misfit with the stated error):\n",
+        table(["model", *names, "runs"], rows) + "\n",
+        source("water_published_predictive", data=p) + "\n",
+    ]
+
+
+def _verdict(d: dict[str, Any]) -> list[str]:
+    """The verdict sentence, the box-sensitivity table, the discrepancy posteriors and the prior
+    edges, where the JSON has them (results from before they existed have not)."""
+    out = []
+    v = d.get("verdict")
+    if v:
+        who = f" {v['model']}" if v.get("model") else ""
+        out.append(f"**Verdict: {v['status']}{who}.** {v['reason']}.\n")
+    rows = d.get("sensitivity") or []
+    if rows:
+        names = list(d["per_model"])
+        body = []
+        for r in rows:
+            cells = [
+                "-" if p != p else f"{p:.3g} [{lo:.3g}, {hi:.3g}]"
+                for p, (lo, hi) in zip(r["probabilities"], r["intervals"], strict=True)
+            ]
+            body.append([r["label"], r["status"], *cells])
+        out += [
+            "How the probabilities move with the prior boxes (each box scaled about its centre; a "
+            "narrower box from the run itself, a wider one needs simulations there and is not "
+            "extrapolated; probability [interval], each log evidence +- 2 s.e.):\n",
+            table(["boxes", "status", *names], body) + "\n",
+        ]
+    disc = (d.get("settings") or {}).get("discrepancy")
+    if disc:
+        groups = list(disc["groups"])
+        body = []
+        for name, row in d["per_model"].items():
+            est, ci = row["bayes_estimate"], row["credible_interval_95"]
+            k = len(est) - len(groups)
+            body.append(
+                [name, *(f"{est[k + j]:.3g} [{ci[k + j][0]:.3g}, {ci[k + j][1]:.3g}]" for j in range(len(groups)))]
+            )
+        # A group "not reproduced" by a model: its discrepancy sd's 2.5 % point lies outside the
+        # 2 % band above 0 (the prior-edge band), so the data exclude a zero discrepancy there.
+        missed = {
+            g: [
+                name
+                for name, row in d["per_model"].items()
+                if row["credible_interval_95"][len(row["bayes_estimate"]) - len(groups) + j][0]
+                > 0.02 * disc["max_sd"][j]
+            ]
+            for j, g in enumerate(groups)
+        }
+        everyone = [g for g, names in missed.items() if len(names) == len(d["per_model"])]
+        out.append(
+            (
+                "No model reproduces "
+                + ", ".join(everyone)
+                + " within the measurement error (every model's discrepancy "
+                "sd there is above 0 at 95 %). "
+                if everyone
+                else "Every group is reproduced by at least one model. "
+            )
+            + "; ".join(f"{g}: missed by {', '.join(n)}" for g, n in missed.items() if n and g not in everyone)
+            + "\n"
+        )
+        out += [
+            "Model discrepancy: each group's extra standard deviation (summary units), posterior mean "
+            "[95 % interval], uniform prior on [0, max_sd] with max_sd "
+            + ", ".join(f"{g} {m:g}" for g, m in zip(groups, disc["max_sd"], strict=True))
+            + ". A group clearly above 0 is one the model does not reproduce within the measurement error.\n",
+            table(["model", *groups], body) + "\n",
+        ]
+    edges = d.get("prior_edge") or {}
+    piled = [f"{m}: {'; '.join(e['messages'])}" for m, e in edges.items() if e.get("messages")]
+    limits = [f"{m}: {'; '.join(e['at_physical_limits'])}" for m, e in edges.items() if e.get("at_physical_limits")]
+    if edges:
+        out.append(
+            "Prior edges: "
+            + ("; ".join(piled) if piled else "no posterior piles against a bound of its box (under 5 % within 2 %)")
+            + (". At a physical limit: " + "; ".join(limits) if limits else "")
+            + ".\n"
+        )
+    return out
 
 
 def side_by_side(d: dict[str, Any]) -> str:
@@ -231,6 +337,7 @@ def outcome(d: dict[str, Any], checks: dict[str, Any], crits: dict[str, Any]) ->
     parts = [
         source("water_model_choice", data=d),
         f"Verdict of the model choice: {d['model_choice']['stop_reason']}.",
+        *_verdict(d)[:1],
         misfit_table(d),
     ]
     for name, check in checks.items():
