@@ -35,6 +35,8 @@ from jaxabc.seeding import seed_from_key
 # for modules they do not touch.
 _LAZY = {
     "CoverageStudy": ("jaxabc.coverage", "CoverageStudy"),
+    "RunCache": ("jaxabc.cache", "RunCache"),
+    "SittingClock": ("jaxabc.progress", "SittingClock"),
     "coverage_study": ("jaxabc.coverage", "coverage_study"),
     "enable_compilation_cache": ("jaxabc.fused", "enable_compilation_cache"),
     "Model": ("jaxabc.model_choice", "Model"),
@@ -88,9 +90,11 @@ __all__ = [
     "NoPosterior",
     "PriorEdgeWarning",
     "ProcessPoolExecutor",
+    "RunCache",
     "SerialExecutor",
     "SimulationBatch",
     "SimulationFailure",
+    "SittingClock",
     "TooManyFailures",
     "Uniform",
     "VmapExecutor",

@@ -247,7 +247,7 @@ class Verdict(NamedTuple):
         order, which evidence is missing; and the rows left unchecked.
     unchecked : tuple of str
         Labels of the sensitivity rows that need simulations in a wider box and could change
-        the order (compute them with :func:`jaxabc.model_choice.rerun_with_boxes`).
+        the order (compute them with :func:`jaxabc.model_choice.with_boxes`).
     """
 
     status: str
@@ -612,7 +612,7 @@ class ModelChoiceResult:
         A box reaching outside the run's box is **not** extrapolated: the row's status is
         :data:`STATUS_NEEDS_SIMULATIONS`, its probabilities are NaN, and its ``log_evidence``
         holds the known lower bound ``log(Z P(theta in B' and B | data) pi(B) / pi(B'))`` for
-        those models; compute it with :func:`jaxabc.model_choice.rerun_with_boxes`.
+        those models; compute it with :func:`jaxabc.model_choice.with_boxes`.
 
         The rows are also kept in :attr:`sensitivity_table` (replacing rows of the same label),
         which :meth:`verdict`, :meth:`summary` and :meth:`save` use.
@@ -711,7 +711,8 @@ class ModelChoiceResult:
         if unchecked:
             rest = (
                 f"; not checked, as they need simulations in a wider box and could change the order: "
-                f"{', '.join(unchecked)} (compute them with jaxabc.model_choice.rerun_with_boxes)"
+                f"{', '.join(unchecked)} (compute them with "
+                "jaxabc.run(jaxabc.model_choice.with_boxes(models, boxes), ...))"
             )
         if flips:
             return Verdict(

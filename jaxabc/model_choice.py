@@ -53,7 +53,7 @@ wide where the data say nothing halves it.  Every result carries
 :meth:`ModelChoiceResult.sensitivity` rows (each model's box, and all of them, scaled by 0.5
 and 2 about the centre): a narrower box is computed from the run, ``Z' = Z P(theta in B' |
 data) vol(B) / vol(B')``, with no new simulation; a wider one is reported as needing
-simulations there, with the lower bound the run does give, and :func:`rerun_with_boxes`
+simulations there, with the lower bound the run does give, and :func:`with_boxes`
 computes it.  :meth:`ModelChoiceResult.verdict` names a preferred model only when its
 probability interval clears every other model's at the run's boxes and in every computed row;
 each model whose posterior piles against a bound of its box gets a
@@ -110,9 +110,9 @@ __all__ = [
     "SensitivityRow",
     "Verdict",
     "load_model_choice",
-    "rerun_with_boxes",
     "run_from_driver",
     "run_model_choice",
+    "with_boxes",
 ]
 
 #: How the probabilities were computed, for result metadata.
@@ -734,15 +734,15 @@ def _replace_box(prior: Any, value: Any, name: str) -> Any:
     raise TypeError(f"model {name!r}: cannot move the box of a {type(prior).__name__} prior; pass the new prior itself")
 
 
-def rerun_with_boxes(models: Sequence[Model | tuple], boxes: dict[str, Any], **run_options: Any) -> Any:
-    """Model choice again with some models' prior boxes replaced.
+def with_boxes(models: Sequence[Model | tuple], boxes: dict[str, Any]) -> list[Model]:
+    """The models with some prior boxes replaced, to run the model choice again with them.
 
     The rows of :meth:`ModelChoiceResult.sensitivity` whose box reaches outside a model's run
-    box (status :data:`STATUS_NEEDS_SIMULATIONS`) need simulations there; this runs them.
-    With the same ``run_options`` as the first run (``observed``, ``num_particles``,
-    ``final_threshold``, ``seed``, ``method``, ``observation_error``, ...) the result compares
-    like with like; its own :meth:`~ModelChoiceResult.verdict` then says whether the
-    preference survives the wider box.
+    box (status :data:`STATUS_NEEDS_SIMULATIONS`) need simulations there:
+    ``jaxabc.run(with_boxes(models, boxes), **same_options)`` runs them.  With the options of the
+    first run (``observed``, ``num_particles``, ``final_threshold``, ``seed``, ``method``,
+    ``observation_error``, ...) the result compares like with like; its own
+    :meth:`~ModelChoiceResult.verdict` then says whether the preference survives the wider box.
 
     Parameters
     ----------
@@ -751,28 +751,28 @@ def rerun_with_boxes(models: Sequence[Model | tuple], boxes: dict[str, Any], **r
     boxes : dict
         ``{model name: new box}``, the box a width factor about its centre (``2.0``),
         ``(low, high)`` (one value per parameter) or a prior; models not named keep theirs.
-    **run_options
-        Passed to ``jaxabc.run(models, **run_options)``.
 
     Returns
     -------
-    ModelChoiceResult
+    list of Model
+
+    Raises
+    ------
+    KeyError
+        A name in ``boxes`` that is no model's.
 
     Examples
     --------
-    >>> wide = rerun_with_boxes(models, {"near": 2.0}, observed=data, num_particles=500,
-    ...                         final_threshold=0.05, num_steps=20)  # doctest: +SKIP
+    >>> wide = jaxabc.run(with_boxes(models, {"near": 2.0}), observed=data, num_particles=500,
+    ...                   final_threshold=0.05, num_steps=20)  # doctest: +SKIP
     >>> wide.verdict()  # doctest: +SKIP
     """
-    from jaxabc.run import run
-
     model_list = as_models(list(models))
     names = [m.name for m in model_list]
     unknown = sorted(set(boxes) - set(names))
     if unknown:
         raise KeyError(f"no model named {unknown}: the models are {names}")
-    replaced = [
+    return [
         Model(m.name, m.simulate, _replace_box(m.prior, boxes[m.name], m.name)) if m.name in boxes else m
         for m in model_list
     ]
-    return run(replaced, **run_options)

@@ -441,8 +441,8 @@ def wrap_for_abc(
             )
         d = prior.dim
         prior = Uniform(
-            np.concatenate([np.asarray(prior.low, np.float64), np.zeros(len(resolved.names))]),
-            np.concatenate([np.asarray(prior.high, np.float64), resolved.max_sd]),
+            np.concatenate([np.asarray(prior.low, np.float64), np.zeros(len(resolved.names))]).tolist(),
+            np.concatenate([np.asarray(prior.high, np.float64), resolved.max_sd]).tolist(),
             names=(*prior.names, *resolved.names),
             units=(*getattr(prior, "units", ("",) * d), *(DISCREPANCY_UNITS,) * len(resolved.names)),
             # A standard deviation cannot be negative: 0 is a physical limit, max_sd a choice.

@@ -604,7 +604,7 @@ def run(
         distance = _adaptive_setup(distance, algorithm, obs, algorithm_options)
     with precision(dtype):
         jdtype = jnp.float64 if dtype == "float64" else jnp.float32
-        prior = cast_prior(prior, jdtype)
+        prior = cast_prior(cast(Uniform, prior), jdtype)
         if isinstance(algorithm, str):
             # Run-level settings that some builders need to see (the surrogate's budget and data).
             for option, value in (

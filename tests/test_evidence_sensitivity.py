@@ -27,7 +27,7 @@ from jaxabc.model_choice import (
     STATUS_REUSED,
     Model,
     load_model_choice,
-    rerun_with_boxes,
+    with_boxes,
 )
 
 SIGMA, EPS, Y = 0.05, 0.05, 0.2
@@ -152,7 +152,7 @@ def test_verdict_prefers_a_clearly_better_model_and_lists_what_is_unchecked(sepa
     assert v.status == "preferred" and v.model == "near", v
     # far's wider box could raise its evidence without limit: not checked, and said so.
     assert v.unchecked == ("far box x2", "all boxes x2")
-    assert "far box x2" in v.reason and "rerun_with_boxes" in v.reason
+    assert "far box x2" in v.reason and "with_boxes" in v.reason
     # near's wider box halves its evidence at worst, and near stays preferred: decided by the bound.
     assert "known lower bound keeps it so in near box x2" in v.reason
     assert "verdict: preferred: near" in r.summary()
@@ -223,12 +223,12 @@ def test_user_boxes_save_load_and_rerun(separated, tmp_path):
     assert again.verdict() == r.verdict()
     assert again.prior_edge == r.prior_edge
     # A wider box is computed by running again with it.
-    wide = rerun_with_boxes([NEAR, FAR], {"far": 2.0}, observed=[Y], **OPTIONS)
+    wide = jaxabc.run(with_boxes([NEAR, FAR], {"far": 2.0}), observed=[Y], **OPTIONS)
     assert tuple(np.asarray(wide.posterior("far").prior.high)) == (16.0,)
     truth = exact_probabilities([(-1.0, 1.0), (-16.0, 16.0)])
     assert np.all(np.abs(wide.probabilities - truth) < 4 * wide.standard_errors)
     with pytest.raises(KeyError, match="no model named"):
-        rerun_with_boxes([NEAR, FAR], {"nowhere": 2.0}, observed=[Y], **OPTIONS)
+        with_boxes([NEAR, FAR], {"nowhere": 2.0})
 
 
 def test_measurement_error_and_discrepancy_reach_every_model():

@@ -22,6 +22,7 @@ import math
 import os
 import time
 from pathlib import Path
+from typing import Any, cast
 
 import numpy as np
 
@@ -69,7 +70,7 @@ def water_viscosity_mpa_s(temperature_k: float) -> float:
     return 2.414e-2 * 10.0 ** (247.8 / (temperature_k - 140.0))
 
 
-def model_viscosity_mpa_s(model: str, temperature_k: float = 298.15) -> float:
+def model_viscosity_mpa_s(model: Any, temperature_k: float = 298.15) -> float:
     """A model's shear viscosity (mPa s) at ``temperature_k``.
 
     The published 298 K value times ``eta_water(T) / eta_water(298 K)``: the models' viscosities
@@ -156,7 +157,7 @@ def measure_viscosity(
     )
     start = time.monotonic()
     context = tempfile.TemporaryDirectory(prefix="jaxabc-visc-") if workdir is None else None
-    folder = Path(context.name if context is not None else workdir)
+    folder = Path(context.name) if context is not None else Path(cast("str | os.PathLike", workdir))
     try:
         if model.num_sites == 4:
             run = run_gromacs(model.tip4p_parameters(), protocol, folder, seed, seed, gmx=gmx_path)

@@ -312,7 +312,8 @@ class WaterModelSimulator(TIP4PSimulator):
         """Joint summaries, shape (14,), float64, in :data:`JOINT_SUMMARY_NAMES` order."""
         out = self.run(key, theta)
         statistics = np.where(OBSERVED_KINDS[self.observed_kind], out.statistics, 0.0)
-        return np.concatenate([statistics, [out.density_kg_m3, out.hvap_kj_mol], out.second_shell])
+        second_shell = np.asarray(out.second_shell if out.second_shell is not None else np.full(3, np.nan), np.float64)
+        return np.concatenate([statistics, [out.density_kg_m3, out.hvap_kj_mol], second_shell])
 
 
 def make_model_simulator(model: WaterModel | str, preset: str | Protocol = "quick", **options) -> WaterModelSimulator:
