@@ -270,6 +270,7 @@ def test_the_evidence_integrates_over_the_discrepancy_prior(misspecified, discre
     assert diag["observed_misfit"]["p_value"] > 0.01
 
 
+@pytest.mark.slow
 def test_without_the_discrepancy_the_misspecified_posterior_is_overconfident(misspecified):
     observed, exact = misspecified
     algorithm = build(PRIOR_1D, 1000, observed=observed, max_simulations=60)
@@ -357,6 +358,7 @@ def test_raw_forms_are_normalised_and_described_in_the_settings():
     assert not {"observation_error", "discrepancy", "augmented_prior"} & set(plain)
 
 
+@pytest.mark.slow
 def test_jaxabc_run_forwards_both_options_and_returns_the_augmented_posterior():
     """``jaxabc.run("surrogate", observation_error=, discrepancy=)``: the builder gets both, the
     result's prior is theta's box plus the discrepancy sd's (0 a physical limit, so a posterior
