@@ -385,7 +385,10 @@ def predictive_bands(args, result) -> dict:
     for name, post in zip(result.names, result.posteriors, strict=True):
         draws = post.resample(args.predictive, seed=args.seed)
         stem = name.replace("/", "_")
-        for i, theta in enumerate(draws):
+        for i, draw in enumerate(draws):
+            # The model's own parameters (sigma_OO, epsilon_OO); a discrepancy's sds are not
+            # simulated: the bands are the simulator's, without measurement error or discrepancy.
+            theta = np.asarray(draw, np.float64)[:2]
             # Keyed by theta and the simulator too: a rerun with another posterior or protocol
             # must not replay these runs.
             digest = hashlib.sha256(np.asarray(theta, np.float64).tobytes() + simulator_id(args).encode()).hexdigest()[
