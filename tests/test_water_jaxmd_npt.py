@@ -40,6 +40,22 @@ def _row(tree, i):
     return jax.tree_util.tree_map(lambda x: x[i], tree)
 
 
+@pytest.fixture(scope="module", autouse=True)
+def _no_persistent_compilation_cache():
+    """This module's programs are compiled in-process only.
+
+    Late in a full run (after jaxabc.run has turned the persistent XLA cache on for the process),
+    writing or reading these large programs' cache entries aborted the interpreter twice (SIGABRT
+    inside jax's compilation_cache); compiled without it they pass. Free the in-memory caches of
+    the modules before, too.
+    """
+    jax.clear_caches()
+    previous = jax.config.jax_enable_compilation_cache
+    jax.config.update("jax_enable_compilation_cache", False)
+    yield
+    jax.config.update("jax_enable_compilation_cache", previous)
+
+
 @pytest.fixture(scope="module")
 def water():
     """A 64-molecule lattice box, its barostat at 1 bar and 298 K, and an initial state."""
