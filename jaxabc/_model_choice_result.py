@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import inspect
 import json
 import math
 import warnings
@@ -14,7 +13,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from jaxabc.diagnostics import PRIOR_EDGE_WIDTH, prior_edge_mass, prior_edge_messages, prior_limit_notes
-from jaxabc.errors import PriorEdgeWarning
+from jaxabc.errors import PriorEdgeWarning, caller_stacklevel
 from jaxabc.results import ABCResult
 
 __all__ = [
@@ -377,20 +376,9 @@ def check_prior_edges(names: Sequence[str], posteriors: Sequence[ABCResult], war
                 f"model {name!r}: " + "; ".join(messages) + ": its evidence, and the model probabilities, "
                 "depend on where the box was cut (see ModelChoiceResult.sensitivity)",
                 PriorEdgeWarning,
-                stacklevel=_caller_stacklevel(),
+                stacklevel=caller_stacklevel(),
             )
     return out
-
-
-def _caller_stacklevel() -> int:
-    """The ``stacklevel`` that points a warning at the first frame outside jaxabc."""
-    package = str(Path(__file__).parent)
-    level = 0  # this function's own frame is not counted by warnings.warn
-    frame = inspect.currentframe()
-    while frame is not None and frame.f_code.co_filename.startswith(package):
-        frame = frame.f_back
-        level += 1
-    return level
 
 
 @dataclass

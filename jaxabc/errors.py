@@ -20,6 +20,7 @@ __all__ = [
     "PriorEdgeWarning",
     "SimulationFailure",
     "TooManyFailures",
+    "caller_stacklevel",
 ]
 
 STATUS_OK = 0
@@ -68,3 +69,17 @@ class PriorEdgeWarning(UserWarning):
     the posterior, and any evidence, depend on where the box was cut.  Widen the box there, or
     say which physical limit stops it.
     """
+
+
+def caller_stacklevel() -> int:
+    """The ``stacklevel`` that points a warning at the first frame outside jaxabc."""
+    import inspect
+    from pathlib import Path
+
+    package = str(Path(__file__).parent)
+    level = 0  # this function's own frame is not counted by warnings.warn
+    frame = inspect.currentframe()
+    while frame is not None and frame.f_code.co_filename.startswith(package):
+        frame = frame.f_back
+        level += 1
+    return level

@@ -62,7 +62,6 @@ each model whose posterior piles against a bound of its box gets a
 
 from __future__ import annotations
 
-import inspect
 import math
 import time
 import warnings
@@ -97,7 +96,7 @@ from jaxabc._model_choice_result import (
 from jaxabc._model_choice_smc import ALGORITHM_NAME, Context, ModelTrack, Settings, next_threshold
 from jaxabc.checkpoint import FolderLock, prepare_folder, require_fingerprintable
 from jaxabc.distances import get_distance
-from jaxabc.errors import PriorEdgeWarning
+from jaxabc.errors import PriorEdgeWarning, caller_stacklevel
 from jaxabc.executors import Executor, get_executor
 from jaxabc.results import versions
 
@@ -323,7 +322,7 @@ def _assemble(
             "is estimated as 0 with a zero standard error; the 95% upper bound given here is in "
             "probability_upper_bounds",
             UserWarning,
-            stacklevel=_caller_stacklevel(),
+            stacklevel=caller_stacklevel(),
         )
     with warnings.catch_warnings():
         # The prior-edge check runs once below, per model and naming it (not per ABCResult).
@@ -385,17 +384,6 @@ def _upper_bounds(
         others = np.sum(np.delete(model_prior * z, i))
         out[i] = model_prior[i] * z_up / (model_prior[i] * z_up + others)
     return out
-
-
-def _caller_stacklevel() -> int:
-    """The ``stacklevel`` that points a warning at the first frame outside jaxabc."""
-    package = str(Path(__file__).parent)
-    level = 0  # this function's own frame is not counted by warnings.warn
-    frame = inspect.currentframe()
-    while frame is not None and frame.f_code.co_filename.startswith(package):
-        frame = frame.f_back
-        level += 1
-    return level
 
 
 def run_model_choice(
