@@ -53,7 +53,7 @@ import numpy as np
 
 # The jaxabc runs happen in child processes; importing what they run here puts those modules
 # in this result's fingerprint, so an edit to the fused path marks the result stale.
-import jaxabc.fused  # noqa: F401
+import jaxabc.driver.fused  # noqa: F401
 from benchmarks._common import write_result
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -247,7 +247,7 @@ import jaxabc
 from jaxabc.algorithms import pmc
 from jaxabc.algorithms.base import make_jax_step
 from jaxabc.distances import get_distance
-from jaxabc.fused import _FAST_COMPILE
+from jaxabc.driver.fused import _FAST_COMPILE
 t_jaxabc = time.perf_counter() - t0 - t_jax
 n, thresholds, mode = int(sys.argv[1]), json.loads(sys.argv[2]), sys.argv[3]
 

@@ -61,7 +61,7 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 
-from jaxabc.scheduling import (  # noqa: E402  (after the path set-up: run as a script)
+from jaxabc.executors.scheduling import (  # noqa: E402  (after the path set-up: run as a script)
     dynamic_makespan,
     longest_predicted_first,
     lower_bound,
@@ -134,10 +134,10 @@ def loo_predictions(theta: np.ndarray, times: np.ndarray, k: int = 5) -> np.ndar
     """Leave-one-out prediction of each task's duration from the others' (theta, time).
 
     The same k-nearest-neighbour regression that ``ProcessPoolExecutor(order="longest_first")``
-    and ``MPIExecutor(order="longest_first")`` use (:class:`jaxabc.scheduling.NearestNeighbourCost`),
+    and ``MPIExecutor(order="longest_first")`` use (:class:`jaxabc.executors.scheduling.NearestNeighbourCost`),
     so the model's "longest predicted first" is as good as the executors' and no better.
     """
-    from jaxabc.scheduling import NearestNeighbourCost
+    from jaxabc.executors.scheduling import NearestNeighbourCost
 
     theta = np.asarray(theta, np.float64).reshape(len(times), -1)
     out = np.empty(len(times))
@@ -236,7 +236,7 @@ def abcsubsim_batches(num_particles: int, p0: float, levels: int) -> list[int]:
 
 
 # ---------------------------------------------------------------------------------------------
-# Schedulers (makespan of one batch on n identical workers): the maths lives in jaxabc.scheduling.
+# Schedulers (makespan of one batch on n identical workers): the maths lives in jaxabc.executors.scheduling.
 
 #: Timed on real ranks (the oracle order is a bound, not something an executor can do).
 RANK_ALLOCATIONS = ("dynamic", "dynamic_longest_first", "static")

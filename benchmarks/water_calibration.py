@@ -195,7 +195,7 @@ def parse_arguments(argv=None) -> argparse.Namespace:
         "--order",
         choices=("fifo", "longest_first"),
         default="longest_first",
-        help="task order of the process pool (jaxabc.scheduling); never changes results",
+        help="task order of the process pool (jaxabc.executors.scheduling); never changes results",
     )
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument(

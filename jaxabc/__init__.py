@@ -25,8 +25,7 @@ from jaxabc.executors import (
     task_durations,
 )
 from jaxabc.noise import Discrepancy
-from jaxabc.priors import Uniform
-from jaxabc.priors_numpyro import Independent
+from jaxabc.priors import Independent, Uniform
 from jaxabc.results import ABCResult, load
 from jaxabc.run import run  # eager: the function shadows the submodule ``jaxabc.run``
 from jaxabc.seeding import seed_from_key
@@ -35,15 +34,15 @@ from jaxabc.seeding import seed_from_key
 # for modules they do not touch.
 _LAZY = {
     "CoverageStudy": ("jaxabc.coverage", "CoverageStudy"),
-    "RunCache": ("jaxabc.cache", "RunCache"),
-    "SittingClock": ("jaxabc.progress", "SittingClock"),
+    "RunCache": ("jaxabc.executors.cache", "RunCache"),
+    "SittingClock": ("jaxabc.executors.progress", "SittingClock"),
     "coverage_study": ("jaxabc.coverage", "coverage_study"),
-    "enable_compilation_cache": ("jaxabc.fused", "enable_compilation_cache"),
+    "enable_compilation_cache": ("jaxabc.driver.fused", "enable_compilation_cache"),
     "Model": ("jaxabc.model_choice", "Model"),
     "ModelChoiceResult": ("jaxabc.model_choice", "ModelChoiceResult"),
     "model_choice": ("jaxabc.model_choice", None),
-    "run_fused": ("jaxabc.fused", "run_fused"),
-    "scheduling": ("jaxabc.scheduling", None),
+    "run_fused": ("jaxabc.driver.fused", "run_fused"),
+    "scheduling": ("jaxabc.executors.scheduling", None),
 }
 
 
@@ -68,7 +67,7 @@ def _cache_from_environment() -> None:
     import os
 
     if os.environ.get("JAXABC_COMPILATION_CACHE"):
-        from jaxabc.fused import enable_compilation_cache
+        from jaxabc.driver.fused import enable_compilation_cache
 
         enable_compilation_cache()
 

@@ -71,8 +71,25 @@ __all__ = ["ConfigError", "load_config", "main", "run_config"]
 
 EXAMPLES: dict[str, str] = {
     "gaussian": "Gaussian mean with known variance (seconds): the analytic check",
-    "helium": "the paper's helium Lennard-Jones calibration on the CPU preset (md.helium)",
 }
+
+#: Entry-point group through which other packages add examples: ``name = "module:function"``,
+#: called as ``function(folder, quick=..., resume=...)``.  The repository's ``md`` package
+#: registers ``helium`` there (pyproject.toml), so that jaxabc never imports a simulator.
+EXAMPLE_GROUP = "jaxabc.examples"
+
+
+def registered_examples() -> dict[str, Any]:
+    """Examples other packages registered under :data:`EXAMPLE_GROUP`: name -> entry point."""
+    from importlib.metadata import entry_points
+
+    return {ep.name: ep for ep in entry_points(group=EXAMPLE_GROUP) if ep.name not in EXAMPLES}
+
+
+def example_names() -> dict[str, str]:
+    """Every example the ``example`` command can run: name -> one-line description."""
+    return {**EXAMPLES, **{name: f"registered by {ep.value}" for name, ep in registered_examples().items()}}
+
 
 #: Keys every configuration must have, by table.
 REQUIRED: dict[str, tuple[str, ...]] = {
@@ -525,17 +542,16 @@ def _example(name: str, folder: Path, quick: bool, resume: bool = False, overwri
         eps = float(result.thresholds[-1])
         print(f"exact ABC posterior correlation at eps={eps:.3f}: {examples.correlated_abc_correlation(eps):.3f}")
         return
-    if name == "helium":
-        # Looked up at call time: jaxabc (inference) never imports md (simulators) at module level.
+    registered = registered_examples()
+    if name in registered:
         try:
-            helium_calibration = importlib.import_module("md.helium_calibration")
+            run_example = registered[name].load()
         except ImportError as exc:
-            raise RuntimeError(f"the helium example needs the md package (run from the repository): {exc}") from None
-        # It starts over unless resuming (its own rule), which _example_folder has made safe.
-        flags = [*(["--quick"] if quick else []), *(["--resume"] if resume else [])]
-        helium_calibration.main(["--output", str(folder), *flags])
+            raise RuntimeError(f"example {name!r} ({registered[name].value}) cannot be imported: {exc}") from None
+        # A registered example starts over unless resuming, which _example_folder has made safe.
+        run_example(folder, quick=quick, resume=resume)
         return
-    raise ValueError(f"unknown example {name!r}: choose from {sorted(EXAMPLES)}")
+    raise ValueError(f"unknown example {name!r}: choose from {sorted(example_names())}")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -551,8 +567,11 @@ def main(argv: list[str] | None = None) -> int:
         "--overwrite", action="store_true", help="start over, replacing a checkpoint left in the output folder"
     )
     p_run.add_argument("--no-progress", action="store_true")
-    p_ex = sub.add_parser("example", help="run a built-in example: " + ", ".join(EXAMPLES))
-    p_ex.add_argument("name", choices=sorted(EXAMPLES))
+    names = example_names()
+    p_ex = sub.add_parser(
+        "example", help="run an example: " + "; ".join(f"{k} ({v})" for k, v in sorted(names.items()))
+    )
+    p_ex.add_argument("name", choices=sorted(names))
     p_ex.add_argument("--output", default=None, help="folder (default runs/NAME)")
     p_ex.add_argument("--quick", action="store_true", help="a smaller, faster variant")
     p_ex.add_argument("--resume", action="store_true", help="continue an interrupted run of the example")

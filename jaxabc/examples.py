@@ -105,7 +105,7 @@ def sleep_simulate(key: np.ndarray, theta: np.ndarray) -> np.ndarray:
     """A host task that waits ``theta[0]`` seconds and returns ``(theta[0], finish time)``.
 
     Its duration is a known function of its parameter, which makes it the test case for
-    duration-aware scheduling (:mod:`jaxabc.scheduling`): the finish times show the order in
+    duration-aware scheduling (:mod:`jaxabc.executors.scheduling`): the finish times show the order in
     which a single worker ran the tasks.
     """
     time.sleep(float(theta[0]))

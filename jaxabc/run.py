@@ -25,18 +25,11 @@ import numpy as np
 
 from jaxabc import algorithms as _algorithms
 from jaxabc import checkpoint as _ckpt
-from jaxabc._driver import (
-    Context,
-    Progress,
-    Recorder,
-    SharedVmapExecutor,
-    builder_accepts,
-    compile_algorithm,
-    make_distance_fn,
-    mark_bad_distances,
-    posterior_distances,
-)
-from jaxabc._driver_checks import (
+from jaxabc.algorithms.base import ABCAlgorithm
+from jaxabc.checkpoint import CHECKPOINT_NAME
+from jaxabc.distances import AdaptivePNorm, as_adaptive, get_distance, is_adaptive
+from jaxabc.driver.assemble import assemble
+from jaxabc.driver.checks import (
     cast_prior,
     check_first_distances,
     check_first_iteration_budget,
@@ -48,14 +41,21 @@ from jaxabc._driver_checks import (
     validate_observed,
     validate_seed,
 )
-from jaxabc._driver_result import assemble
-from jaxabc.algorithms.base import ABCAlgorithm
-from jaxabc.checkpoint import CHECKPOINT_NAME
-from jaxabc.distances import AdaptivePNorm, as_adaptive, get_distance, is_adaptive
+from jaxabc.driver.context import (
+    Context,
+    Progress,
+    Recorder,
+    SharedVmapExecutor,
+    builder_accepts,
+    compile_algorithm,
+    make_distance_fn,
+    mark_bad_distances,
+    posterior_distances,
+)
+from jaxabc.driver.fused import DRIVER as FUSED_DRIVER
+from jaxabc.driver.fused import _run_fused_body
 from jaxabc.errors import STATUS_OK, TooManyFailures
 from jaxabc.executors import Executor, get_executor
-from jaxabc.fused import DRIVER as FUSED_DRIVER
-from jaxabc.fused import _run_fused_body
 from jaxabc.noise import Discrepancy, ResolvedDiscrepancy, observation_covariance, wrap_for_abc
 from jaxabc.priors import Uniform
 from jaxabc.results import ABCResult
@@ -285,7 +285,7 @@ def _fused_applies(
     resume: bool,
 ) -> bool:
     """Whether ``run(executor=None)`` can run the whole calibration as compiled programs
-    (:func:`jaxabc.fused.run_fused`): a JAX algorithm, and a simulator and distance JAX can trace.
+    (:func:`jaxabc.driver.fused.run_fused`): a JAX algorithm, and a simulator and distance JAX can trace.
     A resumed run stays on the driver that wrote its checkpoint."""
     if algo.host or algo.uses_summaries or num_particles is None:
         return False
@@ -583,7 +583,7 @@ def run(
         if algorithm_options.get("method") == "surrogate":
             # One surrogate calibration per model, each through this function (passed, not
             # imported, so that model choice does not import the driver back).
-            from jaxabc._model_choice_surrogate import run_from_driver as surrogate_choice
+            from jaxabc.model_choice.surrogate import run_from_driver as surrogate_choice
 
             return surrogate_choice(dict(locals()), run)
         from jaxabc.model_choice import run_from_driver

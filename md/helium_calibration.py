@@ -21,7 +21,7 @@ import jax
 import numpy as np
 
 import jaxabc
-from jaxabc.fused import default_compilation_cache
+from jaxabc.driver.fused import default_compilation_cache
 from jaxabc.results import write_outputs
 from md import helium
 
@@ -107,6 +107,11 @@ def main(argv: list[str] | None = None) -> int:
     )
     print(f"wrote {args.output}/result.npz, posterior.png, summary.txt ({time.perf_counter() - t0:.0f} s)")
     return 0
+
+
+def example(folder: str | Path, quick: bool = False, resume: bool = False) -> None:
+    """The ``jaxabc example helium`` entry point: :func:`main` writing into ``folder``."""
+    main(["--output", str(folder), *(["--quick"] if quick else []), *(["--resume"] if resume else [])])
 
 
 if __name__ == "__main__":

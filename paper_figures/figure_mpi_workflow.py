@@ -5,9 +5,9 @@ The paper draws a cartoon of the two MPI backends.  Here the same comparison is 
 ``benchmarks/speedup.py`` (no simulation, no MPI run):
 
 * static: the batch is cut into equal contiguous chunks, one per worker, fixed up front
-  (``jaxabc.executors.mpi.chunk_indices``, ``jaxabc.scheduling.static_makespan``);
+  (``jaxabc.executors.mpi.chunk_indices``, ``jaxabc.executors.scheduling.static_makespan``);
 * dynamic: a free worker pulls the next task in order (greedy list scheduling,
-  ``jaxabc.MPIExecutor(allocation="dynamic")``, ``jaxabc.scheduling.dynamic_makespan``).
+  ``jaxabc.MPIExecutor(allocation="dynamic")``, ``jaxabc.executors.scheduling.dynamic_makespan``).
 
 Task durations are drawn with a fixed seed from the measured durations of a water APMCABC run
 stored in ``benchmarks/results/speedup.json`` (``distribution``: every GROMACS simulation's time,

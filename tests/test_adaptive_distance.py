@@ -18,7 +18,7 @@ import scipy.stats
 
 import jaxabc
 from jaxabc import distances
-from jaxabc.fused import run_fused
+from jaxabc.driver.fused import run_fused
 
 SCALE = 1000.0
 OBSERVED = np.array([0.7, -0.4 * SCALE])

@@ -402,3 +402,27 @@ def test_factory_options_are_the_simulator_identity(
     named = _config(tmp_path, FACTORY_CONFIG.format(scale=2.0, extra='simulator_id = "scaled-v1"'))
     assert main(["run", str(named), "--no-progress", "--overwrite"]) == 0
     assert checkpoint.load(tmp_path / "out" / checkpoint.CHECKPOINT_NAME).fingerprint["simulator"] == "scaled-v1"
+
+
+def test_registered_example_runs_through_its_entry_point(
+    tmp_path: Path, capsys: pytest.CaptureFixture, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    import jaxabc.cli as cli
+
+    # The repository's md package registers helium in pyproject.toml; jaxabc names no simulator.
+    assert cli.registered_examples()["helium"].value == "md.helium_calibration:example"
+    calls = []
+
+    class Point:
+        value = "tests:fake"
+
+        def load(self):
+            return lambda folder, quick, resume: calls.append((Path(folder), quick, resume))
+
+    monkeypatch.setattr(cli, "registered_examples", lambda: {"toy": Point()})
+    assert main(["example", "toy", "--output", str(tmp_path / "toy"), "--quick"]) == 0
+    assert calls == [(tmp_path / "toy", True, False)]
+    with pytest.raises(SystemExit) as exc:
+        main(["example", "nonesuch", "--output", str(tmp_path / "x")])
+    assert exc.value.code == 2
+    assert "'toy'" in capsys.readouterr().err

@@ -16,8 +16,8 @@ import pytest
 import jaxabc
 from jaxabc import examples
 from jaxabc.distances import kl_divergence
+from jaxabc.driver.fused import run_fused
 from jaxabc.executors import ProcessPoolExecutor, SerialExecutor, VmapExecutor
-from jaxabc.fused import run_fused
 
 PRIOR = jaxabc.Uniform([-3.0], [3.0])
 OBSERVED = np.array([0.5])

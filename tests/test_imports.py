@@ -109,8 +109,48 @@ def test_executors_and_mpi_share_one_worker_module() -> None:
     graph = _graph("jaxabc")
     assert "jaxabc.executors.workers" in graph["jaxabc.executors.local"]
     assert "jaxabc.executors.workers" in graph["jaxabc.executors.mpi"]
-    # MPI reaches the rest of the executors only through the base and worker modules.
+    # MPI reaches the rest of the executors only through the base and worker modules, and the
+    # scheduling cost models (a leaf that imports no executor).
     assert graph["jaxabc.executors.mpi"] & {m for m in graph if m.startswith("jaxabc.executors")} <= {
         "jaxabc.executors.base",
+        "jaxabc.executors.scheduling",
         "jaxabc.executors.workers",
     }
+    assert not {m for m in graph["jaxabc.executors.scheduling"] if m.startswith("jaxabc.executors")}
+
+
+def test_jaxabc_imports_nothing_by_a_string_it_wrote() -> None:
+    # importlib.import_module("literal") hides a dependency from readers and from the cycle check.
+    offenders = []
+    for name, path in _modules("jaxabc").items():
+        for node in ast.walk(ast.parse(path.read_text(), str(path))):
+            if (
+                isinstance(node, ast.Call)
+                and getattr(node.func, "attr", getattr(node.func, "id", "")) in ("import_module", "__import__")
+                and node.args
+                and isinstance(node.args[0], ast.Constant)
+            ):
+                offenders.append(f"{name}:{node.lineno}")
+    assert offenders == []
+
+
+def test_top_level_of_jaxabc_is_small() -> None:
+    modules = sorted(p.stem for p in (ROOT / "jaxabc").glob("*.py") if p.name != "__init__.py")
+    assert len(modules) <= 12, modules
+
+
+def test_no_private_name_is_imported_from_another_module() -> None:
+    # A leading underscore means "this module only"; private *modules* inside a package are fine.
+    offenders = []
+    modules = _modules("jaxabc")
+    for name, path in modules.items():
+        for node in ast.walk(ast.parse(path.read_text(), str(path))):
+            if isinstance(node, ast.ImportFrom) and (node.module or "").split(".")[0] == "jaxabc":
+                offenders += [
+                    f"{name}: {node.module}.{a.name}"
+                    for a in node.names
+                    if a.name.startswith("_")
+                    and not a.name.startswith("__")
+                    and f"{node.module}.{a.name}" not in modules
+                ]
+    assert offenders == []

@@ -27,8 +27,8 @@ from jax.scipy.special import gammaln, xlogy
 from scipy.special import gammainc
 
 import jaxabc
-from jaxabc._model_choice_result import probabilities_with_errors
 from jaxabc.model_choice import Model, load_model_choice, run_model_choice
+from jaxabc.model_choice.result import probabilities_with_errors
 
 NUM_COUNTS = 10
 RATE_MAX = 10.0

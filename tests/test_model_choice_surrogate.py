@@ -153,7 +153,7 @@ def test_surrogate_model_choice_refuses_models_whose_likelihoods_use_other_summa
 
 
 def test_probability_intervals_follow_the_evidence_errors():
-    from jaxabc._model_choice_surrogate import probability_intervals
+    from jaxabc.model_choice.surrogate import probability_intervals
 
     rng = np.random.default_rng(0)
     # Equal evidences known to +-0.1: P near 1/2 with delta-method sd 0.1 / sqrt(2) / 2.

@@ -20,9 +20,9 @@ import numpy as np
 import pytest
 
 import jaxabc
-from jaxabc.cache import RunCache, RunCacheWarning, run_digest, source_digest
 from jaxabc.errors import STATUS_FAILED, STATUS_OK, SimulationFailure
-from jaxabc.progress import ProgressLog, SittingClock, read_progress, summarise_progress
+from jaxabc.executors.cache import RunCache, RunCacheWarning, run_digest, source_digest
+from jaxabc.executors.progress import ProgressLog, SittingClock, read_progress, summarise_progress
 
 
 class CountingSim:

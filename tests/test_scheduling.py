@@ -1,4 +1,4 @@
-"""Longest-predicted-first task order for dynamic executors (jaxabc.scheduling)."""
+"""Longest-predicted-first task order for dynamic executors (jaxabc.executors.scheduling)."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ import pytest
 import jaxabc
 from jaxabc.examples import busy_child_simulate, sleep_simulate
 from jaxabc.executors import task_durations
-from jaxabc.scheduling import (
+from jaxabc.executors.scheduling import (
     NearestNeighbourCost,
     dispatch_order,
     dynamic_makespan,

@@ -24,8 +24,8 @@ import pytest
 
 import jaxabc
 from jaxabc import examples
-from jaxabc.fused import run_fused
-from jaxabc.priors_numpyro import TAIL
+from jaxabc.driver.fused import run_fused
+from jaxabc.priors.independent import TAIL
 
 dist = pytest.importorskip("numpyro.distributions")
 scipy_stats = pytest.importorskip("scipy.stats")

@@ -34,8 +34,8 @@ import numpy as np
 
 from jaxabc.errors import STATUS_FAILED, STATUS_OK, STATUS_WORKER_DIED
 from jaxabc.executors.base import SimulationBatch, assemble_batch, task_durations
+from jaxabc.executors.scheduling import CostModel, dispatch_order, get_cost_model
 from jaxabc.executors.workers import TaskRunner, pickle_simulator
-from jaxabc.scheduling import CostModel, dispatch_order, get_cost_model
 
 __all__ = ["DaskExecutor", "dask_available"]
 
@@ -114,7 +114,7 @@ class DaskExecutor:
         timeout costs one task.
     order : {"fifo", "longest_first"} or CostModel, optional
         Queue priority of the tasks: ``"longest_first"`` gives the longest *predicted* the
-        highest priority (:mod:`jaxabc.scheduling`); results never depend on it.
+        highest priority (:mod:`jaxabc.executors.scheduling`); results never depend on it.
     summary_shape : tuple of int, optional
         Shape of one task's summaries, for a batch in which every task fails; learnt from the
         first successful task when not given.

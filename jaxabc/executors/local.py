@@ -12,8 +12,8 @@ import numpy as np
 
 from jaxabc.errors import STATUS_OK, STATUS_TIMEOUT, STATUS_WORKER_DIED
 from jaxabc.executors.base import SimulationBatch, assemble_batch, task_durations
+from jaxabc.executors.scheduling import CostModel, dispatch_order, get_cost_model
 from jaxabc.executors.workers import GUARD_HINT, WorkerProcess, pickle_simulator, timed_run
-from jaxabc.scheduling import CostModel, dispatch_order, get_cost_model
 
 __all__ = ["ProcessPoolExecutor", "SerialExecutor"]
 
@@ -78,7 +78,7 @@ class ProcessPoolExecutor:
         Which task a free worker gets next.  ``"fifo"`` (default): task order.
         ``"longest_first"``: the longest *predicted* first, from the costs
         (:func:`~jaxabc.executors.task_durations`) of the tasks this executor already ran
-        (:mod:`jaxabc.scheduling`); it never changes a result.
+        (:mod:`jaxabc.executors.scheduling`); it never changes a result.
     summary_shape : tuple of int, optional
         Shape of one task's summaries, for a batch in which every task fails; learnt from the
         first successful task when not given.

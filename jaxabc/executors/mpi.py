@@ -77,8 +77,8 @@ import numpy as np
 
 from jaxabc.errors import STATUS_FAILED, STATUS_OK, STATUS_TIMEOUT, STATUS_WORKER_DIED
 from jaxabc.executors.base import SimulationBatch, assemble_batch, task_durations
+from jaxabc.executors.scheduling import CostModel, dispatch_order, get_cost_model
 from jaxabc.executors.workers import TaskRunner, pickle_simulator
-from jaxabc.scheduling import CostModel, dispatch_order, get_cost_model
 
 __all__ = ["ALLOCATIONS", "MPIExecutor", "chunk_indices", "mpi_available"]
 
@@ -193,7 +193,7 @@ class MPIExecutor:
         Dynamic allocation only: the order in which tasks are queued for the ranks.
         ``"longest_first"`` queues the longest *predicted* first, learnt from the costs of
         earlier tasks (CPU time, see :func:`jaxabc.executors.task_durations`;
-        :mod:`jaxabc.scheduling`); results never depend on it.
+        :mod:`jaxabc.executors.scheduling`); results never depend on it.
     summary_shape : tuple of int, optional
         Shape of one task's summaries, for a batch in which every task fails; learnt from the
         first successful task when not given.

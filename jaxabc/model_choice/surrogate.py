@@ -23,8 +23,8 @@ from typing import Any
 import jax
 import numpy as np
 
-from jaxabc._model_choice_result import ModelChoiceResult, _file_stem, check_prior_edges, probabilities_with_errors
 from jaxabc.errors import PriorEdgeWarning
+from jaxabc.model_choice.result import ModelChoiceResult, _file_stem, check_prior_edges, probabilities_with_errors
 from jaxabc.seeding import seed_from_key
 
 __all__ = ["METHOD", "MISFIT_ALPHA", "probability_intervals", "run_from_driver", "run_model_choice_surrogate"]
@@ -131,7 +131,7 @@ def run_model_choice_surrogate(
 
     # By name at call time when not given: the driver imports this module, not the other way.
     calibrate: Callable[..., Any] = driver if driver is not None else importlib.import_module("jaxabc.run").run
-    from jaxabc.model_choice import _model_prior, as_models
+    from jaxabc.model_choice.core import _model_prior, as_models
     from jaxabc.surrogate import build
     from jaxabc.surrogate.evidence import with_evidence
 
@@ -262,7 +262,7 @@ def _jsonable(value: Any) -> Any:
 def run_from_driver(arguments: dict[str, Any], driver: Callable[..., Any]) -> Any:
     """``jaxabc.run(models, observed=..., method="surrogate", max_simulations=N)`` (its
     ``locals()`` and the function itself): ``N`` split evenly over the models."""
-    from jaxabc.model_choice import as_models, check_driver_arguments
+    from jaxabc.model_choice.core import as_models, check_driver_arguments
 
     models = check_driver_arguments(arguments)
     options = dict(arguments["algorithm_options"])

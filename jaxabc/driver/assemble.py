@@ -7,8 +7,8 @@ from typing import Any
 
 import numpy as np
 
-from jaxabc._driver import Context, Progress, posterior_distances
 from jaxabc.checkpoint import display_name
+from jaxabc.driver.context import Context, Progress, posterior_distances
 from jaxabc.errors import NoPosterior
 from jaxabc.results import ABCResult, versions
 

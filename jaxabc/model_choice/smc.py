@@ -21,8 +21,8 @@ import numpy as np
 from scipy.linalg import solve_triangular
 from scipy.special import logsumexp
 
-from jaxabc._driver import Recorder, mark_bad_distances
-from jaxabc._driver_checks import shapes_compatible
+from jaxabc.driver.checks import shapes_compatible
+from jaxabc.driver.context import Recorder, mark_bad_distances
 from jaxabc.errors import STATUS_OK, TooManyFailures
 from jaxabc.executors import Executor
 from jaxabc.priors import Uniform

@@ -397,6 +397,6 @@ def prior_from_dict(data: dict) -> Any:
     """The prior a result file describes: :class:`jaxabc.Uniform` or :class:`Independent`."""
     if data.get("type") == "Independent":
         return Independent.from_dict(data)
-    from jaxabc.priors import Uniform
+    from jaxabc.priors.uniform import Uniform
 
     return Uniform.from_dict(data)

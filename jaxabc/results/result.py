@@ -546,8 +546,8 @@ class ABCResult:
         return path
 
     def to_arviz(self, num_draws: int | None = None, seed: int = 0) -> Any:
-        """The posterior as an ArviZ ``InferenceData`` (:func:`jaxabc._result_views.to_arviz`)."""
-        from jaxabc._result_views import to_arviz
+        """The posterior as an ArviZ ``InferenceData`` (:func:`jaxabc.results.views.to_arviz`)."""
+        from jaxabc.results.views import to_arviz
 
         return to_arviz(self, num_draws=num_draws, seed=seed)
 
@@ -558,8 +558,8 @@ class ABCResult:
         params: tuple[int, int] = (0, 1),
         ax: Any = None,
     ) -> Any:
-        """Weighted KDE contours of two parameters (:func:`jaxabc._result_views.plot_posterior`)."""
-        from jaxabc._result_views import plot_posterior
+        """Weighted KDE contours of two parameters (:func:`jaxabc.results.views.plot_posterior`)."""
+        from jaxabc.results.views import plot_posterior
 
         return plot_posterior(self, path, truth=truth, params=params, ax=ax)
 
@@ -644,7 +644,7 @@ def _from_npz(path: Path, data: Any) -> ABCResult:
     missing += [k for k in ("num_simulations", "algorithm", "settings", "prior", "seed") if k not in meta]
     if missing:
         raise ValueError(f"{path} is an incomplete jaxabc result file: missing {', '.join(missing)}")
-    from jaxabc.priors_numpyro import prior_from_dict
+    from jaxabc.priors.independent import prior_from_dict
 
     records = {k[len("record_") :]: data[k] for k in data.files if k.startswith("record_")}
     _check_shapes(path, {k: data[k] for k in _REQUIRED_ARRAYS}, records)

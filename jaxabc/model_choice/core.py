@@ -73,9 +73,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxabc import _model_choice_checkpoint as _ckpt
-from jaxabc._driver import Recorder, SharedVmapExecutor, make_distance_fn
-from jaxabc._driver_checks import (
+from jaxabc.checkpoint import FolderLock, prepare_folder, require_fingerprintable
+from jaxabc.distances import get_distance
+from jaxabc.driver.checks import (
     cast_prior,
     check_traced_shape,
     precision,
@@ -83,7 +83,11 @@ from jaxabc._driver_checks import (
     validate_observed,
     validate_seed,
 )
-from jaxabc._model_choice_result import (
+from jaxabc.driver.context import Recorder, SharedVmapExecutor, make_distance_fn
+from jaxabc.errors import PriorEdgeWarning, caller_stacklevel
+from jaxabc.executors import Executor, get_executor
+from jaxabc.model_choice import checkpoint as _ckpt
+from jaxabc.model_choice.result import (
     STATUS_NEEDS_SIMULATIONS,
     STATUS_REUSED,
     ModelChoiceResult,
@@ -93,11 +97,7 @@ from jaxabc._model_choice_result import (
     load_model_choice,
     probabilities_with_errors,
 )
-from jaxabc._model_choice_smc import ALGORITHM_NAME, Context, ModelTrack, Settings, next_threshold
-from jaxabc.checkpoint import FolderLock, prepare_folder, require_fingerprintable
-from jaxabc.distances import get_distance
-from jaxabc.errors import PriorEdgeWarning, caller_stacklevel
-from jaxabc.executors import Executor, get_executor
+from jaxabc.model_choice.smc import ALGORITHM_NAME, Context, ModelTrack, Settings, next_threshold
 from jaxabc.results import versions
 
 __all__ = [

@@ -1,4 +1,4 @@
-"""Host-side bookkeeping of :mod:`jaxabc.fused`: records, history and stop reasons of a chunk."""
+"""Host-side bookkeeping of :mod:`jaxabc.driver.fused`: records, history and stop reasons of a chunk."""
 
 from __future__ import annotations
 
@@ -8,8 +8,8 @@ from typing import Any
 import jax.numpy as jnp
 import numpy as np
 
-from jaxabc._driver import BAD_DISTANCE_REASON
 from jaxabc.algorithms.base import ABCAlgorithm, Info
+from jaxabc.driver.context import BAD_DISTANCE_REASON
 from jaxabc.errors import STATUS_BAD_DISTANCE, STATUS_NONFINITE, STATUS_OK
 
 # Why a fused chunk stopped (the compiled loop's stop code).

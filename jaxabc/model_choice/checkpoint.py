@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 
 from jaxabc import checkpoint as _ckpt
-from jaxabc._model_choice_smc import ALGORITHM_NAME, HISTORY_KEYS, ModelTrack, Population, Settings
+from jaxabc.model_choice.smc import ALGORITHM_NAME, HISTORY_KEYS, ModelTrack, Population, Settings
 
 __all__ = ["problem_fingerprint", "restore", "save"]
 

@@ -10,7 +10,7 @@ calling the simulator.
 
 Usage::
 
-    from jaxabc.cache import RunCache
+    from jaxabc.executors.cache import RunCache
 
     cached = RunCache(simulate, "runs/water-cache")
     result = jaxabc.run("apmcabc", cached, prior, observed, ..., executor="process_pool")
@@ -226,7 +226,7 @@ class RunCache:
 
     Each call appends ``hit``, ``miss`` or ``corrupt`` (a miss on an unreadable file) to
     :data:`STATS_FILE` in the folder; :meth:`stats` counts them.  ``last_hit`` is whether this
-    object's latest call in this process was a replay (for :class:`jaxabc.progress.ProgressLog`).
+    object's latest call in this process was a replay (for :class:`jaxabc.executors.progress.ProgressLog`).
     """
 
     def __init__(

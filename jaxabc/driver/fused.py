@@ -32,8 +32,9 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxabc import checkpoint as _ckpt
-from jaxabc._driver import build_by_name, builder_accepts, posterior_distances
-from jaxabc._driver_checks import (
+from jaxabc.algorithms.base import ABCAlgorithm
+from jaxabc.distances import get_distance
+from jaxabc.driver.checks import (
     cast_prior,
     check_first_distances,
     check_first_iteration_budget,
@@ -43,7 +44,8 @@ from jaxabc._driver_checks import (
     validate_observed,
     validate_seed,
 )
-from jaxabc._fused_records import (
+from jaxabc.driver.context import build_by_name, builder_accepts, posterior_distances
+from jaxabc.driver.fused_records import (
     _NONE,
     _STOP_ALGORITHM,
     _STOP_BUDGET,
@@ -55,8 +57,6 @@ from jaxabc._fused_records import (
     from_checkpoint,
     to_checkpoint,
 )
-from jaxabc.algorithms.base import ABCAlgorithm
-from jaxabc.distances import get_distance
 from jaxabc.errors import NoPosterior, TooManyFailures
 from jaxabc.priors import Uniform
 from jaxabc.results import ABCResult, versions

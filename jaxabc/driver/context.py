@@ -17,9 +17,9 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxabc import algorithms as _algorithms
-from jaxabc._driver_checks import check_distance_shape
 from jaxabc.algorithms.base import ABCAlgorithm
 from jaxabc.distances import get_distance
+from jaxabc.driver.checks import check_distance_shape
 from jaxabc.errors import STATUS_BAD_DISTANCE, STATUS_NAMES, STATUS_OK
 from jaxabc.executors import Executor, VmapExecutor
 

@@ -9,7 +9,7 @@ over the sittings of a run that is stopped and resumed.
 
 Usage::
 
-    from jaxabc.progress import ProgressLog, ProgressMonitor, SittingClock
+    from jaxabc.executors.progress import ProgressLog, ProgressMonitor, SittingClock
 
     logged = ProgressLog(simulate, "runs/water")
     with SittingClock("runs/water/sittings.json") as clock, ProgressMonitor(logged.path, total=500):
@@ -89,7 +89,7 @@ class ProgressLog:
     ``"failed"``: :class:`jaxabc.SimulationFailure`; ``"error"``: any other exception, e.g. a
     timeout), ``wall_s`` (seconds the call took), ``pid`` (the worker process), ``reason``
     (failures only, at most 200 characters) and ``replayed`` (when ``simulate`` is a
-    :class:`jaxabc.cache.RunCache`: whether the call was a replay).
+    :class:`jaxabc.executors.cache.RunCache`: whether the call was a replay).
 
     Each line goes out in one ``write`` on an ``O_APPEND`` descriptor, so lines from concurrent
     workers on one machine (or MPI ranks writing to a local disk) do not interleave.  A worker
