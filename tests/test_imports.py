@@ -154,3 +154,15 @@ def test_no_private_name_is_imported_from_another_module() -> None:
                     and f"{node.module}.{a.name}" not in modules
                 ]
     assert offenders == []
+
+
+def test_no_function_in_jaxabc_is_longer_than_150_lines() -> None:
+    # A function a reader cannot hold in view is split at its seams (design, fit, sampling, ...).
+    long = []
+    for name, path in _modules("jaxabc").items():
+        for node in ast.walk(ast.parse(path.read_text(), str(path))):
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                lines = (node.end_lineno or node.lineno) - node.lineno + 1
+                if lines > 150:
+                    long.append(f"{name}.{node.name}: {lines} lines")
+    assert long == []

@@ -190,18 +190,15 @@ def page_surrogate_helium() -> str:
         per_budget = ", ".join(
             f"{r['simulations']}: {'yes' if m else 'no'}" for r, m in zip(d["surrogate"], met, strict=True)
         )
+        # The two sides are measured against different references (the surrogate against the
+        # exact synthetic-likelihood posterior, APMCABC against a long ABC run), so no ratio of
+        # simulations is claimed from this table: it says whether each budget is as close to its
+        # own target as APMCABC is to its own, nothing more.
         verdict = (
-            f"Against their own targets the surrogate matched APMCABC with {match} simulations, "
-            f"{own['simulation_ratio']:.1f}x fewer than APMCABC's {own['apmcabc_simulations']} "
-            f"(goal {summ['goal_ratio']:.0f}x)."
-            if match
-            else "Against their own targets no surrogate budget matched APMCABC."
-        ) + f"  Matched, by simulations used: {per_budget}."
-        if match and not all(m for r, m in zip(d["surrogate"], met, strict=True) if r["simulations"] >= match):
-            verdict += (
-                "  Not every larger budget matched: each budget is one run of the design, and its "
-                "distance to the reference varies from run to run."
-            )
+            "Each method against its own target, one run per budget: as close as APMCABC, by "
+            f"simulations used: {per_budget}.  The references differ, so this is no like-for-like "
+            "comparison of simulation counts, and no ratio is claimed from it."
+        )
         header = ["run", "simulations", "energy distance", "mean error (ref sd)", "sd / ref sd", "corr", "d_E"]
         sections.append(
             "## Each method against its own exact target\n\n"
