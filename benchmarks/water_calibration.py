@@ -29,7 +29,7 @@ Usage (all cores, one single-threaded ``gmx mdrun`` per worker)::
 Executors: ``--executor pool`` (default) runs ``--workers`` local processes; ``--executor mpi``
 uses the other ranks of an ``mpiexec ... -m mpi4py.futures`` job (dynamic allocation).  Either
 way a second bar counts finished simulations as they finish (from a progress file that every
-worker appends to, see ``CountingSimulator``), with the rate and an ETA against the budget.
+worker appends to, see ``logged_simulator``), with the rate and an ETA against the budget.
 
 ``--algorithm surrogate`` calibrates through ``jaxabc.run("surrogate", ...)`` (a GP emulator of
 the nine statistics, sequential design, held-out validation) within ``--max-simulations`` GROMACS
@@ -54,19 +54,15 @@ from __future__ import annotations
 import argparse
 import concurrent.futures
 import contextlib
-import datetime
-import hashlib
 import itertools
 import json
 import multiprocessing
 import os
 import subprocess
 import sys
-import threading
 import time
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -82,7 +78,8 @@ from benchmarks._common import (
     write_result,
 )
 from jaxabc.checkpoint import simulator_identity
-from jaxabc.errors import SimulationFailure
+from jaxabc.executors.cache import RunCache
+from jaxabc.executors.progress import ProgressLog, ProgressMonitor, SittingClock
 from jaxabc.surrogate.design import MIN_DESIGN_SUCCESS
 from md.water import datasets, make_simulator
 from md.water.gromacs import TIP4P_PARAMETERS, find_gmx
@@ -105,7 +102,7 @@ OBSERVED_KEY = 2**31 - 7  # the "simulated observed" data use a key no particle 
 
 
 def parse_arguments(argv=None) -> argparse.Namespace:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser = argparse.ArgumentParser(description=(__doc__ or "").split("\n\n")[0])
     parser.add_argument("--data", choices=("simulated", "xray", "neutron"), required=True)
     parser.add_argument("--statistics", choices=("paper", "robust"), default="robust")
     parser.add_argument("--preset", choices=("quick", "paper"), default="quick")
@@ -294,11 +291,6 @@ def _has_checkpoint(args) -> bool:
     return bool(args.continue_run and args.checkpoint_dir and (args.checkpoint_dir / "checkpoint.npz").exists())
 
 
-def _has_cached_runs(args) -> bool:
-    """``--run-cache`` holds finished runs (a run started over replays them)."""
-    return bool(args.run_cache and any(Path(args.run_cache).glob("*.npz")))
-
-
 def pilot_scales(args, simulate, prior, executor) -> np.ndarray:
     """Median absolute deviation of each statistic over prior-predictive simulations."""
     key = jax.random.key(args.seed + 1_000_003)
@@ -315,7 +307,8 @@ def pilot_scales(args, simulate, prior, executor) -> np.ndarray:
 
 
 def scaled_mean_abs(scale: np.ndarray):
-    scale = jnp.asarray(scale, dtype=jnp.float32)
+    # The closure's variable names enter checkpoint fingerprints: keep `scale`.
+    scale = jnp.asarray(scale, dtype=jnp.float32)  # pyright: ignore[reportAssignmentType]
 
     def distance(observed, simulated):
         return jnp.mean(jnp.abs(jnp.asarray(observed) - jnp.asarray(simulated)) / scale)
@@ -558,206 +551,55 @@ def validation_table(args, estimate: np.ndarray) -> dict:
 # ---------------------------------------------------------------------------- progress
 # The executors report a batch only when all of it is done, and a water step is one batch of
 # hundreds of GROMACS runs, so the driver's per-step bar stands still for an hour.  Here the
-# simulator leaves a trace instead: CountingSimulator appends one line (ok / failed) to a file
-# after every run, in whichever worker process or MPI rank ran it, and ProgressMonitor, a thread
-# in the driver, counts the lines once a second for a bar with rate and ETA.  The file lives on
-# the driver's file system (a process pool, MPI on one node or on a shared file system); lines of
-# a few bytes written with O_APPEND do not interleave.  The wrapper passes keys, parameters,
-# results and exceptions through unchanged, and the run gets the inner simulator's identity
-# (simulator_id), so results and checkpoints do not depend on it.
+# simulator leaves a trace instead: jaxabc's ProgressLog appends one JSON line per run to a file,
+# in whichever worker process or MPI rank ran it, and ProgressMonitor, a thread in the driver,
+# reads it once a second for a bar with rate and ETA.  With --run-cache a RunCache inside the log
+# replays finished runs.  The file lives on the driver's file system (a process pool, MPI on one
+# node or on a shared file system).  The wrappers pass keys, parameters, results and exceptions
+# through unchanged, and the run gets the inner simulator's identity (simulator_id), so results
+# and checkpoints do not depend on them.
 
 
-class CountingSimulator:
-    """``simulate(key, theta)`` that also appends ``ok`` / ``failed`` to ``path`` after each run.
+def run_cache_identity(simulate) -> str:
+    """What a cached GROMACS run depends on: the simulator (its repr names preset, statistics
+    and ``gmx``), its protocol and the code of ``md/water`` (:func:`benchmarks._common.code_hash`
+    of each module, so an edit of a comment keeps the cache and any other edit empties it): runs of
+    other simulator code are never replayed.
 
-    Parameters
-    ----------
-    simulate : callable ``(key, theta) -> summaries``
-        Picklable (it travels to the workers inside this object).
-    path : str or Path
-        The progress file (absolute; created by :class:`ProgressMonitor`).
+    The same string as the benchmark's own cache used before it moved to
+    :class:`jaxabc.executors.cache.RunCache`, which hashes a string identity alike, so folders
+    written then are still replayed.
     """
-
-    def __init__(self, simulate: Callable, path: str | os.PathLike, cache_dir: str | os.PathLike | None = None):
-        self.simulate = simulate
-        self.path = str(Path(path).resolve())
-        self.cache_dir = None if cache_dir is None else str(Path(cache_dir).resolve())
-        if self.cache_dir is not None:
-            Path(self.cache_dir).mkdir(parents=True, exist_ok=True)
-            # Runs from other simulator code are never replayed.
-            code = sorted(str(f.relative_to(ROOT)) + code_hash(f) for f in (ROOT / "md" / "water").glob("*.py"))
-            self._identity = repr((simulate, getattr(simulate, "protocol", None), code))
-
-    def _cache_path(self, key: Any, theta: Any) -> Path | None:
-        if self.cache_dir is None:
-            return None
-        digest = hashlib.sha256(self._identity.encode())
-        try:
-            key_data = np.asarray(jax.random.key_data(key))
-        except (TypeError, ValueError):  # raw uint32 key data, as the executors pass
-            key_data = np.asarray(key)
-        digest.update(np.ascontiguousarray(key_data, dtype=np.uint32).tobytes())
-        digest.update(np.ascontiguousarray(np.asarray(theta, dtype=np.float64).reshape(-1)).tobytes())
-        return Path(self.cache_dir) / f"{digest.hexdigest()[:24]}.npz"
-
-    def _mark(self, word: str) -> None:
-        try:
-            fd = os.open(self.path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
-            try:
-                os.write(fd, f"{word}\n".encode())
-            finally:
-                os.close(fd)
-        except OSError:  # progress is a nicety: never let it fail a simulation
-            pass
-
-    def __call__(self, key: Any, theta: Any) -> Any:
-        path = self._cache_path(key, theta)
-        if path is not None and path.is_file():
-            with np.load(path) as stored:
-                reason, out = str(stored["reason"]), np.array(stored["summaries"])
-            self._mark("failed" if reason or not np.all(np.isfinite(out)) else "ok")
-            if reason:
-                raise SimulationFailure(reason)
-            return out
-        try:
-            out = self.simulate(key, theta)
-        except SimulationFailure as failure:
-            self._mark("failed")
-            self._store(path, np.zeros(0), str(failure) or type(failure).__name__)
-            raise
-        except BaseException:  # a crash or a timeout is not a property of (key, theta): not cached
-            self._mark("failed")
-            raise
-        finite = bool(np.all(np.isfinite(np.asarray(out, dtype=np.float64))))
-        self._mark("ok" if finite else "failed")
-        self._store(path, np.asarray(out), "")
-        return out
-
-    @staticmethod
-    def _store(path: Path | None, summaries: np.ndarray, reason: str) -> None:
-        if path is None:
-            return
-        # Write then rename: a worker killed mid-write leaves no half file to replay.
-        partial = path.with_suffix(".tmp.npz")
-        np.savez(partial, summaries=summaries, reason=np.array(reason))
-        os.replace(partial, path)
-
-    def __getattr__(self, name: str) -> Any:
-        # Attributes of the wrapped simulator (protocol, run, ...) stay reachable; the guard
-        # keeps unpickling (which looks up attributes before __init__ ran) from recursing.
-        if name in ("simulate", "path", "cache_dir", "_identity"):
-            raise AttributeError(name)
-        return getattr(self.simulate, name)
+    code = sorted(str(f.relative_to(ROOT)) + code_hash(f) for f in (ROOT / "md" / "water").glob("*.py"))
+    return repr((simulate, getattr(simulate, "protocol", None), code))
 
 
-class ProgressMonitor:
-    """A thread that shows the line count of a progress file as a bar with rate and ETA.
+def logged_simulator(
+    simulate: Callable, progress_file: str | os.PathLike, run_cache: str | os.PathLike | None = None
+) -> ProgressLog:
+    """``simulate`` with a line in ``progress_file`` per run and, with ``run_cache``, a
+    :class:`~jaxabc.executors.cache.RunCache` in that folder (see :func:`run_cache_identity`).
 
-    Parameters
-    ----------
-    path : str or Path
-        The progress file; emptied on start.
-    total : int
-        Simulations expected (an upper bound, e.g. the budget): the ETA assumes the rate so far.
-    description : str
-    interval_s : float
-        Seconds between polls.
-
-    Use as a context manager around the run.
+    Picklable when ``simulate`` is; results are those of ``simulate``.
     """
-
-    def __init__(self, path: str | os.PathLike, total: int, description: str = "simulations", interval_s: float = 1.0):
-        self.path = Path(path)
-        self.total = int(total)
-        self.description = description
-        self.interval_s = float(interval_s)
-        self._stop = threading.Event()
-        self._thread: threading.Thread | None = None
-        self.done = 0
-        self.failed = 0
-
-    def _count(self) -> tuple[int, int]:
-        try:
-            text = self.path.read_text()
-        except OSError:
-            return 0, 0
-        lines = text.split()
-        return len(lines), lines.count("failed")
-
-    def _watch(self) -> None:
-        from tqdm.auto import tqdm
-
-        with tqdm(total=self.total, desc=self.description, unit="sim", position=1, smoothing=0.0) as bar:
-            started = time.perf_counter()
-            while True:
-                stopping = self._stop.wait(self.interval_s)
-                done, failed = self._count()
-                if done > bar.n:
-                    bar.update(done - bar.n)
-                self.done, self.failed = done, failed
-                bar.set_postfix(failed=failed, per_sim_s=f"{(time.perf_counter() - started) / max(done, 1):.1f}")
-                if stopping:
-                    return
-
-    def __enter__(self) -> ProgressMonitor:
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        self.path.write_text("")
-        self._thread = threading.Thread(target=self._watch, name="simulation-progress", daemon=True)
-        self._thread.start()
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self._stop.set()
-        if self._thread is not None:
-            self._thread.join(timeout=10.0)
+    inner = simulate if run_cache is None else RunCache(simulate, run_cache, identity=run_cache_identity(simulate))
+    progress_file = Path(progress_file)
+    return ProgressLog(inner, progress_file.parent, progress_file.name)
 
 
-class SittingClock:
-    """Wall time of a run that spans several sittings (``--continue``), kept in ``path``.
+def sitting_clock(args, stem: str, resuming: bool, heartbeat_s: float = 30.0) -> SittingClock | None:
+    """The wall-time clock of a ``--checkpoint-dir`` run (None without one), in
+    ``<checkpoint-dir>/<stem>.sittings.json``.
 
-    The file lists each sitting's start (UTC) and elapsed seconds; a thread rewrites the current
-    sitting's entry every ``interval_s``, so a sitting that is killed still counts up to its last
-    update.  ``fresh=True`` forgets earlier sittings (a run started over).
+    A run started over forgets the earlier sittings, unless ``--run-cache`` holds finished runs:
+    those replayed runs were paid for in the earlier sittings, so they still count.  A sitting
+    that is killed counts up to its last heartbeat (every ``heartbeat_s`` seconds).
     """
-
-    def __init__(self, path: Path, fresh: bool, interval_s: float = 30.0):
-        self.path = Path(path)
-        self.interval_s = float(interval_s)
-        earlier = [] if fresh or not self.path.exists() else json.loads(self.path.read_text())["sittings"]
-        self.sittings = [*earlier, {"started_utc": _utc_now(), "elapsed_s": 0.0}]
-        self._started = time.perf_counter()
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._tick, name="sitting-clock", daemon=True)
-
-    def _write(self) -> None:
-        self.sittings[-1]["elapsed_s"] = time.perf_counter() - self._started
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        partial = self.path.with_suffix(".tmp")
-        partial.write_text(json.dumps({"sittings": self.sittings}, indent=1))
-        os.replace(partial, self.path)
-
-    def _tick(self) -> None:
-        while not self._stop.wait(self.interval_s):
-            self._write()
-
-    def __enter__(self) -> SittingClock:
-        self._write()
-        self._thread.start()
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self._stop.set()
-        self._thread.join(timeout=10.0)
-        self._write()
-
-    @property
-    def total_s(self) -> float:
-        """Seconds over every sitting, this one up to now."""
-        return sum(s["elapsed_s"] for s in self.sittings[:-1]) + time.perf_counter() - self._started
-
-
-def _utc_now() -> str:
-    return datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%dT%H:%M:%SZ")
+    if args.checkpoint_dir is None:
+        return None
+    cached_runs = args.run_cache is not None and RunCache.stats(args.run_cache)["entries"] > 0
+    path = args.checkpoint_dir / f"{stem}.sittings.json"
+    return SittingClock(path, heartbeat_s=heartbeat_s, fresh=not resuming and not cached_runs)
 
 
 # ---------------------------------------------------------------------------- main
@@ -836,27 +678,22 @@ def main(argv=None) -> dict:
     suffix = "_surrogate" if surrogate else ""
     stem = f"water_{args.data}_{args.statistics}{suffix}"
     args.out_dir.mkdir(parents=True, exist_ok=True)
-    progress_file = args.out_dir / f".{stem}.progress"
     # Workers report each finished run to the progress file; results are those of `simulate`.
-    counted = CountingSimulator(simulate, progress_file, args.run_cache)
+    # (The name ends in .progress, which .gitignore keeps out of the results.)
+    counted = logged_simulator(simulate, args.out_dir / f".{stem}.progress", args.run_cache)
     started = time.perf_counter()
     resuming = args.resume or _has_checkpoint(args)
     if args.checkpoint_dir is not None:
         guard_resume(args.checkpoint_dir, resuming, modules=("jaxabc.surrogate",) if surrogate else ())
-    clock = (
-        # Runs replayed from the cache were paid for in the earlier sittings: they count.
-        SittingClock(args.checkpoint_dir / f"{stem}.sittings.json", fresh=not resuming and not _has_cached_runs(args))
-        if args.checkpoint_dir is not None
-        else contextlib.nullcontext()
-    )
+    clock = sitting_clock(args, stem, resuming)
     observed = observed_vector(args, simulate)
     monitor = (
         contextlib.nullcontext()
         if args.no_progress
-        else ProgressMonitor(progress_file, expected_simulations(args, scale_mode), f"{args.algorithm} GROMACS runs")
+        else ProgressMonitor(counted.path, expected_simulations(args, scale_mode), f"{args.algorithm} GROMACS runs")
     )
     try:
-        with monitor, clock:
+        with monitor, clock if clock is not None else contextlib.nullcontext():
             if scale_mode == "pilot":
                 scale = pilot_scales(args, counted, prior, executor)
                 distance = scaled_mean_abs(scale)
@@ -922,8 +759,8 @@ def main(argv=None) -> dict:
         "failure_reasons": sorted({r for r, f in zip(result.records["reasons"], failures, strict=True) if f})[:20],
         # Over every sitting of a resumed run (the calibration; predictive and validation runs of
         # the last sitting follow).
-        "wall_time_s": clock.total_s if isinstance(clock, SittingClock) else time.perf_counter() - started,
-        "sittings": len(clock.sittings) if isinstance(clock, SittingClock) else 1,
+        "wall_time_s": clock.total_seconds() if clock is not None else time.perf_counter() - started,
+        "sittings": clock.num_sittings if clock is not None else 1,
         "stop_reason": result.stop_reason,
         "paper": PAPER[args.data],
     }

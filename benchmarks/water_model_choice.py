@@ -496,7 +496,9 @@ def main(argv=None) -> None:
             else dict(zip(fitted_names, np.asarray(scales).tolist(), strict=True)),
             "observation_sd": dict(zip(fitted_names, observation_sd(args.data).tolist(), strict=True)),
             "observation_error_via": noise_how,
-            "propagated_pointwise_errors": [None if np.isnan(e) else float(e) for e in data.propagated],
+            "propagated_pointwise_errors": [
+                None if np.isnan(e) else float(e) for e in np.asarray(data.propagated, np.float64)
+            ],
         },
         "finite_size": {
             "method": "Yeh & Hummer 2004: D_inf = D_box + xi kB T / (6 pi eta L), xi = 2.837297; L the run's mean box "

@@ -223,13 +223,15 @@ def test_each_model_runs_a_few_ps(name):
 
 
 class _CountingSimulator:
-    """Stands in for WaterModelSimulator: 11 summaries from theta, fails for theta[0] < 0."""
+    """Stands in for WaterModelSimulator: 11 summaries from theta, fails for theta[0] < 0, and
+    crashes (a timeout, say) while ``crash`` is set."""
 
     model = MODELS["TIP4P"]
     protocol = "protocol-a"
 
     def __init__(self) -> None:
         self.calls = 0
+        self.crash = False
 
     def __repr__(self) -> str:
         return "counting"
@@ -238,19 +240,23 @@ class _CountingSimulator:
         from jaxabc.errors import SimulationFailure
 
         self.calls += 1
+        if self.crash:
+            raise RuntimeError("timeout: killed")
         if theta[0] < 0:
             raise SimulationFailure("vapour")
         return np.arange(11.0) + theta[0]
 
 
 def test_cached_summaries_replays_results_and_failures(tmp_path):
+    from jaxabc.checkpoint import describe_callable
     from jaxabc.errors import SimulationFailure
+    from jaxabc.executors.cache import RunCache
     from md.water.model_simulator import CachedSummaries
 
     fitted = np.zeros(11, bool)
     fitted[[3, 10]] = True
     inner = _CountingSimulator()
-    cached = CachedSummaries(inner, fitted, tmp_path)  # type: ignore[arg-type]
+    cached = CachedSummaries(inner, fitted, tmp_path)
     key = np.array([0, 5], np.uint32)
     first = cached(key, np.array([0.5, 1.0]))
     np.testing.assert_array_equal(first, [3.5, 10.5])
@@ -258,16 +264,55 @@ def test_cached_summaries_replays_results_and_failures(tmp_path):
         cached(key, np.array([-1.0, 1.0]))
     assert inner.calls == 2
     # A new wrapper on the same folder (a resumed run) simulates nothing again.
-    again = CachedSummaries(inner, fitted, tmp_path)  # type: ignore[arg-type]
+    again = CachedSummaries(inner, fitted, tmp_path)
     np.testing.assert_array_equal(again(key, np.array([0.5, 1.0])), first)
     with pytest.raises(SimulationFailure, match="vapour"):
         again(key, np.array([-1.0, 1.0]))
     assert inner.calls == 2
     np.testing.assert_array_equal(again.full(key, np.array([0.5, 1.0])), np.arange(11.0) + 0.5)
+    # jaxabc's RunCache keeps the files (named by the model) and counts the replays.
+    assert cached.cache_path(key, np.array([0.5, 1.0])).name.startswith("tip4p-")  # type: ignore[union-attr]
+    assert RunCache.stats(tmp_path) == {"hits": 3, "misses": 2, "corrupt": 0, "entries": 2}
+    # Its checkpoint identity is the simulator, the mask and the folder, as before RunCache.
+    assert set(describe_callable(cached)["fields"]) == {"simulate", "fitted", "cache_dir"}
     # Another key, theta or protocol is another simulation.
     again(np.array([0, 6], np.uint32), np.array([0.5, 1.0]))
     inner.protocol = "protocol-b"
     again(key, np.array([0.5, 1.0]))
     assert inner.calls == 4
+    # A crash or timeout is not a property of (key, theta): not stored, run again.
+    inner.crash = True
+    for _ in range(2):
+        with pytest.raises(RuntimeError, match="timeout"):
+            again(key, np.array([2.0, 1.0]))
+    assert inner.calls == 6
+    # Without a cache every call simulates.
+    plain = CachedSummaries(inner, fitted)
+    inner.crash = False
+    plain(key, np.array([0.5, 1.0]))
+    plain(key, np.array([0.5, 1.0]))
+    assert inner.calls == 8 and plain.cache is None
     with pytest.raises(ValueError, match="boolean mask"):
-        CachedSummaries(inner, np.zeros(11, bool))  # type: ignore[arg-type]
+        CachedSummaries(inner, np.zeros(11, bool))
+
+
+def test_cached_summaries_replays_a_folder_written_before_it_used_runcache(tmp_path):
+    """Its own cache named files ``<slug>-<sha256(repr((simulate, protocol)), key, theta)[:24]>.npz``
+    with ``summaries`` and ``reason`` (NaN summaries for a failure)."""
+    import hashlib
+
+    from jaxabc.errors import SimulationFailure
+    from md.water.model_simulator import CachedSummaries
+
+    inner = _CountingSimulator()
+    key = np.array([0, 5], np.uint32)
+    for theta, summaries, reason in (([0.5, 1.0], np.arange(14.0), ""), ([-1.0, 1.0], np.full(14, np.nan), "vapour")):
+        digest = hashlib.sha256(repr((inner, inner.protocol)).encode())
+        digest.update(key.tobytes())
+        digest.update(np.asarray(theta, np.float64).tobytes())
+        np.savez(tmp_path / f"tip4p-{digest.hexdigest()[:24]}.npz", summaries=summaries, reason=np.array(reason))
+    cached = CachedSummaries(inner, np.ones(14, bool), tmp_path)
+    np.testing.assert_array_equal(cached(key, np.array([0.5, 1.0])), np.arange(14.0))
+    with pytest.raises(SimulationFailure, match="vapour"):
+        cached(key, np.array([-1.0, 1.0]))
+    assert inner.calls == 0

@@ -29,17 +29,18 @@ value and the shift are in :class:`ModelOutput`.  ``finite_size_correction=False
 
 from __future__ import annotations
 
-import hashlib
 import os
 import shutil
 import subprocess
 import time
 from pathlib import Path
-from typing import NamedTuple
+from typing import Any, NamedTuple
+from typing import Protocol as TypingProtocol
 
 import numpy as np
 
 from jaxabc.errors import SimulationFailure
+from jaxabc.executors.cache import RunCache
 from md.water.analysis import WaterCurves, compute_curves, load_trajectory
 from md.water.finite_size import correct_diffusion, model_viscosity_mpa_s
 
@@ -66,7 +67,14 @@ from md.water.protocol import Protocol
 from md.water.simulator import OBSERVED_KINDS, TIP4PSimulator
 from md.water.statistics import SECOND_SHELL_NAMES, second_shell_statistics, summary_statistics
 
-__all__ = ["JOINT_SUMMARY_NAMES", "CachedSummaries", "ModelOutput", "WaterModelSimulator", "make_model_simulator"]
+__all__ = [
+    "JOINT_SUMMARY_NAMES",
+    "CachedSummaries",
+    "ModelOutput",
+    "ModelRunner",
+    "WaterModelSimulator",
+    "make_model_simulator",
+]
 
 #: Names of the joint summaries, in the order a call returns them.
 JOINT_SUMMARY_NAMES: tuple[str, ...] = (
@@ -321,17 +329,31 @@ def make_model_simulator(model: WaterModel | str, preset: str | Protocol = "quic
     return WaterModelSimulator(model, preset, **options)
 
 
+class ModelRunner(TypingProtocol):
+    """What :class:`CachedSummaries` needs of a simulator: :class:`WaterModelSimulator`, or
+    :class:`md.water.joint_criticism.WaterModelWithEffects`."""
+
+    model: WaterModel
+    protocol: Any
+
+    def __call__(self, key: Any, theta: Any, /) -> np.ndarray: ...
+
+
 class CachedSummaries:
     """Picklable ``simulate(key, theta)`` returning the ``fitted`` joint summaries, with a disk cache.
 
     Every simulation's full output (all 14 joint summaries, or its failure reason) is stored in
-    ``cache_dir`` under a hash of the simulator (model, preset, protocol), the key and theta,
-    so that (a) a rerun with the same seed after an interruption replays finished simulations
-    instead of repeating them, and (b) held-out summaries stay available for criticism.
+    ``cache_dir`` by a :class:`jaxabc.executors.cache.RunCache` (see :attr:`cache`), keyed on
+    the simulator (model, preset, protocol), the key and theta, so that (a) a rerun with the same
+    seed after an interruption replays finished simulations instead of repeating them, and (b)
+    held-out summaries stay available for criticism (:meth:`full`).  This class only selects the
+    fitted summaries: storing, replaying and what is cached (summaries and
+    :class:`~jaxabc.errors.SimulationFailure`, not crashes or timeouts) are ``RunCache``'s.
 
     Parameters
     ----------
-    simulate : WaterModelSimulator
+    simulate : WaterModelSimulator or ModelRunner
+        Returns the 14 joint summaries; ``model`` and ``protocol`` name it in the cache.
     fitted : array_like of bool, shape (14,)
         Which joint summaries the call returns (the distance sees only these); a mask of
         shape (11,) (before the second-shell summaries) is padded with False.
@@ -339,7 +361,7 @@ class CachedSummaries:
         Created if missing; no caching when None.
     """
 
-    def __init__(self, simulate: WaterModelSimulator, fitted, cache_dir: str | os.PathLike | None = None) -> None:
+    def __init__(self, simulate: ModelRunner, fitted, cache_dir: str | os.PathLike | None = None) -> None:
         fitted = np.asarray(fitted, dtype=bool)
         if fitted.shape == (_LEGACY_NUM_SUMMARIES,):
             # A mask over the 11 summaries before the second shell was appended (S1..S9,
@@ -347,6 +369,8 @@ class CachedSummaries:
             fitted = np.concatenate([fitted, np.zeros(len(JOINT_SUMMARY_NAMES) - _LEGACY_NUM_SUMMARIES, bool)])
         if fitted.shape != (len(JOINT_SUMMARY_NAMES),) or not fitted.any():
             raise ValueError(f"fitted must be a boolean mask of shape ({len(JOINT_SUMMARY_NAMES)},) with a True entry")
+        # These three attributes are what jaxabc.checkpoint.describe_callable sees of this
+        # object (checkpoint fingerprints): the RunCache is built from them, not stored.
         self.simulate = simulate
         self.fitted = fitted
         self.cache_dir = None if cache_dir is None else Path(cache_dir)
@@ -356,21 +380,24 @@ class CachedSummaries:
     def __repr__(self) -> str:
         return f"CachedSummaries({self.simulate!r}, fitted={self.fitted.astype(int).tolist()})"
 
-    def cache_path(self, key, theta) -> Path | None:
-        """The cache file of one simulation (None without a cache)."""
+    @property
+    def cache(self) -> RunCache | None:
+        """The :class:`~jaxabc.executors.cache.RunCache` of ``simulate`` in ``cache_dir`` (None
+        without a cache).
+
+        Its identity is ``repr((simulate, simulate.protocol))`` and its files are named
+        ``<model slug>-<digest>.npz``: as this class's own cache wrote them before it used
+        ``RunCache``, so those folders are still replayed.
+        """
         if self.cache_dir is None:
             return None
-        try:
-            import jax
+        identity = repr((self.simulate, self.simulate.protocol))
+        return RunCache(self.simulate, self.cache_dir, identity=identity, prefix=f"{self.simulate.model.slug}-")
 
-            key_data = np.asarray(jax.random.key_data(key))
-        except (TypeError, ValueError):
-            key_data = np.asarray(key)
-        digest = hashlib.sha256()
-        digest.update(repr((self.simulate, self.simulate.protocol)).encode())
-        digest.update(np.ascontiguousarray(key_data, dtype=np.uint32).tobytes())
-        digest.update(np.ascontiguousarray(np.asarray(theta, dtype=np.float64).reshape(-1)).tobytes())
-        return self.cache_dir / f"{self.simulate.model.slug}-{digest.hexdigest()[:24]}.npz"
+    def cache_path(self, key, theta) -> Path | None:
+        """The cache file of one simulation (None without a cache)."""
+        cache = self.cache
+        return None if cache is None else cache.path(key, theta)
 
     def full(self, key, theta) -> np.ndarray:
         """All 14 joint summaries (from the cache when present).
@@ -380,24 +407,8 @@ class CachedSummaries:
         jaxabc.errors.SimulationFailure
             The simulation failed (now or when it was cached), with its reason.
         """
-        path = self.cache_path(key, theta)
-        if path is not None and path.is_file():
-            with np.load(path) as stored:
-                if str(stored["reason"]):
-                    raise SimulationFailure(str(stored["reason"]))
-                return np.array(stored["summaries"])
-        try:
-            summaries, reason = self.simulate(key, theta), ""
-        except SimulationFailure as failure:
-            summaries, reason = np.full(len(JOINT_SUMMARY_NAMES), np.nan), str(failure)
-        if path is not None:
-            # Write then rename: a worker killed mid-write leaves no half file to replay.
-            partial = path.with_suffix(".tmp.npz")
-            np.savez(partial, summaries=summaries, reason=np.array(reason))
-            os.replace(partial, path)
-        if reason:
-            raise SimulationFailure(reason)
-        return summaries
+        cache = self.cache
+        return np.asarray((self.simulate if cache is None else cache)(key, theta))
 
     def __call__(self, key, theta) -> np.ndarray:
         """The fitted summaries, shape ``(fitted.sum(),)``."""
