@@ -7,8 +7,10 @@ from typing import Any
 import numpy as np
 from scipy import stats
 
+__all__ = ["directed_score", "prior_span", "projector", "residual_test"]
 
-def _span(eff: Any) -> float:
+
+def prior_span(eff: Any) -> float:
     """Largest move of the effect parameter away from its null that its prior allows."""
     if eff.one_sided == 1:
         return eff.high - eff.null
@@ -17,7 +19,7 @@ def _span(eff: Any) -> float:
     return max(eff.high - eff.null, eff.null - eff.low)
 
 
-def _projector(u: np.ndarray, prec: np.ndarray) -> np.ndarray:
+def projector(u: np.ndarray, prec: np.ndarray) -> np.ndarray:
     """``I - U (U' W U)^+ U' W``: removes what the columns of ``u`` explain in the ``W`` metric."""
     s = u.shape[0]
     if u.shape[1] == 0:
@@ -25,7 +27,7 @@ def _projector(u: np.ndarray, prec: np.ndarray) -> np.ndarray:
     return np.eye(s) - u @ np.linalg.pinv(u.T @ prec @ u, rcond=1e-10, hermitian=True) @ u.T @ prec
 
 
-def _residual_test(r: np.ndarray, cov: np.ndarray, num_replicates: int | None, num_fitted: int) -> dict:
+def residual_test(r: np.ndarray, cov: np.ndarray, num_replicates: int | None, num_fitted: int) -> dict:
     """Quadratic form of a residual in the null precision and its tail p-value.
 
     The rank of ``cov`` less ``num_fitted`` (effect amplitudes fitted by projection) is the
@@ -43,3 +45,25 @@ def _residual_test(r: np.ndarray, cov: np.ndarray, num_replicates: int | None, n
     else:
         p = float(stats.chi2.sf(q, k))
     return dict(chi2=q, dof=k, p_value=p)
+
+
+def directed_score(t: float, one_sided: int) -> tuple[float, float]:
+    """Score and p-value of a matched-filter statistic ``t`` under the effect's prior sign.
+
+    Parameters
+    ----------
+    t : float
+        Signed statistic, positive in the direction of increasing effect parameter; N(0, 1) under
+        the null.
+    one_sided : {-1, 0, 1}
+        :attr:`Effect.one_sided`: 0 scores ``|t|`` with a two-sided p-value; +-1 scores only the
+        sign the prior allows (``max(signed t, 0)``) with a one-sided p-value.
+
+    Returns
+    -------
+    (score, p_value) : tuple of float
+    """
+    signed = t * (one_sided if one_sided else 1.0)
+    score = max(signed, 0.0) if one_sided else abs(t)
+    p = float(stats.norm.sf(signed) if one_sided else 2 * stats.norm.sf(abs(t)))
+    return score, p

@@ -33,12 +33,12 @@ from __future__ import annotations
 
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import jax
 import numpy as np
-from scipy import stats
 
-from jaxabc.criticism._stats import _projector, _residual_test, _span
+from jaxabc.criticism._stats import directed_score, prior_span, projector, residual_test
 from jaxabc.criticism.misfit import adjust_pvalues
 from jaxabc.criticism.predictive import simulate_many
 from jaxabc.executors import Executor
@@ -368,175 +368,36 @@ def rank_causes(
         ``(score_a^2 - score_b^2) / 2`` below ``near_tie_log_lr`` (3: odds of 20 to 1).
     num_replicates : int, optional
         Replicates behind ``null_cov`` (F tail for the residual test; chi-squared if None).
+
+    Returns
+    -------
+    CauseAnalysis
+        Causes ranked visible first, then by score; ``needed`` from the forward selection.
     """
     prec = np.linalg.pinv(null_cov, rcond=1e-8, hermitian=True)
     u = refit @ directions
     r = refit_residual
     total = float(r @ prec @ r)
     norms = np.sqrt(np.maximum(np.einsum("sk,st,tk->k", u, prec, u), 0.0))
-    k_eff = len(catalogue)
-    cos = np.full((k_eff, k_eff), np.nan)
-    for a in range(k_eff):
-        for b in range(k_eff):
-            if norms[a] > 0 and norms[b] > 0:
-                cos[a, b] = float(u[:, a] @ prec @ u[:, b] / (norms[a] * norms[b]))
-    rows = []
-    for k, eff in enumerate(catalogue):
-        span = (
-            max(eff.high - eff.null, eff.null - eff.low)
-            if eff.one_sided == 0
-            else (eff.high - eff.null if eff.one_sided == 1 else eff.null - eff.low)
-        )
-        max_snr = float(norms[k] * span)
-        if norms[k] <= 0 or max_snr < invisible_snr:
-            rows.append(
-                dict(
-                    name=eff.name,
-                    score=0.0,
-                    statistic=0.0,
-                    p_value=1.0,
-                    fraction_explained=0.0,
-                    estimate=float("nan"),
-                    max_snr=max_snr,
-                    invisible=True,
-                )
-            )
-            continue
-        t = float(u[:, k] @ prec @ r / norms[k])
-        # Signed in the direction of increasing eta; a one-sided prior can only use one sign.
-        signed = t * (eff.one_sided if eff.one_sided else 1.0)
-        score = max(signed, 0.0) if eff.one_sided else abs(t)
-        p = float(stats.norm.sf(signed) if eff.one_sided else 2 * stats.norm.sf(abs(t)))
-        estimate = eff.null + t / norms[k]
-        load = np.abs(u[:, k]) * np.sqrt(np.diag(prec))
-        acts_on = sorted(groups, key=lambda g: -float(np.sum(load[groups[g]] ** 2)))[:3]
-        rows.append(
-            dict(
-                name=eff.name,
-                score=score,
-                statistic=t,
-                p_value=p,
-                fraction_explained=score * score / total if total > 0 else 0.0,
-                estimate=float(estimate),
-                max_snr=max_snr,
-                invisible=False,
-                acts_on=acts_on,
-                outside_prior=not (eff.low <= estimate <= eff.high),
-            )
-        )
-    adj = adjust_pvalues(np.array([row["p_value"] for row in rows]), "holm")
-    for row, q in zip(rows, adj, strict=True):
-        row["adjusted_p_value"] = float(q)
-        row["significant"] = bool(q <= alpha and not row["invisible"])
-    rows.sort(key=lambda row: (row["invisible"], -row["score"]))
-    ambiguities: list[str] = []
+    cos = _signature_cosines(u, prec, norms)
+    rows = [
+        _score_effect(eff, u[:, k], norms[k], prec, r, total, groups, invisible_snr) for k, eff in enumerate(catalogue)
+    ]
+    _adjust_and_rank(rows, alpha)
+    _note_invisible(rows, catalogue)
     names = catalogue.names
-    for row in rows:
-        row.setdefault("acts_on", [])
-        row["ambiguous"] = False
-        row["note"] = ""
-        eff = catalogue[row["name"]]
-        if row["invisible"]:
-            row["note"] = (
-                f"invisible in the available summaries (largest signal over the prior "
-                f"{row['max_snr']:.2g} noise sd after the base parameters absorb theirs)"
-                + (f"; needs {eff.separated_by}" if eff.separated_by else "")
-            )
-    # Which effects are still needed once the stronger ones are in: forward selection on
-    # conditional scores (each candidate's signature and the residual with the selected
-    # signatures projected out, Holm over the remaining candidates).  Per-effect scores share
-    # the residual, so an absent effect that points partly the same way as the true one is
-    # "significant" on its own; the conditional score asks what it adds.
-    spans = {k: _span(eff) for k, eff in enumerate(catalogue)}
     visible_idx = [names.index(row["name"]) for row in rows if not row["invisible"]]
-    selected: list[int] = []
-    conditional: dict[int, tuple[float, float]] = {}
-    while True:
-        cand, stats_, ps = [], [], []
-        proj = _projector(u[:, selected], prec)
-        r_perp = proj @ r
-        for k in visible_idx:
-            if k in selected:
-                continue
-            up = proj @ u[:, k]
-            nk = float(np.sqrt(max(up @ prec @ up, 0.0)))
-            if nk * spans[k] < invisible_snr:
-                continue  # nothing left that the selected effects do not already do
-            t = float(up @ prec @ r_perp / nk)
-            side = catalogue.effects[k].one_sided
-            signed = t * (side if side else 1.0)
-            cand.append(k)
-            stats_.append(max(signed, 0.0) if side else abs(t))
-            ps.append(float(stats.norm.sf(signed) if side else 2 * stats.norm.sf(abs(t))))
-        if not cand:
-            break
-        adj_c = adjust_pvalues(np.array(ps), "holm")
-        for k, sc, q in zip(cand, stats_, adj_c, strict=True):
-            conditional.setdefault(k, (sc, float(q)))
-        best = int(np.argmax(stats_))
-        if adj_c[best] > alpha:
-            break
-        selected.append(cand[best])
-        for k, sc, q in zip(cand, stats_, adj_c, strict=True):
-            conditional[k] = (sc, float(q))
-    proj = _projector(u[:, selected], prec)
-    residual = _residual_test(proj @ r, null_cov, num_replicates, len(selected))
-    top_k = visible_idx[0] if visible_idx else None
-    after_top = _residual_test(
-        _projector(u[:, [top_k]] if top_k is not None else u[:, []], prec) @ r,
-        null_cov,
-        num_replicates,
-        int(top_k is not None),
+    selected, conditional = _forward_selection(
+        catalogue, u, prec, r, visible_idx, alpha=alpha, invisible_snr=invisible_snr
     )
+    residual = residual_test(projector(u[:, selected], prec) @ r, null_cov, num_replicates, len(selected))
+    top = visible_idx[:1]  # the extension that is refitted: the top-ranked visible effect
+    after_top = residual_test(projector(u[:, top], prec) @ r, null_cov, num_replicates, len(top))
     for row in rows:
         k = names.index(row["name"])
         row["needed"] = k in selected
-        sc, q = conditional.get(k, (0.0, 1.0))
-        row["conditional_score"], row["conditional_p_value"] = sc, q
-
-    # Ambiguity: can the data tell a partner from a leader under the priors?  A partner counts
-    # only if its own prior allows the sign the data ask for (score > 0).  Then either its
-    # signature is collinear (|cos| >= ambiguity_cosine), or it points mostly the same way and the
-    # data barely prefer the leader: fitting one effect alone removes score^2 from the residual
-    # chi2, so (score_a^2 - score_b^2) / 2 is the log likelihood ratio of "a alone" over "b alone".
-    # The score gap's noise sd, sqrt(2 (1 - |cos|)), is reported beside it.
-    by_name = {row["name"]: row for row in rows}
-    leaders = [row for row in rows if row["significant"]] or rows[:1]
-    for row in leaders:
-        if row["invisible"]:
-            continue
-        a = names.index(row["name"])
-        partners = []
-        for b in range(k_eff):
-            other = by_name[names[b]]
-            if b == a or not np.isfinite(cos[a, b]) or other["invisible"] or other["score"] <= 0:
-                continue
-            c = abs(cos[a, b])
-            log_lr = 0.5 * (row["score"] ** 2 - other["score"] ** 2)
-            gap_sd = float(np.sqrt(max(2.0 * (1.0 - c), 0.0)))
-            near_tie = c >= near_tie_cosine and log_lr < near_tie_log_lr
-            if c >= ambiguity_cosine or near_tie:
-                partners.append((names[b], cos[a, b], row["score"] - other["score"], gap_sd, log_lr))
-        if partners:
-            row["ambiguous"] = True
-            needs = "; ".join(
-                sorted(
-                    {catalogue[n].separated_by for n, *_ in [*partners, (row["name"],)] if catalogue[n].separated_by}
-                )
-            )
-            txt = ", ".join(
-                f"{n} (cos {c:+.3f}, score gap {g:.2f}, gap noise sd {gs:.2f}, log LR {lr:.1f})"
-                for n, c, g, gs, lr in partners
-            )
-            row["note"] = f"ambiguous with {txt}: these summaries cannot tell them apart" + (
-                f"; needs {needs}" if needs else ""
-            )
-            ambiguities.append(f"{row['name']}: {row['note']}")
-        else:
-            others = [(names[b], cos[a, b]) for b in range(k_eff) if b != a and np.isfinite(cos[a, b])]
-            if others:
-                name_b, c = max(others, key=lambda x: abs(x[1]))
-                row["note"] = f"closest competitor {name_b} (cos {c:+.2f})"
+        row["conditional_score"], row["conditional_p_value"] = conditional.get(k, (0.0, 1.0))
+    ambiguities = _mark_ambiguities(rows, catalogue, cos, ambiguity_cosine, near_tie_cosine, near_tie_log_lr)
     causes = [Cause(row.pop("name"), row.pop("score"), **row) for row in rows]
     return CauseAnalysis(
         causes,
@@ -550,3 +411,260 @@ def rank_causes(
         residual_after_top=after_top,
         alpha=alpha,
     )
+
+
+# One ranked effect while :func:`rank_causes` builds it; becomes a :class:`Cause`'s details.
+_Row = dict[str, Any]
+
+
+def _signature_cosines(u: np.ndarray, prec: np.ndarray, norms: np.ndarray) -> np.ndarray:
+    """Cosines between the columns of ``u`` (s, K) in the ``prec`` metric, shape (K, K).
+
+    ``norms`` (K,) are the columns' ``prec``-norms; a pair involving a zero norm is NaN.
+    """
+    k_eff = u.shape[1]
+    cos = np.full((k_eff, k_eff), np.nan)
+    for a in range(k_eff):
+        for b in range(k_eff):
+            if norms[a] > 0 and norms[b] > 0:
+                cos[a, b] = float(u[:, a] @ prec @ u[:, b] / (norms[a] * norms[b]))
+    return cos
+
+
+def _score_effect(
+    eff: Effect,
+    u_k: np.ndarray,
+    norm: float,
+    prec: np.ndarray,
+    r: np.ndarray,
+    total: float,
+    groups: dict[str, np.ndarray],
+    invisible_snr: float,
+) -> _Row:
+    """Matched-filter score of one effect on its own against the refit residual ``r`` (s,).
+
+    ``u_k`` (s,) is its projected signature with ``prec``-norm ``norm``; ``total`` is
+    ``r' prec r``.  An effect whose largest signal over its prior is below ``invisible_snr``
+    noise sd is returned as invisible (score 0, p-value 1).
+    """
+    max_snr = float(norm * prior_span(eff))
+    if norm <= 0 or max_snr < invisible_snr:
+        return dict(
+            name=eff.name,
+            score=0.0,
+            statistic=0.0,
+            p_value=1.0,
+            fraction_explained=0.0,
+            estimate=float("nan"),
+            max_snr=max_snr,
+            invisible=True,
+        )
+    t = float(u_k @ prec @ r / norm)
+    # Signed in the direction of increasing eta; a one-sided prior can only use one sign.
+    score, p = directed_score(t, eff.one_sided)
+    estimate = eff.null + t / norm
+    load = np.abs(u_k) * np.sqrt(np.diag(prec))
+    acts_on = sorted(groups, key=lambda g: -float(np.sum(load[groups[g]] ** 2)))[:3]
+    return dict(
+        name=eff.name,
+        score=score,
+        statistic=t,
+        p_value=p,
+        fraction_explained=score * score / total if total > 0 else 0.0,
+        estimate=float(estimate),
+        max_snr=max_snr,
+        invisible=False,
+        acts_on=acts_on,
+        outside_prior=not (eff.low <= estimate <= eff.high),
+    )
+
+
+def _adjust_and_rank(rows: list[_Row], alpha: float) -> None:
+    """Holm-adjust the per-effect p-values, mark the significant visible ones, and sort ``rows``
+    in place: visible effects first, each part by decreasing score."""
+    adj = adjust_pvalues(np.array([row["p_value"] for row in rows]), "holm")
+    for row, q in zip(rows, adj, strict=True):
+        row["adjusted_p_value"] = float(q)
+        row["significant"] = bool(q <= alpha and not row["invisible"])
+    rows.sort(key=lambda row: (row["invisible"], -row["score"]))
+
+
+def _note_invisible(rows: list[_Row], catalogue: Catalogue) -> None:
+    """Give every row ``acts_on``, ``ambiguous`` (False) and ``note``; invisible effects get a
+    note that says how small their signal is and which data would show them."""
+    for row in rows:
+        row.setdefault("acts_on", [])
+        row["ambiguous"] = False
+        row["note"] = ""
+        eff = catalogue[row["name"]]
+        if row["invisible"]:
+            row["note"] = (
+                f"invisible in the available summaries (largest signal over the prior "
+                f"{row['max_snr']:.2g} noise sd after the base parameters absorb theirs)"
+                + (f"; needs {eff.separated_by}" if eff.separated_by else "")
+            )
+
+
+def _forward_selection(
+    catalogue: Catalogue,
+    u: np.ndarray,
+    prec: np.ndarray,
+    r: np.ndarray,
+    candidates: Sequence[int],
+    *,
+    alpha: float,
+    invisible_snr: float,
+) -> tuple[list[int], dict[int, tuple[float, float]]]:
+    """Which effects are still needed once the stronger ones are in.
+
+    Per-effect scores share the residual, so an absent effect that points partly the same way
+    as the true one is "significant" on its own; the conditional score asks what it adds.  Each
+    round scores the remaining ``candidates`` (catalogue indices) conditionally
+    (:func:`_conditional_scores`), Holm-adjusts over them, and selects the best while its
+    adjusted p-value is at most ``alpha``.
+
+    Returns
+    -------
+    selected : list of int
+        Catalogue indices in the order selected.
+    conditional : dict of int to (score, adjusted p-value)
+        Each scored candidate's values from the round that selected it, else from the first
+        round that scored it.
+    """
+    spans = [prior_span(eff) for eff in catalogue]
+    selected: list[int] = []
+    conditional: dict[int, tuple[float, float]] = {}
+    while True:
+        cand, scores, ps = _conditional_scores(catalogue, u, prec, r, selected, candidates, spans, invisible_snr)
+        if not cand:
+            break
+        adj = adjust_pvalues(np.array(ps), "holm")
+        for k, sc, q in zip(cand, scores, adj, strict=True):
+            conditional.setdefault(k, (sc, float(q)))
+        best = int(np.argmax(scores))
+        if adj[best] > alpha:
+            break
+        selected.append(cand[best])
+        for k, sc, q in zip(cand, scores, adj, strict=True):
+            conditional[k] = (sc, float(q))
+    return selected, conditional
+
+
+def _conditional_scores(
+    catalogue: Catalogue,
+    u: np.ndarray,
+    prec: np.ndarray,
+    r: np.ndarray,
+    selected: list[int],
+    candidates: Sequence[int],
+    spans: list[float],
+    invisible_snr: float,
+) -> tuple[list[int], list[float], list[float]]:
+    """Scores of the unselected candidates with the ``selected`` signatures projected out of
+    both their signature and the residual; (candidate indices, scores, unadjusted p-values).
+
+    A candidate whose remaining signal over its prior span is below ``invisible_snr`` is
+    skipped: the selected effects already do everything it could.
+    """
+    proj = projector(u[:, selected], prec)
+    r_perp = proj @ r
+    cand: list[int] = []
+    scores: list[float] = []
+    ps: list[float] = []
+    for k in candidates:
+        if k in selected:
+            continue
+        up = proj @ u[:, k]
+        nk = float(np.sqrt(max(up @ prec @ up, 0.0)))
+        if nk * spans[k] < invisible_snr:
+            continue
+        t = float(up @ prec @ r_perp / nk)
+        score, p = directed_score(t, catalogue.effects[k].one_sided)
+        cand.append(k)
+        scores.append(score)
+        ps.append(p)
+    return cand, scores, ps
+
+
+# A partner of a leading effect: (name, signed cosine, score gap, gap noise sd, log LR).
+_Partner = tuple[str, float, float, float, float]
+
+
+def _mark_ambiguities(
+    rows: list[_Row],
+    catalogue: Catalogue,
+    cos: np.ndarray,
+    ambiguity_cosine: float,
+    near_tie_cosine: float,
+    near_tie_log_lr: float,
+) -> list[str]:
+    """Mark leaders the data cannot tell from a partner, and note each leader's nearest rival.
+
+    Leaders are the significant effects (or the top row when none is).  A leader with
+    confusable partners (:func:`_confusable_partners`) gets ``ambiguous`` and a note naming
+    them and the data that would separate them; otherwise its note names its closest
+    competitor by |cos|.  Returns one line per ambiguous leader.
+    """
+    names = catalogue.names
+    by_name = {row["name"]: row for row in rows}
+    ambiguities: list[str] = []
+    leaders = [row for row in rows if row["significant"]] or rows[:1]
+    for row in leaders:
+        if row["invisible"]:
+            continue
+        a = names.index(row["name"])
+        partners = _confusable_partners(row, a, names, by_name, cos, ambiguity_cosine, near_tie_cosine, near_tie_log_lr)
+        if partners:
+            row["ambiguous"] = True
+            row["note"] = _ambiguity_note(row["name"], partners, catalogue)
+            ambiguities.append(f"{row['name']}: {row['note']}")
+        else:
+            others = [(names[b], cos[a, b]) for b in range(len(names)) if b != a and np.isfinite(cos[a, b])]
+            if others:
+                name_b, c = max(others, key=lambda x: abs(x[1]))
+                row["note"] = f"closest competitor {name_b} (cos {c:+.2f})"
+    return ambiguities
+
+
+def _confusable_partners(
+    leader: _Row,
+    a: int,
+    names: list[str],
+    by_name: dict[str, _Row],
+    cos: np.ndarray,
+    ambiguity_cosine: float,
+    near_tie_cosine: float,
+    near_tie_log_lr: float,
+) -> list[_Partner]:
+    """Effects the data cannot tell from the leader (catalogue index ``a``) under the priors.
+
+    A partner counts only if its own prior allows the sign the data ask for (score > 0).  Then
+    either its signature is collinear (|cos| >= ``ambiguity_cosine``), or it points mostly the
+    same way (|cos| >= ``near_tie_cosine``) and the data barely prefer the leader: fitting one
+    effect alone removes score^2 from the residual chi2, so ``(score_a^2 - score_b^2) / 2`` is
+    the log likelihood ratio of "a alone" over "b alone", compared with ``near_tie_log_lr``.
+    The score gap's noise sd, ``sqrt(2 (1 - |cos|))``, is reported beside it.
+    """
+    partners: list[_Partner] = []
+    for b, name_b in enumerate(names):
+        other = by_name[name_b]
+        if b == a or not np.isfinite(cos[a, b]) or other["invisible"] or other["score"] <= 0:
+            continue
+        c = abs(cos[a, b])
+        log_lr = 0.5 * (leader["score"] ** 2 - other["score"] ** 2)
+        gap_sd = float(np.sqrt(max(2.0 * (1.0 - c), 0.0)))
+        near_tie = c >= near_tie_cosine and log_lr < near_tie_log_lr
+        if c >= ambiguity_cosine or near_tie:
+            partners.append((name_b, cos[a, b], leader["score"] - other["score"], gap_sd, log_lr))
+    return partners
+
+
+def _ambiguity_note(leader: str, partners: list[_Partner], catalogue: Catalogue) -> str:
+    """The note of an ambiguous leader: its partners and the data that would separate them."""
+    needs = "; ".join(
+        sorted({catalogue[n].separated_by for n, *_ in [*partners, (leader,)] if catalogue[n].separated_by})
+    )
+    txt = ", ".join(
+        f"{n} (cos {c:+.3f}, score gap {g:.2f}, gap noise sd {gs:.2f}, log LR {lr:.1f})" for n, c, g, gs, lr in partners
+    )
+    return f"ambiguous with {txt}: these summaries cannot tell them apart" + (f"; needs {needs}" if needs else "")

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
 from typing import Any
 
 import jax
@@ -12,10 +13,18 @@ import numpy as np
 from jaxabc.criticism.causes import Catalogue
 from jaxabc.criticism.extend import refit
 from jaxabc.criticism.gain import held_out_gain
-from jaxabc.criticism.pipeline import Pipeline
-from jaxabc.criticism.power import CandidateObservables, annotate_causes, design_advice, detection_power, power_key
+from jaxabc.criticism.pipeline import Diagnosis, Pipeline
+from jaxabc.criticism.power import (
+    CandidateObservables,
+    EffectPower,
+    annotate_causes,
+    design_advice,
+    detection_power,
+    power_key,
+)
 from jaxabc.criticism.predictive import (
     IndexSpec,
+    PosteriorPredictive,
     normalise_groups,
     normalise_mask,
     posterior_predictive,
@@ -149,83 +158,200 @@ def critique(
     -------
     CritiqueReport
     """
-    obs = np.asarray(observed, np.float64).reshape(-1)
-    if not np.all(np.isfinite(obs)):
-        raise ValueError("observed contains NaN or infinite values: drop or impute them first")
-    if not isinstance(catalogue, Catalogue):
-        raise TypeError("catalogue must be a jaxabc.criticism.Catalogue of Effect objects")
-    d, k_eff, s = result.prior.dim, len(catalogue), obs.size
-    if result.particles.shape[1] != d:
-        raise ValueError(f"result particles have {result.particles.shape[1]} columns, its prior {d}")
+    obs = _validated_observed(observed, result, catalogue)
     ex = executor if hasattr(executor, "map") else get_executor(executor)
     if getattr(ex, "name", "") == "vmap":
-        _check_simulator(simulate_with_effects, d + k_eff, s)
-    names = list(summary_names) if summary_names is not None else [f"s{i}" for i in range(s)]
-    group_idx = normalise_groups(groups, s)
-    held = normalise_mask(held_out, s, group_idx)
-    nulls = catalogue.nulls()
+        _check_simulator(simulate_with_effects, result.prior.dim + len(catalogue), obs.size)
+    names = list(summary_names) if summary_names is not None else [f"s{i}" for i in range(obs.size)]
+    group_idx = normalise_groups(groups, obs.size)
+    held = normalise_mask(held_out, obs.size, group_idx)
+    problem = _Problem(
+        result, simulate_with_effects, obs, catalogue, held, group_idx, ex, seed, num_draws, num_replicates
+    )
     root = jax.random.key(seed)
     k_pred, k_ext, k_base, k_epred, k_bpred = jax.random.split(root, 5)
-
-    draws = result.resample(num_draws, seed=seed)
-    full = lambda t: np.concatenate([np.atleast_2d(t), np.repeat(nulls[None], np.atleast_2d(t).shape[0], 0)], 1)  # noqa: E731
-    theta_hat = full(result.bayes_estimate())[0]
-    pred = posterior_predictive(
-        simulate_with_effects,
-        full(draws),
-        theta_hat,
-        k_pred,
-        num_replicates,
-        executor=ex,
-        names=names,
-        groups=group_idx,
-    )
-
-    # The base parameters absorb what they can: a few Gauss-Newton steps on the fitted summaries
-    # from the Bayes estimate, with expectations over common random numbers.  An ABC posterior
-    # mean is only as precise as its tolerance, and testing at a point that is off by a fraction
-    # of the posterior width shows that curvature as spurious misfit.  Then the misfit tests and
-    # the cause ranking: the same step runs on the replicate data sets of the power estimate.
-    sd = np.sqrt(np.diag(result.covariance()))
-    lo_b, hi_b = np.asarray(result.prior.low, float), np.asarray(result.prior.high, float)
+    pred = _base_predictive(problem, k_pred, names)
     num_grad = num_gradient_replicates or min(len(pred.replicate_keys), 64)
-    pipeline = Pipeline(
-        simulate=simulate_with_effects,
-        executor=ex,
-        catalogue=catalogue,
-        num_base=d,
-        held_out=held,
-        groups=group_idx,
-        low=lo_b,
-        high=hi_b,
-        steps=np.maximum(0.5 * sd, 1e-3 * (hi_b - lo_b)),
+    settings = dict(
+        seed=seed,
+        num_draws=num_draws,
+        num_replicates=num_replicates,
         num_gradient_replicates=num_grad,
-        num_refit_iterations=num_refit_iterations,
         alpha=alpha,
         correction=correction,
         cause_alpha=cause_alpha,
         ambiguity_cosine=ambiguity_cosine,
         invisible_snr=invisible_snr,
         level=level,
+        num_power_replicates=int(num_power_replicates),
+        power_threshold=power_threshold,
     )
+    pipeline = _make_pipeline(problem, num_refit_iterations, settings)
     diagnosis = pipeline.diagnose(obs, pred)
-    base_pred, pred, mis, causes = pred, diagnosis.predictive, diagnosis.misfits, diagnosis.causes
-    fitted = diagnosis.fitted
-    powers = {}
-    if num_power_replicates and any(e.expected is not None for e in catalogue):
-        powers = detection_power(pipeline, result, base_pred, power_key(root), int(num_power_replicates))
+    powers, advice = _power_and_advice(problem, pipeline, diagnosis, pred, root, settings, candidates)
+    causes = diagnosis.causes
+    annotate_causes(causes.causes, catalogue, powers, advice, causes.needed, power_threshold)
+    report = _initial_report(problem, diagnosis, settings, powers, advice)
+    visible = [c for c in causes.causes if not c.invisible]
+    if extend and diagnosis.misfits.flagged and visible:
+        keys = (k_ext, k_base, k_epred, k_bpred)
+        _add_extension(report, problem, diagnosis, visible[0].name, keys, refit_base, extend_options)
+    return report
+
+
+def _validated_observed(observed: Any, result: ABCResult, catalogue: Any) -> np.ndarray:
+    """``observed`` as a float64 vector (s,), after the checks that need no simulation.
+
+    Raises ValueError for non-finite data or particles that do not match the prior, and
+    TypeError when ``catalogue`` is not a :class:`Catalogue`.
+    """
+    obs = np.asarray(observed, np.float64).reshape(-1)
+    if not np.all(np.isfinite(obs)):
+        raise ValueError("observed contains NaN or infinite values: drop or impute them first")
+    if not isinstance(catalogue, Catalogue):
+        raise TypeError("catalogue must be a jaxabc.criticism.Catalogue of Effect objects")
+    d = result.prior.dim
+    if result.particles.shape[1] != d:
+        raise ValueError(f"result particles have {result.particles.shape[1]} columns, its prior {d}")
+    return obs
+
+
+@dataclass(frozen=True)
+class _Problem:
+    """The validated inputs that every step of one :func:`critique` call shares.
+
+    ``observed`` has shape (s,), ``held_out`` is a boolean mask (s,), ``groups`` maps names to
+    index arrays; ``simulate`` takes ``theta_full`` (d + K,).
+    """
+
+    result: ABCResult
+    simulate: Callable
+    observed: np.ndarray
+    catalogue: Catalogue
+    held_out: np.ndarray
+    groups: dict[str, np.ndarray]
+    executor: Any
+    seed: int
+    num_draws: int
+    num_replicates: int
+
+    @property
+    def num_base(self) -> int:
+        """Number ``d`` of base parameters."""
+        return self.result.prior.dim
+
+    def with_nulls(self, theta: np.ndarray) -> np.ndarray:
+        """Base parameters, shape (n, d) or (d,), followed by the effects' nulls; (n, d + K)."""
+        rows = np.atleast_2d(theta)
+        return np.concatenate([rows, np.repeat(self.catalogue.nulls()[None], rows.shape[0], 0)], 1)
+
+    def with_effect(self, theta: np.ndarray, effect: str) -> np.ndarray:
+        """Rows (n, d + 1) of an extension's parameters, base then ``effect``, as simulator
+        inputs (n, d + K) with the other effects at null."""
+        d = self.num_base
+        out = self.with_nulls(theta[:, :d])
+        out[:, d + self.catalogue.index(effect)] = theta[:, d]
+        return out
+
+    def simulate_at(self, key: jax.Array, thetas: np.ndarray) -> np.ndarray:
+        """One simulation per row of ``thetas`` (n, d + K), each with its own key split from
+        ``key``; (n, s), NaN rows where a simulation failed."""
+        return simulate_many(self.simulate, jax.random.split(key, thetas.shape[0]), thetas, self.executor)
+
+
+def _base_predictive(problem: _Problem, key: jax.Array, names: list[str]) -> PosteriorPredictive:
+    """The base calibration's posterior predictive (effects at null): ``num_draws`` posterior
+    draws and ``num_replicates`` replicate seeds at its Bayes estimate."""
+    result = problem.result
+    draws = result.resample(problem.num_draws, seed=problem.seed)
+    theta_hat = problem.with_nulls(result.bayes_estimate())[0]
+    return posterior_predictive(
+        problem.simulate,
+        problem.with_nulls(draws),
+        theta_hat,
+        key,
+        problem.num_replicates,
+        executor=problem.executor,
+        names=names,
+        groups=problem.groups,
+    )
+
+
+# The settings of a critique call that the pipeline's tests take, by their Pipeline field names.
+_TEST_SETTINGS = ("alpha", "correction", "cause_alpha", "ambiguity_cosine", "invisible_snr", "level")
+
+
+def _make_pipeline(problem: _Problem, num_refit_iterations: int, settings: dict[str, Any]) -> Pipeline:
+    """The data-dependent steps with the run's settings (levels, thresholds, gradient replicates).
+
+    The base parameters absorb what they can: a few Gauss-Newton steps on the fitted summaries
+    from the Bayes estimate, with expectations over common random numbers.  An ABC posterior
+    mean is only as precise as its tolerance, and testing at a point that is off by a fraction
+    of the posterior width shows that curvature as spurious misfit.  Finite-difference steps
+    are half a posterior sd (at least 1e-3 of the prior range).  The same pipeline runs on the
+    replicate data sets of the power estimate.
+    """
+    result = problem.result
+    sd = np.sqrt(np.diag(result.covariance()))
+    lo_b, hi_b = np.asarray(result.prior.low, float), np.asarray(result.prior.high, float)
+    return Pipeline(
+        simulate=problem.simulate,
+        executor=problem.executor,
+        catalogue=problem.catalogue,
+        num_base=problem.num_base,
+        held_out=problem.held_out,
+        groups=problem.groups,
+        low=lo_b,
+        high=hi_b,
+        steps=np.maximum(0.5 * sd, 1e-3 * (hi_b - lo_b)),
+        num_gradient_replicates=settings["num_gradient_replicates"],
+        num_refit_iterations=num_refit_iterations,
+        **{name: settings[name] for name in _TEST_SETTINGS},
+    )
+
+
+def _power_and_advice(
+    problem: _Problem,
+    pipeline: Pipeline,
+    diagnosis: Diagnosis,
+    base_predictive: PosteriorPredictive,
+    root: jax.Array,
+    settings: dict[str, Any],
+    candidates: CandidateObservables | None,
+) -> tuple[dict[str, EffectPower], dict[str, list[dict]]]:
+    """Detection power of the effects with an expected strength, and design advice.
+
+    Power uses ``settings["num_power_replicates"]`` data sets per effect (none when 0).  Advice
+    covers the effects not named whose power is below ``settings["power_threshold"]`` or,
+    without a power estimate, every effect with an expected strength; ``{}`` without
+    ``candidates``.
+    """
+    num_datasets, threshold = settings["num_power_replicates"], settings["power_threshold"]
+    catalogue = problem.catalogue
+    powers: dict[str, EffectPower] = {}
+    if num_datasets and any(e.expected is not None for e in catalogue):
+        powers = detection_power(pipeline, problem.result, base_predictive, power_key(root), num_datasets)
+    if candidates is None:
+        return powers, {}
     low_power = [
         n
         for n, pw in powers.items()
-        if n not in causes.needed and not (np.isfinite(pw.power) and pw.power >= power_threshold)
+        if n not in diagnosis.causes.needed and not (np.isfinite(pw.power) and pw.power >= threshold)
     ]
-    if candidates is not None:
-        wanted = low_power if powers else [e.name for e in catalogue if e.expected is not None]
-        advice = design_advice(pipeline, diagnosis, candidates, wanted) if wanted else {}
-    else:
-        advice = {}
-    annotate_causes(causes.causes, catalogue, powers, advice, causes.needed, power_threshold)
-    report = CritiqueReport(
+    wanted = low_power if powers else [e.name for e in catalogue if e.expected is not None]
+    return powers, (design_advice(pipeline, diagnosis, candidates, wanted) if wanted else {})
+
+
+def _initial_report(
+    problem: _Problem,
+    diagnosis: Diagnosis,
+    settings: dict[str, Any],
+    powers: dict[str, EffectPower],
+    advice: dict[str, list[dict]],
+) -> CritiqueReport:
+    """The report of the diagnosis, without extension or gain."""
+    mis, causes = diagnosis.misfits, diagnosis.causes
+    return CritiqueReport(
         misfits=mis.flagged,
         all_misfits=mis.misfits,
         causes=causes.causes,
@@ -233,104 +359,85 @@ def critique(
         base_refit=None,
         gain={},
         ambiguities=causes.ambiguities,
-        predictive=pred,
+        predictive=diagnosis.predictive,
         misfit_analysis=mis,
         cause_analysis=causes,
-        catalogue=catalogue,
-        observed=obs,
-        held_out=held,
-        base_result=result,
-        settings=dict(
-            seed=seed,
-            num_draws=num_draws,
-            num_replicates=num_replicates,
-            num_gradient_replicates=num_grad,
-            alpha=alpha,
-            correction=correction,
-            cause_alpha=cause_alpha,
-            ambiguity_cosine=ambiguity_cosine,
-            invisible_snr=invisible_snr,
-            level=level,
-            num_power_replicates=int(num_power_replicates),
-            power_threshold=power_threshold,
-        ),
+        catalogue=problem.catalogue,
+        observed=problem.observed,
+        held_out=problem.held_out,
+        base_result=problem.result,
+        settings=settings,
         power={n: pw.to_dict() for n, pw in powers.items()},
         design_advice=advice,
         power_estimates=powers,
     )
-    visible = [c for c in causes.causes if not c.invisible]
-    if not (extend and mis.flagged and visible):
-        return report
 
-    top = visible[0]
-    opts = dict(extend_options or {})
-    ext = refit(
-        result,
-        simulate_with_effects,
-        obs,
-        catalogue,
-        [top.name],
-        fitted,
-        pred.noise_cov,
-        seed=int(jax.random.randint(k_ext, (), 0, 2**30)),
-        executor=ex,
-        **opts,
-    )
-    base = None
-    if refit_base:
-        base = refit(
-            result,
-            simulate_with_effects,
-            obs,
-            catalogue,
-            [],
-            fitted,
-            pred.noise_cov,
-            seed=int(jax.random.randint(k_base, (), 0, 2**30)),
-            executor=ex,
-            **opts,
-        )
-    slot = catalogue.index(top.name)
 
-    def ext_full(t: np.ndarray) -> np.ndarray:
-        out = full(t[:, :d])
-        out[:, d + slot] = t[:, d]
-        return out
+def _add_extension(
+    report: CritiqueReport,
+    problem: _Problem,
+    diagnosis: Diagnosis,
+    effect: str,
+    keys: tuple[jax.Array, jax.Array, jax.Array, jax.Array],
+    refit_base: bool,
+    extend_options: dict | None,
+) -> None:
+    """Refit with ``effect`` added (and the base model alike) and measure the held-out gain.
 
+    ``keys`` are the run's (extension refit, base refit, extension predictive, base
+    predictive) keys.  Fills ``report.extension``, ``base_refit`` (None without
+    ``refit_base``: the gain then uses the base calibration's draws), ``gain``,
+    ``extension_draws`` and ``base_draws`` (simulation failures dropped).
+    """
+    k_ext, k_base, k_epred, k_bpred = keys
+    pred, seed = diagnosis.predictive, problem.seed
+    ext = _refit(problem, diagnosis, [effect], k_ext, extend_options)
+    base = _refit(problem, diagnosis, [], k_base, extend_options) if refit_base else None
     k1, k2 = jax.random.split(k_epred)
-    ext_draws = simulate_many(
-        simulate_with_effects, jax.random.split(k1, num_draws), ext_full(ext.resample(num_draws, seed=seed + 1)), ex
-    )
-    ext_reps = simulate_many(
-        simulate_with_effects,
-        jax.random.split(k2, num_replicates),
-        np.repeat(ext_full(ext.bayes_estimate()[None]), num_replicates, 0),
-        ex,
+    ext_draws = problem.simulate_at(k1, problem.with_effect(ext.resample(problem.num_draws, seed=seed + 1), effect))
+    ext_reps = problem.simulate_at(
+        k2, np.repeat(problem.with_effect(ext.bayes_estimate()[None], effect), problem.num_replicates, 0)
     )
     if base is not None:
-        base_draws = simulate_many(
-            simulate_with_effects,
-            jax.random.split(k_bpred, num_draws),
-            full(base.resample(num_draws, seed=seed + 2)),
-            ex,
-        )
+        base_draws = problem.simulate_at(k_bpred, problem.with_nulls(base.resample(problem.num_draws, seed=seed + 2)))
     else:
         base_draws = pred.draws
-    ok = lambda a: a[np.all(np.isfinite(a), axis=1)]  # noqa: E731
     gain = held_out_gain(
-        obs,
-        held & pred.active,
-        ok(base_draws),
-        ok(ext_draws),
-        ok(ext_reps),
+        problem.observed,
+        problem.held_out & pred.active,
+        _finite_rows(base_draws),
+        _finite_rows(ext_draws),
+        _finite_rows(ext_reps),
         pred.noise_cov,
         extension=ext,
-        effect=catalogue[top.name],
-        effect_column=d,
-        level=level,
+        effect=problem.catalogue[effect],
+        effect_column=problem.num_base,
+        level=report.settings["level"],
         seed=seed,
     )
-    gain["effect"] = top.name
-    report.extension, report.base_refit, report.gain = ext, base, gain
-    report.extension_draws, report.base_draws = ok(ext_draws), ok(base_draws)
-    return report
+    report.extension, report.base_refit, report.gain = ext, base, {**gain, "effect": effect}
+    report.extension_draws, report.base_draws = _finite_rows(ext_draws), _finite_rows(base_draws)
+
+
+def _refit(
+    problem: _Problem, diagnosis: Diagnosis, effects: list[str], key: jax.Array, extend_options: dict | None
+) -> ABCResult:
+    """The base model plus ``effects`` refitted to the fitted summaries (:func:`refit`), with a
+    seed drawn from ``key`` and the local noise covariance as the distance's metric."""
+    return refit(
+        problem.result,
+        problem.simulate,
+        problem.observed,
+        problem.catalogue,
+        effects,
+        diagnosis.fitted,
+        diagnosis.predictive.noise_cov,
+        seed=int(jax.random.randint(key, (), 0, 2**30)),
+        executor=problem.executor,
+        **dict(extend_options or {}),
+    )
+
+
+def _finite_rows(a: np.ndarray) -> np.ndarray:
+    """The rows of ``a`` (n, s) whose simulation succeeded (every entry finite)."""
+    return a[np.all(np.isfinite(a), axis=1)]

@@ -148,58 +148,84 @@ def held_out_gain(
     out: dict[str, float | bool | list[float] | None] = {"num_held_out": int(held_out.sum())}
     if held_out.any():
         h = held_out
-        y = observed[h]
-        bd, ed, reps = base_draws[:, h], extended_draws[:, h], extended_replicates[:, h]
-        pseudo = np.vstack([y[None], reps])
-        lpd = gaussian_log_density(pseudo, ed) - gaussian_log_density(pseudo, bd)
-        out["lpd_base"] = float(gaussian_log_density(y[None], bd)[0])
-        out["lpd_extended"] = float(gaussian_log_density(y[None], ed)[0])
-        out["delta_lpd"] = float(lpd[0])
-        out["delta_lpd_se"] = float(np.std(lpd[1:], ddof=1))
-        chol = np.linalg.cholesky(noise_cov[np.ix_(h, h)] + 1e-12 * np.eye(int(h.sum())))
-        white = lambda v: np.linalg.solve(chol, np.atleast_2d(v).T).T  # noqa: E731
-        disc_b = np.mean(white(pseudo - bd.mean(axis=0)) ** 2, axis=1)
-        disc_e = np.mean(white(pseudo - ed.mean(axis=0)) ** 2, axis=1)
-        out["discrepancy_base"] = float(disc_b[0])
-        out["discrepancy_extended"] = float(disc_e[0])
-        out["discrepancy_reduction"] = float(disc_b[0] - disc_e[0])
-        out["discrepancy_reduction_se"] = float(np.std(disc_b[1:] - disc_e[1:], ddof=1))
-        # Per-summary lpd on whitened coordinates (roughly independent): the LOO-style SE.
-        wy, wb, we = white(y)[0], white(bd), white(ed)
-        per = stats.norm.logpdf(wy, we.mean(0), we.std(0, ddof=1)) - stats.norm.logpdf(
-            wy, wb.mean(0), wb.std(0, ddof=1)
+        out.update(
+            _predictive_measures(
+                observed[h],
+                base_draws[:, h],
+                extended_draws[:, h],
+                extended_replicates[:, h],
+                noise_cov[np.ix_(h, h)],
+                level,
+            )
         )
-        out["delta_lpd_summaries"] = float(per.sum())
-        out["delta_lpd_se_summaries"] = float(np.sqrt(per.size) * per.std(ddof=1)) if per.size > 1 else None
-        q = (1.0 - level) / 2.0
-        for label, draws in (("base", bd), ("extended", ed)):
-            lo, hi = np.quantile(draws, q, axis=0), np.quantile(draws, 1 - q, axis=0)
-            c = float(np.mean((y >= lo) & (y <= hi)))
-            out[f"coverage_{label}"] = c
-            out[f"coverage_{label}_se"] = float(np.sqrt(max(c * (1 - c), 1.0 / y.size) / y.size))
-        out["coverage_level"] = level
-        out["significant"] = bool(out["delta_lpd"] > 2.0 * out["delta_lpd_se"])
     else:
         out["significant"] = False
     if extension is not None and effect is not None and effect_column is not None:
-        x, w = extension.particles[:, effect_column], extension.weights
-        mean = float(np.sum(w * x))
-        sd = float(np.sqrt(np.sum(w * (x - mean) ** 2)))
-        ci = extension.credible_interval(0.95)[effect_column]
-        out["effect_mean"] = mean
-        out["effect_sd"] = sd
-        out["effect_ci95"] = [float(ci[0]), float(ci[1])]
-        # A posterior that merely repeats a one-sided prior has an equal-tailed interval that
-        # "excludes" a null sitting on the boundary; require that the data taught something.
-        prior_sd = (effect.high - effect.low) / np.sqrt(12.0)
-        out["effect_contraction"] = float(1.0 - sd / prior_sd)
-        out["effect_excludes_null"] = bool(not ci[0] <= effect.null <= ci[1] and sd < 0.5 * prior_sd)
-        out["effect_z_from_null"] = float(abs(mean - effect.null) / sd) if sd > 0 else float("inf")
-        bf, bf_se, bound = savage_dickey(extension, effect_column, effect, seed=seed)
-        out["log_bayes_factor"] = bf
-        out["log_bayes_factor_se"] = bf_se
-        out["log_bayes_factor_is_lower_bound"] = bound
-        out["log_bayes_factor_cap"] = savage_dickey_cap(extension, effect_column, effect)
-        out["log_bayes_factor_gaussian"] = savage_dickey_gaussian(extension, effect_column, effect)
+        out.update(_effect_measures(extension, effect, effect_column, seed))
     out["counts"] = bool(out.get("significant") and out.get("effect_excludes_null", True))
+    return out
+
+
+def _predictive_measures(
+    y: np.ndarray, bd: np.ndarray, ed: np.ndarray, reps: np.ndarray, cov: np.ndarray, level: float
+) -> dict[str, float | bool | None]:
+    """Log density, discrepancy and coverage of the held-out data ``y`` (h,) under the base
+    and extended predictive draws ``bd``, ``ed`` (m, h), with SEs over the replicates ``reps``
+    (r, h) at the extended estimate; ``cov`` (h, h) is the noise covariance."""
+    out: dict[str, float | bool | None] = {}
+    pseudo = np.vstack([y[None], reps])
+    lpd = gaussian_log_density(pseudo, ed) - gaussian_log_density(pseudo, bd)
+    out["lpd_base"] = float(gaussian_log_density(y[None], bd)[0])
+    out["lpd_extended"] = float(gaussian_log_density(y[None], ed)[0])
+    out["delta_lpd"] = float(lpd[0])
+    out["delta_lpd_se"] = float(np.std(lpd[1:], ddof=1))
+    chol = np.linalg.cholesky(cov + 1e-12 * np.eye(y.size))
+    white = lambda v: np.linalg.solve(chol, np.atleast_2d(v).T).T  # noqa: E731
+    disc_b = np.mean(white(pseudo - bd.mean(axis=0)) ** 2, axis=1)
+    disc_e = np.mean(white(pseudo - ed.mean(axis=0)) ** 2, axis=1)
+    out["discrepancy_base"] = float(disc_b[0])
+    out["discrepancy_extended"] = float(disc_e[0])
+    out["discrepancy_reduction"] = float(disc_b[0] - disc_e[0])
+    out["discrepancy_reduction_se"] = float(np.std(disc_b[1:] - disc_e[1:], ddof=1))
+    # Per-summary lpd on whitened coordinates (roughly independent): the LOO-style SE.
+    wy, wb, we = white(y)[0], white(bd), white(ed)
+    per = stats.norm.logpdf(wy, we.mean(0), we.std(0, ddof=1)) - stats.norm.logpdf(wy, wb.mean(0), wb.std(0, ddof=1))
+    out["delta_lpd_summaries"] = float(per.sum())
+    out["delta_lpd_se_summaries"] = float(np.sqrt(per.size) * per.std(ddof=1)) if per.size > 1 else None
+    q = (1.0 - level) / 2.0
+    for label, draws in (("base", bd), ("extended", ed)):
+        lo, hi = np.quantile(draws, q, axis=0), np.quantile(draws, 1 - q, axis=0)
+        c = float(np.mean((y >= lo) & (y <= hi)))
+        out[f"coverage_{label}"] = c
+        out[f"coverage_{label}_se"] = float(np.sqrt(max(c * (1 - c), 1.0 / y.size) / y.size))
+    out["coverage_level"] = level
+    out["significant"] = bool(out["delta_lpd"] > 2.0 * out["delta_lpd_se"])
+    return out
+
+
+def _effect_measures(
+    extension: ABCResult, effect: Effect, column: int, seed: int
+) -> dict[str, float | bool | list[float]]:
+    """The new parameter's posterior (column ``column`` of ``extension``) against its null, and
+    the Savage-Dickey log Bayes factors (module doc)."""
+    out: dict[str, float | bool | list[float]] = {}
+    x, w = extension.particles[:, column], extension.weights
+    mean = float(np.sum(w * x))
+    sd = float(np.sqrt(np.sum(w * (x - mean) ** 2)))
+    ci = extension.credible_interval(0.95)[column]
+    out["effect_mean"] = mean
+    out["effect_sd"] = sd
+    out["effect_ci95"] = [float(ci[0]), float(ci[1])]
+    # A posterior that merely repeats a one-sided prior has an equal-tailed interval that
+    # "excludes" a null sitting on the boundary; require that the data taught something.
+    prior_sd = (effect.high - effect.low) / np.sqrt(12.0)
+    out["effect_contraction"] = float(1.0 - sd / prior_sd)
+    out["effect_excludes_null"] = bool(not ci[0] <= effect.null <= ci[1] and sd < 0.5 * prior_sd)
+    out["effect_z_from_null"] = float(abs(mean - effect.null) / sd) if sd > 0 else float("inf")
+    bf, bf_se, bound = savage_dickey(extension, column, effect, seed=seed)
+    out["log_bayes_factor"] = bf
+    out["log_bayes_factor_se"] = bf_se
+    out["log_bayes_factor_is_lower_bound"] = bound
+    out["log_bayes_factor_cap"] = savage_dickey_cap(extension, column, effect)
+    out["log_bayes_factor_gaussian"] = savage_dickey_gaussian(extension, column, effect)
     return out

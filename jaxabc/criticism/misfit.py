@@ -183,22 +183,61 @@ def analyse_misfits(
     correction : {"holm", "bh"}
     level : float
         Predictive band shown in the human-readable lines.
+
+    Returns
+    -------
+    MisfitAnalysis
+        Every summary and group test, ranked by adjusted p-value (see the module doc).
     """
     act = predictive.active
-    s = observed.shape[0]
     num_rep = predictive.replicates.shape[0]
     r = observed - predictive.replicate_mean
+    a, null = _refit_and_null(predictive, jacobian, held_out)
+    rc = a @ np.where(act, r, 0.0)
+    tests = _summary_tests(observed, predictive, rc, null, held_out, level)
+    tests += _group_tests(observed, predictive, rc, null, held_out, level)
+    _adjust_within_families(tests, held_out[act], alpha, correction)
+    misfits = [_as_misfit(t, level) for t in tests]
+    misfits.sort(key=lambda m: (m.adjusted_p_value, m.p_value, -abs(m.residual)))
+    chi2, chi2_p, k = _group_stat(rc[act], null[np.ix_(act, act)], num_rep)
+    return MisfitAnalysis(misfits, r, rc, null, a, chi2, k, chi2_p)
+
+
+def _refit_and_null(
+    predictive: PosteriorPredictive, jacobian: np.ndarray, held_out: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """The refit operator ``A`` and the null covariance ``(1 + 1/R) A S A'``, both (s, s).
+
+    Built on the active summaries and zero elsewhere; only the fitted (not held-out) summaries
+    steer the refit.  ``R`` is the number of replicates behind the noise covariance ``S``.
+    """
+    act = predictive.active
+    s = act.shape[0]
+    num_rep = predictive.replicates.shape[0]
     cov = predictive.noise_cov[np.ix_(act, act)]
     a_act = refit_operator(jacobian[act], cov, ~held_out[act])
     a = np.zeros((s, s))
     a[np.ix_(act, act)] = a_act
-    rc = a @ np.where(act, r, 0.0)
     null = np.zeros((s, s))
     null[np.ix_(act, act)] = (1.0 + 1.0 / num_rep) * a_act @ cov @ a_act.T
+    return a, null
+
+
+def _summary_tests(
+    observed: np.ndarray,
+    predictive: PosteriorPredictive,
+    rc: np.ndarray,
+    null: np.ndarray,
+    held_out: np.ndarray,
+    level: float,
+) -> list[dict]:
+    """One test per active summary: ``z = rc_i / sqrt(C_ii)`` with a Student-t tail on ``R - 1``
+    degrees of freedom (the noise is estimated from ``R`` replicates)."""
+    num_rep = predictive.replicates.shape[0]
     band = predictive.band(level)
     pred_mean = predictive.mean()
     tests: list[dict] = []
-    for i in np.flatnonzero(act):
+    for i in np.flatnonzero(predictive.active):
         sd = np.sqrt(max(null[i, i], 1e-300))
         z = rc[i] / sd
         tests.append(
@@ -214,6 +253,25 @@ def analyse_misfits(
                 band=(float(band[i, 0]), float(band[i, 1])),
             )
         )
+    return tests
+
+
+def _group_tests(
+    observed: np.ndarray,
+    predictive: PosteriorPredictive,
+    rc: np.ndarray,
+    null: np.ndarray,
+    held_out: np.ndarray,
+    level: float,
+) -> list[dict]:
+    """One Hotelling test per group of two or more active summaries (F tail).
+
+    A group that mixes fitted and held-out summaries is tested as its two parts, one per
+    family.  The reported ``z`` is the normal quantile of the p-value, signed like the mean
+    standardised residual over the region.
+    """
+    act, num_rep = predictive.active, predictive.replicates.shape[0]
+    tests: list[dict] = []
     for gname, idx in predictive.groups.items():
         idx = idx[act[idx]]
         parts = [(gname, idx)]
@@ -240,7 +298,17 @@ def analyse_misfits(
                     statistic=t,
                 )
             )
-    families = [False, True] if held_out[act].any() and (~held_out[act]).any() else [bool(held_out[act].all())]
+    return tests
+
+
+def _adjust_within_families(tests: list[dict], held_out_active: np.ndarray, alpha: float, correction: str) -> None:
+    """Add ``adjusted_p_value``, ``flagged`` and ``family_alpha`` to each test, in place.
+
+    The fitted and held-out tests are separate families, each at ``alpha / 2`` when both exist
+    (Bonferroni across them); ``held_out_active`` is the held-out mask of the active summaries.
+    """
+    both = held_out_active.any() and (~held_out_active).any()
+    families = [False, True] if both else [bool(held_out_active.all())]
     fam_alpha = alpha / len(families)
     for fam in families:
         members = [t for t in tests if t["held_out"] == fam]
@@ -249,15 +317,15 @@ def analyse_misfits(
             t["adjusted_p_value"] = float(q)
             t["flagged"] = bool(q <= fam_alpha)
             t["family_alpha"] = fam_alpha
-    misfits = []
-    for t in tests:
-        what = "mean over the region " if t["kind"] == "group" else ""
-        t["line"] = (
-            f"{t['name']}{' (held out)' if t['held_out'] else ''}: {what}observed {_fmt(t['observed'])}, "
-            f"predictive {round(level * 100)}% band [{_fmt(t['band'][0])}, {_fmt(t['band'][1])}] "
-            f"(z = {t['residual']:+.2f}, adjusted p = {t['adjusted_p_value']:.2g})"
-        )
-        misfits.append(Misfit(t.pop("name"), t.pop("residual"), t.pop("p_value"), **t))
-    misfits.sort(key=lambda m: (m.adjusted_p_value, m.p_value, -abs(m.residual)))
-    chi2, chi2_p, k = _group_stat(rc[act], null[np.ix_(act, act)], num_rep)
-    return MisfitAnalysis(misfits, r, rc, null, a, chi2, k, chi2_p)
+
+
+def _as_misfit(test: dict, level: float) -> Misfit:
+    """The :class:`Misfit` of one test (consumed), with its human-readable ``line``."""
+    t = test
+    what = "mean over the region " if t["kind"] == "group" else ""
+    t["line"] = (
+        f"{t['name']}{' (held out)' if t['held_out'] else ''}: {what}observed {_fmt(t['observed'])}, "
+        f"predictive {round(level * 100)}% band [{_fmt(t['band'][0])}, {_fmt(t['band'][1])}] "
+        f"(z = {t['residual']:+.2f}, adjusted p = {t['adjusted_p_value']:.2g})"
+    )
+    return Misfit(t.pop("name"), t.pop("residual"), t.pop("p_value"), **t)

@@ -278,16 +278,7 @@ def design_advice(
     num_c = len(candidates.names)
     if sens_c.shape[0] != num_c:
         raise ValueError(f"candidate simulator returns {sens_c.shape[0]} outputs for {num_c} candidate names")
-    reps = simulate_many(
-        candidates.simulate,
-        pred.replicate_keys,
-        np.repeat(theta[None], len(pred.replicate_keys), 0),
-        pipeline.executor,
-    )
-    reps = reps[np.all(np.isfinite(reps), axis=1)]
-    var = reps.var(axis=0, ddof=1) if reps.shape[0] > 1 else np.zeros(num_c)
-    if candidates.measurement_sd is not None:
-        var = var + np.broadcast_to(np.asarray(candidates.measurement_sd, float), (num_c,)) ** 2
+    var = _candidate_noise_var(candidates, pred, theta, pipeline.executor)
     act = pred.active
     jac, cov = diagnosis.jacobian[act], pred.noise_cov[np.ix_(act, act)]
     fitted = diagnosis.fitted[act]
@@ -297,42 +288,81 @@ def design_advice(
         strength = abs(float(eff.expected if eff.expected is not None else eff.high) - eff.null)
         v = diagnosis.directions[act, k]
         current = _signal(jac, v, cov, fitted) * strength
-        rows = []
-        for c in range(num_c):
-            sd = float(np.sqrt(var[c]))
-            vc, jc = sens_c[c, d + col], sens_c[c, :d]
-            if not sd > 0:
-                rows.append(
-                    dict(name=candidates.names[c], snr=float("nan"), current_snr=current, gain=float("nan"),
-                         raw_snr=float("nan"), absorbed=float("nan"), sd=sd,
-                         note="no noise estimate: give its measurement_sd")
-                )  # fmt: skip
-                continue
-            jac_a = np.vstack([jac, jc[None]])
-            v_a = np.concatenate([v, [vc]])
-            cov_a = np.zeros((cov.shape[0] + 1,) * 2)
-            cov_a[:-1, :-1], cov_a[-1, -1] = cov, var[c]
-            snr = _signal(jac_a, v_a, cov_a, np.concatenate([fitted, [True]])) * strength
-            raw = abs(vc) / sd * strength
-            # The candidate's own residual response once the parameters fitted to the existing
-            # summaries have absorbed the effect there (the candidate not fitted).
-            a_own = refit_operator(jac_a, cov_a, np.concatenate([fitted, [False]]))
-            resid = abs(float((a_own @ v_a)[-1])) / sd * strength
-            rows.append(
-                dict(
-                    name=candidates.names[c],
-                    snr=snr,
-                    current_snr=current,
-                    gain=snr**2 - current**2,
-                    raw_snr=raw,
-                    absorbed=float(1.0 - resid / raw) if raw > 0 else float("nan"),
-                    sd=sd,
-                    note="",
-                )
+        rows = [
+            _candidate_row(
+                candidates.names[c], sens_c[c, d + col], sens_c[c, :d], var[c], jac, v, cov, fitted, strength, current
             )
+            for c in range(num_c)
+        ]
         rows.sort(key=lambda r: -r["gain"] if np.isfinite(r["gain"]) else np.inf)
         out[eff.name] = rows
     return out
+
+
+def _candidate_noise_var(
+    candidates: CandidateObservables, pred: PosteriorPredictive, theta: np.ndarray, executor: Any
+) -> np.ndarray:
+    """Noise variance (c,) of each candidate: its simulation noise over the run's replicate
+    keys at ``theta`` (failed simulations dropped; zero with fewer than two), plus the
+    squared measurement sd when given."""
+    num_c = len(candidates.names)
+    reps = simulate_many(
+        candidates.simulate,
+        pred.replicate_keys,
+        np.repeat(theta[None], len(pred.replicate_keys), 0),
+        executor,
+    )
+    reps = reps[np.all(np.isfinite(reps), axis=1)]
+    var = reps.var(axis=0, ddof=1) if reps.shape[0] > 1 else np.zeros(num_c)
+    if candidates.measurement_sd is not None:
+        var = var + np.broadcast_to(np.asarray(candidates.measurement_sd, float), (num_c,)) ** 2
+    return var
+
+
+def _candidate_row(
+    name: str,
+    vc: float,
+    jc: np.ndarray,
+    var_c: float,
+    jac: np.ndarray,
+    v: np.ndarray,
+    cov: np.ndarray,
+    fitted: np.ndarray,
+    strength: float,
+    current: float,
+) -> dict:
+    """One candidate's entry of :func:`design_advice` for one effect.
+
+    ``vc`` and ``jc`` (d,) are the candidate's sensitivities to the effect and to the base
+    parameters, ``var_c`` its noise variance; ``jac`` (s, d), ``v`` (s,), ``cov`` (s, s) and
+    ``fitted`` (s,) describe the current design, whose signal at ``strength`` is ``current``.
+    A candidate without a positive noise estimate gets NaN measures and a note.
+    """
+    sd = float(np.sqrt(var_c))
+    if not sd > 0:
+        return dict(name=name, snr=float("nan"), current_snr=current, gain=float("nan"),
+                    raw_snr=float("nan"), absorbed=float("nan"), sd=sd,
+                    note="no noise estimate: give its measurement_sd")  # fmt: skip
+    jac_a = np.vstack([jac, jc[None]])
+    v_a = np.concatenate([v, [vc]])
+    cov_a = np.zeros((cov.shape[0] + 1,) * 2)
+    cov_a[:-1, :-1], cov_a[-1, -1] = cov, var_c
+    snr = _signal(jac_a, v_a, cov_a, np.concatenate([fitted, [True]])) * strength
+    raw = abs(vc) / sd * strength
+    # The candidate's own residual response once the parameters fitted to the existing
+    # summaries have absorbed the effect there (the candidate not fitted).
+    a_own = refit_operator(jac_a, cov_a, np.concatenate([fitted, [False]]))
+    resid = abs(float((a_own @ v_a)[-1])) / sd * strength
+    return dict(
+        name=name,
+        snr=snr,
+        current_snr=current,
+        gain=snr**2 - current**2,
+        raw_snr=raw,
+        absorbed=float(1.0 - resid / raw) if raw > 0 else float("nan"),
+        sd=sd,
+        note="",
+    )
 
 
 def _fmt_power(pw: EffectPower) -> str:

@@ -229,108 +229,19 @@ class CritiqueReport:
         return _jsonable(d)
 
     def to_markdown(self, figures: dict[str, str] | None = None) -> str:
+        """The report as Markdown; ``figures`` maps ``misfits``, ``causes``, ``extension`` and
+        ``gain`` to the image paths to embed (those absent are left out)."""
         figures = figures or {}
         lines = ["# Model criticism report", "", f"**Verdict.** {self.verdict}", ""]
         if self.base_result is not None:
             lines += ["## Base calibration", "", "```", self.base_result.summary(), "```", ""]
-        lines += ["## What it gets wrong", ""]
-        corr = self.settings.get("correction", "holm")
-        lines.append(
-            f"Calibrated p-values (refit-adjusted null from replicate simulations at the estimate), "
-            f"{'Holm' if corr == 'holm' else 'Benjamini-Hochberg'} correction within the fitted and "
-            f"held-out families at overall level {self.settings.get('alpha')}."
-        )
-        lines.append("")
-        if self.misfits:
-            lines += [f"{i + 1}. {m.line}" for i, m in enumerate(self.misfits)]
-        else:
-            lines.append("Nothing flagged. Closest calls:")
-            lines += [f"- {m.line}" for m in self.all_misfits[:5]]
-        if "misfits" in figures:
-            lines += ["", f"![misfits]({figures['misfits']})"]
-        lines += [
-            "",
-            "## Why: ranked causes",
-            "",
-            "| rank | effect | score | adjusted p | explains | linearised estimate | note |",
-            "|---|---|---|---|---|---|---|",
-        ]
-        for i, c in enumerate(self.causes):
-            lines.append(
-                f"| {i + 1} | {c.name} | {c.score:.2f} | {c.adjusted_p_value:.2g} | "
-                f"{100 * c.fraction_explained:.0f}% | {c.estimate:.4g} | {c.note} |"
-            )
-        ca = self.cause_analysis
-        if ca is not None and ca.residual:
-            res = ca.residual
-            lines += [
-                "",
-                f"Needed after the stronger effects are included (conditional Holm test): "
-                f"{', '.join(ca.needed) or 'none'}. Residual after them: chi2 {res['chi2']:.1f} on "
-                f"{res['dof']} dof (p={res['p_value']:.2g}); explained fraction "
-                f"{100 * ca.explained_fraction:.0f}%"
-                + (" -- **no catalogue effect accounts for the misfit**." if ca.unexplained else "."),
-            ]
-        if self.ambiguities:
-            lines += ["", "Ambiguities:"] + [f"- {a}" for a in self.ambiguities]
-        if "causes" in figures:
-            lines += ["", f"![causes]({figures['causes']})"]
+        lines += _misfit_section(self, figures)
+        lines += _cause_section(self, figures)
         if self.power:
-            n = self.settings.get("num_power_replicates")
-            lines += [
-                "",
-                "## Could these data have seen it? Detection power",
-                "",
-                f"Share of {n} data sets simulated from the base posterior with the effect at its expected "
-                "strength in which this pipeline (refit, misfit tests, ranking, joint test) names it; "
-                "binomial standard error and 95% Wilson interval.  An effect not named here with power "
-                f"below {self.settings.get('power_threshold', 0.5)} is not detectable with these data: "
-                "its rank is no evidence against it.",
-                "",
-                "| effect | expected strength | power | s.e. | 95% interval | named here | reading |",
-                "|---|---|---|---|---|---|---|",
-            ]
-            needed = set(ca.needed) if ca is not None else set()
-            by_name = {c.name: c for c in self.causes}
-            for name, pw in self.power.items():
-                c = by_name.get(name)
-                reading = (
-                    "not detectable with these data"
-                    if c is not None and getattr(c, "detectable", None) is False
-                    else "detectable"
-                )
-                lo, hi = pw["interval"]
-                lines.append(
-                    f"| {name} | {pw['expected']:g} | {pw['power']:.2f} | {pw['se']:.2f} | [{lo:.2f}, {hi:.2f}] | "
-                    f"{'yes' if name in needed else 'no'} | {reading} |"
-                )
+            lines += _power_section(self)
         if self.design_advice:
-            lines += [
-                "",
-                "## Design advice: what would make them visible",
-                "",
-                "Candidate observables ranked by the signal (noise sd) the effect would leave at its expected "
-                "strength in the design with the candidate added, after the base parameters absorb what they "
-                "can; `raw` is the candidate's own response before that absorption.",
-            ]
-            for name, rows in self.design_advice.items():
-                lines += ["", f"**{name}**", "", "| rank | candidate | signal with it | without | raw | absorbed |"]
-                lines.append("|---|---|---|---|---|---|")
-                for i, r in enumerate(rows):
-                    lines.append(
-                        f"| {i + 1} | {r['name']} | {r['snr']:.3g} | {r['current_snr']:.3g} | {r['raw_snr']:.3g} | "
-                        + (f"{100 * r['absorbed']:.0f}% |" if np.isfinite(r["absorbed"]) else "- |")
-                    )
-        if self.extension is not None:
-            lines += ["", "## Extension", "", "```", self.extension.summary(), "```"]
-            if "extension" in figures:
-                lines += ["", f"![extension]({figures['extension']})"]
-        if self.gain:
-            lines += ["", "## Gain on held-out summaries", "", "| measure | value |", "|---|---|"]
-            for k, v in self.gain.items():
-                lines.append(f"| {k} | {v if not isinstance(v, float) else f'{v:.4g}'} |")
-            if "gain" in figures:
-                lines += ["", f"![gain]({figures['gain']})"]
+            lines += _design_advice_section(self)
+        lines += _extension_and_gain_sections(self, figures)
         if self.catalogue is not None and self.catalogue.notes:
             lines += ["", "## Catalogue notes", "", self.catalogue.notes]
         return "\n".join(lines) + "\n"
@@ -338,6 +249,8 @@ class CritiqueReport:
     # -- figures ------------------------------------------------------------------------------
 
     def _figures(self, out: Path) -> dict[str, str]:
+        """Write the PNG figures that this report has data for into ``out``; returns
+        ``{figure name: file name}`` for :meth:`to_markdown`.  Needs matplotlib."""
         try:
             import matplotlib
         except ImportError as exc:  # the optional `plotting` extra
@@ -347,106 +260,19 @@ class CritiqueReport:
         import matplotlib.pyplot as plt
 
         figs: dict[str, str] = {}
-        p = self.predictive
-        if p is not None and self.observed is not None:
-            fig, (ax1, ax2) = plt.subplots(2, 1, figsize=(9, 6), sharex=True)
-            x = np.arange(self.observed.size)
-            band = p.band(self.settings.get("level", 0.9))
-            # Predictive sd (noise + parameter uncertainty), so every summary shares one scale.
-            sd = p.draws.std(axis=0)
-            sd = np.where(sd > 0, sd, 1.0)
-            ref = p.mean()
-            ax1.fill_between(
-                x, (band[:, 0] - ref) / sd, (band[:, 1] - ref) / sd, color="C0", alpha=0.3, label="predictive band"
-            )
-            ax1.plot(x, (self.observed - ref) / sd, "ko", ms=3, label="observed")
-            ax1.set_ylabel("(y - predictive mean) / predictive sd")
-            ax1.legend(fontsize=8)
-            z = np.zeros(x.size)
-            flag = np.zeros(x.size, bool)
-            for m in self.all_misfits:
-                if m.kind == "summary":
-                    z[m.indices[0]] = m.residual
-                    flag[m.indices[0]] = m.flagged
-            ax2.bar(x, z, color=np.where(flag, "C3", "C7"))
-            if self.held_out is not None and self.held_out.any():
-                ax2.plot(x[self.held_out], np.zeros(self.held_out.sum()), "b|", ms=12, label="held out")
-                ax2.legend(fontsize=8)
-            ax2.set_ylabel("calibrated z (red: flagged)")
-            ax2.set_xticks(x)
-            ax2.set_xticklabels(p.names, rotation=90, fontsize=6)
-            fig.tight_layout()
-            fig.savefig(out / "misfits.png", dpi=110)
-            plt.close(fig)
-            figs["misfits"] = "misfits.png"
-        if self.causes:
-            fig, ax = plt.subplots(figsize=(6, 0.4 * len(self.causes) + 1.5))
-            names = [
-                c.name + (" (ambiguous)" if c.ambiguous else "") + (" (invisible)" if c.invisible else "")
-                for c in self.causes
-            ][::-1]
-            ax.barh(
-                names,
-                [c.score for c in self.causes][::-1],
-                color=["C3" if c.significant else "C7" for c in self.causes][::-1],
-            )
-            ax.axvline(2.0, color="k", ls=":", lw=1)
-            ax.set_xlabel("matched-filter score (noise sd)")
-            fig.tight_layout()
-            fig.savefig(out / "causes.png", dpi=110)
-            plt.close(fig)
-            figs["causes"] = "causes.png"
-        if self.extension is not None:
-            fig, ax = plt.subplots(figsize=(5, 3.5))
-            x, w = self.extension.particles[:, -1], self.extension.weights
-            ax.hist(x, bins=30, weights=w, color="C0", alpha=0.7)
-            eff = self.catalogue[self.extension.names[-1]]
-            ax.axvline(eff.null, color="k", ls="--", label="null (no effect)")
-            ci = self.extension.credible_interval(0.95)[-1]
-            ax.axvspan(ci[0], ci[1], color="C1", alpha=0.2, label="95% CI")
-            ax.set_xlabel(f"{eff.name}" + (f" [{eff.unit}]" if eff.unit else ""))
-            ax.legend(fontsize=8)
-            fig.tight_layout()
-            fig.savefig(out / "extension.png", dpi=110)
-            plt.close(fig)
-            figs["extension"] = "extension.png"
-        if (
-            p is not None
-            and self.observed is not None
-            and self.extension_draws is not None
-            and self.base_draws is not None
-            and self.held_out is not None
-            and self.held_out.any()
+        for name, draw in (
+            ("misfits", _misfit_figure),
+            ("causes", _cause_figure),
+            ("extension", _extension_figure),
+            ("gain", _gain_figure),
         ):
-            h = np.flatnonzero(self.held_out & p.active)
-            fig, ax = plt.subplots(figsize=(7, 3.5))
-            sd = np.where(p.noise_sd > 0, p.noise_sd, 1.0)[h]
-            for label, draws, c in (("base", self.base_draws, "C7"), ("extended", self.extension_draws, "C2")):
-                q = np.quantile((draws[:, h] - self.observed[h]) / sd, [0.05, 0.5, 0.95], axis=0)
-                ax.errorbar(
-                    np.arange(h.size) + (0.15 if c == "C2" else -0.15),
-                    q[1],
-                    yerr=[q[1] - q[0], q[2] - q[1]],
-                    fmt="o",
-                    color=c,
-                    label=label,
-                    ms=3,
-                )
-            ax.axhline(0, color="k", lw=1)
-            ax.set_xticks(np.arange(h.size))
-            ax.set_xticklabels([p.names[i] for i in h], rotation=90, fontsize=6)
-            ax.set_ylabel("(predictive - observed) / noise sd")
-            g = self.gain
-            ax.set_title(
-                f"held out: delta lpd {g.get('delta_lpd', float('nan')):.1f} +- "
-                f"{g.get('delta_lpd_se', float('nan')):.1f}",
-                fontsize=9,
-            )
-            ax.legend(fontsize=8)
+            fig = draw(self, plt)
+            if fig is None:
+                continue
             fig.tight_layout()
-            fig.savefig(out / "gain.png", dpi=110)
+            fig.savefig(out / f"{name}.png", dpi=110)
             plt.close(fig)
-            figs["gain"] = "gain.png"
+            figs[name] = f"{name}.png"
         return figs
 
     def write(self, directory: str | Path, figures: bool = True) -> Path:
@@ -459,3 +285,240 @@ class CritiqueReport:
         if self.extension is not None:
             self.extension.save(out / "extension.npz", overwrite=True)
         return out
+
+
+# -- Markdown sections: lists of lines --------------------------------------------------------
+
+
+def _misfit_section(report: CritiqueReport, figures: dict[str, str]) -> list[str]:
+    """ "What it gets wrong": the flagged misfits, or the closest calls when none is flagged."""
+    lines = ["## What it gets wrong", ""]
+    corr = report.settings.get("correction", "holm")
+    lines.append(
+        f"Calibrated p-values (refit-adjusted null from replicate simulations at the estimate), "
+        f"{'Holm' if corr == 'holm' else 'Benjamini-Hochberg'} correction within the fitted and "
+        f"held-out families at overall level {report.settings.get('alpha')}."
+    )
+    lines.append("")
+    if report.misfits:
+        lines += [f"{i + 1}. {m.line}" for i, m in enumerate(report.misfits)]
+    else:
+        lines.append("Nothing flagged. Closest calls:")
+        lines += [f"- {m.line}" for m in report.all_misfits[:5]]
+    if "misfits" in figures:
+        lines += ["", f"![misfits]({figures['misfits']})"]
+    return lines
+
+
+def _cause_section(report: CritiqueReport, figures: dict[str, str]) -> list[str]:
+    """ "Why": the ranked causes, the joint test's verdict and the ambiguities."""
+    lines = [
+        "",
+        "## Why: ranked causes",
+        "",
+        "| rank | effect | score | adjusted p | explains | linearised estimate | note |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for i, c in enumerate(report.causes):
+        lines.append(
+            f"| {i + 1} | {c.name} | {c.score:.2f} | {c.adjusted_p_value:.2g} | "
+            f"{100 * c.fraction_explained:.0f}% | {c.estimate:.4g} | {c.note} |"
+        )
+    ca = report.cause_analysis
+    if ca is not None and ca.residual:
+        res = ca.residual
+        lines += [
+            "",
+            f"Needed after the stronger effects are included (conditional Holm test): "
+            f"{', '.join(ca.needed) or 'none'}. Residual after them: chi2 {res['chi2']:.1f} on "
+            f"{res['dof']} dof (p={res['p_value']:.2g}); explained fraction "
+            f"{100 * ca.explained_fraction:.0f}%"
+            + (" -- **no catalogue effect accounts for the misfit**." if ca.unexplained else "."),
+        ]
+    if report.ambiguities:
+        lines += ["", "Ambiguities:"] + [f"- {a}" for a in report.ambiguities]
+    if "causes" in figures:
+        lines += ["", f"![causes]({figures['causes']})"]
+    return lines
+
+
+def _power_section(report: CritiqueReport) -> list[str]:
+    """The detection-power table: one row per effect with an expected strength."""
+    n = report.settings.get("num_power_replicates")
+    lines = [
+        "",
+        "## Could these data have seen it? Detection power",
+        "",
+        f"Share of {n} data sets simulated from the base posterior with the effect at its expected "
+        "strength in which this pipeline (refit, misfit tests, ranking, joint test) names it; "
+        "binomial standard error and 95% Wilson interval.  An effect not named here with power "
+        f"below {report.settings.get('power_threshold', 0.5)} is not detectable with these data: "
+        "its rank is no evidence against it.",
+        "",
+        "| effect | expected strength | power | s.e. | 95% interval | named here | reading |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    ca = report.cause_analysis
+    needed = set(ca.needed) if ca is not None else set()
+    by_name = {c.name: c for c in report.causes}
+    for name, pw in report.power.items():
+        c = by_name.get(name)
+        reading = (
+            "not detectable with these data"
+            if c is not None and getattr(c, "detectable", None) is False
+            else "detectable"
+        )
+        lo, hi = pw["interval"]
+        lines.append(
+            f"| {name} | {pw['expected']:g} | {pw['power']:.2f} | {pw['se']:.2f} | [{lo:.2f}, {hi:.2f}] | "
+            f"{'yes' if name in needed else 'no'} | {reading} |"
+        )
+    return lines
+
+
+def _design_advice_section(report: CritiqueReport) -> list[str]:
+    """One table of ranked candidate observables per effect that has design advice."""
+    lines = [
+        "",
+        "## Design advice: what would make them visible",
+        "",
+        "Candidate observables ranked by the signal (noise sd) the effect would leave at its expected "
+        "strength in the design with the candidate added, after the base parameters absorb what they "
+        "can; `raw` is the candidate's own response before that absorption.",
+    ]
+    for name, rows in report.design_advice.items():
+        lines += ["", f"**{name}**", "", "| rank | candidate | signal with it | without | raw | absorbed |"]
+        lines.append("|---|---|---|---|---|---|")
+        for i, r in enumerate(rows):
+            lines.append(
+                f"| {i + 1} | {r['name']} | {r['snr']:.3g} | {r['current_snr']:.3g} | {r['raw_snr']:.3g} | "
+                + (f"{100 * r['absorbed']:.0f}% |" if np.isfinite(r["absorbed"]) else "- |")
+            )
+    return lines
+
+
+def _extension_and_gain_sections(report: CritiqueReport, figures: dict[str, str]) -> list[str]:
+    """The extension's fit and the held-out gain table (each only when there is one)."""
+    lines: list[str] = []
+    if report.extension is not None:
+        lines += ["", "## Extension", "", "```", report.extension.summary(), "```"]
+        if "extension" in figures:
+            lines += ["", f"![extension]({figures['extension']})"]
+    if report.gain:
+        lines += ["", "## Gain on held-out summaries", "", "| measure | value |", "|---|---|"]
+        for k, v in report.gain.items():
+            lines.append(f"| {k} | {v if not isinstance(v, float) else f'{v:.4g}'} |")
+        if "gain" in figures:
+            lines += ["", f"![gain]({figures['gain']})"]
+    return lines
+
+
+# -- figures: each returns a matplotlib Figure, or None when the report lacks its data ---------
+
+
+def _misfit_figure(report: CritiqueReport, plt: Any) -> Any:
+    """Observed against the predictive band, and the calibrated z of every summary."""
+    p = report.predictive
+    if p is None or report.observed is None:
+        return None
+    fig, (ax1, ax2) = plt.subplots(2, 1, figsize=(9, 6), sharex=True)
+    x = np.arange(report.observed.size)
+    band = p.band(report.settings.get("level", 0.9))
+    # Predictive sd (noise + parameter uncertainty), so every summary shares one scale.
+    sd = p.draws.std(axis=0)
+    sd = np.where(sd > 0, sd, 1.0)
+    ref = p.mean()
+    ax1.fill_between(
+        x, (band[:, 0] - ref) / sd, (band[:, 1] - ref) / sd, color="C0", alpha=0.3, label="predictive band"
+    )
+    ax1.plot(x, (report.observed - ref) / sd, "ko", ms=3, label="observed")
+    ax1.set_ylabel("(y - predictive mean) / predictive sd")
+    ax1.legend(fontsize=8)
+    z = np.zeros(x.size)
+    flag = np.zeros(x.size, bool)
+    for m in report.all_misfits:
+        if m.kind == "summary":
+            z[m.indices[0]] = m.residual
+            flag[m.indices[0]] = m.flagged
+    ax2.bar(x, z, color=np.where(flag, "C3", "C7"))
+    if report.held_out is not None and report.held_out.any():
+        ax2.plot(x[report.held_out], np.zeros(report.held_out.sum()), "b|", ms=12, label="held out")
+        ax2.legend(fontsize=8)
+    ax2.set_ylabel("calibrated z (red: flagged)")
+    ax2.set_xticks(x)
+    ax2.set_xticklabels(p.names, rotation=90, fontsize=6)
+    return fig
+
+
+def _cause_figure(report: CritiqueReport, plt: Any) -> Any:
+    """Matched-filter score of every cause (red: significant)."""
+    if not report.causes:
+        return None
+    fig, ax = plt.subplots(figsize=(6, 0.4 * len(report.causes) + 1.5))
+    names = [
+        c.name + (" (ambiguous)" if c.ambiguous else "") + (" (invisible)" if c.invisible else "")
+        for c in report.causes
+    ][::-1]
+    ax.barh(
+        names,
+        [c.score for c in report.causes][::-1],
+        color=["C3" if c.significant else "C7" for c in report.causes][::-1],
+    )
+    ax.axvline(2.0, color="k", ls=":", lw=1)
+    ax.set_xlabel("matched-filter score (noise sd)")
+    return fig
+
+
+def _extension_figure(report: CritiqueReport, plt: Any) -> Any:
+    """Posterior of the extension's effect parameter against its null, with its 95 % interval."""
+    if report.extension is None:
+        return None
+    fig, ax = plt.subplots(figsize=(5, 3.5))
+    x, w = report.extension.particles[:, -1], report.extension.weights
+    ax.hist(x, bins=30, weights=w, color="C0", alpha=0.7)
+    eff = report.catalogue[report.extension.names[-1]]
+    ax.axvline(eff.null, color="k", ls="--", label="null (no effect)")
+    ci = report.extension.credible_interval(0.95)[-1]
+    ax.axvspan(ci[0], ci[1], color="C1", alpha=0.2, label="95% CI")
+    ax.set_xlabel(f"{eff.name}" + (f" [{eff.unit}]" if eff.unit else ""))
+    ax.legend(fontsize=8)
+    return fig
+
+
+def _gain_figure(report: CritiqueReport, plt: Any) -> Any:
+    """Base and extended predictive draws on the held-out summaries, relative to the data."""
+    p = report.predictive
+    if (
+        p is None
+        or report.observed is None
+        or report.extension_draws is None
+        or report.base_draws is None
+        or report.held_out is None
+        or not report.held_out.any()
+    ):
+        return None
+    h = np.flatnonzero(report.held_out & p.active)
+    fig, ax = plt.subplots(figsize=(7, 3.5))
+    sd = np.where(p.noise_sd > 0, p.noise_sd, 1.0)[h]
+    for label, draws, c in (("base", report.base_draws, "C7"), ("extended", report.extension_draws, "C2")):
+        q = np.quantile((draws[:, h] - report.observed[h]) / sd, [0.05, 0.5, 0.95], axis=0)
+        ax.errorbar(
+            np.arange(h.size) + (0.15 if c == "C2" else -0.15),
+            q[1],
+            yerr=[q[1] - q[0], q[2] - q[1]],
+            fmt="o",
+            color=c,
+            label=label,
+            ms=3,
+        )
+    ax.axhline(0, color="k", lw=1)
+    ax.set_xticks(np.arange(h.size))
+    ax.set_xticklabels([p.names[i] for i in h], rotation=90, fontsize=6)
+    ax.set_ylabel("(predictive - observed) / noise sd")
+    g = report.gain
+    ax.set_title(
+        f"held out: delta lpd {g.get('delta_lpd', float('nan')):.1f} +- {g.get('delta_lpd_se', float('nan')):.1f}",
+        fontsize=9,
+    )
+    ax.legend(fontsize=8)
+    return fig
