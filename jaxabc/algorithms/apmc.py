@@ -44,7 +44,7 @@ from __future__ import annotations
 
 import functools
 import math
-from typing import Any, NamedTuple
+from typing import Any, NamedTuple, cast
 
 import jax
 import jax.numpy as jnp
@@ -57,7 +57,20 @@ from jaxabc.diagnostics import cluster_variance, count_distinct, effective_linea
 from jaxabc.distances import AdaptivePNorm, adaptive_weights
 from jaxabc.priors import Prior
 
-__all__ = ["LINEAGE_LAG", "APMCState", "build", "finalize", "impute_parents", "lineage_mcse"]
+__all__ = [
+    "LINEAGE_LAG",
+    "APMCConfig",
+    "APMCState",
+    "build",
+    "finalize",
+    "impute_parents",
+    "init",
+    "initial_proposal",
+    "lineage_mcse",
+    "posterior",
+    "propose",
+    "update",
+]
 
 WEIGHT_MODES = ("lenormand", "abcpy")
 
@@ -112,6 +125,44 @@ class APMCState(NamedTuple):
     lineage: jax.Array | None = None
 
 
+class APMCConfig(NamedTuple):
+    """APMCABC's configuration, fixed by :func:`build` and bound to the pure functions.
+
+    Attributes
+    ----------
+    prior : Prior
+        Its box is the kernel's support.
+    num_particles : int
+        ``N``, the merged population size.
+    num_kept : int
+        ``n_alpha = ceil(alpha N)``, the particles kept each step (at least 2).
+    alpha : float
+    acceptance_cutoff : float
+    covariance_factor : float
+    abcpy : bool
+        ABCpy 0.6's weights, threshold and kernel (see the module docstring).
+    max_tries : int
+        Bound on truncated-kernel redraws per particle.
+    adaptive_distance : AdaptivePNorm or None
+        Bound to the observed vector; then ``init`` and ``update`` take summaries.
+    """
+
+    prior: Prior
+    num_particles: int
+    num_kept: int
+    alpha: float
+    acceptance_cutoff: float
+    covariance_factor: float
+    abcpy: bool
+    max_tries: int
+    adaptive_distance: AdaptivePNorm | None
+
+    @property
+    def num_new(self) -> int:
+        """``N - n_alpha``, the particles proposed (and simulated) each step."""
+        return self.num_particles - self.num_kept
+
+
 def build(
     prior: Prior,
     num_particles: int,
@@ -144,167 +195,23 @@ def build(
     adaptive_distance : AdaptivePNorm, optional
         Bound to the observed vector; the algorithm then receives the summaries and computes
         its own distances (see the module docstring).
+
+    Returns
+    -------
+    ABCAlgorithm
+        The functions of this module with an :class:`APMCConfig` bound by ``functools.partial``.
+
+    Raises
+    ------
+    ValueError
+        For an option out of range, fewer than 2 kept or 1 new particle, or an adaptive
+        distance not bound to the observed data.
     """
-    if not 0.0 < alpha < 1.0:
-        raise ValueError(f"alpha must lie in (0, 1), got {alpha}; the paper used 0.1")
-    if not 0.0 <= acceptance_cutoff < 1.0:
-        raise ValueError(f"acceptance_cutoff must lie in [0, 1), got {acceptance_cutoff}")
-    if weights not in WEIGHT_MODES:
-        raise ValueError(f"weights must be one of {WEIGHT_MODES}, got {weights!r}")
-    if covariance_factor <= 0:
-        raise ValueError(f"covariance_factor must be positive, got {covariance_factor}")
     n = int(num_particles)
-    n_alpha = math.ceil(alpha * n)
-    if n_alpha < 2 or n - n_alpha < 1:
-        raise ValueError(
-            f"num_particles={n} with alpha={alpha} keeps {n_alpha} particles and proposes "
-            f"{n - n_alpha}: need at least 2 kept and 1 new; increase num_particles"
-        )
-    m = n - n_alpha
-    low, high = prior.low, prior.high
-    abcpy = weights == "abcpy"
-    adaptive = adaptive_distance
-    if adaptive is not None and not adaptive.observed:
-        raise ValueError("adaptive_distance must be bound to the observed data: use AdaptivePNorm(...).bind(observed)")
-
-    def _select(distances, valid, log_weights):
-        """Alpha selection; returns kept mask, threshold, and the population compacted so that
-        kept particles come first."""
-        if abcpy:
-            threshold = masked_percentile(distances, valid, alpha)
-            kept = valid & (distances < threshold)
-        else:
-            order = jnp.argsort(jnp.where(valid, distances, jnp.inf), stable=True)
-            rank = jnp.empty_like(order).at[order].set(jnp.arange(n))
-            kept = rank < n_alpha
-            threshold = jnp.sort(jnp.where(valid, distances, jnp.inf))[n_alpha - 1]
-        # Kept particles first (stable), so the next step can overwrite slots n_alpha.. with
-        # new particles.  At most n_alpha are kept in either mode (see masked_percentile).
-        order = jnp.argsort(~kept, stable=True)
-        return order, kept[order], threshold
-
-    def _chol(particles, log_weights, kept):
-        lw = jnp.where(kept, log_weights, -jnp.inf)
-        cov = covariance_factor * kernels.weighted_covariance(particles, lw)
-        return jnp.linalg.cholesky(kernels.regularize_covariance(cov, low, high))
-
-    def _finish(
-        particles, log_weights, distances, valid, generation, acceptance, lineage, summaries=None, dweights=None
-    ):
-        order, kept, threshold = _select(distances, valid, log_weights)
-        particles, log_weights = particles[order], log_weights[order]
-        distances, valid = distances[order], valid[order]
-        chol = _chol(particles, log_weights, kept)
-        if summaries is not None:
-            summaries = summaries[order]
-        lineage = lineage[order]
-        # Every LINEAGE_LAG generations the newer ancestors become the grouping ones and each
-        # particle starts a lineage of its own.
-        lineage = jnp.where(
-            generation % LINEAGE_LAG == 0,
-            jnp.stack([lineage[:, 1], jnp.arange(n, dtype=jnp.int32)], axis=1),
-            lineage,
-        )
-        state = APMCState(
-            particles, log_weights, distances, valid, kept, threshold, chol, generation, summaries, dweights, lineage
-        )
-        stop = acceptance < acceptance_cutoff
-        post_lw = posterior(state)[1]
-        info = Info(jnp.bool_(True), stop, threshold, acceptance, kernels.effective_sample_size(post_lw))
-        return state, info
-
-    def initial_proposal(key):
-        return Proposal(prior.sample(key, n), jnp.ones((n,), bool), jnp.bool_(True))
-
-    def _rescale(simulated, population):
-        """New weights from this step's ``simulated`` summaries; distances of ``population``."""
-        assert adaptive is not None, "only called with an adaptive distance"
-        dweights = adaptive_weights(simulated, jnp.all(jnp.isfinite(simulated), axis=1))
-        return adaptive.distances(population, dweights, jnp.ones(population.shape[0], bool)), dweights
-
-    def init(key, proposal, distances, summaries=None):
-        del key
-        dtype = proposal.thetas.dtype
-        log_w = jnp.zeros((n,), dtype)
-        dweights = None
-        if adaptive is not None:
-            summaries = adaptive.summaries_of(summaries, distances, dtype)
-            distances, dweights = _rescale(summaries, summaries)
-        return _finish(
-            proposal.thetas,
-            log_w,
-            distances,
-            jnp.ones((n,), bool),
-            jnp.int32(0),
-            jnp.asarray(1.0, dtype),
-            # Each prior draw its own lineage (any distinct labels; generation 0 relabels).
-            jnp.tile(jnp.arange(n, dtype=jnp.int32)[:, None], (1, 2)),
-            summaries,
-            dweights,
-        )
-
-    def propose(key, state):
-        k1, k2 = jax.random.split(key)
-        lw = jnp.where(state.kept, state.log_weights, -jnp.inf)
-        parents = kernels.resample_indices(k1, lw, m)
-        draw = kernels.truncated_gaussian_sample(k2, state.particles[parents], state.chol, low, high, max_tries)
-        return Proposal(draw.samples, jnp.ones((m,), bool), jnp.all(draw.ok))
-
-    def update(key, state, proposal, distances, summaries=None):
-        theta = proposal.thetas
-        # Kept particles occupy the first n_alpha slots (compacted by _select), so the kernel
-        # mixture only needs those centres: (m, n_alpha) work instead of (m, N).
-        head = slice(0, n_alpha)
-        centres = state.particles[head]
-        centre_lw = jnp.where(state.kept[head], state.log_weights[head], -jnp.inf)
-        if abcpy:
-            log_norm = None
-        else:
-            log_norm = kernels.log_truncation_normalizer(key, centres, state.chol, low, high)
-            log_norm = jnp.where(state.kept[head], log_norm, 0.0)
-        new_lw = kernels.mixture_log_weights(theta, prior.log_prob(theta), centres, centre_lw, state.chol, log_norm)
-        # The genealogy for the MCSE, from a key derived here: `key` itself is used as before.
-        parents = impute_parents(jax.random.fold_in(key, 1), theta, centres, centre_lw, state.chol, log_norm)
-        assert state.lineage is not None, "states are built by init/update"
-        lineage = jnp.concatenate([state.lineage[head], state.lineage[head][parents]])
-        merged_summaries = dweights = None
-        if adaptive is not None:
-            summaries = adaptive.summaries_of(summaries, distances, theta.dtype)
-            # Acceptance against the previous threshold, measured with the previous weights.
-            distances = adaptive.distances(summaries, state.distance_weights, jnp.ones((m,), bool))
-            merged_summaries = jnp.concatenate([state.summaries[head], summaries])
-        if abcpy:
-            acceptance = jnp.mean(distances < state.threshold)
-            kept_lw = centre_lw - logsumexp(centre_lw)
-        else:
-            acceptance = jnp.mean(distances <= state.threshold)
-            kept_lw = centre_lw
-        # Slots [0, n_alpha) hold the kept particles (compacted); [n_alpha, N) the new ones.
-        particles = jnp.concatenate([centres, theta])
-        log_weights = jnp.concatenate([kept_lw, new_lw])
-        dists = jnp.concatenate([state.distances[head], distances])
-        valid = jnp.concatenate([state.kept[head], jnp.ones((m,), bool)])
-        log_weights = jnp.where(valid, log_weights, -jnp.inf)
-        if merged_summaries is not None:
-            # Old and new particles on one scale: everyone is re-measured with the new weights.
-            dists, dweights = _rescale(summaries, merged_summaries)
-        return _finish(
-            particles,
-            log_weights,
-            dists,
-            valid,
-            state.generation + 1,
-            acceptance.astype(theta.dtype),
-            lineage,
-            merged_summaries,
-            dweights,
-        )
-
-    def posterior(state):
-        if abcpy:
-            return state.particles, jnp.where(state.valid, state.log_weights, -jnp.inf)
-        return state.particles, jnp.where(state.kept, state.log_weights, -jnp.inf)
-
+    n_alpha = _num_kept(n, alpha, acceptance_cutoff, covariance_factor, weights, adaptive_distance)
+    config = APMCConfig(
+        prior, n, n_alpha, alpha, acceptance_cutoff, covariance_factor, weights == "abcpy", max_tries, adaptive_distance
+    )
     settings = {
         "num_particles": n,
         "alpha": alpha,
@@ -313,22 +220,271 @@ def build(
         "covariance_factor": covariance_factor,
         "weights": weights,
     }
-    if adaptive is not None:
-        settings["adaptive_distance"] = adaptive.settings()
+    if adaptive_distance is not None:
+        settings["adaptive_distance"] = adaptive_distance.settings()
+    bound_posterior = functools.partial(posterior, config)
     return ABCAlgorithm(
         "apmcabc",
-        initial_proposal,
-        init,
-        propose,
-        update,
-        posterior,
+        functools.partial(initial_proposal, config),
+        functools.partial(init, config),
+        functools.partial(propose, config),
+        functools.partial(update, config),
+        bound_posterior,
         settings,
         stop_reason=_stop_reason,
-        finalize=functools.partial(finalize, posterior=posterior),
+        finalize=functools.partial(finalize, posterior=bound_posterior),
         # A zero cutoff never fires: the run needs another rule.
         needs_stopping_rule=acceptance_cutoff == 0.0,
-        uses_summaries=adaptive is not None,
+        uses_summaries=adaptive_distance is not None,
     )
+
+
+def _num_kept(
+    n: int,
+    alpha: float,
+    acceptance_cutoff: float,
+    covariance_factor: float,
+    weights: str,
+    adaptive_distance: AdaptivePNorm | None,
+) -> int:
+    """``ceil(alpha n)`` after checking :func:`build`'s options; raises ``ValueError``."""
+    if not 0.0 < alpha < 1.0:
+        raise ValueError(f"alpha must lie in (0, 1), got {alpha}; the paper used 0.1")
+    if not 0.0 <= acceptance_cutoff < 1.0:
+        raise ValueError(f"acceptance_cutoff must lie in [0, 1), got {acceptance_cutoff}")
+    if weights not in WEIGHT_MODES:
+        raise ValueError(f"weights must be one of {WEIGHT_MODES}, got {weights!r}")
+    if covariance_factor <= 0:
+        raise ValueError(f"covariance_factor must be positive, got {covariance_factor}")
+    n_alpha = math.ceil(alpha * n)
+    if n_alpha < 2 or n - n_alpha < 1:
+        raise ValueError(
+            f"num_particles={n} with alpha={alpha} keeps {n_alpha} particles and proposes "
+            f"{n - n_alpha}: need at least 2 kept and 1 new; increase num_particles"
+        )
+    if adaptive_distance is not None and not adaptive_distance.observed:
+        raise ValueError("adaptive_distance must be bound to the observed data: use AdaptivePNorm(...).bind(observed)")
+    return n_alpha
+
+
+def initial_proposal(config: APMCConfig, key: jax.Array) -> Proposal:
+    """``N`` prior draws, all active."""
+    n = config.num_particles
+    return Proposal(config.prior.sample(key, n), jnp.ones((n,), bool), jnp.bool_(True))
+
+
+def init(
+    config: APMCConfig, key: jax.Array, proposal: Proposal, distances: jax.Array, summaries: jax.Array | None = None
+) -> tuple[APMCState, Info]:
+    """The first population from the prior draws of :func:`initial_proposal`.
+
+    ``distances`` has shape (N,); ``summaries`` (N, s) is required with an adaptive distance
+    and ignored otherwise.  The acceptance rate of the first step is 1.
+    """
+    del key
+    n = config.num_particles
+    thetas = jnp.asarray(proposal.thetas)
+    dtype = thetas.dtype
+    log_w = jnp.zeros((n,), dtype)
+    distance_weights = None
+    if config.adaptive_distance is not None:
+        summaries = config.adaptive_distance.summaries_of(summaries, distances, dtype)
+        distances, distance_weights = _rescale(config.adaptive_distance, summaries, summaries)
+    return _finish(
+        config,
+        thetas,
+        log_w,
+        distances,
+        jnp.ones((n,), bool),
+        jnp.int32(0),
+        jnp.asarray(1.0, dtype),
+        # Each prior draw its own lineage (any distinct labels; generation 0 relabels).
+        jnp.tile(jnp.arange(n, dtype=jnp.int32)[:, None], (1, 2)),
+        summaries,
+        distance_weights,
+    )
+
+
+def propose(config: APMCConfig, key: jax.Array, state: APMCState) -> Proposal:
+    """``N - n_alpha`` kept particles, resampled by weight and perturbed by the truncated kernel.
+
+    ``Proposal.ok`` is False when some draw found no point of the prior's box in ``max_tries``.
+    """
+    k_parents, k_kernel = jax.random.split(key)
+    lw = jnp.where(state.kept, state.log_weights, -jnp.inf)
+    parents = kernels.resample_indices(k_parents, lw, config.num_new)
+    draw = kernels.truncated_gaussian_sample(
+        k_kernel, state.particles[parents], state.chol, config.prior.low, config.prior.high, config.max_tries
+    )
+    return Proposal(draw.samples, jnp.ones((config.num_new,), bool), jnp.all(draw.ok))
+
+
+def update(
+    config: APMCConfig,
+    key: jax.Array,
+    state: APMCState,
+    proposal: Proposal,
+    distances: jax.Array,
+    summaries: jax.Array | None = None,
+) -> tuple[APMCState, Info]:
+    """Weigh the ``N - n_alpha`` new particles, merge them with the kept ones, select again.
+
+    ``distances`` has shape (N - n_alpha,); ``summaries`` (N - n_alpha, s) is required with an
+    adaptive distance.  ``Info.stop`` fires when the acceptance falls below the cutoff.
+    """
+    theta = jnp.asarray(proposal.thetas)
+    m, head = config.num_new, slice(0, config.num_kept)
+    # Kept particles occupy the first n_alpha slots (compacted by _select), so the kernel
+    # mixture only needs those centres: (m, n_alpha) work instead of (m, N).
+    centres = state.particles[head]
+    centre_lw = jnp.where(state.kept[head], state.log_weights[head], -jnp.inf)
+    new_lw, lineage = _weigh_new_particles(config, key, state, theta, centres, centre_lw)
+    adaptive = config.adaptive_distance
+    merged_summaries = distance_weights = None
+    if adaptive is not None:
+        summaries = adaptive.summaries_of(summaries, distances, theta.dtype)
+        # Acceptance against the previous threshold, measured with the previous weights.
+        distances = adaptive.distances(summaries, cast(jax.Array, state.distance_weights), jnp.ones((m,), bool))
+        merged_summaries = jnp.concatenate([cast(jax.Array, state.summaries)[head], summaries])
+    if config.abcpy:
+        acceptance = jnp.mean(distances < state.threshold)
+        kept_lw = centre_lw - logsumexp(centre_lw)
+    else:
+        acceptance = jnp.mean(distances <= state.threshold)
+        kept_lw = centre_lw
+    # Slots [0, n_alpha) hold the kept particles (compacted); [n_alpha, N) the new ones.
+    particles = jnp.concatenate([centres, theta])
+    log_weights = jnp.concatenate([kept_lw, new_lw])
+    merged_distances = jnp.concatenate([state.distances[head], distances])
+    valid = jnp.concatenate([state.kept[head], jnp.ones((m,), bool)])
+    log_weights = jnp.where(valid, log_weights, -jnp.inf)
+    if adaptive is not None and merged_summaries is not None:
+        # Old and new particles on one scale: everyone is re-measured with the new weights.
+        merged_distances, distance_weights = _rescale(adaptive, cast(jax.Array, summaries), merged_summaries)
+    return _finish(
+        config,
+        particles,
+        log_weights,
+        merged_distances,
+        valid,
+        state.generation + 1,
+        acceptance.astype(theta.dtype),
+        lineage,
+        merged_summaries,
+        distance_weights,
+    )
+
+
+def posterior(config: APMCConfig, state: APMCState) -> tuple[jax.Array, jax.Array]:
+    """The kept particles (``abcpy``: the merged population), shapes (N, d) and (N,).
+
+    Slots outside the posterior have log weight ``-inf``.
+    """
+    if config.abcpy:
+        return state.particles, jnp.where(state.valid, state.log_weights, -jnp.inf)
+    return state.particles, jnp.where(state.kept, state.log_weights, -jnp.inf)
+
+
+def _weigh_new_particles(
+    config: APMCConfig,
+    key: jax.Array,
+    state: APMCState,
+    theta: jax.Array,
+    centres: jax.Array,
+    centre_lw: jax.Array,
+) -> tuple[jax.Array, jax.Array]:
+    """Log weights ``prior / kernel mixture`` of the new particles (m,), and the merged
+    population's lineage (N, 2): the kept particles' own, then the imputed parents'."""
+    prior, head = config.prior, slice(0, config.num_kept)
+    if config.abcpy:
+        log_norm = None
+    else:
+        log_norm = kernels.log_truncation_normalizer(key, centres, state.chol, prior.low, prior.high)
+        log_norm = jnp.where(state.kept[head], log_norm, 0.0)
+    new_lw = kernels.mixture_log_weights(theta, prior.log_prob(theta), centres, centre_lw, state.chol, log_norm)
+    # The genealogy for the MCSE, from a key derived here: `key` itself is used as before.
+    parents = impute_parents(jax.random.fold_in(key, 1), theta, centres, centre_lw, state.chol, log_norm)
+    assert state.lineage is not None, "states are built by init/update"
+    return new_lw, jnp.concatenate([state.lineage[head], state.lineage[head][parents]])
+
+
+def _rescale(adaptive: AdaptivePNorm, simulated: jax.Array, population: jax.Array) -> tuple[jax.Array, jax.Array]:
+    """Distance weights (s,) from this step's ``simulated`` summaries, and the distances (n,)
+    of the ``population`` summaries (n, s) under them."""
+    distance_weights = adaptive_weights(simulated, jnp.all(jnp.isfinite(simulated), axis=1))
+    valid = jnp.ones(population.shape[0], bool)
+    return adaptive.distances(population, distance_weights, valid), distance_weights
+
+
+def _select(config: APMCConfig, distances: jax.Array, valid: jax.Array) -> tuple[jax.Array, jax.Array, jax.Array]:
+    """Alpha selection: the order (N,) that puts the kept particles first, the kept mask (N,)
+    in that order, and the threshold ()."""
+    if config.abcpy:
+        threshold = masked_percentile(distances, valid, config.alpha)
+        kept = valid & (distances < threshold)
+    else:
+        n = config.num_particles
+        order = jnp.argsort(jnp.where(valid, distances, jnp.inf), stable=True)
+        rank = jnp.empty_like(order).at[order].set(jnp.arange(n))
+        kept = rank < config.num_kept
+        threshold = jnp.sort(jnp.where(valid, distances, jnp.inf))[config.num_kept - 1]
+    # Kept particles first (stable), so the next step can overwrite slots n_alpha.. with
+    # new particles.  At most n_alpha are kept in either mode (see masked_percentile).
+    order = jnp.argsort(~kept, stable=True)
+    return order, kept[order], threshold
+
+
+def _kernel_cholesky(config: APMCConfig, particles: jax.Array, log_weights: jax.Array, kept: jax.Array) -> jax.Array:
+    """Cholesky factor (d, d) of factor x the kept particles' weighted covariance, regularised."""
+    lw = jnp.where(kept, log_weights, -jnp.inf)
+    cov = config.covariance_factor * kernels.weighted_covariance(particles, lw)
+    return jnp.linalg.cholesky(kernels.regularize_covariance(cov, config.prior.low, config.prior.high))
+
+
+def _finish(
+    config: APMCConfig,
+    particles: jax.Array,
+    log_weights: jax.Array,
+    distances: jax.Array,
+    valid: jax.Array,
+    generation: jax.Array,
+    acceptance: jax.Array,
+    lineage: jax.Array,
+    summaries: jax.Array | None = None,
+    distance_weights: jax.Array | None = None,
+) -> tuple[APMCState, Info]:
+    """Select the kept particles of a merged population (N slots) and build its state and Info."""
+    order, kept, threshold = _select(config, distances, valid)
+    particles, log_weights = particles[order], log_weights[order]
+    distances, valid = distances[order], valid[order]
+    chol = _kernel_cholesky(config, particles, log_weights, kept)
+    if summaries is not None:
+        summaries = summaries[order]
+    lineage = lineage[order]
+    # Every LINEAGE_LAG generations the newer ancestors become the grouping ones and each
+    # particle starts a lineage of its own.
+    lineage = jnp.where(
+        generation % LINEAGE_LAG == 0,
+        jnp.stack([lineage[:, 1], jnp.arange(config.num_particles, dtype=jnp.int32)], axis=1),
+        lineage,
+    )
+    state = APMCState(
+        particles=particles,
+        log_weights=log_weights,
+        distances=distances,
+        valid=valid,
+        kept=kept,
+        threshold=threshold,
+        chol=chol,
+        generation=generation,
+        summaries=summaries,
+        distance_weights=distance_weights,
+        lineage=lineage,
+    )
+    stop = acceptance < config.acceptance_cutoff
+    post_lw = posterior(config, state)[1]
+    info = Info(jnp.bool_(True), stop, threshold, acceptance, kernels.effective_sample_size(post_lw))
+    return state, info
 
 
 def _stop_reason(settings: dict, info: Info) -> str:

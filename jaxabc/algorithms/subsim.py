@@ -50,16 +50,22 @@ from jaxabc.diagnostics import count_distinct as count_distinct_host
 from jaxabc.priors import Prior
 
 __all__ = [
+    "SubsimConfig",
     "SubsimState",
     "build",
     "chain_diagnostics",
     "count_distinct",
     "finalize",
+    "init",
+    "initial_proposal",
     "level_chains",
     "lineage_mcse",
     "log_evidence",
     "population_ess_bound",
+    "posterior",
+    "propose",
     "stop_reason",
+    "update",
 ]
 
 
@@ -124,6 +130,48 @@ class SubsimState(NamedTuple):
     num_distinct: jax.Array
 
 
+class SubsimConfig(NamedTuple):
+    """ABCsubsim's configuration, fixed by :func:`build` and bound to the pure functions.
+
+    Attributes
+    ----------
+    prior : Prior
+    num_particles : int
+        ``N = C / P0``.
+    num_chains : int
+        ``C = N P0``, at least 2.
+    chain_length : int
+        ``1 / P0``, the seed included.
+    final_threshold, acceptance_floor, min_distinct_fraction : float
+        The stopping rules (see :func:`build`).
+    initial_scale : float
+        Starting ``lambda``.
+    """
+
+    prior: Prior
+    num_particles: int
+    num_chains: int
+    chain_length: int
+    final_threshold: float
+    acceptance_floor: float
+    initial_scale: float
+    min_distinct_fraction: float
+
+
+class _ChainMoves(NamedTuple):
+    """One round of chain moves (fields as in :class:`SubsimState`); ``rate`` is the level's
+    move acceptance so far."""
+
+    buffer: jax.Array
+    buffer_distances: jax.Array
+    chain_position: jax.Array
+    chain_distance: jax.Array
+    chain_step: jax.Array
+    moves_accepted: jax.Array
+    moves_proposed: jax.Array
+    rate: jax.Array
+
+
 def build(
     prior: Prior,
     num_particles: int,
@@ -152,6 +200,17 @@ def build(
         Stop when a level holds fewer than ``min_distinct_fraction * N`` distinct particles (the
         chains have stopped moving; the population is a few points repeated), in [0, 1].
 
+    Returns
+    -------
+    ABCAlgorithm
+        The functions of this module with a :class:`SubsimConfig` bound by ``functools.partial``.
+
+    Raises
+    ------
+    ValueError
+        For ``p0`` or ``min_distinct_fraction`` out of range, ``1 / p0`` or ``N p0`` not whole
+        numbers, or fewer than 2 chains.
+
     Notes
     -----
     ``Info.ess`` is :func:`population_ess_bound` (jittable); :func:`finalize` adds ArviZ's
@@ -160,127 +219,11 @@ def build(
     """
     if not 0.0 <= min_distinct_fraction <= 1.0:
         raise ValueError(f"min_distinct_fraction must lie in [0, 1], got {min_distinct_fraction}")
-    if not 0.0 < p0 <= 0.5:
-        raise ValueError(f"p0 must lie in (0, 0.5], got {p0}; Chiachio et al. use 0.1-0.2")
-    chain_length = round(1.0 / p0)
     n = int(num_particles)
-    num_chains = round(n * p0)
-    if not math.isclose(chain_length * p0, 1.0, rel_tol=1e-9) or num_chains * chain_length != n:
-        raise ValueError(
-            f"ABCsubsim needs 1/p0 and num_particles*p0 to be whole numbers: p0={p0}, "
-            f"num_particles={n}; e.g. p0=0.2 with num_particles a multiple of 5"
-        )
-    if num_chains < 2:
-        raise ValueError(f"num_particles*p0 = {num_chains} chains: need at least 2")
-    low, high = prior.low, prior.high
-
-    def _new_level(particles, distances, ancestors, scale, level, level_acceptance):
-        order = jnp.argsort(distances, stable=True)
-        sorted_d = distances[order]
-        threshold = 0.5 * (sorted_d[num_chains - 1] + sorted_d[num_chains])
-        # With ties the midpoint equals both; keep the seeds' own largest distance then, so the
-        # seeds are inside their level.
-        threshold = jnp.where(sorted_d[num_chains] > sorted_d[num_chains - 1], threshold, sorted_d[num_chains - 1])
-        seeds = particles[order[:num_chains]]
-        seed_d = sorted_d[:num_chains]
-        cov = kernels.weighted_covariance(seeds, jnp.zeros((num_chains,), seeds.dtype))
-        chol = jnp.linalg.cholesky(kernels.regularize_covariance(cov, low, high))
-        return SubsimState(
-            particles=particles,
-            distances=distances,
-            buffer=particles.at[:num_chains].set(seeds),
-            buffer_distances=distances.at[:num_chains].set(seed_d),
-            chain_position=seeds,
-            chain_distance=seed_d,
-            chain_step=jnp.int32(1),
-            threshold=threshold,
-            chol=chol,
-            scale=scale,
-            level=level,
-            moves_accepted=jnp.int32(0),
-            moves_proposed=jnp.int32(0),
-            level_acceptance=level_acceptance,
-            ancestors=ancestors,
-            chain_ancestors=ancestors[order[:num_chains]],
-            num_distinct=count_distinct(particles),
-        )
-
-    def _info(state, done, stop, threshold, acceptance):
-        return Info(done, stop, threshold, acceptance, population_ess_bound(state))
-
-    def initial_proposal(key):
-        return Proposal(prior.sample(key, n), jnp.ones((n,), bool), jnp.bool_(True))
-
-    def init(key, proposal, distances):
-        del key
-        dtype = proposal.thetas.dtype
-        state = _new_level(
-            proposal.thetas,
-            distances,
-            jnp.arange(n, dtype=jnp.int32),
-            jnp.asarray(initial_scale, dtype),
-            jnp.int32(0),
-            jnp.asarray(1.0, dtype),
-        )
-        # Level 0's population is the prior sample, at tolerance +inf.
-        return state, _info(
-            state, jnp.bool_(True), jnp.bool_(False), jnp.asarray(jnp.inf, dtype), jnp.asarray(1.0, dtype)
-        )
-
-    def propose(key, state):
-        z = jax.random.normal(key, state.chain_position.shape, state.chain_position.dtype)
-        proposal = state.chain_position + jnp.sqrt(state.scale) * z @ state.chol.T
-        inside = prior.contains(proposal)
-        return Proposal(proposal, inside, jnp.bool_(True))
-
-    def update(key, state, proposal, distances):
-        # Metropolis within the level: the prior ratio (one inside the box for a uniform prior,
-        # so then every proposal meeting the threshold is accepted) and the threshold.
-        log_ratio = prior.log_prob(proposal.thetas) - prior.log_prob(state.chain_position)
-        log_u = jnp.log(jax.random.uniform(key, (num_chains,), state.chain_position.dtype))
-        accept = proposal.active & (distances < state.threshold) & (log_u < log_ratio)
-        position = jnp.where(accept[:, None], proposal.thetas, state.chain_position)
-        chain_d = jnp.where(accept, distances, state.chain_distance)
-        start = state.chain_step * num_chains
-        particles = jax.lax.dynamic_update_slice(state.buffer, position, (start, jnp.int32(0)))
-        dists = jax.lax.dynamic_update_slice(state.buffer_distances, chain_d, (start,))
-        accepted = state.moves_accepted + jnp.sum(accept, dtype=jnp.int32)
-        proposed = state.moves_proposed + num_chains
-        step = state.chain_step + 1
-        level_done = step == chain_length
-        rate = accepted / jnp.maximum(proposed, 1)
-        rate = rate.astype(particles.dtype)
-
-        def finish(_):
-            out_of_band = (rate < 0.2) | (rate > 0.5)
-            factor = jnp.where(out_of_band, jnp.clip(rate / 0.35, 0.5, 2.0), 1.0)
-            # The level's population (all below state.threshold) is the posterior at that
-            # tolerance; the next level's seeds and threshold come from it.
-            ancestors = jnp.tile(state.chain_ancestors, chain_length)
-            return _new_level(particles, dists, ancestors, state.scale * factor, state.level + 1, rate)
-
-        def carry_on(_):
-            return state._replace(
-                buffer=particles,
-                buffer_distances=dists,
-                chain_position=position,
-                chain_distance=chain_d,
-                chain_step=step,
-                moves_accepted=accepted,
-                moves_proposed=proposed,
-            )
-
-        new_state = jax.lax.cond(level_done, finish, carry_on, None)
-        stop = level_done & (
-            (state.threshold <= final_threshold)
-            | (rate < acceptance_floor)
-            | (new_state.num_distinct < min_distinct_fraction * n)
-        )
-        return new_state, _info(new_state, level_done, stop, state.threshold, rate)
-
-    def posterior(state):
-        return state.particles, jnp.zeros((n,), state.particles.dtype)
-
+    num_chains, chain_length = _chains(n, p0)
+    config = SubsimConfig(
+        prior, n, num_chains, chain_length, final_threshold, acceptance_floor, initial_scale, min_distinct_fraction
+    )
     settings = {
         "num_particles": n,
         "p0": p0,
@@ -293,16 +236,178 @@ def build(
     }
     return ABCAlgorithm(
         "abcsubsim",
-        initial_proposal,
-        init,
-        propose,
-        update,
-        posterior,
+        functools.partial(initial_proposal, config),
+        functools.partial(init, config),
+        functools.partial(propose, config),
+        functools.partial(update, config),
+        functools.partial(posterior, config),
         settings,
         stop_reason=stop_reason,
         finalize=functools.partial(finalize, settings=settings),
         needs_stopping_rule=not (final_threshold > 0 or acceptance_floor > 0),
     )
+
+
+def _chains(n: int, p0: float) -> tuple[int, int]:
+    """``(N P0, 1 / P0)``, the number and length of the chains; ``ValueError`` unless both are
+    whole numbers, ``p0`` lies in (0, 0.5] and there are at least 2 chains."""
+    if not 0.0 < p0 <= 0.5:
+        raise ValueError(f"p0 must lie in (0, 0.5], got {p0}; Chiachio et al. use 0.1-0.2")
+    chain_length = round(1.0 / p0)
+    num_chains = round(n * p0)
+    if not math.isclose(chain_length * p0, 1.0, rel_tol=1e-9) or num_chains * chain_length != n:
+        raise ValueError(
+            f"ABCsubsim needs 1/p0 and num_particles*p0 to be whole numbers: p0={p0}, "
+            f"num_particles={n}; e.g. p0=0.2 with num_particles a multiple of 5"
+        )
+    if num_chains < 2:
+        raise ValueError(f"num_particles*p0 = {num_chains} chains: need at least 2")
+    return num_chains, chain_length
+
+
+def initial_proposal(config: SubsimConfig, key: jax.Array) -> Proposal:
+    """``N`` prior draws, all active."""
+    n = config.num_particles
+    return Proposal(config.prior.sample(key, n), jnp.ones((n,), bool), jnp.bool_(True))
+
+
+def init(config: SubsimConfig, key: jax.Array, proposal: Proposal, distances: jax.Array) -> tuple[SubsimState, Info]:
+    """Level 0 (the prior draws, distances (N,), at tolerance ``+inf``) and level 1's seeds."""
+    del key
+    thetas = jnp.asarray(proposal.thetas)
+    dtype = thetas.dtype
+    state = _new_level(
+        config,
+        thetas,
+        distances,
+        jnp.arange(config.num_particles, dtype=jnp.int32),
+        jnp.asarray(config.initial_scale, dtype),
+        jnp.int32(0),
+        jnp.asarray(1.0, dtype),
+    )
+    # Level 0's population is the prior sample, at tolerance +inf.
+    return state, _info(state, jnp.bool_(True), jnp.bool_(False), jnp.asarray(jnp.inf, dtype), jnp.asarray(1.0, dtype))
+
+
+def propose(config: SubsimConfig, key: jax.Array, state: SubsimState) -> Proposal:
+    """One Gaussian random-walk move per chain, shape (C, d); moves outside the prior's box are
+    inactive (rejected without a simulation)."""
+    z = jax.random.normal(key, state.chain_position.shape, state.chain_position.dtype)
+    proposal = state.chain_position + jnp.sqrt(state.scale) * z @ state.chol.T
+    inside = config.prior.contains(proposal)
+    return Proposal(proposal, inside, jnp.bool_(True))
+
+
+def update(
+    config: SubsimConfig, key: jax.Array, state: SubsimState, proposal: Proposal, distances: jax.Array
+) -> tuple[SubsimState, Info]:
+    """Accept or reject each chain's move (distances (C,)); start the next level after the
+    last chain step.  ``Info.stop`` fires at a completed level when a stopping rule holds."""
+    num_chains, prior = config.num_chains, config.prior
+    thetas = jnp.asarray(proposal.thetas)
+    # Metropolis within the level: the prior ratio (one inside the box for a uniform prior,
+    # so then every proposal meeting the threshold is accepted) and the threshold.
+    log_ratio = prior.log_prob(thetas) - prior.log_prob(state.chain_position)
+    log_u = jnp.log(jax.random.uniform(key, (num_chains,), state.chain_position.dtype))
+    accept = proposal.active & (distances < state.threshold) & (log_u < log_ratio)
+    position = jnp.where(accept[:, None], thetas, state.chain_position)
+    chain_d = jnp.where(accept, distances, state.chain_distance)
+    start = state.chain_step * num_chains
+    particles = jax.lax.dynamic_update_slice(state.buffer, position, (start, jnp.int32(0)))
+    dists = jax.lax.dynamic_update_slice(state.buffer_distances, chain_d, (start,))
+    accepted = state.moves_accepted + jnp.sum(accept, dtype=jnp.int32)
+    proposed = state.moves_proposed + num_chains
+    step = state.chain_step + 1
+    level_done = step == config.chain_length
+    rate = accepted / jnp.maximum(proposed, 1)
+    rate = rate.astype(particles.dtype)
+    moves = _ChainMoves(particles, dists, position, chain_d, step, accepted, proposed, rate)
+    new_state = jax.lax.cond(level_done, functools.partial(_complete_level, config), _continue_level, state, moves)
+    stop = level_done & (
+        (state.threshold <= config.final_threshold)
+        | (rate < config.acceptance_floor)
+        | (new_state.num_distinct < config.min_distinct_fraction * config.num_particles)
+    )
+    return new_state, _info(new_state, level_done, stop, state.threshold, rate)
+
+
+def posterior(config: SubsimConfig, state: SubsimState) -> tuple[jax.Array, jax.Array]:
+    """The last completed level, with equal weights; shapes (N, d) and (N,)."""
+    return state.particles, jnp.zeros((config.num_particles,), state.particles.dtype)
+
+
+def _complete_level(config: SubsimConfig, state: SubsimState, moves: _ChainMoves) -> SubsimState:
+    """Adapt ``lambda`` and start the next level from the completed one (a ``lax.cond`` branch)."""
+    rate = moves.rate
+    out_of_band = (rate < 0.2) | (rate > 0.5)
+    factor = jnp.where(out_of_band, jnp.clip(rate / 0.35, 0.5, 2.0), 1.0)
+    # The level's population (all below state.threshold) is the posterior at that
+    # tolerance; the next level's seeds and threshold come from it.
+    ancestors = jnp.tile(state.chain_ancestors, config.chain_length)
+    return _new_level(
+        config, moves.buffer, moves.buffer_distances, ancestors, state.scale * factor, state.level + 1, rate
+    )
+
+
+def _continue_level(state: SubsimState, moves: _ChainMoves) -> SubsimState:
+    """The level with this round's chain states recorded (a ``lax.cond`` branch)."""
+    return state._replace(
+        buffer=moves.buffer,
+        buffer_distances=moves.buffer_distances,
+        chain_position=moves.chain_position,
+        chain_distance=moves.chain_distance,
+        chain_step=moves.chain_step,
+        moves_accepted=moves.moves_accepted,
+        moves_proposed=moves.moves_proposed,
+    )
+
+
+def _new_level(
+    config: SubsimConfig,
+    particles: jax.Array,
+    distances: jax.Array,
+    ancestors: jax.Array,
+    scale: jax.Array,
+    level: jax.Array,
+    level_acceptance: jax.Array,
+) -> SubsimState:
+    """The state of a completed level (N particles): its ``C`` best particles seed the chains,
+    and the next threshold lies halfway between the ``C``-th and the next smallest distance."""
+    num_chains = config.num_chains
+    order = jnp.argsort(distances, stable=True)
+    sorted_d = distances[order]
+    threshold = 0.5 * (sorted_d[num_chains - 1] + sorted_d[num_chains])
+    # With ties the midpoint equals both; keep the seeds' own largest distance then, so the
+    # seeds are inside their level.
+    threshold = jnp.where(sorted_d[num_chains] > sorted_d[num_chains - 1], threshold, sorted_d[num_chains - 1])
+    seeds = particles[order[:num_chains]]
+    seed_d = sorted_d[:num_chains]
+    cov = kernels.weighted_covariance(seeds, jnp.zeros((num_chains,), seeds.dtype))
+    chol = jnp.linalg.cholesky(kernels.regularize_covariance(cov, config.prior.low, config.prior.high))
+    return SubsimState(
+        particles=particles,
+        distances=distances,
+        buffer=particles.at[:num_chains].set(seeds),
+        buffer_distances=distances.at[:num_chains].set(seed_d),
+        chain_position=seeds,
+        chain_distance=seed_d,
+        chain_step=jnp.int32(1),
+        threshold=threshold,
+        chol=chol,
+        scale=scale,
+        level=level,
+        moves_accepted=jnp.int32(0),
+        moves_proposed=jnp.int32(0),
+        level_acceptance=level_acceptance,
+        ancestors=ancestors,
+        chain_ancestors=ancestors[order[:num_chains]],
+        num_distinct=count_distinct(particles),
+    )
+
+
+def _info(state: SubsimState, done: jax.Array, stop: jax.Array, threshold: jax.Array, acceptance: jax.Array) -> Info:
+    """An ``Info`` whose ESS is :func:`population_ess_bound` of ``state``."""
+    return Info(done, stop, threshold, acceptance, population_ess_bound(state))
 
 
 def count_distinct(x: jax.Array) -> jax.Array:
