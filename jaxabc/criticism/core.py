@@ -114,10 +114,8 @@ def critique(
         best fit of the fitted summaries before testing (0: test at the Bayes estimate).
     alpha : float
         Family-wise level of the misfit tests (split equally between the fitted and held-out
-        families).  1 % by default: the calibration is linearised around the local fit, and on
-        the LJ surrogate the measured false-alarm rate at 1 % is about 5 % over null seeds
-        (rare noise outliers plus curvature), which is the most a "flag nothing in 95 %" rule
-        allows.
+        families).  1 % by default, because the tests linearise the model around the fit and
+        curvature adds false alarms beyond the nominal level.
     correction : {"holm", "bh"}
         Holm (family-wise error) or Benjamini-Hochberg (false discovery rate).
     cause_alpha : float
