@@ -280,7 +280,7 @@ def test_a_batch_is_spread_even_when_the_posterior_collapses_onto_one_point():
 def test_the_failure_text_counts_held_out_runs_that_failed():
     from types import SimpleNamespace
 
-    from jaxabc.surrogate._support import _failure_text
+    from jaxabc.surrogate._report import failure_text
 
     errors = np.full((20, 3), np.nan)
     errors[:5] = 0.1
@@ -292,15 +292,15 @@ def test_the_failure_text_counts_held_out_runs_that_failed():
         holdout_errors=errors,
         untested_share=np.nan,
     )
-    assert "15 of 20 held-out runs failed" in _failure_text(state, 1.0)
-    assert "too few" not in _failure_text(state, 1.0)
+    assert "15 of 20 held-out runs failed" in failure_text(state, 1.0)
+    assert "too few" not in failure_text(state, 1.0)
     errors[2:5] = np.nan
-    assert "18 of 20 held-out runs failed, fewer than 5 succeeded" in _failure_text(state, 1.0)
+    assert "18 of 20 held-out runs failed, fewer than 5 succeeded" in failure_text(state, 1.0)
     # The posterior sits where the design never goes: the text names that band and the way out.
     state.untested_share = 0.9
-    assert "90% of the posterior lies where the success classifier is below" in _failure_text(state, 1.0)
+    assert "90% of the posterior lies where the success classifier is below" in failure_text(state, 1.0)
     state.untested_share = 0.1
-    assert "below the design level" not in _failure_text(state, 1.0)
+    assert "below the design level" not in failure_text(state, 1.0)
 
 
 def test_no_likelihood_outbids_the_feasibility_level():
@@ -330,7 +330,7 @@ def test_the_untested_share_is_the_posterior_weight_below_the_design_level():
     from types import SimpleNamespace
 
     from jaxabc.surrogate import sampling
-    from jaxabc.surrogate._support import _untested_share
+    from jaxabc.surrogate._support import untested_share
 
     # Runs fail beyond x0 = 0.5 (a sharp phase boundary); the classifier learns it.
     rng = np.random.default_rng(1)
@@ -340,13 +340,13 @@ def test_the_untested_share_is_the_posterior_weight_below_the_design_level():
     cand = rng.uniform(size=(2000, 2))
     draws = np.column_stack([np.linspace(0.05, 0.95, 100), np.full(100, 0.5)])
     # Equal weights: the draws beyond the boundary (x0 > ~0.5) are below the design level.
-    share = _untested_share(model, cand, draws, np.zeros(100))
+    share = untested_share(model, cand, draws, np.zeros(100))
     assert 0.4 <= share <= 0.6, share
     # Weight only on the feasible half (-inf pads the rest): nothing is untested.
     log_w = np.where(draws[:, 0] < 0.4, 0.0, -np.inf)
-    assert _untested_share(model, cand, draws, log_w) == 0.0
+    assert untested_share(model, cand, draws, log_w) == 0.0
     # Weight on the failing half only: all of it is.
-    assert _untested_share(model, cand, draws, np.where(draws[:, 0] > 0.6, 0.0, -np.inf)) == 1.0
+    assert untested_share(model, cand, draws, np.where(draws[:, 0] > 0.6, 0.0, -np.inf)) == 1.0
 
 
 def test_the_nearest_run_cut_is_sharp_for_a_failing_phase_and_blind_to_random_failures():
@@ -484,7 +484,7 @@ def _factor_correlation(q: int, seed: int) -> np.ndarray:
 
 @pytest.mark.parametrize("seed", range(5))
 def test_the_noise_correlation_from_few_runs_keeps_the_likelihood_honest(seed):
-    from jaxabc.surrogate._support import _noise_correlation
+    from jaxabc.surrogate._fit import noise_correlation
 
     # 100 residual vectors of 9 summaries with factor-structured noise.  The expected held-out
     # Mahalanobis distance per output under the estimate R_hat is tr(R_hat^-1 R) / q exactly;
@@ -494,7 +494,7 @@ def test_the_noise_correlation_from_few_runs_keeps_the_likelihood_honest(seed):
     true = _factor_correlation(q, 123)
     rng = np.random.default_rng(seed)
     residuals = rng.multivariate_normal(np.zeros(q), true * 0.3**2, size=n)
-    estimate = _noise_correlation(residuals)
+    estimate = noise_correlation(residuals)
     np.testing.assert_allclose(np.diag(estimate), 1.0)
     assert np.linalg.eigvalsh(estimate).min() > 0
     _, bound = diagnostics.holdout_bounds(20 * q)

@@ -176,7 +176,7 @@ def _moments(log_p: np.ndarray, theta: np.ndarray, delta: np.ndarray) -> dict:
 def fitted_model_grid(algorithm, state, observed: np.ndarray, centre: float) -> dict:
     """The same moments for the run's own synthetic likelihood (refitted from its state, as the
     evidence does), on a grid over (theta, delta): what its NUTS draws must reproduce."""
-    from jaxabc.surrogate._support import _evaluate
+    from jaxabc.surrogate._support import log_posterior_terms
     from jaxabc.surrogate.evidence import likelihood_from_state
 
     with jax.enable_x64(True):
@@ -186,7 +186,7 @@ def fitted_model_grid(algorithm, state, observed: np.ndarray, centre: float) -> 
         delta = np.linspace(0.0, MAX_SD, 301)[1:-1]
         x = np.stack(np.meshgrid((theta - low[0]) / (high[0] - low[0]), delta / MAX_SD, indexing="ij"), -1)
         x = x.reshape(-1, 2)
-        log_p = np.concatenate([_evaluate(model, x[i : i + 4096])[0] for i in range(0, len(x), 4096)])
+        log_p = np.concatenate([log_posterior_terms(model, x[i : i + 4096])[0] for i in range(0, len(x), 4096)])
     return _moments(log_p.reshape(len(theta), len(delta)), theta, delta)
 
 

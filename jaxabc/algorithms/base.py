@@ -16,7 +16,7 @@ executor, computes distances and calls ``update``.  For a pure-JAX simulator
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import Any, NamedTuple
+from typing import Any, NamedTuple, Protocol
 
 import jax
 import jax.numpy as jnp
@@ -26,6 +26,7 @@ __all__ = [
     "ABCAlgorithm",
     "Info",
     "Proposal",
+    "StepInfo",
     "default_stop_reason",
     "make_jax_step",
     "masked_percentile",
@@ -84,6 +85,28 @@ class Info(NamedTuple):
     ess: HostArray
 
 
+class StepInfo(Protocol):
+    """What the driver reads from the info of an ``init`` or ``update`` call: :class:`Info`, or
+    an algorithm's own NamedTuple with these attributes (e.g.
+    :class:`jaxabc.surrogate.SurrogateInfo`, whose own fields say what they hold).  The driver
+    records ``threshold``, ``acceptance_rate`` and ``ess`` in the result's history."""
+
+    @property
+    def generation_done(self) -> HostArray: ...
+
+    @property
+    def stop(self) -> HostArray: ...
+
+    @property
+    def threshold(self) -> HostArray: ...
+
+    @property
+    def acceptance_rate(self) -> HostArray: ...
+
+    @property
+    def ess(self) -> HostArray: ...
+
+
 def default_stop_reason(settings: dict, info: Info) -> str:
     """The stop reason of an algorithm that does not say why its own rule fired."""
     del settings, info
@@ -108,16 +131,17 @@ class ABCAlgorithm(NamedTuple):
     name : str
     initial_proposal : callable ``(key) -> Proposal``
         The first batch (prior draws).
-    init : callable ``(key, proposal, distances[, summaries]) -> (state, Info)``
+    init : callable ``(key, proposal, distances[, summaries]) -> (state, info)``
+        ``info`` an :class:`Info`, or any :class:`StepInfo`.
     propose : callable ``(key, state) -> Proposal``
-    update : callable ``(key, state, proposal, distances[, summaries]) -> (state, Info)``
+    update : callable ``(key, state, proposal, distances[, summaries]) -> (state, info)``
     posterior : callable ``(state) -> (particles (n, d), log_weights (n,))``
         The current posterior sample; zero-weight slots have log weight ``-inf``.
     settings : dict
         The configuration bound in the closures, JSON-serialisable, for result files and
         checkpoint fingerprints.
     stop_reason : callable ``(settings, info) -> str``
-        Why the run ended, called when ``info.stop`` fires.
+        Why the run ended, called when ``info.stop`` fires, with that call's info.
     finalize : callable ``(state) -> dict``
         Result extras of the final state, e.g. ``{"log_evidence": float}``; the key
         ``"log_evidence"`` fills :attr:`ABCResult.log_evidence`, others go to its metadata.
@@ -136,12 +160,12 @@ class ABCAlgorithm(NamedTuple):
 
     name: str
     initial_proposal: Callable[[jax.Array], Proposal]
-    init: Callable[..., tuple[Any, Info]]
+    init: Callable[..., tuple[Any, StepInfo]]
     propose: Callable[[jax.Array, Any], Proposal]
-    update: Callable[..., tuple[Any, Info]]
+    update: Callable[..., tuple[Any, StepInfo]]
     posterior: Callable[[Any], tuple[HostArray, HostArray]]
     settings: dict
-    stop_reason: Callable[[dict, Info], str] = default_stop_reason
+    stop_reason: Callable[[dict, Any], str] = default_stop_reason
     finalize: Callable[[Any], dict] = no_extras
     needs_stopping_rule: bool = False
     host: bool = False

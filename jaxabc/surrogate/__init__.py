@@ -8,12 +8,20 @@ See ``docs/guide/surrogate.md``.
 """
 
 from jaxabc.surrogate import abc_mode, design, diagnostics, emulator, sampling
-from jaxabc.surrogate.algorithm import MODES, EmulatorFailure, SurrogateAlgorithm, SurrogateState, build
+from jaxabc.surrogate.algorithm import (
+    MODES,
+    EmulatorFailure,
+    SurrogateAlgorithm,
+    SurrogateInfo,
+    SurrogateState,
+    build,
+)
 
 __all__ = [
     "MODES",
     "EmulatorFailure",
     "SurrogateAlgorithm",
+    "SurrogateInfo",
     "SurrogateState",
     "abc_mode",
     "build",

@@ -1,5 +1,6 @@
 """The synthetic-likelihood model from a run's simulations: one fit for the design loop
-(:mod:`.algorithm`) and for the evidence (:mod:`.evidence`)."""
+(:mod:`.algorithm`) and for the evidence (:mod:`.evidence`), with the noise correlation it
+carries."""
 
 from __future__ import annotations
 
@@ -10,7 +11,18 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxabc.surrogate import emulator, sampling
-from jaxabc.surrogate._support import _noise_correlation
+from jaxabc.surrogate._settings import SurrogateSettings
+
+__all__ = [
+    "ROLE_DESIGN",
+    "ROLE_EMPTY",
+    "ROLE_FAILED_HOLDOUT",
+    "ROLE_HOLDOUT",
+    "fit_likelihood",
+    "fit_surrogate",
+    "measured_data_terms",
+    "noise_correlation",
+]
 
 #: Roles of a state's rows: unused, design, held out, held out in a failed validation (then design).
 ROLE_EMPTY, ROLE_DESIGN, ROLE_HOLDOUT, ROLE_FAILED_HOLDOUT = -1, 0, 1, 2
@@ -62,7 +74,7 @@ def fit_likelihood(
     # An output constant over the design (a summary the data set does not measure, zeroed by
     # the simulator) carries no information about theta: out of the likelihood.
     active = np.std(z_all[rows], axis=0) > 1e-9
-    corr = _noise_correlation(loo, active)
+    corr = noise_correlation(loo, active)
     feas = sampling.fit_feasibility(x_all[used], ok[used], size=int(max_simulations))
     z_obs = transform.apply(jnp.asarray(np.asarray(observed, np.float64).reshape(-1)))
     extra = measured_data_terms(transform, observation_error, discrepancy)
@@ -90,30 +102,47 @@ def measured_data_terms(
     return obs_cov, basis, max_sd
 
 
-def measured_data_settings(observation_error: np.ndarray | None, discrepancy: Any) -> dict:
-    """The settings entries (JSON) that describe them; empty when neither is given, so that runs
-    without them keep their checkpoint fingerprints."""
-    out: dict = {}
-    if observation_error is not None:
-        out["observation_error"] = np.asarray(observation_error, np.float64).tolist()
-    if discrepancy is not None:
-        out["discrepancy"] = {
-            "membership": np.asarray(discrepancy.membership, np.float64).tolist(),
-            "max_sd": np.asarray(discrepancy.max_sd, np.float64).tolist(),
-            "names": list(discrepancy.names),
-        }
+def fit_surrogate(
+    settings: SurrogateSettings, state: Any
+) -> tuple[emulator.OutputTransform, emulator.Emulator, sampling.LikelihoodModel, np.ndarray]:
+    """:func:`fit_likelihood` of a running surrogate's state (a SurrogateState) under its
+    ``settings``: ``(transform, emulator, likelihood model, z_all)``."""
+    return fit_likelihood(
+        state,
+        settings.box.low,
+        settings.box.high,
+        settings.observed,
+        settings.max_outputs,
+        settings.max_simulations,
+        settings.log_min_feasibility,
+        observation_error=settings.observation_error,
+        discrepancy=settings.discrepancy,
+    )
+
+
+def noise_correlation(residuals: np.ndarray, active: np.ndarray | None = None) -> np.ndarray:
+    """Correlation ``(q, q)`` of leave-one-out residuals ``(n, q)``, Ledoit-Wolf shrunk.
+
+    Summaries of one trajectory (RDF features) are strongly correlated, so the synthetic
+    likelihood needs their joint noise.  A sample correlation of ~100 residuals in ~10 outputs
+    has spuriously small eigenvalues, along which the likelihood becomes far too sharp
+    (held-out Mahalanobis distances several times their chi-square mean).  Shrinkage towards
+    the identity with the Ledoit-Wolf intensity (scikit-learn) keeps it well conditioned.  Only
+    the ``active`` outputs (default all) are correlated; the others, and outputs whose
+    residuals do not vary, get identity rows.  The identity when fewer than two outputs or
+    five residuals are left.
+    """
+    n, q = residuals.shape
+    out = np.eye(q)
+    keep = np.ones(q, bool) if active is None else np.asarray(active, bool)
+    sd = residuals.std(axis=0)
+    # An output whose residuals do not vary (a constant summary) has no correlation to estimate.
+    keep = keep & np.isfinite(sd) & (sd > 0)
+    if keep.sum() < 2 or n < 5:
+        return out
+    from sklearn.covariance import ledoit_wolf
+
+    cov, _ = ledoit_wolf(residuals[:, keep] / sd[keep])
+    s = np.sqrt(np.diag(cov))
+    out[np.ix_(keep, keep)] = cov / np.outer(s, s)
     return out
-
-
-def measured_data_from_settings(settings: dict) -> tuple[np.ndarray | None, Any]:
-    """Inverse of :func:`measured_data_settings`: ``(observation_error, ResolvedDiscrepancy)``."""
-    from jaxabc.noise import ResolvedDiscrepancy
-
-    error = settings.get("observation_error")
-    disc = settings.get("discrepancy")
-    resolved = None
-    if disc is not None:
-        resolved = ResolvedDiscrepancy(
-            np.asarray(disc["membership"], np.float64), np.asarray(disc["max_sd"], np.float64), tuple(disc["names"])
-        )
-    return (None if error is None else np.asarray(error, np.float64)), resolved

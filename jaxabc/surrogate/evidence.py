@@ -47,8 +47,9 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxabc.surrogate import design, emulator, sampling
-from jaxabc.surrogate._fit import ROLE_EMPTY, ROLE_HOLDOUT, fit_likelihood, measured_data_from_settings
-from jaxabc.surrogate._support import _evaluate
+from jaxabc.surrogate._fit import ROLE_EMPTY, ROLE_HOLDOUT, fit_likelihood
+from jaxabc.surrogate._settings import measured_data_from_settings
+from jaxabc.surrogate._support import log_posterior_terms
 
 __all__ = ["Evidence", "evidence_from_state", "likelihood_from_state", "observed_misfit", "with_evidence"]
 
@@ -102,7 +103,7 @@ def likelihood_from_state(
 
 
 def _log_density(model: sampling.LikelihoodModel, x: np.ndarray) -> np.ndarray:
-    return np.concatenate([_evaluate(model, x[i : i + _CHUNK])[0] for i in range(0, len(x), _CHUNK)])
+    return np.concatenate([log_posterior_terms(model, x[i : i + _CHUNK])[0] for i in range(0, len(x), _CHUNK)])
 
 
 def _points(model: sampling.LikelihoodModel, rng: np.random.Generator, num_samples: int) -> design.Candidates:
