@@ -40,6 +40,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxabc.errors import caller_stacklevel
+
 __all__ = [
     "CHECKPOINT_NAME",
     "FORMAT_VERSION",
@@ -758,6 +760,6 @@ def reopen(
     warnings.warn(
         f"the run in {path.parent} had already ended ({stop_reason}) and {why}: its result is "
         "returned as it was and nothing more was run",
-        stacklevel=4,
+        stacklevel=caller_stacklevel(),
     )
     return stop_reason

@@ -324,8 +324,8 @@ def test_builders_other_than_abc_get_the_options_unwrapped_or_refuse_them(monkey
 def test_model_choice_gets_both_options_unchanged(monkeypatch):
     seen = {}
 
-    def capture(arguments):
-        seen.update(arguments)
+    def capture(models, simulate, prior, observed, num_particles, distance, options, **keywords):
+        seen.update(keywords)
         return "done"
 
     monkeypatch.setattr(jaxabc.model_choice, "run_from_driver", capture)

@@ -31,7 +31,9 @@ def final_posterior(ctx: Context, prog: Progress) -> tuple[tuple, bool]:
     )
 
 
-def assemble(ctx: Context, prog: Progress, dtype: str, metadata: dict | None, seed: int, prior: Any) -> ABCResult:
+def assemble(ctx: Context, prog: Progress, prior: Any) -> ABCResult:
+    """The result of a finished host run; ``prior`` is the one to report (the problem's, or a
+    surrogate's augmented box)."""
     (particles, log_w, dist), incomplete = final_posterior(ctx, prog)
     algo = ctx.compiled.algorithm
     stop_reason = prog.stop_reason
@@ -42,13 +44,13 @@ def assemble(ctx: Context, prog: Progress, dtype: str, metadata: dict | None, se
             f"holds the {int(keep.sum())} particles accepted so far"
         )
     w = np.exp(log_w[keep] - np.max(log_w[keep]))
-    distance = ctx.distance
+    distance, observed = ctx.problem.distance, ctx.problem.observed
     meta: dict[str, Any] = {
         "versions": versions(),
         "executor": ctx.executor.name,
         "distance": distance if isinstance(distance, str) else getattr(distance, "__name__", "custom"),
-        "dtype": dtype,
-        "observed": ctx.observed.tolist() if ctx.observed.size <= 10_000 else None,
+        "dtype": ctx.options.execution.dtype,
+        "observed": observed.tolist() if observed.size <= 10_000 else None,
         # Seconds since this process started the run, at the end of each generation (after a
         # resume, counted from the resume).
         "generation_wall_times": prog.history["wall"],
@@ -62,7 +64,7 @@ def assemble(ctx: Context, prog: Progress, dtype: str, metadata: dict | None, se
         diagnostics = {**diagnostics, "distance_weights": prog.history["distance_weights"]}
     final_ess = extras.pop("ess", None)
     meta.update(extras)
-    meta.update(metadata or {})
+    meta.update(ctx.options.metadata or {})
     h = prog.history
     ess = np.asarray(h["ess"], np.float64)
     if final_ess is not None and ess.size:
@@ -80,7 +82,7 @@ def assemble(ctx: Context, prog: Progress, dtype: str, metadata: dict | None, se
         algorithm=algo.name,
         settings=algo.settings,
         prior=prior,
-        seed=seed,
+        seed=ctx.options.seed,
         stop_reason=stop_reason,
         wall_time=time.perf_counter() - ctx.t_start,
         log_evidence=None if log_ev is None else float(log_ev),

@@ -11,8 +11,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxabc.algorithms.base import ABCAlgorithm
 from jaxabc.distances import DISTANCES, get_distance
+from jaxabc.errors import caller_stacklevel
 from jaxabc.executors import Executor
 from jaxabc.executors.workers import complex_summaries_message
 from jaxabc.priors import Uniform
@@ -22,11 +22,12 @@ __all__ = [
     "cast_prior",
     "check_distance_shape",
     "check_first_distances",
+    "check_first_iteration_budget",
     "check_shape",
-    "check_stopping_rule",
     "precision",
     "shapes_compatible",
-    "validate_arguments",
+    "validate_model",
+    "validate_num_particles",
     "validate_observed",
     "validate_seed",
 ]
@@ -151,21 +152,27 @@ def check_first_distances(distances: np.ndarray) -> None:
             "simulator ignores its parameters; otherwise check that the distance depends on the "
             "simulated summaries",
             UserWarning,
-            stacklevel=4,
+            stacklevel=caller_stacklevel(),
         )
 
 
-def validate_arguments(
-    dtype: str, num_particles: Any, num_steps: int | None, max_failure_fraction: float, simulate: Any, prior: Any
-) -> None:
-    if dtype not in ("float32", "float64"):
-        raise ValueError(f"dtype must be 'float32' or 'float64', got {dtype!r}")
-    if num_particles is not None and (not isinstance(num_particles, int | np.integer) or num_particles < 1):
+def validate_num_particles(num_particles: Any, required: bool = False) -> int | None:
+    """``num_particles`` as an ``int``; None when it is not given and not ``required``.
+
+    Raises
+    ------
+    ValueError
+        Not a positive integer.
+    """
+    if num_particles is None and not required:
+        return None
+    if not isinstance(num_particles, int | np.integer) or num_particles < 1:
         raise ValueError(f"num_particles must be a positive integer, got {num_particles!r}")
-    if num_steps is not None and num_steps < 1:
-        raise ValueError(f"num_steps must be at least 1, got {num_steps}")
-    if not 0.0 < max_failure_fraction <= 1.0:
-        raise ValueError(f"max_failure_fraction must lie in (0, 1], got {max_failure_fraction}")
+    return int(num_particles)
+
+
+def validate_model(simulate: Any, prior: Any) -> None:
+    """Refuse a simulator that is not callable or a prior that is not a jaxabc prior (``TypeError``)."""
     if not callable(simulate):
         raise TypeError("simulate must be a callable simulate(key, theta) -> summaries")
     if not hasattr(prior, "sample") or not hasattr(prior, "low"):
@@ -248,14 +255,6 @@ def check_distance_shape(shape: Any) -> None:
         raise ValueError(
             f"the distance must return one number per simulation, but it returned shape "
             f"{tuple(shape)}: reduce it to a scalar, e.g. with jnp.sum, jnp.mean or a norm"
-        )
-
-
-def check_stopping_rule(algo: ABCAlgorithm, *rules: Any) -> None:
-    if algo.needs_stopping_rule and all(rule is None for rule in rules):
-        raise ValueError(
-            f"{algo.name} with these settings may never stop by itself: give num_steps, "
-            "final_threshold, max_simulations or max_wall_time (it needs a stopping rule)"
         )
 
 

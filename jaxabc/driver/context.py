@@ -1,13 +1,16 @@
-"""The driver's parts: compiled-algorithm cache, distances, the simulation record.
+"""The driver's parts: the problem, compiled-algorithm cache, distances, executors, the
+simulation record.
 
-:func:`jaxabc.run` assembles these; nothing here knows an algorithm by name.
+:func:`jaxabc.driver.calibrate.calibrate` assembles these; nothing here knows an algorithm by
+name.
 """
 
 from __future__ import annotations
 
 import collections
+import contextlib
 import inspect
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, NamedTuple, cast
@@ -17,21 +20,26 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxabc import algorithms as _algorithms
+from jaxabc import checkpoint
 from jaxabc.algorithms.base import ABCAlgorithm
 from jaxabc.distances import get_distance
 from jaxabc.driver.checks import check_distance_shape
+from jaxabc.driver.options import RunOptions, Stopping
 from jaxabc.errors import STATUS_BAD_DISTANCE, STATUS_NAMES, STATUS_OK
-from jaxabc.executors import Executor, VmapExecutor
+from jaxabc.executors import Executor, VmapExecutor, get_executor
 
 __all__ = [
     "Compiled",
     "Context",
+    "Problem",
     "Progress",
     "Recorder",
     "SharedVmapExecutor",
     "compile_algorithm",
     "make_distance_fn",
+    "open_executor",
     "posterior_distances",
+    "with_run_values",
 ]
 
 _CACHE_SIZE = 32
@@ -107,9 +115,37 @@ def build_by_name(name: str, prior: Any, num_particles: int | None, options: dic
 
 
 def builder_accepts(name: str, option: str) -> bool:
-    """Whether the registered builder ``name`` takes the keyword ``option``."""
+    """Whether the registered builder ``name`` names the keyword ``option`` among its parameters."""
     builder = _algorithms.BUILDERS.get(name)
     return builder is not None and option in inspect.signature(builder).parameters
+
+
+def builder_passes_on(name: str) -> bool:
+    """Whether the registered builder ``name`` takes any keyword (``**options``) to pass on."""
+    builder = _algorithms.BUILDERS.get(name)
+    return builder is not None and any(
+        p.kind is inspect.Parameter.VAR_KEYWORD for p in inspect.signature(builder).parameters.values()
+    )
+
+
+#: The run's own values that a builder receives when it names them among its parameters: the
+#: surrogate designs within ``max_simulations`` and fits ``observed``; ABCsubsim ends its levels
+#: at ``final_threshold``.
+RUN_VALUES = ("final_threshold", "observed", "max_simulations")
+
+
+def with_run_values(name: Any, options: dict, stopping: Stopping, observed: np.ndarray) -> dict:
+    """The keywords of the builder ``name``: ``options``, and each of :data:`RUN_VALUES` that is
+    given and that the builder names (they are :func:`jaxabc.run`'s own arguments, so never
+    among ``options``)."""
+    if not isinstance(name, str):
+        return dict(options)
+    values = {
+        "final_threshold": stopping.final_threshold,
+        "observed": observed,
+        "max_simulations": stopping.max_simulations,
+    }
+    return {**options, **{k: v for k, v in values.items() if v is not None and builder_accepts(name, k)}}
 
 
 def compile_algorithm(
@@ -305,28 +341,97 @@ class Progress:
     )
 
 
-@dataclass
-class Context:
-    """What stays fixed during a run."""
+@dataclass(frozen=True)
+class Problem:
+    """A calibration problem, checked and in the run's precision.
 
-    compiled: Compiled
+    Attributes
+    ----------
+    simulate : callable
+        ``simulate(key, theta) -> summaries`` (wrapped for noisy ABC where asked).
+    prior : Uniform or Independent
+        In the run's dtype (with the discrepancy parameters where asked).
+    observed : numpy.ndarray
+        float64.
+    distance : str or callable
+        The distance the driver computes and records.
+    num_particles : int or None
+    """
+
     simulate: Callable
-    executor: Executor
+    prior: Any
     observed: np.ndarray
     distance: Any
+    num_particles: int | None
+
+    def fingerprint(self, algorithm: ABCAlgorithm, options: RunOptions) -> dict:
+        """The problem's identity in a checkpoint (:func:`jaxabc.checkpoint.fingerprint`)."""
+        return checkpoint.fingerprint(
+            algorithm=algorithm.name,
+            settings=algorithm.settings,
+            prior=self.prior,
+            observed=self.observed,
+            distance=self.distance,
+            simulator_id=checkpoint.simulator_identity(self.simulate, options.checkpointing.simulator_id),
+            seed=options.seed,
+            num_particles=self.num_particles,
+            dtype=options.execution.dtype,
+        )
+
+
+@contextlib.contextmanager
+def open_executor(executor: Any, observed: np.ndarray, distance: Any) -> Iterator[Executor]:
+    """The run's executor: the shared vmap executor for None or ``"vmap"``, a new one for
+    another name (closed on exit), or the executor object given (left open)."""
+    own = not hasattr(executor, "map")
+    ex = SharedVmapExecutor() if executor in (None, "vmap") else get_executor(executor)
+    try:
+        if hasattr(ex, "summary_shape") and not getattr(get_distance(distance), "compares_samples", False):
+            # A batch where every task fails keeps it (not on the Executor protocol).
+            cast(Any, ex).summary_shape = tuple(observed.shape)
+        yield ex
+    finally:
+        if own:
+            ex.close()
+
+
+@dataclass
+class Context:
+    """What stays fixed during a run of the host driver; built by :meth:`create`."""
+
+    compiled: Compiled
+    problem: Problem
+    options: RunOptions
+    executor: Executor
     distances_of: Callable
-    jdtype: Any
     root: jax.Array
     t_start: float
-    num_steps: int | None
-    final_threshold: float | None
-    max_simulations: int | None
-    max_wall_time: float | None
-    max_failure_fraction: float
-    stop_after_iterations: int | None
     ckpt_path: Path | None
     fingerprint: dict
     bar: Any = None
+
+    @classmethod
+    def create(
+        cls,
+        compiled: Compiled,
+        problem: Problem,
+        options: RunOptions,
+        executor: Executor,
+        ckpt_path: Path | None,
+        t_start: float,
+    ) -> Context:
+        """The context of a run; call it in the run's precision (:func:`~.checks.precision`)."""
+        return cls(
+            compiled=compiled,
+            problem=problem,
+            options=options,
+            executor=executor,
+            distances_of=make_distance_fn(problem.distance, problem.observed, options.execution.jdtype),
+            root=jax.random.key(options.seed),
+            t_start=t_start,
+            ckpt_path=ckpt_path,
+            fingerprint=problem.fingerprint(compiled.algorithm, options),
+        )
 
 
 def posterior_distances(state: Any, n: int) -> np.ndarray:

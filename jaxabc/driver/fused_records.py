@@ -10,13 +10,28 @@ import numpy as np
 
 from jaxabc.algorithms.base import ABCAlgorithm, Info
 from jaxabc.driver.context import BAD_DISTANCE_REASON
+from jaxabc.driver.options import Stopping
 from jaxabc.errors import STATUS_BAD_DISTANCE, STATUS_NONFINITE, STATUS_OK
 
-# Why a fused chunk stopped (the compiled loop's stop code).
-_NONE, _STOP_ALGORITHM, _STOP_STEPS, _STOP_THRESHOLD, _STOP_BUDGET = range(5)
+__all__ = [
+    "RUNNING",
+    "STOP_ALGORITHM",
+    "STOP_BUDGET",
+    "STOP_STEPS",
+    "STOP_THRESHOLD",
+    "absorb",
+    "from_checkpoint",
+    "record_arrays",
+    "stop_reason",
+    "to_checkpoint",
+]
+
+#: Why the compiled loop stopped (its carry's stop code): not yet, the algorithm's own rule,
+#: ``num_steps``, ``final_threshold``, ``max_simulations``.
+RUNNING, STOP_ALGORITHM, STOP_STEPS, STOP_THRESHOLD, STOP_BUDGET = range(5)
 
 
-def _absorb(
+def absorb(
     block: dict, first_iteration: int, records: list, history: dict, t_start: float, algorithm: str, bar: Any
 ) -> None:
     """Move one chunk's per-iteration outputs (leading axis: iteration) into the host record."""
@@ -54,7 +69,8 @@ def _absorb(
                 )
 
 
-def _record_arrays(records: list[dict], keep_summaries: bool) -> dict[str, Any]:
+def record_arrays(records: list[dict], keep_summaries: bool) -> dict[str, Any]:
+    """The fused records as :attr:`~jaxabc.results.ABCResult.records` (no per-simulation times)."""
     if not records:
         return {}
     finite = np.concatenate([r["finite"] for r in records])
@@ -82,7 +98,7 @@ def to_checkpoint(records: list[dict]) -> list[dict[str, Any]]:
     """The fused records as the checkpoint's chunks (the host driver's fields, one per iteration)."""
     chunks = []
     for r in records:
-        out = _record_arrays([r], "summaries" in r)
+        out = record_arrays([r], "summaries" in r)
         out["summaries"] = out.get("summaries")
         chunks.append(out)
     return chunks
@@ -108,16 +124,9 @@ def from_checkpoint(chunks: list[dict[str, Any]]) -> list[dict]:
     return records
 
 
-def _stop_reason(
-    code: int,
-    algorithm: str,
-    algo: ABCAlgorithm,
-    history: dict,
-    num_steps: int | None,
-    final_threshold: float | None,
-    max_simulations: int | None,
-) -> str:
-    if code == _STOP_ALGORITHM:
+def stop_reason(code: int, algo: ABCAlgorithm, history: dict, stopping: Stopping) -> str:
+    """The stop reason of stop code ``code`` (not :data:`RUNNING`), worded as the host driver's."""
+    if code == STOP_ALGORITHM:
         done = jnp.asarray(True)
         info = Info(
             generation_done=done,
@@ -127,8 +136,8 @@ def _stop_reason(
             ess=history["ess"][-1],
         )
         return algo.stop_reason(algo.settings, info)
-    if code == _STOP_STEPS:
-        return f"{num_steps} steps done"
-    if code == _STOP_THRESHOLD:
-        return f"final threshold {final_threshold} reached"
-    return f"simulation budget {max_simulations} reached"
+    if code == STOP_STEPS:
+        return f"{stopping.num_steps} steps done"
+    if code == STOP_THRESHOLD:
+        return f"final threshold {stopping.final_threshold} reached"
+    return f"simulation budget {stopping.max_simulations} reached"

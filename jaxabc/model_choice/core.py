@@ -73,19 +73,12 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxabc.checkpoint import FolderLock, prepare_folder, require_fingerprintable
 from jaxabc.distances import get_distance
-from jaxabc.driver.checks import (
-    cast_prior,
-    check_traced_shape,
-    precision,
-    shapes_compatible,
-    validate_observed,
-    validate_seed,
-)
-from jaxabc.driver.context import Recorder, SharedVmapExecutor, make_distance_fn
+from jaxabc.driver.checks import cast_prior, check_traced_shape, precision, shapes_compatible, validate_observed
+from jaxabc.driver.context import Recorder, make_distance_fn, open_executor
+from jaxabc.driver.options import RunOptions
 from jaxabc.errors import PriorEdgeWarning, caller_stacklevel
-from jaxabc.executors import Executor, get_executor
+from jaxabc.executors import Executor
 from jaxabc.model_choice import checkpoint as _ckpt
 from jaxabc.model_choice.result import (
     STATUS_NEEDS_SIMULATIONS,
@@ -98,6 +91,7 @@ from jaxabc.model_choice.result import (
     probabilities_with_errors,
 )
 from jaxabc.model_choice.smc import ALGORITHM_NAME, Context, ModelTrack, Settings, next_threshold
+from jaxabc.noise import observation_covariance, wrap_for_abc
 from jaxabc.results import versions
 
 __all__ = [
@@ -108,8 +102,10 @@ __all__ = [
     "ModelChoiceResult",
     "SensitivityRow",
     "Verdict",
+    "as_models",
+    "choose_models",
     "load_model_choice",
-    "run_from_driver",
+    "normalise_model_prior",
     "run_model_choice",
     "with_boxes",
 ]
@@ -188,7 +184,14 @@ def as_models(models: Any) -> list[Model]:
     return out
 
 
-def _model_prior(model_prior: Sequence[float] | None, num_models: int) -> np.ndarray:
+def normalise_model_prior(model_prior: Sequence[float] | None, num_models: int) -> np.ndarray:
+    """Prior model probabilities summing to one (uniform when ``model_prior`` is None).
+
+    Raises
+    ------
+    ValueError
+        Not one positive, finite entry per model.
+    """
     if model_prior is None:
         return np.full(num_models, 1.0 / num_models)
     p = np.asarray(model_prior, np.float64).reshape(-1)
@@ -428,24 +431,14 @@ def run_model_choice(
     observed : array_like
         The measured summaries.
     num_particles : int
-        Prior draws per model in the first generation, and the number of accepted particles
+        At least 2: prior draws per model in the first generation, and the accepted particles
         each later generation aims at per model.
-    num_steps : int, optional
-        Maximum number of generations, the prior sample included.
-    distance : str or callable
-        As for :func:`jaxabc.run`; the same for every model.
-    seed : int
-        The run's only source of randomness, ``0 <= seed < 2**32`` (as :func:`jaxabc.run`).
-    executor : str or Executor, optional
-        As for :func:`jaxabc.run` (default ``"vmap"``).
-    final_threshold : float, optional
-        Stop at this shared tolerance; the tolerance schedule never goes below it.
-    max_simulations : int, optional
-        Stop before a generation that could take the total over all models past this.
-    max_wall_time : float, optional
-        Seconds; checked after each generation.
-    max_failure_fraction : float
-        Per model, as for :func:`jaxabc.run`.
+    num_steps, final_threshold, max_simulations, max_wall_time : optional
+        Stopping rules, at least one: generations (the prior sample included), a shared
+        tolerance (non-negative; the schedule never goes below it), a budget over all models
+        (checked before each generation), seconds (checked after each).
+    distance, seed, executor, max_failure_fraction, keep_summaries, progress, dtype, metadata
+        As for :func:`jaxabc.run`, the same for every model (``max_failure_fraction`` per model).
     quantile : float
         In (0, 1); each tolerance is this quantile of the distances under the joint ABC
         posterior over (model, parameters) of the previous generation.
@@ -455,39 +448,21 @@ def run_model_choice(
         Kernel covariance over the population's weighted covariance (Beaumont et al.'s 2).
     defensive_fraction : float
         In (0, 1); the share of each generation's proposals drawn from the prior.
-    checkpoint_dir : path, optional
-        Write ``checkpoint.npz`` there after every generation (atomically); a fresh run into a
-        folder holding one is refused unless ``resume`` or ``overwrite`` is given.
-    resume : bool
-        Continue from the checkpoint in ``checkpoint_dir``; the result equals that of the
-        uninterrupted run.  Refused when the problem differs (models, priors, simulators,
-        observed data, distance, settings, seed, dtype).
-    overwrite : bool
-        Delete an existing checkpoint in ``checkpoint_dir`` and start over.
-    simulator_id : str, optional
-        The simulators' identity in checkpoints (default: each one's ``module:qualname``).
+    checkpoint_dir, resume, overwrite, simulator_id : optional
+        As for :func:`jaxabc.run`, a checkpoint after every generation; the fingerprint covers
+        the models, priors, simulators, observed data, distance, settings, seed and dtype.
     stop_after_generations : int, optional
-        Stop after this many generations, resumable (for tests and for splitting long runs).
-    keep_summaries : bool
-        Keep every simulation's summaries in the per-model records.
-    progress : bool
-        Show a progress bar over generations.
-    dtype : {"float32", "float64"}
-        Precision of the parameters handed to the simulators and of the distances.
-    metadata : dict, optional
-        Stored in the result.
+        At least 1: stop, resumably, after this many generations.
     observation_error, discrepancy : optional
-        The data's measurement error and a model-discrepancy term, as for :func:`jaxabc.run`:
-        every model's simulator and prior are wrapped by :func:`jaxabc.noise.wrap_for_abc`
-        (the same error for every model), so each model is compared *with* them.
+        As for :func:`jaxabc.run`: every model's simulator and prior are wrapped by
+        :func:`jaxabc.noise.wrap_for_abc` alike, so each model is compared *with* them.
 
     Returns
     -------
     ModelChoiceResult
-        With each model's prior-edge check (``prior_edge``; a
-        :class:`jaxabc.PriorEdgeWarning` names each model whose posterior piles against a
-        bound), the box-sensitivity rows for scales 0.5 and 2 (``sensitivity_table``) and
-        :meth:`~ModelChoiceResult.verdict`.
+        With each model's prior-edge check (``prior_edge``; a :class:`jaxabc.PriorEdgeWarning`
+        names each model whose posterior piles against a bound), the box-sensitivity rows for
+        scales 0.5 and 2 (``sensitivity_table``) and :meth:`~ModelChoiceResult.verdict`.
 
     Raises
     ------
@@ -496,197 +471,192 @@ def run_model_choice(
     TooManyFailures
         Too many simulations of one model failed.
     """
+    options = RunOptions.from_keywords(
+        seed=seed,
+        executor=executor,
+        num_steps=num_steps,
+        final_threshold=final_threshold,
+        max_simulations=max_simulations,
+        max_wall_time=max_wall_time,
+        max_failure_fraction=max_failure_fraction,
+        checkpoint_dir=checkpoint_dir,
+        resume=resume,
+        overwrite=overwrite,
+        simulator_id=simulator_id,
+        stop_after=stop_after_generations,
+        keep_summaries=keep_summaries,
+        progress=progress,
+        dtype=dtype,
+        metadata=metadata,
+    )
+    method = {"quantile": quantile, "covariance_factor": covariance_factor, "defensive_fraction": defensive_fraction}
+    measured = {"observation_error": observation_error, "discrepancy": discrepancy}
+    return choose_models(
+        models, observed, num_particles, distance, options, model_prior=model_prior, **method, **measured
+    )
+
+
+def choose_models(
+    models: Sequence[Model | tuple],
+    observed: Any,
+    num_particles: int,
+    distance: str | Callable,
+    options: RunOptions,
+    *,
+    quantile: float = 0.5,
+    model_prior: Sequence[float] | None = None,
+    covariance_factor: float = 2.0,
+    defensive_fraction: float = 0.05,
+    observation_error: Any = None,
+    discrepancy: Any = None,
+) -> ModelChoiceResult:
+    """:func:`run_model_choice` with its run options in ``options``."""
     t_start = time.perf_counter()
     model_list = as_models(models)
-    settings = _validate(
-        Settings(
-            num_particles,
-            quantile,
-            covariance_factor,
-            defensive_fraction,
-            max_failure_fraction,
-            num_steps,
-            final_threshold,
-            max_simulations,
-            max_wall_time,
-        ),
-        dtype,
-    )
-    if stop_after_generations is not None and stop_after_generations < 1:
-        raise ValueError(f"stop_after_generations must be at least 1, got {stop_after_generations}")
-    p_model = _model_prior(model_prior, len(model_list))
-    seed = validate_seed(seed)
-    obs = validate_observed(observed, dtype, distance)
+    settings = _settings(num_particles, options, quantile, covariance_factor, defensive_fraction)
+    p_model = normalise_model_prior(model_prior, len(model_list))
+    obs = validate_observed(observed, options.execution.dtype, distance)
     get_distance(distance)  # an unknown name fails here, before any simulation
-    if observation_error is not None or discrepancy is not None:
-        from jaxabc.noise import observation_covariance, wrap_for_abc
-
-        # Noisy ABC for every model alike (Wilkinson 2013): the error is the data's, not a model's.
-        model_list = [
-            Model(m.name, *wrap_for_abc(m.simulate, m.prior, tuple(obs.shape), observation_error, discrepancy))
-            for m in model_list
-        ]
-        measured: dict[str, Any] = {}
-        if observation_error is not None:
-            measured["observation_error"] = observation_covariance(observation_error, tuple(obs.shape)).tolist()
-        if discrepancy is not None:
-            measured["discrepancy"] = discrepancy.describe() if hasattr(discrepancy, "describe") else repr(discrepancy)
-        metadata = {**measured, **(metadata or {})}
-    with precision(dtype):
-        jdtype = jnp.float64 if dtype == "float64" else jnp.float32
-        priors = [cast_prior(m.prior, jdtype) for m in model_list]
-        own_executor = not hasattr(executor, "map")
-        ex = SharedVmapExecutor() if executor in (None, "vmap") else get_executor(executor)
-        lock = None
-        try:
-            if ex.name == "vmap" and not any(hasattr(m.simulate, "simulate_batch") for m in model_list):
-                _check_summary_shapes(model_list, priors, obs, distance)
-            if hasattr(ex, "summary_shape") and not getattr(get_distance(distance), "compares_samples", False):
-                # A batch where every task fails keeps it (not on the Executor protocol).
-                ex.summary_shape = tuple(obs.shape)  # pyright: ignore[reportAttributeAccessIssue]
-            ctx = Context(
-                settings,
-                ex,
-                make_distance_fn(distance, obs, jdtype),
-                obs,
-                distance,
-                jax.random.key(seed),
-                seed,
-                t_start,
-            )
-            tracks = [
-                ModelTrack(model.name, model.simulate, prior, Recorder(keep_summaries))
-                for model, prior in zip(model_list, priors, strict=True)
-            ]
-            fp = _ckpt.problem_fingerprint(tracks, settings, p_model, obs, distance, seed, dtype, simulator_id)
-            if checkpoint_dir is not None:
-                for track in tracks:
-                    require_fingerprintable(track.simulate, simulator_id, distance)
-            # One run per folder; and only now, with every input checked, may overwrite=True
-            # delete an old checkpoint.
-            lock = FolderLock.acquire(checkpoint_dir)
-            ckpt_path = prepare_folder(checkpoint_dir, resume, overwrite)
-            thresholds: list[float] = []
-            stop_reason = ""
-            if resume:
-                assert ckpt_path is not None, "prepare_folder refuses resume without a folder"
-                thresholds, stop_reason = _ckpt.restore(ckpt_path, fp, tracks)
-
-            def after_generation(done: list[float]) -> None:
-                if ckpt_path is not None:
-                    _ckpt.save(ckpt_path, fp, tracks, done, "")
-
-            if not stop_reason:
-                stop_reason = _loop(
-                    ctx, tracks, thresholds, p_model, progress, after_generation, stop_after_generations
-                )
-                if ckpt_path is not None and "resumable" not in stop_reason:
-                    _ckpt.save(ckpt_path, fp, tracks, thresholds, stop_reason)
-        finally:
-            if lock is not None:
-                lock.release()
-            if own_executor:
-                ex.close()
-    return _assemble(ctx, tracks, thresholds, stop_reason, p_model, dtype, metadata)
+    model_list, measured = _with_measurement(model_list, obs, observation_error, discrepancy)
+    with precision(options.execution.dtype):
+        ctx, tracks, thresholds, stop_reason = _run_models(
+            model_list, obs, distance, settings, p_model, options, t_start
+        )
+    metadata = {**measured, **(options.metadata or {})}
+    return _assemble(ctx, tracks, thresholds, stop_reason, p_model, options.execution.dtype, metadata)
 
 
-def _validate(s: Settings, dtype: str) -> Settings:
-    if not isinstance(s.num_particles, int | np.integer) or s.num_particles < 2:
-        raise ValueError(f"num_particles must be an integer of at least 2, got {s.num_particles!r}")
-    if s.num_steps is not None and s.num_steps < 1:
-        raise ValueError(f"num_steps must be at least 1, got {s.num_steps}")
-    if all(rule is None for rule in (s.num_steps, s.final_threshold, s.max_simulations, s.max_wall_time)):
+def _settings(
+    num_particles: Any, options: RunOptions, quantile: float, covariance_factor: float, defensive_fraction: float
+) -> Settings:
+    """The method's settings (recorded in every result and the fingerprint), after refusing
+    values it cannot use."""
+    stopping = options.stopping
+    if not isinstance(num_particles, int | np.integer) or num_particles < 2:
+        raise ValueError(f"num_particles must be an integer of at least 2, got {num_particles!r}")
+    if not stopping.has_rule:
         raise ValueError(
             "model choice needs a stopping rule: give num_steps, final_threshold, max_simulations or max_wall_time"
         )
-    if s.final_threshold is not None and not s.final_threshold >= 0:
-        raise ValueError(f"final_threshold must be a non-negative number, got {s.final_threshold}")
-    if not 0.0 < s.max_failure_fraction <= 1.0:
-        raise ValueError(f"max_failure_fraction must lie in (0, 1], got {s.max_failure_fraction}")
-    if not 0.0 < s.quantile < 1.0:
-        raise ValueError(f"quantile must lie in (0, 1), got {s.quantile}")
-    if not s.covariance_factor > 0:
-        raise ValueError(f"covariance_factor must be positive, got {s.covariance_factor}")
-    if not 0.0 < s.defensive_fraction < 1.0:
+    if stopping.final_threshold is not None and not stopping.final_threshold >= 0:
+        raise ValueError(f"final_threshold must be a non-negative number, got {stopping.final_threshold}")
+    if not 0.0 < quantile < 1.0:
+        raise ValueError(f"quantile must lie in (0, 1), got {quantile}")
+    if not covariance_factor > 0:
+        raise ValueError(f"covariance_factor must be positive, got {covariance_factor}")
+    if not 0.0 < defensive_fraction < 1.0:
         raise ValueError(
-            f"defensive_fraction must lie in (0, 1), got {s.defensive_fraction}: some prior draws keep "
+            f"defensive_fraction must lie in (0, 1), got {defensive_fraction}: some prior draws keep "
             "the evidence estimate's variance finite"
         )
-    if dtype not in ("float32", "float64"):
-        raise ValueError(f"dtype must be 'float32' or 'float64', got {dtype!r}")
-    return s._replace(num_particles=int(s.num_particles))
-
-
-# ----------------------------------------------------------------------------- driver hook
-
-# jaxabc.run's keywords that model choice takes over unchanged.
-_PASSED_ON = (
-    "num_steps",
-    "distance",
-    "seed",
-    "executor",
-    "final_threshold",
-    "max_simulations",
-    "max_wall_time",
-    "max_failure_fraction",
-    "checkpoint_dir",
-    "resume",
-    "overwrite",
-    "simulator_id",
-    "keep_summaries",
-    "progress",
-    "dtype",
-    "metadata",
-)
-_OPTIONS = ("quantile", "model_prior", "covariance_factor", "defensive_fraction")
-_NOISE_OPTIONS = ("observation_error", "discrepancy")
-
-
-def check_driver_arguments(arguments: dict[str, Any]) -> Any:
-    """The models of a model-choice call of :func:`jaxabc.run` (its ``locals()``), after
-    refusing a call shaped like a calibration or one without data."""
-    models, simulate, prior = arguments["algorithm"], arguments["simulate"], arguments["prior"]
-    if type(models) not in (list, tuple):
-        raise TypeError(
-            "to choose between models pass the list of models first: jaxabc.run([(simulate_a, prior_a), "
-            "(simulate_b, prior_b)], observed=...); ABC-SMC at a shared tolerance, or method='surrogate'"
-        )
-    if simulate is not None or prior is not None:
-        raise TypeError(
-            "model choice takes the models as the first argument and the data by keyword: "
-            "jaxabc.run(models, observed=data, num_particles=..., ...)"
-        )
-    if arguments["observed"] is None:
-        raise TypeError("model choice needs the data: jaxabc.run(models, observed=data, ...)")
-    return models
-
-
-def run_from_driver(arguments: dict[str, Any]) -> Any:
-    """:func:`jaxabc.run`'s arguments (its ``locals()``) when it was given a list of models.
-
-    Returns a :class:`ModelChoiceResult`; typed ``Any`` because ``jaxabc.run`` is annotated to
-    return an ``ABCResult`` (call :func:`run_model_choice` for the precise type).
-    """
-    models = check_driver_arguments(arguments)
-    options = dict(arguments["algorithm_options"])
-    method = options.pop("method", "abc_smc")
-    if method != "abc_smc":
-        raise ValueError(f"model choice method must be 'abc_smc' or 'surrogate', got {method!r}")
-    unknown = sorted(set(options) - set(_OPTIONS))
-    if unknown:
-        raise TypeError(f"unknown option(s) {unknown} for model choice: it accepts {list(_OPTIONS)}")
-    passed = {k: arguments[k] for k in _PASSED_ON}
-    # jaxabc.run's measurement error and discrepancy, forwarded where given.
-    passed.update({k: arguments[k] for k in _NOISE_OPTIONS if arguments.get(k) is not None})
-    num_particles = arguments["num_particles"]
-    return run_model_choice(
-        models,
-        arguments["observed"],
-        1000 if num_particles is None else num_particles,
-        stop_after_generations=arguments["stop_after_iterations"],
-        **passed,
-        **options,
+    if stopping.stop_after is not None and stopping.stop_after < 1:
+        raise ValueError(f"stop_after_generations must be at least 1, got {stopping.stop_after}")
+    return Settings(
+        num_particles=int(num_particles),
+        quantile=quantile,
+        covariance_factor=covariance_factor,
+        defensive_fraction=defensive_fraction,
+        max_failure_fraction=options.execution.max_failure_fraction,
+        num_steps=stopping.num_steps,
+        final_threshold=stopping.final_threshold,
+        max_simulations=stopping.max_simulations,
+        max_wall_time=stopping.max_wall_time,
     )
+
+
+def _with_measurement(
+    models: list[Model], observed: np.ndarray, observation_error: Any, discrepancy: Any
+) -> tuple[list[Model], dict[str, Any]]:
+    """The models with the data's measurement error and discrepancy, and those to record."""
+    if observation_error is None and discrepancy is None:
+        return models, {}
+    shape = tuple(observed.shape)
+    # Noisy ABC for every model alike (Wilkinson 2013): the error is the data's, not a model's.
+    models = [Model(m.name, *wrap_for_abc(m.simulate, m.prior, shape, observation_error, discrepancy)) for m in models]
+    measured: dict[str, Any] = {}
+    if observation_error is not None:
+        measured["observation_error"] = observation_covariance(observation_error, shape).tolist()
+    if discrepancy is not None:
+        measured["discrepancy"] = discrepancy.describe() if hasattr(discrepancy, "describe") else repr(discrepancy)
+    return models, measured
+
+
+def _run_models(
+    models: list[Model],
+    observed: np.ndarray,
+    distance: Any,
+    settings: Settings,
+    model_prior: np.ndarray,
+    options: RunOptions,
+    t_start: float,
+) -> tuple[Context, list[ModelTrack], list[float], str]:
+    """Every model's track after the run (or the checkpoint's, for a run that had ended), its
+    tolerances and its stop reason; call it in the run's precision."""
+    execution, checkpointing = options.execution, options.checkpointing
+    priors = [cast_prior(m.prior, execution.jdtype) for m in models]
+    with open_executor(execution.executor, observed, distance) as executor:
+        if executor.name == "vmap" and not any(hasattr(m.simulate, "simulate_batch") for m in models):
+            _check_summary_shapes(models, priors, observed, distance)
+        ctx = Context(
+            settings=settings,
+            executor=executor,
+            distances_of=make_distance_fn(distance, observed, execution.jdtype),
+            observed=observed,
+            distance=distance,
+            root=jax.random.key(options.seed),
+            seed=options.seed,
+            t_start=t_start,
+        )
+        tracks = [
+            ModelTrack(model.name, model.simulate, prior, Recorder(execution.keep_summaries))
+            for model, prior in zip(models, priors, strict=True)
+        ]
+        fp = _ckpt.problem_fingerprint(
+            tracks, settings, model_prior, observed, distance, options.seed, execution.dtype, checkpointing.simulator_id
+        )
+        for track in tracks:
+            checkpointing.require_fingerprintable(track.simulate, distance)
+        # One run per folder; and only now, with every input checked, may overwrite=True
+        # delete an old checkpoint.
+        with checkpointing.locked():
+            ckpt_path = checkpointing.prepare()
+            thresholds, stop_reason = _generations(ctx, tracks, model_prior, options, fp, ckpt_path)
+    return ctx, tracks, thresholds, stop_reason
+
+
+def _generations(
+    ctx: Context,
+    tracks: list[ModelTrack],
+    model_prior: np.ndarray,
+    options: RunOptions,
+    fingerprint: dict,
+    ckpt_path: Path | None,
+) -> tuple[list[float], str]:
+    """Resume if asked, run generations until a rule stops the run, checkpoint after each;
+    the tolerances and the stop reason."""
+    thresholds: list[float] = []
+    stop_reason = ""
+    if options.checkpointing.resume:
+        assert ckpt_path is not None, "prepare_folder refuses resume without a folder"
+        thresholds, stop_reason = _ckpt.restore(ckpt_path, fingerprint, tracks)
+
+    def after_generation(done: list[float]) -> None:
+        if ckpt_path is not None:
+            _ckpt.save(ckpt_path, fingerprint, tracks, done, "")
+
+    if not stop_reason:
+        stop_reason = _loop(
+            ctx,
+            tracks,
+            thresholds,
+            model_prior,
+            options.execution.progress,
+            after_generation,
+            options.stopping.stop_after,
+        )
+        if ckpt_path is not None and "resumable" not in stop_reason:
+            _ckpt.save(ckpt_path, fingerprint, tracks, thresholds, stop_reason)
+    return thresholds, stop_reason
 
 
 # ----------------------------------------------------------------------------- wider boxes

@@ -24,6 +24,7 @@ __all__ = [
     "SensitivityRow",
     "Verdict",
     "check_prior_edges",
+    "file_stem",
     "load_model_choice",
     "probabilities_with_errors",
     "probability_bounds",
@@ -800,12 +801,12 @@ class ModelChoiceResult:
         summary = folder / "model_choice.json"
         if summary.exists() and not overwrite:
             raise FileExistsError(f"{summary} exists: pass overwrite=True to replace it, or choose another folder")
-        stems = [_file_stem(name) for name in self.names]
+        stems = [file_stem(name) for name in self.names]
         if len(set(stems)) < len(stems):
             raise ValueError(f"model names {list(self.names)} map to clashing file names {stems}: rename the models")
         folder.mkdir(parents=True, exist_ok=True)
         for name, post in zip(self.names, self.posteriors, strict=True):
-            post.save(folder / f"{_file_stem(name)}.npz", overwrite=True)
+            post.save(folder / f"{file_stem(name)}.npz", overwrite=True)
         summary.write_text(json.dumps(self.to_dict(), indent=1, default=_json_default) + "\n")
         return summary
 
@@ -851,7 +852,7 @@ def load_model_choice(folder: str | Path) -> ModelChoiceResult:
         probability_history=np.asarray(data["probability_history"], np.float64),
         standard_error_history=np.asarray(data["standard_error_history"], np.float64),
         simulations_per_step=np.asarray(data["simulations_per_step"]),
-        posteriors=tuple(load(folder / f"{_file_stem(name)}.npz") for name in data["names"]),
+        posteriors=tuple(load(folder / f"{file_stem(name)}.npz") for name in data["names"]),
         num_simulations=int(data["num_simulations"]),
         seed=int(data["seed"]),
         stop_reason=data["stop_reason"],
@@ -862,8 +863,9 @@ def load_model_choice(folder: str | Path) -> ModelChoiceResult:
     )
 
 
-def _file_stem(name: str) -> str:
-    # Model names are free text; file names keep letters, digits, '-', '_' and '.'.
+def file_stem(name: str) -> str:
+    """The file-name stem of model ``name``'s posterior (``posterior_<name>``, characters other
+    than letters, digits, ``-``, ``_`` and ``.`` replaced by ``_``)."""
     stem = "".join(c if c.isalnum() or c in "-_." else "_" for c in name)
     return f"posterior_{stem}"
 

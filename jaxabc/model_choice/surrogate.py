@@ -23,11 +23,16 @@ from typing import Any
 import jax
 import numpy as np
 
+from jaxabc.checkpoint import CHECKPOINT_NAME
+from jaxabc.driver.calibrate import calibrate
+from jaxabc.driver.options import Checkpointing, Execution, RunOptions, Stopping
 from jaxabc.errors import PriorEdgeWarning
-from jaxabc.model_choice.result import ModelChoiceResult, _file_stem, check_prior_edges, probabilities_with_errors
+from jaxabc.model_choice.core import Model, as_models, normalise_model_prior
+from jaxabc.model_choice.result import ModelChoiceResult, check_prior_edges, file_stem, probabilities_with_errors
+from jaxabc.results import ABCResult
 from jaxabc.seeding import seed_from_key
 
-__all__ = ["METHOD", "MISFIT_ALPHA", "probability_intervals", "run_from_driver", "run_model_choice_surrogate"]
+__all__ = ["METHOD", "MISFIT_ALPHA", "choose_by_surrogate", "probability_intervals", "run_model_choice_surrogate"]
 
 METHOD = (
     "GP-surrogate synthetic likelihood per model, evidence by importance sampling over the prior "
@@ -95,12 +100,11 @@ def run_model_choice_surrogate(
     simulator_id : str, optional
         Prefix of each model's simulator identity in its checkpoint (``<id>:<model name>``).
     driver : callable, optional
-        :func:`jaxabc.run`, which calibrates each model (``jaxabc.run`` passes itself; the
-        default imports it).
+        Calibrates each model, with :func:`jaxabc.run`'s signature (default: the calibration
+        :func:`jaxabc.run` itself runs).
     observation_error, discrepancy : optional
         The data's measurement error and a model discrepancy, as for :func:`jaxabc.run`, the
-        same for every model: given to each model's surrogate builder
-        (:func:`jaxabc.surrogate.build`, which takes the raw values), so each synthetic
+        same for every model: given to each model's surrogate builder, so each synthetic
         likelihood, and so each evidence, includes them.
     **surrogate_options
         Passed to :func:`jaxabc.surrogate.build` (not ``mode``, ``max_outputs`` or
@@ -114,28 +118,58 @@ def run_model_choice_surrogate(
         lists per model whether its emulator passed validation, and
         ``metadata["probability_interval_95"]`` (K, 2) the probabilities' 2.5 and 97.5 %
         points with each ``log Z`` drawn from its normal error (the delta-method
-        ``standard_errors`` understate once those errors approach 1).  A model whose emulator failed
-        is flagged in ``stop_reason``: its evidence is not trustworthy.  When every model fails
-        the observed-data misfit check (:func:`jaxabc.surrogate.evidence.observed_misfit`,
-        p < :data:`MISFIT_ALPHA`), ``metadata["misspecified"]`` is True and ``stop_reason`` says
-        so: the probabilities then rank misfits.
+        ``standard_errors`` understate once those errors approach 1).  A model whose emulator
+        failed is flagged in ``stop_reason``.  When every model fails the observed-data misfit
+        check (p < :data:`MISFIT_ALPHA`), ``metadata["misspecified"]`` is True and
+        ``stop_reason`` says so: the probabilities then rank misfits.
 
     Raises
     ------
     ValueError
-        Options the evidence cannot use, or models whose likelihoods use different summaries (a
-        summary constant over one model's design but not another's): their evidences would be
-        densities of different data.
+        Options the evidence cannot use, or models whose likelihoods use different summaries
+        (their evidences would be densities of different data).
     """
-    import importlib
+    options = RunOptions.from_keywords(
+        seed=seed,
+        executor=executor,
+        checkpoint_dir=checkpoint_dir,
+        resume=resume,
+        overwrite=overwrite,
+        simulator_id=simulator_id,
+        progress=progress,
+        metadata=metadata,
+    )
+    return choose_by_surrogate(
+        models,
+        observed,
+        simulations_per_model,
+        num_particles,
+        options,
+        model_prior=model_prior,
+        observation_error=observation_error,
+        discrepancy=discrepancy,
+        surrogate_options=surrogate_options,
+        driver=driver,
+    )
 
-    # By name at call time when not given: the driver imports this module, not the other way.
-    calibrate: Callable[..., Any] = driver if driver is not None else importlib.import_module("jaxabc.run").run
-    from jaxabc.model_choice.core import _model_prior, as_models
-    from jaxabc.surrogate import build
-    from jaxabc.surrogate.evidence import with_evidence
 
+def choose_by_surrogate(
+    models: Sequence[Any],
+    observed: Any,
+    simulations_per_model: int,
+    num_particles: int,
+    options: RunOptions,
+    *,
+    model_prior: Sequence[float] | None = None,
+    observation_error: Any = None,
+    discrepancy: Any = None,
+    surrogate_options: dict[str, Any] | None = None,
+    driver: Callable[..., Any] | None = None,
+) -> ModelChoiceResult:
+    """:func:`run_model_choice_surrogate` with its run options in ``options`` (seed, executor,
+    checkpointing, progress and metadata are read)."""
     t0 = time.perf_counter()
+    surrogate_options = dict(surrogate_options or {})
     banned = sorted({"mode", "max_outputs", "observed", "max_simulations"} & set(surrogate_options))
     if banned:
         raise ValueError(
@@ -143,87 +177,113 @@ def run_model_choice_surrogate(
             "of all the raw summaries (no principal-component projection)"
         )
     ms = as_models(list(models))
-    prior_m = _model_prior(model_prior, len(ms))
+    prior_m = normalise_model_prior(model_prior, len(ms))
     obs = np.asarray(observed, np.float64)
     if int(simulations_per_model) < 1:
         raise ValueError(f"simulations_per_model must be positive, got {simulations_per_model}")
-    key = jax.random.key(seed)
-    folder = None if checkpoint_dir is None else Path(checkpoint_dir)
-    posteriors = []
     measured = {
         k: v for k, v in (("observation_error", observation_error), ("discrepancy", discrepancy)) if v is not None
     }
-    for m, model in enumerate(ms):
-        model_seed = seed_from_key(jax.random.fold_in(key, m))
-        algo = build(
-            model.prior,
-            num_particles,
-            observed=obs,
-            max_simulations=int(simulations_per_model),
-            max_outputs=max(obs.size, 1),
-            **measured,
-            **surrogate_options,
+    posteriors = [
+        _calibrate_model(
+            m, model, obs, int(simulations_per_model), num_particles, options, measured, surrogate_options, driver
         )
-        algo = with_evidence(algo, model.prior, obs, seed=model_seed)
-        ckpt = None if folder is None else folder / _file_stem(model.name)
-        model_resume = bool(resume and ckpt is not None and (ckpt / "checkpoint.npz").exists())
-        with warnings.catch_warnings():
-            # A model finished in an earlier sitting is reused on purpose: no "nothing was run".
-            warnings.filterwarnings("ignore", message="the run in .* had already ended")
-            # The prior-edge check runs once below, per model and naming it.
-            warnings.simplefilter("ignore", PriorEdgeWarning)
-            posterior = calibrate(
-                algo,
-                model.simulate,
-                model.prior,
-                obs,
-                seed=model_seed,
-                executor=executor,
-                max_simulations=int(simulations_per_model),
-                checkpoint_dir=ckpt,
-                resume=model_resume,
-                overwrite=overwrite and not model_resume,
-                simulator_id=None if simulator_id is None else f"{simulator_id}:{model.name}",
-                progress=progress,
-                dtype="float64",
-                metadata={"model": model.name},
-            )
-        posteriors.append(posterior)
+        for m, model in enumerate(ms)
+    ]
+    result = _result(ms, posteriors, prior_m, options, measured, t0)
+    result.sensitivity()
+    return result
+
+
+def _calibrate_model(
+    index: int,
+    model: Model,
+    observed: np.ndarray,
+    simulations: int,
+    num_particles: int,
+    options: RunOptions,
+    measured: dict[str, Any],
+    surrogate_options: dict[str, Any],
+    driver: Callable[..., Any] | None,
+) -> ABCResult:
+    """Model ``index``'s surrogate calibration, with its evidence, on its own seed and folder."""
+    from jaxabc.surrogate import build
+    from jaxabc.surrogate.evidence import with_evidence
+
+    model_seed = seed_from_key(jax.random.fold_in(jax.random.key(options.seed), index))
+    algo = build(
+        model.prior,
+        num_particles,
+        observed=observed,
+        max_simulations=simulations,
+        max_outputs=max(observed.size, 1),
+        **measured,
+        **surrogate_options,
+    )
+    algo = with_evidence(algo, model.prior, observed, seed=model_seed)
+    model_options = _model_options(model.name, model_seed, simulations, options)
+    with warnings.catch_warnings():
+        # A model finished in an earlier sitting is reused on purpose: no "nothing was run".
+        warnings.filterwarnings("ignore", message="the run in .* had already ended")
+        # The prior-edge check runs once for all models, naming each.
+        warnings.simplefilter("ignore", PriorEdgeWarning)
+        if driver is not None:
+            return driver(algo, model.simulate, model.prior, observed, **model_options.keywords())
+        return calibrate(algo, model.simulate, model.prior, observed, None, "mean_abs", model_options)
+
+
+def _model_options(name: str, seed: int, simulations: int, options: RunOptions) -> RunOptions:
+    """One model's run: its seed, budget and checkpoint folder, in double precision."""
+    base = options.checkpointing
+    folder = None if base.folder is None else Path(base.folder) / file_stem(name)
+    resume = bool(base.resume and folder is not None and (folder / CHECKPOINT_NAME).exists())
+    return RunOptions(
+        seed=seed,
+        stopping=Stopping(max_simulations=simulations),
+        checkpointing=Checkpointing(
+            folder=folder,
+            resume=resume,
+            overwrite=base.overwrite and not resume,
+            simulator_id=None if base.simulator_id is None else f"{base.simulator_id}:{name}",
+        ),
+        execution=Execution(executor=options.execution.executor, progress=options.execution.progress, dtype="float64"),
+        metadata={"model": name},
+    )
+
+
+def _result(
+    models: list[Model],
+    posteriors: list[ABCResult],
+    model_prior: np.ndarray,
+    options: RunOptions,
+    measured: dict[str, Any],
+    t_start: float,
+) -> ModelChoiceResult:
+    """The probabilities from the models' evidences, with the checks that qualify them."""
     actives = [tuple(p.diagnostics["evidence_active"]) for p in posteriors]
     if len(set(actives)) > 1:
-        listing = ", ".join(f"{m.name!r}: {list(a)}" for m, a in zip(ms, actives, strict=True))
+        listing = ", ".join(f"{m.name!r}: {list(a)}" for m, a in zip(models, actives, strict=True))
         raise ValueError(
             "the models' likelihoods use different summaries (a summary constant over one model's "
             f"design is left out of its likelihood): {listing}; drop the summaries that do not vary"
         )
     log_z = np.array([np.nan if p.log_evidence is None else p.log_evidence for p in posteriors], np.float64)
     log_z_se = np.array([p.diagnostics["log_evidence_se"] for p in posteriors], np.float64)
-    probs, ses = probabilities_with_errors(log_z, log_z_se, prior_m)
-    interval = probability_intervals(log_z, log_z_se, prior_m, np.random.default_rng(seed))
+    probs, ses = probabilities_with_errors(log_z, log_z_se, model_prior)
+    interval = probability_intervals(log_z, log_z_se, model_prior, np.random.default_rng(options.seed))
     validated = [bool(p.diagnostics.get("validated", False)) for p in posteriors]
-    failed = [m.name for m, v in zip(ms, validated, strict=True) if not v]
-    stop = "every model's emulator validated on held-out simulations"
-    if failed:
-        stop = f"UNTRUSTED: the emulator of {failed} failed validation, so its evidence is not trustworthy"
     misfit_p = [(p.diagnostics.get("observed_misfit") or {}).get("p_value") for p in posteriors]
     misspecified = bool(all(v is not None and v < MISFIT_ALPHA for v in misfit_p))
-    if misspecified:
-        stop += (
-            f"; MISSPECIFIED: no model reproduces the observed summaries within the noise (misfit p < "
-            f"{MISFIT_ALPHA} for every model), so the probabilities rank misfits, not models that could "
-            "have made the data"
-        )
     sims = np.array([[p.num_simulations for p in posteriors]])
-    names = tuple(m.name for m in ms)
-    edges = check_prior_edges(names, posteriors)
-    result = ModelChoiceResult(
+    names = tuple(m.name for m in models)
+    return ModelChoiceResult(
         names=names,
         probabilities=probs,
         standard_errors=ses,
         log_evidence=log_z,
         log_evidence_errors=log_z_se,
-        probability_upper_bounds=np.full(len(ms), np.nan),
-        model_prior=prior_m,
+        probability_upper_bounds=np.full(len(models), np.nan),
+        model_prior=model_prior,
         threshold=float("nan"),
         thresholds=np.array([np.nan]),
         probability_history=probs[None, :],
@@ -231,9 +291,9 @@ def run_model_choice_surrogate(
         simulations_per_step=sims,
         posteriors=tuple(posteriors),
         num_simulations=int(sims.sum()),
-        seed=int(seed),
-        stop_reason=stop,
-        wall_time=time.perf_counter() - t0,
+        seed=options.seed,
+        stop_reason=_stop_reason(models, validated, misspecified),
+        wall_time=time.perf_counter() - t_start,
         metadata={
             "method": METHOD,
             "validated": validated,
@@ -241,12 +301,24 @@ def run_model_choice_surrogate(
             "misfit_p_values": misfit_p,
             "misspecified": misspecified,
             **{k: _jsonable(v) for k, v in measured.items()},
-            **(metadata or {}),
+            **(options.metadata or {}),
         },
-        prior_edge=edges,
+        prior_edge=check_prior_edges(names, posteriors),
     )
-    result.sensitivity()
-    return result
+
+
+def _stop_reason(models: list[Model], validated: list[bool], misspecified: bool) -> str:
+    failed = [m.name for m, v in zip(models, validated, strict=True) if not v]
+    stop = "every model's emulator validated on held-out simulations"
+    if failed:
+        stop = f"UNTRUSTED: the emulator of {failed} failed validation, so its evidence is not trustworthy"
+    if misspecified:
+        stop += (
+            f"; MISSPECIFIED: no model reproduces the observed summaries within the noise (misfit p < "
+            f"{MISFIT_ALPHA} for every model), so the probabilities rank misfits, not models that could "
+            "have made the data"
+        )
+    return stop
 
 
 def _jsonable(value: Any) -> Any:
@@ -257,44 +329,3 @@ def _jsonable(value: Any) -> Any:
         return np.asarray(value, np.float64).tolist()
     except (TypeError, ValueError):
         return repr(value)
-
-
-def run_from_driver(arguments: dict[str, Any], driver: Callable[..., Any]) -> Any:
-    """``jaxabc.run(models, observed=..., method="surrogate", max_simulations=N)`` (its
-    ``locals()`` and the function itself): ``N`` split evenly over the models."""
-    from jaxabc.model_choice.core import as_models, check_driver_arguments
-
-    models = check_driver_arguments(arguments)
-    options = dict(arguments["algorithm_options"])
-    options.pop("method")
-    unsupported = [
-        k
-        for k in ("num_steps", "final_threshold", "max_wall_time", "stop_after_iterations")
-        if arguments[k] is not None
-    ]
-    if arguments["distance"] != "mean_abs":
-        unsupported.append("distance")
-    if unsupported:
-        raise TypeError(f"model choice with method='surrogate' does not take {unsupported}")
-    total = arguments["max_simulations"]
-    if total is None:
-        raise TypeError("method='surrogate' needs max_simulations (the total, split evenly over the models)")
-    num_models = len(as_models(models))
-    return run_model_choice_surrogate(
-        models,
-        arguments["observed"],
-        int(total) // max(num_models, 1),
-        2000 if arguments["num_particles"] is None else arguments["num_particles"],
-        arguments["seed"],
-        executor=arguments["executor"],
-        checkpoint_dir=arguments["checkpoint_dir"],
-        resume=arguments["resume"],
-        overwrite=arguments["overwrite"],
-        simulator_id=arguments["simulator_id"],
-        progress=arguments["progress"],
-        metadata=arguments["metadata"],
-        driver=driver,
-        observation_error=arguments.get("observation_error"),
-        discrepancy=arguments.get("discrepancy"),
-        **options,
-    )

@@ -571,7 +571,7 @@ def _user_stacklevel() -> int:
     The frames below that one are jaxabc's own and the dataclass's generated ``__init__`` (whose
     file name is ``"<string>"``), found as the frame that called ``__post_init__``.
     """
-    package = str(Path(__file__).parent) + os.sep
+    package = str(Path(__file__).parents[1]) + os.sep  # jaxabc/, not jaxabc/results/
     frame = inspect.currentframe()
     frame = frame.f_back if frame is not None else None  # the frame that calls warnings.warn
     level = 1
