@@ -155,12 +155,8 @@ def parse_arguments(argv=None) -> argparse.Namespace:
         type=float,
         default=MIN_DESIGN_SUCCESS,
         help="cut the posterior where the fitted chance of a liquid run is below this (the library's "
-        "min_feasibility; default: the level design runs must reach, design.MIN_DESIGN_SUCCESS). "
-        "Water's failures are phase changes, and where no parameter fits the data within the noise "
-        "the posterior piles against this level. Below the design level no design run goes, so "
-        "the emulator's variance stays large there and makes that band look like the best fit: at a "
-        "lower level the neutron run with the paper's statistics put its whole posterior on that "
-        "level, and every held-out run there vaporised",
+        "min_feasibility; default: the level design runs must reach, design.MIN_DESIGN_SUCCESS, "
+        "below which no design run goes and the emulator is not trusted)",
     )
     parser.add_argument(
         "--surrogate-tolerance",

@@ -285,6 +285,8 @@ def run_surrogate(args, data, models: list[Model], executor):
         executor=executor,
         checkpoint_dir=args.checkpoint_dir,
         resume=args.resume,
+        # A smoke test (and the quick-mode check) starts over: its simulations stay cached.
+        overwrite=args.tiny and not args.resume,
         simulator_id=simulator_id(args),
         progress=not args.no_progress,
         batch_size=2 * args.workers,
