@@ -9,6 +9,12 @@ The public API::
 
 __version__ = "0.1.0"
 
+import importlib
+import importlib.abc
+import importlib.util
+from importlib.machinery import ModuleSpec
+from types import ModuleType
+
 from jaxabc import distances, kernels
 from jaxabc.algorithms import BUILDERS as ALGORITHMS
 from jaxabc.distances import AdaptivePNorm
@@ -51,8 +57,6 @@ def __getattr__(name: str):
         module_name, attr = _LAZY[name]
     except KeyError:
         raise AttributeError(f"module 'jaxabc' has no attribute {name!r}") from None
-    import importlib
-
     module = importlib.import_module(module_name)
     value = module if attr is None else getattr(module, attr)
     globals()[name] = value
@@ -61,6 +65,44 @@ def __getattr__(name: str):
 
 def __dir__() -> list[str]:
     return sorted(set(globals()) | set(_LAZY))
+
+
+# Public modules that moved into subpackages: ``import jaxabc.fused`` (and ``from jaxabc.fused
+# import run_fused``) keep working, with a DeprecationWarning naming the new place.
+_MOVED = {
+    "jaxabc.cache": "jaxabc.executors.cache",
+    "jaxabc.fused": "jaxabc.driver.fused",
+    "jaxabc.priors_numpyro": "jaxabc.priors.independent",
+    "jaxabc.progress": "jaxabc.executors.progress",
+    "jaxabc.scheduling": "jaxabc.executors.scheduling",
+}
+
+
+class _MovedModuleFinder(importlib.abc.MetaPathFinder, importlib.abc.Loader):
+    """Resolves an old module name in :data:`_MOVED` to the module at its new place."""
+
+    def find_spec(self, fullname: str, path: object = None, target: object = None) -> ModuleSpec | None:
+        return importlib.util.spec_from_loader(fullname, self) if fullname in _MOVED else None
+
+    def create_module(self, spec: ModuleSpec) -> ModuleType:
+        import warnings
+
+        new = _MOVED[spec.name]
+        warnings.warn(f"{spec.name} moved to {new}; import it from there", DeprecationWarning, stacklevel=2)
+        return importlib.import_module(new)
+
+    def exec_module(self, module: ModuleType) -> None:
+        """Nothing to run: the module at the new place is already executed."""
+
+
+def _install_moved_module_finder() -> None:
+    import sys
+
+    if not any(isinstance(f, _MovedModuleFinder) for f in sys.meta_path):
+        sys.meta_path.append(_MovedModuleFinder())
+
+
+_install_moved_module_finder()
 
 
 def _cache_from_environment() -> None:

@@ -166,3 +166,19 @@ def test_no_function_in_jaxabc_is_longer_than_150_lines() -> None:
                 if lines > 150:
                     long.append(f"{name}.{node.name}: {lines} lines")
     assert long == []
+
+
+def test_moved_public_modules_import_from_their_old_names_with_a_warning() -> None:
+    import importlib
+    import sys
+    import warnings
+
+    import jaxabc
+
+    for old, new in jaxabc._MOVED.items():
+        sys.modules.pop(old, None)
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            module = importlib.import_module(old)
+        assert module is importlib.import_module(new)
+        assert any(issubclass(w.category, DeprecationWarning) and new in str(w.message) for w in caught), old
