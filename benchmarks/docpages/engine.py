@@ -290,6 +290,49 @@ def _speedup_tables(name: str) -> str:
     return "\n".join(out)
 
 
+def _real_runs() -> str:
+    """The real GROMACS part of the speed-up study: makespans at n = 1 and 2 workers."""
+    d = (load("speedup") or {}).get("real")
+    if not d or "runs" not in d:
+        return "Not saved yet.\n"
+    runs = d["runs"]
+    rows = []
+    for n, allocations in (("1", ("dynamic",)), ("2", ("dynamic", "static"))):
+        r = runs.get(n, {})
+        if "error" in r:
+            rows.append([n, "-", "failed to launch", "-", "-"])
+            continue
+        for a in allocations:
+            if a in r:
+                ok = sum(s == 0 for s in r[a]["status"])
+                rows.append(
+                    [
+                        n,
+                        a,
+                        f(r[a]["makespan_s"], 3),
+                        f(float(np.sum(r[a]["task_wall_s"])), 3),
+                        f"{ok} of {len(r[a]['status'])}",
+                    ]
+                )
+    lines = [
+        source("speedup", part="real"),
+        "",
+        f"{d['num_tasks']} runs of {d['simulator']}; parameters from the {d.get('theta_source', 'prior')}.\n",
+        table(["workers", "allocation", "makespan s", "summed task s", "succeeded"], rows) + "\n",
+    ]
+    if "speedup" in d:
+        lines.append(
+            "Speed-up at n = 2 (dynamic / static): "
+            f"{f(d['speedup']['dynamic'], 3)} / {f(d['speedup']['static'], 3)}; the summed task time at n = 2 "
+            f"over that at n = 1: {f(d['task_time_inflation_n2']['dynamic'], 3)} / "
+            f"{f(d['task_time_inflation_n2']['static'], 3)} (two concurrent runs on this machine's 2 shared "
+            "cores); makespan over max(total/n, longest): "
+            f"{f(d['makespan_over_lower_bound_n2']['dynamic'], 3)} / "
+            f"{f(d['makespan_over_lower_bound_n2']['static'], 3)}.\n"
+        )
+    return "\n".join(lines)
+
+
 def page_speedup() -> str:
     return f"""# Speedup and scheduling
 
@@ -304,6 +347,10 @@ of the k n + 1 longest tasks) is what any schedule of indivisible tasks must exc
 ## Simulated-water calibration's records
 
 {_speedup_tables("speedup_model_simulated_records")}
+
+## Real GROMACS runs on 1 and 2 MPI workers
+
+{_real_runs()}
 """
 
 
