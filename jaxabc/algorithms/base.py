@@ -144,7 +144,9 @@ class ABCAlgorithm(NamedTuple):
         Why the run ended, called when ``info.stop`` fires, with that call's info.
     finalize : callable ``(state) -> dict``
         Result extras of the final state, e.g. ``{"log_evidence": float}``; the key
-        ``"log_evidence"`` fills :attr:`ABCResult.log_evidence`, others go to its metadata.
+        ``"log_evidence"`` fills :attr:`ABCResult.log_evidence`, ``"diagnostics"`` its
+        diagnostics, ``"stop_reason_prefix"`` goes in front of its stop reason (a verdict the
+        final state holds, e.g. a misfit), others go to its metadata.
     needs_stopping_rule : bool
         The algorithm may never stop by itself; the driver refuses a run without ``num_steps``,
         ``final_threshold``, ``max_simulations`` or ``max_wall_time``.

@@ -58,6 +58,8 @@ def assemble(ctx: Context, prog: Progress, prior: Any) -> ABCResult:
         "incomplete": incomplete,
     }
     extras = dict(algo.finalize(prog.state)) if prog.state is not None else {}
+    # An algorithm may put a verdict in front of the stop reason (the surrogate's misfit).
+    stop_reason = extras.pop("stop_reason_prefix", "") + stop_reason
     log_ev = extras.pop("log_evidence", None)
     diagnostics = extras.pop("diagnostics", None) or {}
     if "distance_weights" in prog.history:

@@ -762,6 +762,7 @@ def _result(run: _Fused) -> ABCResult:
     }
     meta.update(options.metadata or {})
     extras = dict(algo.finalize(run.carry.state))
+    reason = extras.pop("stop_reason_prefix", "") + reason
     log_ev = extras.pop("log_evidence", None)
     diagnostics = extras.pop("diagnostics", None) or {}
     final_ess = extras.pop("ess", None)

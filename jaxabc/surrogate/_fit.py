@@ -14,6 +14,8 @@ from jaxabc.surrogate import emulator, sampling
 from jaxabc.surrogate._settings import SurrogateSettings
 
 __all__ = [
+    "HETEROSCEDASTIC_LEVEL",
+    "NOISE_MODELS",
     "ROLE_DESIGN",
     "ROLE_EMPTY",
     "ROLE_FAILED_HOLDOUT",
@@ -22,6 +24,7 @@ __all__ = [
     "fit_surrogate",
     "measured_data_terms",
     "noise_correlation",
+    "noise_profile_choice",
 ]
 
 #: Roles of a state's rows: unused, design, held out, held out in a failed validation (then design).
@@ -40,6 +43,7 @@ def fit_likelihood(
     *,
     observation_error: np.ndarray | None = None,
     discrepancy: Any = None,
+    noise_model: str = "homoscedastic",
 ) -> tuple[emulator.OutputTransform, emulator.Emulator, sampling.LikelihoodModel, np.ndarray]:
     """Emulator on the successful design rows of ``state`` (a SurrogateState); ``drop`` (bool,
     shape (M,)) leaves rows out.  Returns (transform, emulator, likelihood model, z_all), z_all
@@ -48,6 +52,7 @@ def fit_likelihood(
     ``observation_error`` (k, k), the measurement covariance in summary units, and
     ``discrepancy`` (a :class:`jaxabc.noise.ResolvedDiscrepancy`) are mapped into the emulated
     outputs' coordinates (:func:`.sampling.output_map`) and carried by the model.
+    ``noise_model`` is :func:`noise_profile_choice`'s.
 
     Raises
     ------
@@ -74,6 +79,12 @@ def fit_likelihood(
     # An output constant over the design (a summary the data set does not measure, zeroed by
     # the simulator) carries no information about theta: out of the likelihood.
     active = np.std(z_all[rows], axis=0) > 1e-9
+    coef = noise_profile_choice(noise_model, x_all[rows], loo, active)
+    if coef is not None:
+        emu = emulator.fit(x_all, z_all, rows, noise_coef=coef)
+        loo = np.asarray(emulator.loo_residuals(emu))[rows]
+        # Correlation of the residuals in noise-sd units: their scale varies with theta.
+        loo = loo / np.asarray(emulator.noise_sd(emu, jnp.asarray(x_all[rows])))
     corr = noise_correlation(loo, active)
     feas = sampling.fit_feasibility(x_all[used], ok[used], size=int(max_simulations))
     z_obs = transform.apply(jnp.asarray(np.asarray(observed, np.float64).reshape(-1)))
@@ -117,7 +128,34 @@ def fit_surrogate(
         settings.log_min_feasibility,
         observation_error=settings.observation_error,
         discrepancy=settings.discrepancy,
+        noise_model=settings.noise_model,
     )
+
+
+#: Level of the F-test (Bonferroni over the outputs) at which ``noise_model="auto"`` takes the
+#: noise to vary with theta.
+HETEROSCEDASTIC_LEVEL = 1e-3
+#: ``noise_model`` values.
+NOISE_MODELS = ("auto", "homoscedastic", "heteroscedastic")
+
+
+def noise_profile_choice(noise_model: str, x: np.ndarray, loo: np.ndarray, active: np.ndarray) -> np.ndarray | None:
+    """The noise profile to refit with (:func:`.emulator.fit_noise_profile` of the leave-one-
+    out residuals ``loo (n, q)`` at unit-box ``x (n, d)``), or None for homoscedastic noise.
+
+    ``"homoscedastic"``: None.  ``"heteroscedastic"``: every active output's profile.
+    ``"auto"``: the profiles of the active outputs whose F-test rejects a constant noise
+    variance at :data:`HETEROSCEDASTIC_LEVEL` over the number of active outputs (None if none).
+    """
+    if noise_model == "homoscedastic":
+        return None
+    coef, p_values = emulator.fit_noise_profile(x, loo)
+    keep = np.asarray(active, bool) & np.isfinite(p_values)
+    if noise_model == "auto":
+        keep &= p_values < HETEROSCEDASTIC_LEVEL / max(int(np.sum(active)), 1)
+    if not keep.any():
+        return None
+    return np.where(keep[:, None], coef, 0.0)
 
 
 def noise_correlation(residuals: np.ndarray, active: np.ndarray | None = None) -> np.ndarray:

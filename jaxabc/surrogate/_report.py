@@ -17,6 +17,7 @@ from jaxabc.surrogate._state import PHASE_DONE, SurrogateState
 from jaxabc.surrogate._support import single_threaded_blas
 
 __all__ = [
+    "MISFIT",
     "NOT_VALIDATED",
     "UNTESTED_SHARE_WARN",
     "SurrogateInfo",
@@ -29,6 +30,8 @@ __all__ = [
 
 #: The start of a stop reason whose posterior the emulator's validation does not back.
 NOT_VALIDATED = "NOT VALIDATED: "
+#: The start of a stop reason whose observed summaries the fitted model does not reproduce.
+MISFIT = "MISFIT: "
 #: Posterior share below the design level from which a failed validation names that band.
 UNTESTED_SHARE_WARN = 0.25
 
@@ -59,6 +62,10 @@ class SurrogateInfo(NamedTuple):
         (False while that ratio is unknown).
     ess : numpy.float64
         Effective sample size of the current posterior draws.
+    validated : numpy.bool_
+        Every check of the last validation passed (False before the first).
+    failure : str
+        Why the last validation failed, in words (empty when it passed or before one).
     """
 
     generation_done: np.bool_
@@ -67,6 +74,8 @@ class SurrogateInfo(NamedTuple):
     holdout_mean_squared_error: np.float64
     emulator_trusted: np.bool_
     ess: np.float64
+    validated: np.bool_ = np.bool_(False)
+    failure: str = ""
 
     @property
     def threshold(self) -> np.float64:
@@ -94,26 +103,22 @@ def step_info(settings: SurrogateSettings, state: SurrogateState) -> SurrogateIn
         holdout_mean_squared_error=np.float64(state.mean_squared_error),
         emulator_trusted=np.bool_(trusted),
         ess=np.float64(posterior_ess(state, settings.num_chains, settings.abc is not None)),
+        validated=np.bool_(state.validated),
+        failure="" if bool(state.validated) else failure_text(state, settings.max_emulator_ratio),
     )
 
 
 def stop_reason(record: dict, info: SurrogateInfo) -> str:
     """Why the run stopped, from the algorithm's ``settings`` record and the last info: the
-    validation's numbers, prefixed :data:`NOT_VALIDATED` unless they pass
-    :func:`.diagnostics.holdout_bounds`."""
-    coverage, mean_squared = float(info.holdout_coverage), float(info.threshold)
-    if not np.isfinite(mean_squared) or np.isnan(coverage):
-        return NOT_VALIDATED + "emulator failed validation (see diagnostics)"
-    n = record["num_holdout"] * min(record["observed_size"], record["max_outputs"])
-    coverage_min, mean_squared_max = diagnostics.holdout_bounds(n)
-    if coverage >= coverage_min and mean_squared <= mean_squared_max:
+    validation's numbers, prefixed :data:`NOT_VALIDATED` unless every check passed."""
+    del record  # the info carries the verdict
+    coverage, mean_squared = float(info.holdout_coverage), float(info.holdout_mean_squared_error)
+    if bool(info.validated):
         return (
             f"emulator validated on held-out simulations (95 % coverage "
             f"{coverage:.2f}, mean squared standardised error {mean_squared:.2f})"
         )
-    return NOT_VALIDATED + (
-        f"emulator failed validation (coverage {coverage:.2f}, mean squared standardised error {mean_squared:.2f})"
-    )
+    return NOT_VALIDATED + f"emulator failed validation ({info.failure or 'see diagnostics'})"
 
 
 def finalize(settings: SurrogateSettings, state: SurrogateState) -> dict:
@@ -125,10 +130,18 @@ def finalize(settings: SurrogateSettings, state: SurrogateState) -> dict:
     """
     diag = run_diagnostics(settings, state)
     diag["observed_misfit"] = misfit = observed_misfit(settings, state)
+    out: dict[str, Any] = {}
     if misfit is not None and misfit["p_value"] < diagnostics.MISFIT_P_VALUE:
-        warnings.warn(misfit_text(misfit), RuntimeWarning, stacklevel=2)
+        text = misfit_text(misfit)
+        warnings.warn(text, RuntimeWarning, stacklevel=2)
+        diag["warning"] = text
+        out["stop_reason_prefix"] = (
+            f"{MISFIT}the observed summaries lie outside the posterior predictive (p = {misfit['p_value']:.2g}); "
+        )
     abc = settings.abc is not None
     ess = posterior_ess(state, settings.num_chains, abc)
+    if int(state.phase) == PHASE_DONE:
+        diag |= mcse_terms(settings, state, ess)
     if int(state.phase) == PHASE_DONE and ess < diagnostics.MIN_POSTERIOR_ESS:
         warnings.warn(
             f"surrogate: the posterior rests on an effective sample size of {ess:.0f} (below "
@@ -145,7 +158,36 @@ def finalize(settings: SurrogateSettings, state: SurrogateState) -> dict:
             "abc_generations": int(state.abc_generations),
             "abc_emulated_simulations": int(state.abc_emulated),
         }
-    return {"ess": ess, "diagnostics": diag}
+    return {"ess": ess, "diagnostics": diag, **out}
+
+
+def mcse_terms(settings: SurrogateSettings, state: SurrogateState, ess: float) -> dict:
+    """The MCSE of the posterior mean ``(d + G,)`` with the emulator's error in it.
+
+    ``mcse_sampling`` is the posterior sd over ``sqrt(ESS)``.  ``mcse_emulator`` is the
+    posterior sd times the larger of ``sqrt(emulator_ratio)`` (an emulator error of that
+    fraction of the noise shifts a likelihood's centre, and so the posterior mean, by about
+    that fraction of a posterior sd) and the shift measured when the last held-out runs joined
+    the fit (:func:`._validation.posterior_shift`).  ``mcse`` combines them in quadrature; it
+    is what :meth:`jaxabc.ABCResult.mcse` reports.
+    """
+    lw = np.asarray(state.log_weights, np.float64)
+    keep = np.isfinite(lw)
+    draws = np.asarray(state.draws, np.float64)[keep]
+    w = np.exp(lw[keep] - np.max(lw[keep]))
+    w /= w.sum()
+    sd = np.sqrt(w @ (draws - w @ draws) ** 2)
+    sampling_part = sd / np.sqrt(max(ess, 1.0))
+    ratio = float(state.emulator_ratio)
+    shift = np.nan_to_num(np.abs(np.asarray(state.posterior_shift, np.float64)), nan=0.0)
+    emulator_part = sd * np.maximum(np.sqrt(ratio) if np.isfinite(ratio) else np.inf, shift)
+    return {
+        "mcse": np.sqrt(sampling_part**2 + emulator_part**2).tolist(),
+        "mcse_sampling": sampling_part.tolist(),
+        "mcse_emulator": emulator_part.tolist(),
+        "posterior_shift_in_sd": np.asarray(state.posterior_shift, np.float64).tolist(),
+        "posterior_log_sd_change": np.asarray(state.log_sd_change, np.float64).tolist(),
+    }
 
 
 def run_diagnostics(settings: SurrogateSettings, state: SurrogateState) -> dict:
@@ -177,6 +219,9 @@ def run_diagnostics(settings: SurrogateSettings, state: SurrogateState) -> dict:
         # numpy's stubs reject None as the fill (an object array, which is what JSON needs).
         "holdout_errors": np.where(np.isfinite(state.holdout_errors), state.holdout_errors, None).tolist(),  # pyright: ignore[reportAttributeAccessIssue]
         "lack_of_fit_ok": bool(state.lack_of_fit_ok),
+        "targeted_holdout_max_error": float(state.targeted_max_error),
+        "targeted_holdout_ok": bool(state.targeted_ok),
+        "posterior_stable": bool(state.stable),
         "emulator_to_noise_variance": float(state.emulator_ratio),
         "posterior_share_below_design_level": float(state.untested_share),
         "lengthscales": lengthscales.tolist(),
@@ -219,6 +264,19 @@ def failure_text(state: Any, max_emulator_ratio: float) -> str:
         parts.append(
             f"held-out joint (Mahalanobis) error {float(state.joint_mean_squared_error):.2f} per output, "
             "too large for the modelled noise correlation: the summaries' joint noise is not captured"
+        )
+    if not bool(getattr(state, "targeted_ok", True)):
+        parts.append(
+            f"a held-out run where the emulator was least sure missed its prediction by "
+            f"{float(state.targeted_max_error):.1f} sd: the emulator is wrong where the posterior "
+            "could lie (a step or a narrow feature it smooths over?)"
+        )
+    if not bool(getattr(state, "stable", True)):
+        shift, log_sd = np.asarray(state.posterior_shift), np.asarray(state.log_sd_change)
+        parts.append(
+            f"adding the held-out runs to the emulator moved the posterior (mean by up to "
+            f"{np.max(np.abs(shift)):.2f} sd, an sd by up to {np.max(np.abs(np.expm1(log_sd))):.0%}): "
+            "it still follows the emulator's error"
         )
     parts += holdout_failure_parts(state)
     if np.isfinite(state.coverage):

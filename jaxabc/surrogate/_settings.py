@@ -123,6 +123,8 @@ class SurrogateSettings(NamedTuple):
     max_emulator_ratio : float
         Validation fails while the emulator-to-noise variance ratio is above this.
     on_failure : {"flag", "raise"}
+    noise_model : {"auto", "homoscedastic", "heteroscedastic"}
+        The simulator noise's dependence on theta (:func:`._fit.noise_profile_choice`).
     """
 
     box: ParameterBox
@@ -150,6 +152,7 @@ class SurrogateSettings(NamedTuple):
     num_holdout: int
     max_emulator_ratio: float
     on_failure: str
+    noise_model: str = "auto"
 
     @property
     def num_summaries(self) -> int:
@@ -295,19 +298,24 @@ def make_settings(
     abc_max_generations: int,
     observation_error: Any,
     discrepancy: Any,
+    noise_model: str = "auto",
 ) -> SurrogateSettings:
     """:func:`.algorithm.build`'s options, checked, as :class:`SurrogateSettings`.
 
     Raises
     ------
     ValueError
-        Non-finite observed summaries, an unknown ``mode`` or ``on_failure``, sample sizes or a
+        Non-finite observed summaries, an unknown ``mode``, ``on_failure`` or ``noise_model``, sample sizes or a
         budget the run cannot work with, a measurement error or discrepancy that does not fit
         the observed summaries.
     """
     obs = np.asarray(observed, np.float64)
     if not np.all(np.isfinite(obs)):
         raise ValueError("observed summaries must be finite")
+    if noise_model not in ("auto", "homoscedastic", "heteroscedastic"):
+        raise ValueError(
+            f"surrogate: noise_model must be 'auto', 'homoscedastic' or 'heteroscedastic', got {noise_model!r}"
+        )
     obs_error = observation_covariance(observation_error, obs.shape)
     disc = resolve_discrepancy(discrepancy, obs.shape)
     box = parameter_box(prior, disc)
@@ -343,6 +351,7 @@ def make_settings(
         num_holdout=int(num_holdout),
         max_emulator_ratio=float(max_emulator_ratio),
         on_failure=on_failure,
+        noise_model=noise_model,
     )
 
 
@@ -367,6 +376,7 @@ def settings_record(settings: SurrogateSettings) -> dict:
         "observed_size": settings.num_summaries,
         "max_emulator_ratio": settings.max_emulator_ratio,
         "min_feasibility": settings.min_feasibility,
+        "noise_model": settings.noise_model,
     }
     record |= measured_data_settings(settings.observation_error, settings.discrepancy)
     if settings.discrepancy is not None:

@@ -83,6 +83,14 @@ class SurrogateState(NamedTuple):
     untested_share : array, shape ()
         Posterior weight, at the last validation, where the success classifier is below the
         design level (:func:`.design.design_level`): a band no design run enters (NaN before).
+    targeted_max_error, targeted_ok : array, shape ()
+        The largest standardised error of the targeted held-out runs at the last validation
+        and whether they passed (:func:`.diagnostics.local_check`; NaN / True before).
+    posterior_shift, log_sd_change : array, shape (d + G,)
+        How the posterior moved, in posterior sds and in log sd, when the last validation's
+        held-out runs joined the fit (:func:`._validation.posterior_shift`; NaN before).
+    stable : array of bool, shape ()
+        Whether that move stayed within its bounds (True before).
     """
 
     thetas: Any
@@ -112,6 +120,11 @@ class SurrogateState(NamedTuple):
     joint_ok: Any
     pending_group: Any
     untested_share: Any
+    targeted_max_error: Any
+    targeted_ok: Any
+    posterior_shift: Any
+    log_sd_change: Any
+    stable: Any
 
 
 #: Fields added after the first release: a checkpoint without them restores with their
@@ -125,6 +138,11 @@ LATER_FIELDS = (
     ".joint_ok",
     ".pending_group",
     ".untested_share",
+    ".targeted_max_error",
+    ".targeted_ok",
+    ".posterior_shift",
+    ".log_sd_change",
+    ".stable",
 )
 
 
@@ -160,6 +178,11 @@ def empty_state(settings: SurrogateSettings) -> SurrogateState:
         joint_ok=np.bool_(True),
         pending_group=np.full(b, -1, np.int32),
         untested_share=np.float64(np.nan),
+        targeted_max_error=np.float64(np.nan),
+        targeted_ok=np.bool_(True),
+        posterior_shift=np.full(settings.box.num_sampled, np.nan),
+        log_sd_change=np.full(settings.box.num_sampled, np.nan),
+        stable=np.bool_(True),
     )
 
 

@@ -44,6 +44,7 @@ from jaxabc.algorithms.base import make_jax_step
 from jaxabc.distances import get_distance
 from jaxabc.priors import Uniform
 from jaxabc.surrogate.emulator import Emulator, OutputTransform, predict
+from jaxabc.surrogate.emulator import noise_sd as emulator_noise_sd
 from jaxabc.surrogate.sampling import Feasibility, feasibility, log_feasibility, log_level, nearest_runs_cut
 
 #: Tags of the keys of the measurement and discrepancy errors, folded from a draw's key.
@@ -180,7 +181,7 @@ def emulated_summaries(model: EmulatedSimulator, key: jax.Array, theta: jax.Arra
     mean, var = predict(model.emulator, x[None, :])
     k_latent, k_noise, k_fail = jax.random.split(key, 3)
     q = mean.shape[1]
-    noise_sd = jnp.exp(model.emulator.log_noise)
+    noise_sd = emulator_noise_sd(model.emulator, x[None, :])[0]
     z = (
         mean[0]
         + jnp.sqrt(var[0]) * jax.random.normal(k_latent, (q,), mean.dtype)

@@ -100,6 +100,7 @@ def build(
     abc_max_generations: int = 60,
     observation_error: Any = None,
     discrepancy: Any = None,
+    noise_model: str = "auto",
 ) -> Any:
     """Build the surrogate (GP-emulator synthetic-likelihood) algorithm.
 
@@ -176,6 +177,12 @@ def build(
         ``augmented_prior`` is the matching :class:`jaxabc.Uniform` (names
         ``discrepancy.names``).  A :class:`jaxabc.noise.Discrepancy` is resolved against
         ``observed``.
+    noise_model : {"auto", "homoscedastic", "heteroscedastic"}
+        The simulator noise: the same for every theta, or a log variance quadratic in theta
+        fitted to the emulator's leave-one-out residuals (:func:`.emulator.fit_noise_profile`),
+        used by the emulator fit, the likelihood, validation and ABC mode.  ``"auto"`` takes the
+        profile of each output whose F-test rejects a constant variance (level 1e-3 over the
+        outputs) at each refit.
 
     Returns
     -------
@@ -293,7 +300,7 @@ def validate(settings: SurrogateSettings, key: jax.Array, state: SurrogateState)
     EmulatorFailure
         That last case, with ``on_failure="raise"``.
     """
-    state, passed = check_holdout(settings, state)
+    state, passed = check_holdout(settings, key, state)
     if passed:
         return state._replace(validated=np.bool_(True), phase=np.int64(PHASE_DONE), num_pending=np.int64(0))
     state = demote_holdout(state)

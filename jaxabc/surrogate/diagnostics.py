@@ -24,7 +24,7 @@ from typing import NamedTuple
 import numpy as np
 import scipy.stats
 
-__all__ = ["HoldoutCheck", "holdout_check", "lack_of_fit", "replicate_variance"]
+__all__ = ["HoldoutCheck", "LocalCheck", "holdout_check", "lack_of_fit", "local_check", "replicate_variance"]
 
 
 def replicate_variance(z: np.ndarray, group: np.ndarray, ok: np.ndarray) -> tuple[np.ndarray, int]:
@@ -114,7 +114,9 @@ def holdout_check(
     noise_corr: np.ndarray | None = None,
 ) -> HoldoutCheck:
     """Standardised errors of held-out runs ``z (h, q)`` against predictions ``mean, var (h, q)``,
-    noise variances ``noise_var (q,)`` and, optionally, the noise correlation ``(q, q)``."""
+    noise variances ``noise_var`` (``(q,)``, or ``(h, q)`` for noise that varies with theta) and,
+    optionally, the noise correlation ``(q, q)``."""
+    noise_var = np.broadcast_to(np.asarray(noise_var, np.float64), z.shape)
     e = (z - mean) / np.sqrt(var + noise_var)
     if e.size == 0:
         return HoldoutCheck(e, np.nan, np.nan, np.nan, np.nan, np.nan, False)
@@ -123,11 +125,40 @@ def holdout_check(
     msq = float(np.mean(e**2))
     joint = np.nan
     if noise_corr is not None:
-        sd = np.sqrt(noise_var)
-        noise_cov = sd[:, None] * noise_corr * sd[None, :]
         d = z - mean
         joint = float(
-            np.mean([r @ np.linalg.solve(noise_cov + np.diag(v), r) for r, v in zip(d, var, strict=True)]) / z.shape[1]
+            np.mean(
+                [
+                    r @ np.linalg.solve(np.sqrt(s)[:, None] * noise_corr * np.sqrt(s)[None, :] + np.diag(v), r)
+                    for r, v, s in zip(d, var, noise_var, strict=True)
+                ]
+            )
+            / z.shape[1]
         )
     passed = coverage >= cov_min and msq <= msq_max and not joint > msq_max
     return HoldoutCheck(e, coverage, msq, cov_min, msq_max, joint, bool(passed))
+
+
+class LocalCheck(NamedTuple):
+    """Outcome of :func:`local_check`: the largest ``|e|`` (NaN for no errors), its bound, and
+    whether the errors passed."""
+
+    max_abs: float
+    bound: float
+    passed: bool
+
+
+def local_check(errors: np.ndarray, level: float = 1e-3) -> LocalCheck:
+    """The standardised errors of the targeted held-out runs ``(t, q)`` on their own.
+
+    Each ``|e|`` must stay below the two-sided normal quantile at ``level`` Bonferroni-divided
+    over the ``n`` errors, and their mean square below the chi-square ``1 - level`` quantile per
+    degree of freedom.  Passes trivially with no errors (nothing could be targeted).
+    """
+    e = np.asarray(errors, np.float64).ravel()
+    if e.size == 0:
+        return LocalCheck(np.nan, np.nan, True)
+    bound = float(scipy.stats.norm.ppf(1.0 - level / (2.0 * e.size)))
+    max_abs = float(np.max(np.abs(e)))
+    mean_squared_ok = float(np.mean(e**2)) <= scipy.stats.chi2.ppf(1.0 - level, e.size) / e.size
+    return LocalCheck(max_abs, bound, bool(max_abs <= bound and mean_squared_ok))

@@ -21,7 +21,18 @@ import numpy as np
 import scipy.optimize
 import tinygp
 
-__all__ = ["Emulator", "OutputTransform", "fit", "fit_transform", "loo_residuals", "predict"]
+__all__ = [
+    "Emulator",
+    "OutputTransform",
+    "fit",
+    "fit_noise_profile",
+    "fit_transform",
+    "loo_residuals",
+    "noise_features",
+    "noise_profile",
+    "noise_sd",
+    "predict",
+]
 
 _PAD_VARIANCE = 1e8
 # Bounds of the log hyper-parameters (unit-box inputs, standardised outputs): length scales from
@@ -64,6 +75,10 @@ class Emulator(NamedTuple):
         ``K^-1 z`` per output.
     chol : array, shape (q, M, M)
         Cholesky factor of ``K + diag`` per output.
+    noise_coef : array, shape (q, 1 + 2 d), optional
+        Heteroscedastic noise: the log noise variance of output ``j`` at ``x`` is
+        ``2 log_noise_j + noise_features(x) @ noise_coef_j`` (:func:`noise_sd`); None (the
+        default) for noise that does not depend on ``x``.
     """
 
     x: jax.Array
@@ -73,6 +88,7 @@ class Emulator(NamedTuple):
     log_ls: jax.Array
     alpha: jax.Array
     chol: jax.Array
+    noise_coef: jax.Array | None = None
 
 
 def fit_transform(y: np.ndarray, max_outputs: int) -> OutputTransform:
@@ -98,44 +114,83 @@ def _kernel(log_amp: jax.Array, log_ls: jax.Array) -> tinygp.kernels.Kernel:
     return jnp.exp(2.0 * log_amp) * tinygp.transforms.Linear(jnp.exp(-log_ls), tinygp.kernels.ExpSquared())
 
 
-def _diag(log_noise: jax.Array, mask: jax.Array) -> jax.Array:
-    return jnp.where(mask, jnp.exp(2.0 * log_noise), _PAD_VARIANCE)
+def _diag(log_noise: jax.Array, mask: jax.Array, profile: jax.Array) -> jax.Array:
+    return jnp.where(mask, jnp.exp(2.0 * log_noise + profile), _PAD_VARIANCE)
 
 
-def _neg_log_posterior(params: jax.Array, x: jax.Array, z: jax.Array, mask: jax.Array) -> jax.Array:
-    """Sum over outputs of ``-log p(z | theta) - log prior(theta)``; ``params`` is (q, d + 2)."""
+def noise_features(x: jax.Array) -> jax.Array:
+    """Features ``(n, 1 + 2 d)`` of the log noise variance at unit-box points ``x (n, d)``:
+    1, then ``x - 1/2`` and ``(x - 1/2)^2`` per parameter (a quadratic without cross terms)."""
+    u = x - 0.5
+    return jnp.concatenate([jnp.ones((x.shape[0], 1), x.dtype), u, u * u], axis=1)
+
+
+def noise_profile(emulator: Emulator, x: jax.Array) -> jax.Array:
+    """The log noise variance at ``x (n, d)`` relative to ``2 log_noise``: ``(n, q)``, zero for
+    a homoscedastic emulator."""
+    if emulator.noise_coef is None:
+        return jnp.zeros((x.shape[0], emulator.log_noise.shape[0]), x.dtype)
+    return noise_features(x) @ emulator.noise_coef.T
+
+
+def noise_sd(emulator: Emulator, x: jax.Array) -> jax.Array:
+    """The simulator noise sd of every output at unit-box points ``x (n, d)``: ``(n, q)``."""
+    return jnp.exp(emulator.log_noise[None, :] + 0.5 * noise_profile(emulator, x))
+
+
+def _neg_log_posterior(params: jax.Array, x: jax.Array, z: jax.Array, mask: jax.Array, profile: jax.Array) -> jax.Array:
+    """Sum over outputs of ``-log p(z | theta) - log prior(theta)``; ``params`` is (q, d + 2),
+    ``profile (M, q)`` each row's log noise variance relative to ``2 log_noise``."""
     d = x.shape[1]
 
-    def one(p: jax.Array, zj: jax.Array) -> jax.Array:
+    def one(p: jax.Array, zj: jax.Array, prof: jax.Array) -> jax.Array:
         log_amp, log_ls, log_noise = p[0], p[1 : 1 + d], p[1 + d]
-        gp = tinygp.GaussianProcess(_kernel(log_amp, log_ls), x, diag=_diag(log_noise, mask))
+        gp = tinygp.GaussianProcess(_kernel(log_amp, log_ls), x, diag=_diag(log_noise, mask, prof))
         # Weak priors (log-normal): length scale around half the box, amplitude around the
         # standardised output's sd.  They only matter when the data cannot decide.
         log_prior = -0.5 * jnp.sum(((log_ls - jnp.log(0.5)) / 1.5) ** 2) - 0.5 * (log_amp / 1.5) ** 2
         return -gp.log_probability(jnp.where(mask, zj, 0.0)) - log_prior
 
-    return jnp.sum(jax.vmap(one)(params, z.T))
+    return jnp.sum(jax.vmap(one)(params, z.T, profile.T))
 
 
 _value_and_grad = jax.jit(jax.value_and_grad(_neg_log_posterior))
 
 
 @jax.jit
-def _condition(params: jax.Array, x: jax.Array, z: jax.Array, mask: jax.Array) -> Emulator:
+def _factor(
+    params: jax.Array, x: jax.Array, z: jax.Array, mask: jax.Array, profile: jax.Array
+) -> tuple[jax.Array, jax.Array]:
     d = x.shape[1]
 
-    def one(p: jax.Array, zj: jax.Array):
+    def one(p: jax.Array, zj: jax.Array, prof: jax.Array):
         kern = _kernel(p[0], p[1 : 1 + d])
-        cov = kern(x, x) + jnp.diag(_diag(p[1 + d], mask))
+        cov = kern(x, x) + jnp.diag(_diag(p[1 + d], mask, prof))
         chol = jnp.linalg.cholesky(cov)
         alpha = jax.scipy.linalg.cho_solve((chol, True), jnp.where(mask, zj, 0.0))
         return alpha, chol
 
-    alpha, chol = jax.vmap(one)(params, z.T)
-    return Emulator(x, mask, params[:, 0], params[:, 1 + d], params[:, 1 : 1 + d], alpha, chol)
+    return jax.vmap(one)(params, z.T, profile.T)
 
 
-def fit(x: np.ndarray, z: np.ndarray, mask: np.ndarray, starts: tuple[float, ...] = (0.3, 1.5)) -> Emulator:
+def _condition(
+    params: jax.Array, x: jax.Array, z: jax.Array, mask: jax.Array, noise_coef: jax.Array | None = None
+) -> Emulator:
+    """The emulator at hyper-parameters ``params (q, d + 2)`` (log amplitude, log length
+    scales, log noise) on inputs ``x (M, d)``, outputs ``z (M, q)``, rows ``mask (M,)``."""
+    d = x.shape[1]
+    profile = jnp.zeros((x.shape[0], z.shape[1]), x.dtype) if noise_coef is None else noise_features(x) @ noise_coef.T
+    alpha, chol = _factor(params, x, z, mask, profile)
+    return Emulator(x, mask, params[:, 0], params[:, 1 + d], params[:, 1 : 1 + d], alpha, chol, noise_coef)
+
+
+def fit(
+    x: np.ndarray,
+    z: np.ndarray,
+    mask: np.ndarray,
+    starts: tuple[float, ...] = (0.3, 1.5),
+    noise_coef: np.ndarray | None = None,
+) -> Emulator:
     """Fit one GP per output column of ``z`` by L-BFGS-B on the log hyper-parameters.
 
     Parameters
@@ -147,6 +202,9 @@ def fit(x: np.ndarray, z: np.ndarray, mask: np.ndarray, starts: tuple[float, ...
     mask : array of bool, shape (M,)
     starts : tuple of float
         Initial length scales (box widths) of the restarts; the best optimum is kept.
+    noise_coef : array, shape (q, 1 + 2 d), optional
+        A heteroscedastic noise profile (:func:`fit_noise_profile`), held fixed while the
+        noise level ``log_noise`` and the other hyper-parameters are fitted.
 
     Returns
     -------
@@ -159,10 +217,12 @@ def fit(x: np.ndarray, z: np.ndarray, mask: np.ndarray, starts: tuple[float, ...
     zj = jnp.asarray(np.where(mask[:, None], z, 0.0))
     m = jnp.asarray(mask)
     q, d = z.shape[1], xj.shape[1]
+    coef = None if noise_coef is None else jnp.asarray(np.asarray(noise_coef, np.float64).reshape(q, 1 + 2 * d))
+    profile = jnp.zeros((x.shape[0], q), xj.dtype) if coef is None else noise_features(xj) @ coef.T
     bounds = [_LOG_AMP_BOUNDS, *([_LOG_LS_BOUNDS] * d), _LOG_NOISE_BOUNDS] * q
 
     def objective(flat: np.ndarray) -> tuple[float, np.ndarray]:
-        v, g = _value_and_grad(jnp.asarray(flat.reshape(q, d + 2)), xj, zj, m)
+        v, g = _value_and_grad(jnp.asarray(flat.reshape(q, d + 2)), xj, zj, m, profile)
         v = float(v)
         g = np.asarray(g, np.float64).ravel()
         if not np.isfinite(v) or not np.all(np.isfinite(g)):
@@ -179,7 +239,58 @@ def fit(x: np.ndarray, z: np.ndarray, mask: np.ndarray, starts: tuple[float, ...
         if best is None or res.fun < best.fun:
             best = res
     assert best is not None, "fit needs at least one start"
-    return _condition(jnp.asarray(best.x.reshape(q, d + 2)), xj, zj, m)
+    return _condition(jnp.asarray(best.x.reshape(q, d + 2)), xj, zj, m, coef)
+
+
+#: Mean of ``log(chi2_1)``: the bias of a log squared standard normal residual.
+_LOG_CHI2_1_MEAN = -1.2703628454614782
+#: Its variance (pi^2 / 2).
+_LOG_CHI2_1_VAR = np.pi**2 / 2
+
+
+def fit_noise_profile(x: np.ndarray, residuals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """A log-variance profile of the simulator noise from residuals, and its significance.
+
+    Least squares of ``log r_ij^2 - E log chi2_1`` on :func:`noise_features` per output (a
+    log-linear variance model, as in Harvey 1976; the residuals are the homoscedastic fit's
+    leave-one-out residuals), centred so that the profile averages zero over the rows: the
+    fitted ``log_noise`` stays the typical noise level.
+
+    Parameters
+    ----------
+    x : array, shape (n, d)
+        Unit-box inputs of the residuals.
+    residuals : array, shape (n, q)
+
+    Returns
+    -------
+    coef : array, shape (q, 1 + 2 d)
+    p_values : array, shape (q,)
+        F-test of the profile against a constant log variance (small: the noise varies).
+        NaN where there are too few rows (``n <= 2 (1 + 2 d)``); ``coef`` is then zero.
+    """
+    x = np.asarray(x, np.float64)
+    r = np.asarray(residuals, np.float64)
+    n, q = r.shape
+    phi = np.asarray(noise_features(jnp.asarray(x)), np.float64)
+    k = phi.shape[1]
+    coef = np.zeros((q, k))
+    p_values = np.full(q, np.nan)
+    if n <= 2 * k:
+        return coef, p_values
+    import scipy.stats
+
+    y = np.log(r**2 + 1e-300) - _LOG_CHI2_1_MEAN
+    for j in range(q):
+        c, *_ = np.linalg.lstsq(phi, y[:, j], rcond=None)
+        fitted = phi @ c
+        ss1 = float(np.sum((y[:, j] - fitted) ** 2))
+        ss0 = float(np.sum((y[:, j] - y[:, j].mean()) ** 2))
+        f = ((ss0 - ss1) / (k - 1)) / max(ss1 / (n - k), 1e-300)
+        p_values[j] = float(scipy.stats.f.sf(f, k - 1, n - k))
+        c[0] -= fitted.mean()  # centred: the profile averages zero over the rows
+        coef[j] = c
+    return coef, p_values
 
 
 def predict(emulator: Emulator, x_new: jax.Array) -> tuple[jax.Array, jax.Array]:

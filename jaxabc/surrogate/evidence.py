@@ -98,6 +98,7 @@ def likelihood_from_state(
         drop,
         observation_error=observation_error,
         discrepancy=discrepancy,
+        noise_model=str(settings.get("noise_model", "homoscedastic")),
     )
     return transform, model
 
@@ -216,7 +217,14 @@ def observed_misfit(
         means.append(np.asarray(m, np.float64))
         variances.append(np.asarray(v, np.float64))
     mean, var = np.concatenate(means), np.concatenate(variances)
-    noise_sd = np.exp(np.asarray(model.emulator.log_noise, np.float64))
+    # The noise sd at each draw (constant unless heteroscedastic), and its posterior rms.
+    sd_draws = np.concatenate(
+        [
+            np.asarray(emulator.noise_sd(model.emulator, jnp.asarray(sampling.theta_columns(model, x[i : i + _CHUNK]))))
+            for i in range(0, len(x), _CHUNK)
+        ]
+    ).astype(np.float64)
+    noise_sd = np.sqrt(w @ sd_draws**2)
     z_obs = np.asarray(model.z_obs, np.float64)
     # Measurement error and the discrepancy's posterior mean covariance (emulated coordinates).
     extra = np.zeros((len(noise_sd), len(noise_sd)))
@@ -225,7 +233,7 @@ def observed_misfit(
     if model.discrepancy_basis is not None and model.discrepancy_max_sd is not None:
         delta2 = (x[:, len(x[0]) - len(model.discrepancy_max_sd) :] * np.asarray(model.discrepancy_max_sd)) ** 2
         extra += np.einsum("g,gij->ij", w @ delta2, np.asarray(model.discrepancy_basis, np.float64))
-    r = w @ ((z_obs - mean) / np.sqrt(noise_sd**2 + var + np.diag(extra)))
+    r = w @ ((z_obs - mean) / np.sqrt(sd_draws**2 + var + np.diag(extra)))
     centre = w @ mean
     chol = np.asarray(model.noise_chol, np.float64)
     cov = noise_sd[:, None] * (chol @ chol.T) * noise_sd[None, :] + np.diag(w @ var) + extra

@@ -40,7 +40,7 @@ import numpy as np
 import scipy.optimize
 import scipy.special
 
-from jaxabc.surrogate.emulator import Emulator, predict
+from jaxabc.surrogate.emulator import Emulator, noise_sd, predict
 
 __all__ = [
     "Feasibility",
@@ -397,20 +397,20 @@ def log_likelihood_terms(model: LikelihoodModel, x: jax.Array) -> tuple[jax.Arra
     The covariance is the simulator noise plus the emulator's variance, plus the measurement
     error (``model.observation_cov``) and the discrepancy at ``x``'s group sds when the model
     has them (``x`` then has ``d + G`` columns)."""
-    mean, var = predict(model.emulator, theta_columns(model, x))
-    noise_sd = jnp.exp(model.emulator.log_noise)
+    theta = theta_columns(model, x)
+    mean, var = predict(model.emulator, theta)
+    sd = noise_sd(model.emulator, theta)  # (n, q): constant rows unless heteroscedastic
     corr = model.noise_chol @ model.noise_chol.T
-    cov = noise_sd[:, None] * corr * noise_sd[None, :]
-    if model.observation_cov is not None:
-        cov = cov + model.observation_cov
-
     active = model.active
     # Inactive outputs drop out: unit variance, no correlation, zero residual.
     both = active[:, None] & active[None, :]
-    cov = jnp.where(both, cov, jnp.eye(cov.shape[0], dtype=cov.dtype))
+    eye = jnp.eye(corr.shape[0], dtype=corr.dtype)
 
-    def one(m, v, extra):
-        c = cov + jnp.diag(jnp.where(active, v, 0.0))
+    def one(m, v, s, extra):
+        c = s[:, None] * corr * s[None, :]
+        if model.observation_cov is not None:
+            c = c + model.observation_cov
+        c = jnp.where(both, c, eye) + jnp.diag(jnp.where(active, v, 0.0))
         if extra is not None:
             c = c + jnp.where(both, extra, 0.0)
         chol = jnp.linalg.cholesky(c)
@@ -419,10 +419,10 @@ def log_likelihood_terms(model: LikelihoodModel, x: jax.Array) -> tuple[jax.Arra
 
     disc = discrepancy_cov(model, x)
     if disc is None:
-        loglik = jax.vmap(lambda m, v: one(m, v, None))(mean, var)
+        loglik = jax.vmap(lambda m, v, s: one(m, v, s, None))(mean, var, sd)
     else:
-        loglik = jax.vmap(one)(mean, var, disc)
-    ratio = jnp.sum(jnp.where(active, var / noise_sd**2, 0.0), axis=1) / jnp.maximum(jnp.sum(active), 1)
+        loglik = jax.vmap(one)(mean, var, sd, disc)
+    ratio = jnp.sum(jnp.where(active, var / sd**2, 0.0), axis=1) / jnp.maximum(jnp.sum(active), 1)
     return loglik, ratio
 
 
