@@ -66,7 +66,7 @@ differ it is `changed`, and `python -m benchmarks.regenerate --budget 1h` reruns
 - [Helium Table 1](helium_table1.md) and [the choice of the CPU preset](helium_identifiability.md)
 - [Engine throughput](engine_throughput.md) and [agreement with LAMMPS](lammps_agreement.md)
 - [Coverage of credible regions](coverage.md) and [of the surrogate posterior](surrogate_coverage.md)
-- [Surrogate against APMCABC on helium](surrogate_helium.md) and [against BOLFI and pyABC](surrogate_peers.md)
+- [Surrogate against APMCABC on helium](surrogate_helium.md) and [against sbi, BOLFI and pyABC](surrogate_peers.md)
 - [The surrogate's success classifier on the water runs](surrogate_classifier.md)
 - [Speedup and scheduling](speedup.md)
 - [Cost of an ABC step](abc_overhead.md)

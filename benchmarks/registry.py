@@ -225,8 +225,8 @@ REGISTRY: tuple[Entry, ...] = (
         "python -m benchmarks.surrogate_peers",
         quick="python -m benchmarks.surrogate_peers --quick",
         quick_output=f"{Q}/surrogate_peers.json",
-        estimated_cost_s=1200.0,
-        note="GP surrogate against ELFI's BOLFI and pyABC at equal simulation budgets on an exact problem",
+        estimated_cost_s=43000.0,
+        note="GP surrogate against sbi (NPE, NLE, sequential), BOLFI and pyABC at equal budgets, five exact problems",
     ),
     Entry(
         "water_misfit",

@@ -1,241 +1,1154 @@
-"""The GP surrogate against the peers a user would pick instead: ELFI's BOLFI and pyABC's ABC-SMC.
+"""The GP surrogate against the peers a user would pick instead: sbi, ELFI's BOLFI and pyABC.
 
-One problem with an exact posterior, the same simulation budgets for every method, in one run:
-``x = theta + L z`` with ``Cov(L z) = [[1, 0.8], [0.8, 1]]``, a flat prior U[-10, 10]^2 and one
-observed ``x`` (``--observed``), so the posterior is ``N(x, Sigma)`` (the prior's truncation is
-negligible).  Each method gets at most ``B`` simulations for each budget in ``--budgets`` and
-each seed in ``--seeds``:
+Five problems with exact posteriors, the same simulation budgets for every method, one run.  For
+each problem and seed ``s`` a truth ``theta*`` is drawn uniformly from a fixed inner region of the
+prior box (generator seeded by ``s`` and the problem's name), ``x_obs`` is simulated from the
+problem's own noise, and the exact posterior for ``x_obs`` (flat prior on the box) is drawn:
 
-- ``jaxabc.run("surrogate", ...)``, synthetic-likelihood mode, 1000 posterior draws;
-- ELFI 0.8 ``BOLFI`` on the log Euclidean discrepancy (as in ELFI's tutorial: 20 initial
-  points, GP updated every 10, ``acq_noise_var`` 0.1), 1000 NUTS draws over the fitted GP
-  (4 chains); BOLFI's posterior is its own approximation at the minimum of the GP mean;
-- pyABC 0.13 ``ABCSMC`` (Euclidean distance, adaptive median epsilon, population ``B / 4``)
-  stopped by ``max_total_nr_simulations = B``.
+- ``linear`` (d = 2): ``x = theta + L z``, ``Cov(L z) = [[1, 0.8], [0.8, 1]]``, prior U[-10, 10]^2;
+  exact ``N(x_obs, Cov)`` truncated to the box (rejection).
+- ``banana`` (d = 2): ``x = (theta_1 + z_1, theta_2 + 0.5 (theta_1^2 - 1) + 0.5 z_2)``, prior
+  U[-6, 6] x U[-12, 6]; exact by direct sampling, ``theta_1 ~ N(x_1, 1)``, then
+  ``theta_2 ~ N(x_2 - 0.5 (theta_1^2 - 1), 0.5^2)``, truncated to the box (rejection).
+- ``heteroscedastic`` (d = 2): ``x = theta + sd(theta) * (L z)`` with ``sd_j = 0.5 exp(0.25 theta_j)``
+  and ``Corr(L z) = 0.5``, prior U[-6, 6]^2; exact by a two-stage grid (a 300^2 grid over the box
+  finds the posterior's support, a 1000^2 grid over that region is sampled, jittered uniformly
+  inside its cells).
+- ``correlated5`` (d = 5): ``x = A theta + z``, ``A^T A`` the inverse of a covariance with sds
+  (1, 0.5, 1.5, 0.8, 1.2) and AR(1) correlations 0.8 with alternating signs (|rho| 0.8 between
+  neighbours), prior U[-10, 10]^5; exact ``N(A^-1 x_obs, (A^T A)^-1)`` truncated (rejection).
+- ``student`` (d = 2): ``x = theta + 0.7 L t``, ``t`` two independent Student-t with 3 degrees of
+  freedom, ``Corr`` 0.5 in ``L``, prior U[-10, 10]^2; heavy-tailed, not elliptical; exact
+  ``theta = x_obs - 0.7 L t`` (a location family under a flat prior), truncated (rejection).
 
-The peers run in their own virtual environments made by ``benchmarks/abc_overhead.py``'s
-``make_venv`` under ``--cache-dir``.  Accuracy against the exact posterior: the error of the
-posterior mean in exact-posterior sd (Mahalanobis), each parameter's sd over the exact one, the
-correlation (exact 0.8), and the energy distance to 2000 exact draws (0 for equal laws).  Wall
-time is each method's run in its own process, imports excluded.
+The likelihoods, the NumPy simulators (run by the peers, and by this script for ``x_obs``) and
+the direct exact samplers are written once, in the block between the ``problems: begin`` and
+``problems: end`` markers below, which is shipped verbatim to the peers' child processes; the
+JAX simulators that ``jaxabc.run`` calls mirror them (``tests/test_surrogate_peers.py`` checks
+both against the likelihoods).  The exact posterior's mean and covariance come from 200 000
+exact draws (the grid's weights for the grid problem); the metrics use 2000 further draws.
+
+Methods, each with at most ``B`` simulations (``--budgets``), 1000 posterior draws, seed ``s``,
+in its own process with one thread (``OMP/MKL/OPENBLAS_NUM_THREADS=1``, XLA's single-thread
+flags, ``torch.set_num_threads(1)``); the peers in their own virtual environments, made by this
+script with ``benchmarks/abc_overhead.py``'s ``make_venv`` under ``--venv-dir`` (``venv-<peer>-<version>``;
+sbi's installs ``torch==2.13.0`` first, so that pip takes the CPU wheel, then ``sbi==0.27.0``):
+
+- ``jaxabc_surrogate``: ``jaxabc.run("surrogate", ...)`` (synthetic-likelihood mode, NUTS);
+- ``jaxabc_surrogate_abc``: the same with ``mode="abc"`` (ABC on emulated summaries);
+- ``sbi_npe`` / ``sbi_nle``: sbi 0.27.0 on torch 2.13.0 (CPU wheel), ``NPE`` (NPE-C, MAF) and
+  ``NLE`` (NLE-A, MAF) trained once on ``B`` prior simulations with sbi's defaults except the
+  training batch, ``min(50, max(10, B / 10))`` (sbi's 200 is one optimiser step per epoch at these
+  budgets: on linear and banana, seeds 0-2, it left NPE's energy distance at B = 200 up to ten times
+  larger); NLE's posterior drawn by sbi's ``slice_np_vectorized`` MCMC (20 chains, 200 warm-up
+  steps, no thinning, ``resample`` init);
+- ``sbi_snpe`` / ``sbi_snle``: the same in two rounds of ``B / 2`` (the second drawn from the
+  first round's posterior; NPE-C's atomic loss corrects for the proposal); only for ``B >= 200``,
+  recorded as skipped below;
+- ``bolfi``: ELFI 0.8.8 ``BOLFI`` on the log Euclidean discrepancy (``min(10 d, B / 2)`` initial
+  points, GP updated every 10, ``acq_noise_var`` 0.1), 4 NUTS chains of 1000 over the fitted GP
+  (half warm-up); its posterior is its own ABC approximation at the GP's minimum discrepancy;
+- ``pyabc_abcsmc``: pyABC 0.13.0 ``ABCSMC`` (Euclidean distance, adaptive median epsilon,
+  population ``max(10, B / 4)``, single-core sampler), stopped by ``max_total_nr_simulations = B``
+  (checked at generation ends, so it can overshoot: the simulations used are recorded).
+
+Metrics, per (problem, budget, seed, method), in the exact posterior's standardised coordinates
+(whitened with the exact mean and covariance, so numbers compare across problems): the energy
+distance (U-statistic; 0 for equal laws) between the method's draws (at most 1000, resampled by
+weight) and 2000 exact draws; the Mahalanobis error of the posterior mean in exact sd; each
+parameter's sd over the exact sd; whether the truth lies in the method's central 90 % marginal
+interval (per parameter and all at once), summarised over seeds as coverage; the simulations used;
+the wall time of the run (imports excluded) and of its process.  An ``exact`` row (1000
+independent exact draws) gives the energy distance's floor and the exact posterior's coverage.
+
+Every finished cell (the method's draws and what it reported, or its error) is appended to
+``--cache-dir/cells.jsonl``, keyed by (problem, method, budget, seed, a hash of the problem block
+and JAX simulators, a hash of the method's code: the peer's child script and settings or, for
+jaxabc, every module under ``jaxabc/``); a rerun skips finished cells, so a long run can be done in
+several sittings, and scores every cell again from its stored draws (a change of the metrics
+needs no rerun).  The result is assembled from the cached cells of the
+requested grid, with a summary per (problem, budget, method) and, for budgets up to 200, which
+method is closest and whether the surrogate is.
 
 Usage::
 
-    python -m benchmarks.surrogate_peers                  # budgets 50 100 200, seed 0
-    python -m benchmarks.surrogate_peers --quick          # budget 60, seed 0: results/quick/
+    python -m benchmarks.surrogate_peers                  # all: 5 problems, B 50 100 200 500, seeds 0-4
+    python -m benchmarks.surrogate_peers --quick          # linear + banana, B 60, seed 0: results/quick/
+    # a subset, written elsewhere than benchmarks/results/:
+    python -m benchmarks.surrogate_peers --problems banana --budgets 50 --seeds 0 --methods bolfi --output /tmp/p.json
 """
 
 from __future__ import annotations
 
 import argparse
+import ast
+import hashlib
+import inspect
 import json
+import math
+import os
+import subprocess
+import sys
+import textwrap
 import time
+import zlib
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
-import jax
 import numpy as np
-
-import jaxabc
-from benchmarks._common import command_line, write_result
-from benchmarks.abc_overhead import PEERS, make_venv, run_process
-from jaxabc.examples import correlated_simulate
 
 ROOT = Path(__file__).resolve().parents[1]
 
-COV = np.array([[1.0, 0.8], [0.8, 1.0]])
-PROBLEM = "x = theta + L z, Cov(L z) = [[1, 0.8], [0.8, 1]], prior U[-10, 10]^2, posterior N(x_obs, Cov)"
+# ---- problems: begin (NumPy only: shipped verbatim to the peers' child processes)
+
+_LINEAR_COV = np.array([[1.0, 0.8], [0.8, 1.0]])
+_LINEAR_CHOL = np.linalg.cholesky(_LINEAR_COV)
+_BANANA = {"b": 0.5, "s1": 1.0, "s2": 0.5}
+_HETERO = {"s0": 0.5, "c": 0.25}
+_HETERO_CORR = np.array([[1.0, 0.5], [0.5, 1.0]])
+_HETERO_CHOL = np.linalg.cholesky(_HETERO_CORR)
+_STUDENT = {"df": 3.0, "scale": 0.7}
+_STUDENT_CHOL = np.linalg.cholesky(np.array([[1.0, 0.5], [0.5, 1.0]]))
+_C5_SD = np.array([1.0, 0.5, 1.5, 0.8, 1.2])
+_C5_SIGN = np.array([1.0, -1.0, 1.0, 1.0, -1.0])
+_C5_CORR = (0.8 ** np.abs(np.subtract.outer(np.arange(5), np.arange(5)))) * np.outer(_C5_SIGN, _C5_SIGN)
+_C5_COV = _C5_CORR * np.outer(_C5_SD, _C5_SD)  # the exact posterior covariance (before truncation)
+_C5_A = np.linalg.cholesky(np.linalg.inv(_C5_COV)).T  # x = A theta + z, so that A^T A = _C5_COV^-1
+_C5_A_INV = np.linalg.inv(_C5_A)
+
+PROBLEMS = {
+    "linear": {
+        "d": 2,
+        "low": [-10.0, -10.0],
+        "high": [10.0, 10.0],
+        "truth_low": [-5.0, -5.0],
+        "truth_high": [5.0, 5.0],
+        "exact": "direct",
+        "description": "x = theta + L z, Cov(L z) = [[1, 0.8], [0.8, 1]]; prior U[-10, 10]^2; "
+        "exact N(x_obs, Cov) truncated to the box",
+    },
+    "banana": {
+        "d": 2,
+        "low": [-6.0, -12.0],
+        "high": [6.0, 6.0],
+        "truth_low": [-2.0, -2.0],
+        "truth_high": [2.0, 2.0],
+        "exact": "direct",
+        "description": "x = (theta_1 + z_1, theta_2 + 0.5 (theta_1^2 - 1) + 0.5 z_2); prior U[-6, 6] x U[-12, 6]; "
+        "exact theta_1 ~ N(x_1, 1), theta_2 | theta_1 ~ N(x_2 - 0.5 (theta_1^2 - 1), 0.25), truncated",
+    },
+    "heteroscedastic": {
+        "d": 2,
+        "low": [-6.0, -6.0],
+        "high": [6.0, 6.0],
+        "truth_low": [-4.0, -4.0],
+        "truth_high": [4.0, 4.0],
+        "exact": "grid",
+        "description": "x = theta + sd(theta) L z, sd_j = 0.5 exp(0.25 theta_j), Corr(L z) = 0.5; "
+        "prior U[-6, 6]^2; exact by a 1000^2 grid over the posterior's support",
+    },
+    "correlated5": {
+        "d": 5,
+        "low": [-10.0] * 5,
+        "high": [10.0] * 5,
+        "truth_low": [-4.0] * 5,
+        "truth_high": [4.0] * 5,
+        "exact": "direct",
+        "description": "x = A theta + z (5 summaries), posterior sds (1, 0.5, 1.5, 0.8, 1.2), AR(1) correlations "
+        "0.8^|i-j| with alternating signs; prior U[-10, 10]^5; exact N(A^-1 x_obs, (A^T A)^-1) truncated",
+    },
+    "student": {
+        "d": 2,
+        "low": [-10.0, -10.0],
+        "high": [10.0, 10.0],
+        "truth_low": [-5.0, -5.0],
+        "truth_high": [5.0, 5.0],
+        "exact": "direct",
+        "description": "x = theta + 0.7 L t, t_j independent Student-t (3 dof), Corr 0.5 in L; prior U[-10, 10]^2; "
+        "exact theta = x_obs - 0.7 L t truncated to the box (heavy tails)",
+    },
+}
+
+
+def simulate_np(name: str, theta: np.ndarray, rng) -> np.ndarray:
+    """Summaries ``(n, k)`` for parameters ``theta (n, d)``; ``rng`` a NumPy Generator or RandomState."""
+    theta = np.atleast_2d(np.asarray(theta, float))
+    n = len(theta)
+    if name == "linear":
+        return theta + rng.standard_normal((n, 2)) @ _LINEAR_CHOL.T
+    if name == "banana":
+        z = rng.standard_normal((n, 2))
+        x1 = theta[:, 0] + _BANANA["s1"] * z[:, 0]
+        x2 = theta[:, 1] + _BANANA["b"] * (theta[:, 0] ** 2 - 1.0) + _BANANA["s2"] * z[:, 1]
+        return np.column_stack([x1, x2])
+    if name == "heteroscedastic":
+        sd = _HETERO["s0"] * np.exp(_HETERO["c"] * theta)
+        return theta + sd * (rng.standard_normal((n, 2)) @ _HETERO_CHOL.T)
+    if name == "correlated5":
+        return theta @ _C5_A.T + rng.standard_normal((n, 5))
+    if name == "student":
+        return theta + _STUDENT["scale"] * (rng.standard_t(_STUDENT["df"], (n, 2)) @ _STUDENT_CHOL.T)
+    raise KeyError(name)
+
+
+def _log_normal(u: np.ndarray, chol: np.ndarray) -> np.ndarray:
+    """log N(u; 0, chol chol^T) for rows of ``u``."""
+    w = np.linalg.solve(chol, u.T).T
+    return -0.5 * np.sum(w**2, axis=1) - np.log(np.diag(chol)).sum() - 0.5 * u.shape[1] * np.log(2 * np.pi)
+
+
+def log_likelihood(name: str, theta: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """Exact ``log p(x | theta)`` for rows of ``theta (n, d)`` and ``x (k,)`` or ``(n, k)``: the density
+    of :func:`simulate_np`'s summaries."""
+    theta, x = np.atleast_2d(np.asarray(theta, float)), np.asarray(x, float)
+    if name == "linear":
+        return _log_normal(x - theta, _LINEAR_CHOL)
+    if name == "banana":
+        mean2 = theta[:, 1] + _BANANA["b"] * (theta[:, 0] ** 2 - 1.0)
+        r1, r2 = (x[..., 0] - theta[:, 0]) / _BANANA["s1"], (x[..., 1] - mean2) / _BANANA["s2"]
+        return -0.5 * (r1**2 + r2**2) - np.log(_BANANA["s1"] * _BANANA["s2"]) - np.log(2 * np.pi)
+    if name == "heteroscedastic":
+        sd = _HETERO["s0"] * np.exp(_HETERO["c"] * theta)
+        return _log_normal((x - theta) / sd, _HETERO_CHOL) - np.log(sd).sum(axis=1)
+    if name == "correlated5":
+        return _log_normal(x - theta @ _C5_A.T, np.eye(5))
+    if name == "student":
+        nu, s = _STUDENT["df"], _STUDENT["scale"]
+        t = np.linalg.solve(_STUDENT_CHOL, ((x - theta) / s).T).T
+        const = math.lgamma((nu + 1) / 2) - math.lgamma(nu / 2) - 0.5 * math.log(nu * math.pi)
+        log_t = const - (nu + 1) / 2 * np.log1p(t**2 / nu)
+        return log_t.sum(axis=1) - np.log(np.diag(_STUDENT_CHOL)).sum() - 2 * np.log(s)
+    raise KeyError(name)
+
+
+def exact_direct(name: str, x: np.ndarray, n: int, rng) -> np.ndarray:
+    """``n`` draws of the posterior under a flat prior on R^d (untruncated), for ``exact == "direct"``."""
+    x = np.asarray(x, float)
+    if name == "linear":
+        return x - rng.standard_normal((n, 2)) @ _LINEAR_CHOL.T
+    if name == "banana":
+        t1 = x[0] - _BANANA["s1"] * rng.standard_normal(n)
+        t2 = x[1] - _BANANA["b"] * (t1**2 - 1.0) - _BANANA["s2"] * rng.standard_normal(n)
+        return np.column_stack([t1, t2])
+    if name == "correlated5":
+        return (x - rng.standard_normal((n, 5))) @ _C5_A_INV.T
+    if name == "student":
+        return x - _STUDENT["scale"] * (rng.standard_t(_STUDENT["df"], (n, 2)) @ _STUDENT_CHOL.T)
+    raise KeyError(f"{name} has no direct exact sampler")
+
+
+# ---- problems: end
+
+PROBLEM_NAMES = tuple(PROBLEMS)
+METHODS = (
+    "jaxabc_surrogate",
+    "jaxabc_surrogate_abc",
+    "sbi_npe",
+    "sbi_nle",
+    "sbi_snpe",
+    "sbi_snle",
+    "bolfi",
+    "pyabc_abcsmc",
+)
+SURROGATE = "jaxabc_surrogate"
+JAXABC_METHODS = ("jaxabc_surrogate", "jaxabc_surrogate_abc")
+SEQUENTIAL_MIN_BUDGET = 200
+GOAL_MAX_BUDGET = 200
+GOAL = (
+    "the surrogate (default mode) closest to exact (lowest mean energy distance) at every budget up to "
+    f"{GOAL_MAX_BUDGET} on at least four of the five problems"
+)
+SINGLE_THREAD = {
+    "OMP_NUM_THREADS": "1",
+    "MKL_NUM_THREADS": "1",
+    "OPENBLAS_NUM_THREADS": "1",
+    "NUMEXPR_NUM_THREADS": "1",
+    "XLA_FLAGS": "--xla_cpu_multi_thread_eigen=false intra_op_parallelism_threads=1",
+}
+SBI_INSTALL = [["torch==2.13.0"], ["sbi==0.27.0", "torch==2.13.0"]]
+NLE_MCMC = {"num_chains": 20, "warmup_steps": 200, "thin": 1, "init_strategy": "resample"}
+
+
+def problem_source() -> str:
+    """The text of the problems block of this file (shipped to the peers' child processes)."""
+    text = Path(__file__).read_text()
+    begin = text.index("# ---- problems: begin")
+    end = text.index("# ---- problems: end")
+    return text[text.index("\n", begin) + 1 : end]
+
+
+# ----------------------------------------------------------------------------- JAX simulators
+
+
+def _jax_simulators() -> dict[str, Callable]:
+    """``simulate(key, theta) -> summaries`` for ``jaxabc.run``: the block's models in JAX."""
+    import jax
+    import jax.numpy as jnp
+
+    def linear(key: jax.Array, theta: jax.Array) -> jax.Array:
+        return theta + jnp.asarray(_LINEAR_CHOL, theta.dtype) @ jax.random.normal(key, (2,), theta.dtype)
+
+    def banana(key: jax.Array, theta: jax.Array) -> jax.Array:
+        z = jax.random.normal(key, (2,), theta.dtype)
+        x2 = theta[1] + _BANANA["b"] * (theta[0] ** 2 - 1.0) + _BANANA["s2"] * z[1]
+        return jnp.stack([theta[0] + _BANANA["s1"] * z[0], x2])
+
+    def heteroscedastic(key: jax.Array, theta: jax.Array) -> jax.Array:
+        sd = _HETERO["s0"] * jnp.exp(_HETERO["c"] * theta)
+        return theta + sd * (jnp.asarray(_HETERO_CHOL, theta.dtype) @ jax.random.normal(key, (2,), theta.dtype))
+
+    def correlated5(key: jax.Array, theta: jax.Array) -> jax.Array:
+        return jnp.asarray(_C5_A, theta.dtype) @ theta + jax.random.normal(key, (5,), theta.dtype)
+
+    def student(key: jax.Array, theta: jax.Array) -> jax.Array:
+        t = jax.random.t(key, _STUDENT["df"], (2,), theta.dtype)
+        return theta + _STUDENT["scale"] * (jnp.asarray(_STUDENT_CHOL, theta.dtype) @ t)
+
+    return {
+        "linear": linear,
+        "banana": banana,
+        "heteroscedastic": heteroscedastic,
+        "correlated5": correlated5,
+        "student": student,
+    }
+
+
+def _hash(*texts: str) -> str:
+    return hashlib.sha256("\n\x00".join(texts).encode()).hexdigest()[:16]
+
+
+def _ast_text(source: str) -> str:
+    return ast.dump(ast.parse(textwrap.dedent(source)))
+
+
+def problem_hash() -> str:
+    """Hash of what defines the problems: the block and the JAX simulators (their ASTs: comments and
+    layout do not count)."""
+    return _hash(_ast_text(problem_source()), _ast_text(inspect.getsource(_jax_simulators)))
+
+
+# ----------------------------------------------------------------------------- exact posteriors
+
+
+def grid_posterior(
+    name: str, x: np.ndarray, coarse: int = 300, fine: int = 1000, cutoff: float = 30.0
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Posterior on a grid for a 2-D problem: cell centres ``(m, 2)``, probabilities, cell widths.
+
+    A ``coarse``^2 grid over the prior box finds the cells within ``cutoff`` log units of the
+    largest; a ``fine``^2 grid over their bounding box (one coarse cell wider each side, clipped
+    to the prior) carries the posterior, evaluated at the cell centres.
+    """
+    p = PROBLEMS[name]
+    low, high = np.asarray(p["low"], float), np.asarray(p["high"], float)
+
+    def centres(lo: np.ndarray, hi: np.ndarray, m: int) -> tuple[np.ndarray, np.ndarray]:
+        h = (hi - lo) / m
+        a = lo[0] + h[0] * (np.arange(m) + 0.5)
+        b = lo[1] + h[1] * (np.arange(m) + 0.5)
+        aa, bb = np.meshgrid(a, b, indexing="ij")
+        return np.column_stack([aa.ravel(), bb.ravel()]), h
+
+    c, h = centres(low, high, coarse)
+    logp = log_likelihood(name, c, x)
+    keep = c[logp > logp.max() - cutoff]
+    lo = np.maximum(keep.min(axis=0) - 1.5 * h, low)
+    hi = np.minimum(keep.max(axis=0) + 1.5 * h, high)
+    c, h = centres(lo, hi, fine)
+    logp = log_likelihood(name, c, x)
+    prob = np.exp(logp - logp.max())
+    return c, prob / prob.sum(), h
+
+
+def grid_sample(grid: tuple[np.ndarray, np.ndarray, np.ndarray], n: int, rng: np.random.Generator) -> np.ndarray:
+    """``n`` draws of a grid posterior: a cell by its probability, then uniform inside it."""
+    c, prob, h = grid
+    idx = rng.choice(len(c), size=n, p=prob)
+    return c[idx] + (rng.random((n, c.shape[1])) - 0.5) * h
+
+
+def grid_moments(grid: tuple[np.ndarray, np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """Mean and covariance of the piecewise-constant grid density."""
+    c, prob, h = grid
+    mean = prob @ c
+    cov = (c - mean).T @ ((c - mean) * prob[:, None]) + np.diag(h**2 / 12)
+    return mean, cov
+
+
+def exact_sample(name: str, x: np.ndarray, n: int, rng: np.random.Generator) -> np.ndarray:
+    """``n`` exact posterior draws under the prior box (direct sampling and rejection, or the grid)."""
+    p = PROBLEMS[name]
+    if p["exact"] == "grid":
+        return grid_sample(grid_posterior(name, x), n, rng)
+    low, high = np.asarray(p["low"]), np.asarray(p["high"])
+    out, have = [], 0
+    while have < n:
+        draws = exact_direct(name, x, max(2 * (n - have), 1000), rng)
+        draws = draws[np.all((draws >= low) & (draws <= high), axis=1)]
+        out.append(draws)
+        have += len(draws)
+    return np.concatenate(out)[:n]
+
+
+@dataclass
+class Instance:
+    """One seed's data set of a problem: truth, observation, exact posterior."""
+
+    problem: str
+    seed: int
+    truth: np.ndarray
+    observed: np.ndarray
+    exact_mean: np.ndarray
+    exact_cov: np.ndarray
+    exact_draws: np.ndarray  # for the energy distance
+    reference_draws: np.ndarray  # independent: the "exact" row (energy distance floor)
+
+
+def instance(name: str, seed: int, exact_draws: int = 2000, moment_draws: int = 200_000) -> Instance:
+    """Truth uniform in the problem's inner region, ``x_obs`` from the model, exact posterior."""
+    p = PROBLEMS[name]
+    tag = zlib.crc32(name.encode())
+    rng = np.random.default_rng([seed, tag])
+    truth = rng.uniform(p["truth_low"], p["truth_high"])
+    observed = simulate_np(name, truth[None], rng)[0]
+    rng_exact = np.random.default_rng([seed, tag, 1])
+    if p["exact"] == "grid":
+        grid = grid_posterior(name, observed)
+        mean, cov = grid_moments(grid)
+        draws = grid_sample(grid, exact_draws + 1000, rng_exact)
+    else:
+        big = exact_sample(name, observed, moment_draws, rng_exact)
+        mean, cov = big.mean(axis=0), np.cov(big, rowvar=False)
+        draws = exact_sample(name, observed, exact_draws + 1000, rng_exact)
+    return Instance(name, seed, truth, observed, mean, cov, draws[:exact_draws], draws[exact_draws:])
+
+
+# ----------------------------------------------------------------------------- metrics
+
+
+def _mean_pairwise(a: np.ndarray, wa: np.ndarray, b: np.ndarray | None = None, wb: np.ndarray | None = None) -> float:
+    """Weighted mean Euclidean distance between rows of ``a`` and ``b``; without ``b``, within ``a``
+    excluding the pairs of a point with itself (U-statistic)."""
+    other = a if b is None else b
+    sq = np.sum(a**2, 1)[:, None] + np.sum(other**2, 1)[None, :] - 2 * a @ other.T
+    dist = np.sqrt(np.maximum(sq, 0.0))
+    if b is None:
+        np.fill_diagonal(dist, 0.0)
+        return float(wa @ dist @ wa / (1.0 - wa @ wa))
+    return float(wa @ dist @ wb)
+
+
+def energy_distance(x: np.ndarray, wx: np.ndarray, y: np.ndarray) -> float:
+    """Energy distance between weighted draws ``x`` and equal-weight draws ``y`` (unbiased within-sample
+    terms: about 0, possibly slightly negative, for draws of the same law)."""
+    wx = np.asarray(wx, float) / np.sum(wx)
+    wy = np.full(len(y), 1.0 / len(y))
+    return 2 * _mean_pairwise(x, wx, y, wy) - _mean_pairwise(x, wx) - _mean_pairwise(y, wy)
+
+
+def weighted_quantiles(x: np.ndarray, w: np.ndarray, q: Sequence[float]) -> np.ndarray:
+    """Quantiles ``q`` of 1-D weighted draws (midpoint interpolation of the weighted CDF)."""
+    order = np.argsort(x)
+    xs, ws = x[order], w[order] / w.sum()
+    cdf = np.cumsum(ws) - 0.5 * ws
+    return np.interp(q, cdf, xs)
+
+
+def thin_draws(x: np.ndarray, w: np.ndarray, max_draws: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """At most ``max_draws`` draws: a subsample when weights are equal, else systematic resampling."""
+    if len(x) <= max_draws:
+        return x, w
+    rng = np.random.default_rng(seed)
+    if np.allclose(w, w[0]):
+        return x[rng.choice(len(x), max_draws, replace=False)], np.full(max_draws, 1.0 / max_draws)
+    cdf = np.cumsum(w / w.sum())
+    idx = np.searchsorted(cdf, (rng.random() + np.arange(max_draws)) / max_draws)
+    return x[np.minimum(idx, len(x) - 1)], np.full(max_draws, 1.0 / max_draws)
+
+
+def accuracy(particles: Any, weights: Any, inst: Instance, max_draws: int = 1000, seed: int = 0) -> dict[str, Any]:
+    """A method's posterior against the exact one, in exact-standardised coordinates."""
+    x = np.asarray(particles, float).reshape(len(particles), -1)
+    w = np.asarray(weights, float)
+    if not np.all(np.isfinite(x)) or not np.all(np.isfinite(w)) or w.sum() <= 0:
+        raise ValueError("non-finite particles or weights")
+    w = w / w.sum()
+    mean = w @ x
+    cov = np.atleast_2d(np.cov(x, aweights=w, rowvar=False)) if len(x) > 1 else np.zeros((x.shape[1],) * 2)
+    chol = np.linalg.cholesky(inst.exact_cov)
+    diff = np.linalg.solve(chol, mean - inst.exact_mean)
+    sd, sd_exact = np.sqrt(np.diag(cov)), np.sqrt(np.diag(inst.exact_cov))
+    bounds = np.array([weighted_quantiles(x[:, j], w, [0.05, 0.95]) for j in range(x.shape[1])])
+    covered = (bounds[:, 0] <= inst.truth) & (inst.truth <= bounds[:, 1])
+    below = np.array([w[x[:, j] <= inst.truth[j]].sum() for j in range(x.shape[1])])
+    xt, wt = thin_draws(x, w, max_draws, seed)
+
+    def whiten(a: np.ndarray) -> np.ndarray:
+        return np.linalg.solve(chol, (a - inst.exact_mean).T).T
+
+    return {
+        "energy_distance": energy_distance(whiten(xt), wt, whiten(inst.exact_draws)),
+        "mean_error_in_sd": float(np.sqrt(diff @ diff)),
+        "sd_ratio": (sd / sd_exact).tolist(),
+        "covered_90": covered.tolist(),
+        "truth_cdf": below.tolist(),  # the method's posterior CDF at the truth, per parameter
+        "mean": mean.tolist(),
+        "sd": sd.tolist(),
+        "ess": float(1.0 / np.sum(w**2)),
+        "num_draws": len(x),
+    }
+
+
+# ----------------------------------------------------------------------------- methods
+
+PEER_PRELUDE = r"""
+import json, math, sys, time
+import numpy as np
+"""
+
+PEER_REQUEST = r"""
+req = json.loads(sys.argv[1])
+NAME, SEED, BUDGET, DRAWS = req["problem"], int(req["seed"]), int(req["budget"]), int(req["draws"])
+LOW, HIGH = np.asarray(PROBLEMS[NAME]["low"], float), np.asarray(PROBLEMS[NAME]["high"], float)
+D = len(LOW)
+OBS = np.asarray(req["observed"], float)
+"""
 
 BOLFI_SCRIPT = r"""
-import json, sys, time, logging
-import numpy as np
+import logging
 import elfi
 logging.getLogger("elfi").setLevel(logging.WARNING)
-budget, seed, obs, draws = int(sys.argv[1]), int(sys.argv[2]), json.loads(sys.argv[3]), int(sys.argv[4])
-L = np.linalg.cholesky(np.array([[1.0, 0.8], [0.8, 1.0]]))
+names = [f"t{i}" for i in range(D)]
 
-def simulate(a, b, batch_size=1, random_state=None):
+def simulator(*params, batch_size=1, random_state=None):
     rs = random_state or np.random
-    theta = np.column_stack([np.broadcast_to(a, batch_size), np.broadcast_to(b, batch_size)])
-    return theta + rs.standard_normal((batch_size, 2)) @ L.T
+    theta = np.column_stack([np.broadcast_to(np.asarray(p, float), (batch_size,)) for p in params])
+    return simulate_np(NAME, theta, rs)
 
 m = elfi.new_model()
-a = elfi.Prior("uniform", -10, 20, model=m, name="a")
-b = elfi.Prior("uniform", -10, 20, model=m, name="b")
-y = elfi.Simulator(simulate, a, b, observed=np.asarray(obs)[None], name="y")
-d = elfi.Distance("euclidean", y, name="d")
-log_d = elfi.Operation(np.log, d, name="log_d")
+priors = [elfi.Prior("uniform", LOW[i], HIGH[i] - LOW[i], model=m, name=names[i]) for i in range(D)]
+y = elfi.Simulator(simulator, *priors, observed=OBS[None], name="y")
+dist = elfi.Distance("euclidean", y, name="d")
+log_d = elfi.Operation(np.log, dist, name="log_d")
+initial = min(10 * D, BUDGET // 2)
 t0 = time.perf_counter()
-bolfi = elfi.BOLFI(log_d, batch_size=1, initial_evidence=20, update_interval=10,
-                   bounds={"a": (-10, 10), "b": (-10, 10)}, acq_noise_var=0.1, seed=seed)
-bolfi.fit(n_evidence=budget)
-res = bolfi.sample(draws, n_chains=4)
+bolfi = elfi.BOLFI(log_d, batch_size=1, initial_evidence=initial, update_interval=10,
+                   bounds={n: (LOW[i], HIGH[i]) for i, n in enumerate(names)}, acq_noise_var=0.1, seed=SEED)
+bolfi.fit(n_evidence=BUDGET)
+res = bolfi.sample(DRAWS, n_chains=4)
 run_s = time.perf_counter() - t0
-x = np.column_stack([res.samples["a"], res.samples["b"]])
+x = np.column_stack([res.samples[n] for n in names])
 print(json.dumps({"particles": x.tolist(), "weights": np.ones(len(x)).tolist(),
-                  "num_simulations": int(bolfi.n_evidence), "run_s": run_s, "version": elfi.__version__}))
+                  "num_simulations": int(bolfi.n_evidence), "run_s": run_s, "version": elfi.__version__,
+                  "settings": {"initial_evidence": initial, "update_interval": 10, "acq_noise_var": 0.1,
+                               "sampler": "NUTS, 4 chains, half warm-up"}}))
 """
 
 PYABC_SCRIPT = r"""
-import json, logging, os, sys, tempfile, time
-import numpy as np
+import logging, os, tempfile
 import pyabc
-budget, seed, obs = int(sys.argv[1]), int(sys.argv[2]), json.loads(sys.argv[3])
-for name in ("ABC", "Sampler", "Epsilon", "History", "Distance", "Acceptor", "Transition"):
-    logging.getLogger(name).setLevel(logging.WARNING)
-np.random.seed(seed)
-L = np.linalg.cholesky(np.array([[1.0, 0.8], [0.8, 1.0]]))
+for logger in ("ABC", "Sampler", "Epsilon", "History", "Distance", "Acceptor", "Transition"):
+    logging.getLogger(logger).setLevel(logging.WARNING)
+np.random.seed(SEED)
+names = [f"t{i}" for i in range(D)]
 
 def model(p):
-    return {"x": np.array([p["a"], p["b"]]) + L @ np.random.standard_normal(2)}
+    return {"x": simulate_np(NAME, np.array([[p[n] for n in names]]), np.random)[0]}
 
-def distance(x, y):
-    return float(np.linalg.norm(x["x"] - y["x"]))
+def distance(a, b):
+    return float(np.linalg.norm(a["x"] - b["x"]))
 
-prior = pyabc.Distribution(a=pyabc.RV("uniform", -10, 20), b=pyabc.RV("uniform", -10, 20))
+prior = pyabc.Distribution(**{n: pyabc.RV("uniform", LOW[i], HIGH[i] - LOW[i]) for i, n in enumerate(names)})
+population = max(10, BUDGET // 4)
 t0 = time.perf_counter()
 with tempfile.TemporaryDirectory() as tmp:
-    abc = pyabc.ABCSMC(model, prior, distance, population_size=max(10, budget // 4),
+    abc = pyabc.ABCSMC(model, prior, distance, population_size=population,
                        sampler=pyabc.sampler.SingleCoreSampler())
-    abc.new("sqlite:///" + os.path.join(tmp, "h.db"), {"x": np.asarray(obs)})
-    h = abc.run(max_total_nr_simulations=budget, minimum_epsilon=0.0)
+    abc.new("sqlite:///" + os.path.join(tmp, "h.db"), {"x": OBS})
+    h = abc.run(max_total_nr_simulations=BUDGET, minimum_epsilon=0.0)
     df, w = h.get_distribution(m=0, t=h.max_t)
     sims = int(h.total_nr_simulations)
     generations = int(h.max_t) + 1
 run_s = time.perf_counter() - t0
-print(json.dumps({"particles": df[["a", "b"]].to_numpy().tolist(), "weights": np.asarray(w, float).tolist(),
+print(json.dumps({"particles": df[names].to_numpy().tolist(), "weights": np.asarray(w, float).tolist(),
                   "num_simulations": sims, "run_s": run_s, "generations": generations,
-                  "version": pyabc.__version__}))
+                  "version": pyabc.__version__, "settings": {"population_size": population}}))
 """
 
+SBI_SCRIPT = r"""
+import importlib.metadata, os, tempfile
+os.chdir(tempfile.mkdtemp(prefix="sbi-"))  # sbi writes TensorBoard logs to ./sbi-logs
+import torch
+torch.set_num_threads(1)
+torch.manual_seed(SEED)
+from sbi.inference import NLE, NPE
+from sbi.utils import BoxUniform
+method = req["method"]
+rounds = 2 if method in ("sbi_snpe", "sbi_snle") else 1
+neural_likelihood = method in ("sbi_nle", "sbi_snle")
+mcmc = req["mcmc"]
+rng = np.random.default_rng(SEED)
+prior = BoxUniform(torch.tensor(LOW, dtype=torch.float32), torch.tensor(HIGH, dtype=torch.float32))
+x_o = torch.tensor(OBS, dtype=torch.float32)[None]
 
-def energy_distance(x: np.ndarray, wx: np.ndarray, y: np.ndarray) -> float:
-    """Weighted energy distance between draws ``x`` (weights ``wx``) and equal-weight draws ``y``."""
-    wx = wx / wx.sum()
-    wy = np.full(len(y), 1.0 / len(y))
+def simulator(theta):
+    return torch.tensor(simulate_np(NAME, theta.numpy().astype(float), rng), dtype=torch.float32)
 
-    def mean_dist(a, wa, b, wb):
-        return float(wa @ np.linalg.norm(a[:, None, :] - b[None, :, :], axis=-1) @ wb)
+def posterior_of(inference):
+    if neural_likelihood:
+        return inference.build_posterior(mcmc_method="slice_np_vectorized", mcmc_parameters=dict(mcmc))
+    return inference.build_posterior()
 
-    return 2 * mean_dist(x, wx, y, wy) - mean_dist(x, wx, x, wx) - mean_dist(y, wy, y, wy)
+t0 = time.perf_counter()
+inference = (NLE if neural_likelihood else NPE)(prior=prior, show_progress_bars=False)
+proposal, used, per_round = prior, 0, [BUDGET // rounds] * rounds
+per_round[-1] += BUDGET - sum(per_round)
+for r, n in enumerate(per_round):
+    if r == 0:
+        theta = prior.sample((n,))
+    else:
+        theta = proposal.sample((n,), show_progress_bars=False)
+    x = simulator(theta)
+    used += n
+    if neural_likelihood:
+        inference.append_simulations(theta, x)
+    else:
+        inference.append_simulations(theta, x, proposal=proposal)
+    inference.train(training_batch_size=int(req["training_batch_size"]), show_train_summary=False)
+    posterior = posterior_of(inference)
+    proposal = posterior.set_default_x(x_o)
+samples = posterior.sample((DRAWS,), x=x_o, show_progress_bars=False)
+run_s = time.perf_counter() - t0
+sampler = "slice_np_vectorized " + json.dumps(mcmc) if neural_likelihood else "flow draws, rejected outside the prior"
+print(json.dumps({"particles": samples.numpy().astype(float).tolist(), "weights": [1.0] * len(samples),
+                  "num_simulations": used, "run_s": run_s, "version": importlib.metadata.version("sbi"),
+                  "torch": torch.__version__,
+                  "settings": {"rounds": rounds, "density_estimator": "maf", "sampler": sampler,
+                               "training_batch_size": int(req["training_batch_size"])}}))
+"""
+
+PEER_SCRIPTS = {"bolfi": BOLFI_SCRIPT, "pyabc_abcsmc": PYABC_SCRIPT, "sbi": SBI_SCRIPT}
 
 
-def accuracy(particles, weights, observed: np.ndarray, exact: np.ndarray, max_draws: int, seed: int) -> dict:
-    """Mean error (exact sd units), sd ratios, correlation and energy distance to exact draws."""
-    x, w = np.asarray(particles, float), np.asarray(weights, float)
-    w = w / w.sum()
-    mean = w @ x
-    cov = np.cov(x, aweights=w, rowvar=False)
-    diff = mean - observed
-    if len(x) > max_draws:  # resample to bound the O(n^2) energy distance
-        idx = np.random.default_rng(seed).choice(len(x), max_draws, p=w)
-        x, w = x[idx], np.full(max_draws, 1.0 / max_draws)
-    sd = np.sqrt(np.diag(cov))
+@dataclass(frozen=True)
+class Peer:
+    """A peer's virtual environment (``make_venv`` arguments) and child script."""
+
+    venv: str
+    requirement: str
+    module: str
+    script: str
+    install: tuple[tuple[str, ...], ...] | None = None
+
+
+def peers() -> dict[str, Peer]:
+    """The peers by method: exact pins, each in a virtual environment named after its pin."""
+    sbi = Peer("sbi-0.27.0", "sbi==0.27.0", "sbi", "sbi", tuple(tuple(a) for a in SBI_INSTALL))
     return {
-        "mean": mean.tolist(),
-        "mean_error_in_sd": float(np.sqrt(diff @ np.linalg.solve(COV, diff))),
-        "sd_ratio": (sd / np.sqrt(np.diag(COV))).tolist(),
-        "correlation": float(cov[0, 1] / (sd[0] * sd[1])),
-        "energy_distance": energy_distance(x, w, exact),
+        "bolfi": Peer("elfi-0.8.8", "elfi==0.8.8", "elfi", "bolfi"),
+        "pyabc_abcsmc": Peer("pyabc-0.13.0", "pyabc==0.13.0", "pyabc", "pyabc_abcsmc"),
+        **{m: sbi for m in ("sbi_npe", "sbi_nle", "sbi_snpe", "sbi_snle")},
     }
 
 
-def jaxabc_run(budget: int, seed: int, observed: np.ndarray, draws: int) -> dict:
-    prior = jaxabc.Uniform([-10.0, -10.0], [10.0, 10.0], names=("a", "b"))
+def sbi_batch_size(budget: int) -> int:
+    """sbi's training batch: a tenth of the budget, between 10 and 50 (sbi's default, 200, is one
+    optimiser step per epoch at these budgets, and its networks then stop far from trained)."""
+    return min(50, max(10, budget // 10))
+
+
+def skip_reason(method: str, budget: int) -> str | None:
+    """Why a cell is not run (None when it is)."""
+    if method in ("sbi_snpe", "sbi_snle") and budget < SEQUENTIAL_MIN_BUDGET:
+        return f"sequential rounds (2 x B/2) only for B >= {SEQUENTIAL_MIN_BUDGET}"
+    return None
+
+
+def run_jaxabc_child(request: dict[str, Any]) -> dict[str, Any]:
+    """One jaxabc surrogate run (in a child process): draws, simulations used, wall time."""
+    import jax.numpy as jnp
+
+    import jaxabc
+
+    name = request["problem"]
+    p = PROBLEMS[name]
+    prior = jaxabc.Uniform(p["low"], p["high"], names=tuple(f"t{i}" for i in range(p["d"])))
+    options = {"mode": "abc"} if request["method"] == "jaxabc_surrogate_abc" else {}
     t0 = time.perf_counter()
     r = jaxabc.run(
-        "surrogate", correlated_simulate, prior, observed, max_simulations=budget, num_particles=draws, seed=seed
+        "surrogate",
+        _jax_simulators()[name],
+        prior,
+        jnp.asarray(request["observed"], jnp.float32),
+        max_simulations=int(request["budget"]),
+        num_particles=int(request["draws"]),
+        seed=int(request["seed"]),
+        **options,
     )
+    diag = r.diagnostics if isinstance(r.diagnostics, dict) else {}
     return {
-        "particles": r.particles.tolist(),
-        "weights": r.weights.tolist(),
+        "particles": np.asarray(r.particles, float).tolist(),
+        "weights": np.asarray(r.weights, float).tolist(),
         "num_simulations": int(r.num_simulations),
         "run_s": time.perf_counter() - t0,
-        "validated": bool(r.diagnostics.get("validated", False)) if isinstance(r.diagnostics, dict) else None,
+        "validated": bool(diag.get("validated", False)),
+        "stop_reason": str(r.stop_reason),
         "version": jaxabc.__version__,
+        "settings": {"mode": diag.get("mode", options.get("mode", "synthetic likelihood"))},
     }
 
 
-def main(argv=None) -> dict:
+def jaxabc_hash() -> str:
+    """Hash of the jaxabc package's code (AST, docstrings excluded) and of the child function."""
+    from benchmarks._common import code_hash
+
+    files = sorted((ROOT / "jaxabc").rglob("*.py"))
+    return _hash(
+        *(f"{f.relative_to(ROOT)}:{code_hash(f)}" for f in files), _ast_text(inspect.getsource(run_jaxabc_child))
+    )
+
+
+def method_hash(method: str) -> str:
+    """What a method's cached cells depend on besides the problem: its code and pinned versions."""
+    if method in JAXABC_METHODS:
+        return jaxabc_hash()
+    peer = peers()[method]
+    extra = [_ast_text(inspect.getsource(request_of))]
+    if peer.script == "sbi":
+        extra += [json.dumps(NLE_MCMC), _ast_text(inspect.getsource(sbi_batch_size))]
+    return _hash(PEER_PRELUDE, PEER_REQUEST, PEER_SCRIPTS[peer.script], peer.requirement, repr(peer.install), *extra)
+
+
+def request_of(inst: Instance, method: str, budget: int, draws: int) -> dict[str, Any]:
+    return {
+        "problem": inst.problem,
+        "method": method,
+        "seed": inst.seed,
+        "budget": budget,
+        "draws": draws,
+        "observed": inst.observed.tolist(),
+        "mcmc": NLE_MCMC,
+        "training_batch_size": sbi_batch_size(budget),
+    }
+
+
+def run_child(argv: list[str], timeout: float, env: dict[str, str]) -> dict[str, Any]:
+    """Run one child process: ``{"output": <its last JSON line>, "process_wall_s": ...}``, or an ``error``."""
+    t0 = time.perf_counter()
+    try:
+        out = subprocess.run(argv, capture_output=True, text=True, timeout=timeout, env={**os.environ, **env})
+    except subprocess.TimeoutExpired:
+        return {"error": f"did not finish in {timeout:.0f} s", "process_wall_s": timeout}
+    wall = time.perf_counter() - t0
+    # The result is the last line's JSON object; libraries may print before it on that line (sbi
+    # ends its training message without a newline).
+    lines = [line[line.index("{") :] for line in out.stdout.splitlines() if "{" in line]
+    if out.returncode == 0 and lines:
+        try:
+            return {"output": json.loads(lines[-1]), "process_wall_s": wall}
+        except json.JSONDecodeError:
+            pass
+    tail = (out.stderr.strip() or out.stdout.strip() or "no output").splitlines()
+    # A Python exception's last line names it; otherwise keep the last three lines.
+    last = tail[-1] if ":" in tail[-1] and tail[-1].split(":", 1)[0].replace(".", "").isidentifier() else None
+    text = last or " | ".join(tail[-3:])
+    return {"error": f"exit {out.returncode}: {text[-600:]}", "process_wall_s": wall}
+
+
+def run_method(method: str, request: dict[str, Any], envs: dict[str, dict[str, Any]], timeout: float) -> dict[str, Any]:
+    """Run one cell's method in a child process; ``{"output": ...}`` or ``{"error": ...}``."""
+    if method in JAXABC_METHODS:
+        argv = [sys.executable, "-m", "benchmarks.surrogate_peers", "--child", json.dumps(request)]
+        return run_child(argv, timeout, {**SINGLE_THREAD, "PYTHONPATH": str(ROOT)})
+    env = envs[method]
+    if "error" in env:
+        return {"error": f"virtual environment: {env['error']}"}
+    script = PEER_PRELUDE + problem_source() + PEER_REQUEST + PEER_SCRIPTS[peers()[method].script]
+    return run_child([env["python"], "-c", script, json.dumps(request)], timeout, SINGLE_THREAD)
+
+
+def make_envs(methods: Sequence[str], venv_dir: Path) -> dict[str, dict[str, Any]]:
+    """The peers' virtual environments (made once, then reused), by method."""
+    from benchmarks.abc_overhead import make_venv
+
+    made: dict[str, dict[str, Any]] = {}
+    envs = {}
+    for method in methods:
+        if method in JAXABC_METHODS:
+            continue
+        peer = peers()[method]
+        if peer.venv not in made:
+            install = [list(a) for a in peer.install] if peer.install else None
+            print(f"virtual environment {peer.venv} ({peer.requirement}) ...", flush=True)
+            made[peer.venv] = make_venv(venv_dir, peer.venv, peer.requirement, peer.module, install=install)
+        envs[method] = made[peer.venv]
+    return envs
+
+
+# ----------------------------------------------------------------------------- cache
+
+
+def cell_key(problem: str, method: str, budget: int, seed: int, p_hash: str, m_hash: str) -> str:
+    return f"{problem}|{method}|{budget}|{seed}|{p_hash}|{m_hash}"
+
+
+def load_cache(path: Path) -> dict[str, dict[str, Any]]:
+    """Cells by key (the last line of a key wins); unreadable lines are ignored."""
+    cells: dict[str, dict[str, Any]] = {}
+    if path.is_file():
+        for line in path.read_text().splitlines():
+            try:
+                cell = json.loads(line)
+                cells[cell["key"]] = cell
+            except (json.JSONDecodeError, KeyError, TypeError):
+                continue
+    return cells
+
+
+def append_cache(path: Path, cell: dict[str, Any]) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with path.open("a") as fh:
+        fh.write(json.dumps(cell) + "\n")
+
+
+def run_cell(
+    inst: Instance, method: str, budget: int, envs: dict[str, dict[str, Any]], args: argparse.Namespace
+) -> dict[str, Any]:
+    """Run a method on a data set: its draws (5 significant digits; weights only when unequal) and
+    what it reports, or an ``error``.  Scoring is :func:`score`'s, from the stored draws."""
+    out = run_method(method, request_of(inst, method, budget, args.draws), envs, args.timeout)
+    cell: dict[str, Any] = {"process_wall_s": out.get("process_wall_s")}
+    if "error" in out:
+        return {**cell, "error": out["error"]}
+    o = out["output"]
+    keep = ("num_simulations", "run_s", "version", "torch", "validated", "stop_reason", "generations", "settings")
+    cell.update({k: o[k] for k in keep if k in o})
+    x = np.asarray(o["particles"], float).reshape(len(o["particles"]), -1)
+    w = np.asarray(o["weights"], float)
+    cell["particles"] = [[float(f"{v:.5g}") for v in row] for row in x]
+    if len(w) and not np.allclose(w, w[0]):
+        cell["weights"] = [float(f"{v:.5g}") for v in w / w.max()]
+    return cell
+
+
+def score(raw: dict[str, Any], inst: Instance, budget: int, max_draws: int) -> dict[str, Any]:
+    """A cell as the result reports it: what the method reported and :func:`accuracy` of its draws."""
+    info = {k: v for k, v in raw.items() if k not in ("particles", "weights")}
+    if "error" in raw:
+        return info
+    x = np.asarray(raw["particles"], float)
+    w = np.asarray(raw["weights"], float) if "weights" in raw else np.ones(len(x))
+    try:
+        scores = accuracy(x, w, inst, max_draws, inst.seed)
+    except (ValueError, np.linalg.LinAlgError) as exc:
+        return {**info, "error": f"scoring failed: {exc}"}
+    return {**info, **scores, "over_budget": int(raw.get("num_simulations", 0)) > budget}
+
+
+# ----------------------------------------------------------------------------- summary
+
+
+def _mean_se(values: Sequence[float] | np.ndarray) -> list[float | None]:
+    v = np.asarray(values, float)
+    if len(v) == 0:
+        return [None, None]
+    return [float(v.mean()), float(v.std(ddof=1) / np.sqrt(len(v))) if len(v) > 1 else None]
+
+
+def summarise(cells: list[dict[str, Any]]) -> dict[str, Any]:
+    """Mean and standard error over seeds of a (problem, budget, method)'s cells."""
+    ok = [c for c in cells if "energy_distance" in c]
+    out: dict[str, Any] = {
+        "seeds": len(cells),
+        "seeds_ok": len(ok),
+        "errors": sorted({c["error"] for c in cells if "error" in c}),
+    }
+    if not ok:
+        return out
+    covered = np.array([c["covered_90"] for c in ok], bool)
+    sd_ratio = np.array([c["sd_ratio"] for c in ok], float)
+    out.update(
+        {
+            "energy_distance": _mean_se([c["energy_distance"] for c in ok]),
+            "mean_error_in_sd": _mean_se([c["mean_error_in_sd"] for c in ok]),
+            "sd_ratio": [_mean_se(sd_ratio[:, j]) for j in range(sd_ratio.shape[1])],
+            "sd_ratio_geomean": _mean_se(np.exp(np.log(np.maximum(sd_ratio, 1e-12)).mean(axis=1))),
+            "coverage_90": float(covered.mean()),  # over seeds and parameters
+            "coverage_90_joint": float(covered.all(axis=1).mean()),  # all parameters at once
+            "coverage_90_per_parameter": covered.mean(axis=0).tolist(),
+            "num_simulations": float(np.mean([c.get("num_simulations", 0) for c in ok])),
+            "max_simulations": int(max(c.get("num_simulations", 0) for c in ok)),
+            "over_budget": sum(bool(c.get("over_budget")) for c in ok),
+            "run_s": _mean_se([c["run_s"] for c in ok if c.get("run_s") is not None]),
+            "process_wall_s": _mean_se([c["process_wall_s"] for c in ok if c.get("process_wall_s") is not None]),
+        }
+    )
+    if any("validated" in c for c in ok):
+        out["validated"] = sum(bool(c.get("validated")) for c in ok)
+    return out
+
+
+def _why(s: dict[str, Any]) -> list[str]:
+    """Generated reasons for a surrogate's energy distance: failures, bias, width."""
+    reasons = []
+    if s.get("seeds_ok", 0) < s.get("seeds", 0):
+        first = s["errors"][0].removeprefix("exit 1: ") if s.get("errors") else "?"
+        reasons.append(f"failed on {s['seeds'] - s['seeds_ok']} of {s['seeds']} seeds ({first[:200]})")
+    if "energy_distance" not in s:
+        return reasons
+    if s["mean_error_in_sd"][0] > 0.5:
+        reasons.append(f"mean off by {s['mean_error_in_sd'][0]:.2f} exact sd")
+    lo = min(r[0] for r in s["sd_ratio"])
+    hi = max(r[0] for r in s["sd_ratio"])
+    if lo < 0.8:
+        reasons.append(f"too narrow (sd ratio down to {lo:.2f})")
+    if hi > 1.25:
+        reasons.append(f"too wide (sd ratio up to {hi:.2f})")
+    if "validated" in s and s["validated"] < s["seeds_ok"]:
+        reasons.append(f"emulator not validated on {s['seeds_ok'] - s['validated']} of {s['seeds_ok']} seeds")
+    if not reasons:
+        reasons.append("shape (sd and mean close, energy distance not)")
+    return reasons
+
+
+def closest(summary: dict[str, dict[str, Any]], n_seeds: int) -> dict[str, Any]:
+    """Which method is closest to exact at one (problem, budget), and where the surrogate stands.
+
+    Only methods that ran on every seed compete.  The surrogate is "within seed error" of the
+    best peer when its mean energy distance exceeds the peer's by at most their combined
+    standard error.
+    """
+    ranked = sorted(
+        (s["energy_distance"][0], m)
+        for m, s in summary.items()
+        if m != "exact" and s.get("seeds_ok") == n_seeds and "energy_distance" in s
+    )
+    peers_ = [(ed, m) for ed, m in ranked if m not in JAXABC_METHODS]
+    out: dict[str, Any] = {"ranking": [m for _, m in ranked], "closest": ranked[0][1] if ranked else None}
+    sur = summary.get(SURROGATE, {})
+    out["closest_peer"] = peers_[0][1] if peers_ else None
+    if "energy_distance" not in sur or sur.get("seeds_ok") != n_seeds:
+        out.update(surrogate_closest=False, within_seed_error=False, why=_why(sur) or ["not run"])
+        return out
+    if not peers_:
+        out.update(surrogate_closest=True, within_seed_error=True)
+        return out
+    best = summary[peers_[0][1]]
+    diff = sur["energy_distance"][0] - best["energy_distance"][0]
+    se = math.hypot(sur["energy_distance"][1] or 0.0, best["energy_distance"][1] or 0.0)
+    out.update(surrogate_closest=diff <= 0, within_seed_error=diff <= se, energy_distance_excess=diff)
+    if diff > 0:
+        out["why"] = _why(sur)
+    return out
+
+
+def assemble(
+    cells: dict[tuple[str, str, int, int], dict[str, Any]],
+    problems: Sequence[str],
+    methods: Sequence[str],
+    budgets: Sequence[int],
+    seeds: Sequence[int],
+) -> tuple[dict[str, Any], dict[str, Any], dict[str, Any]]:
+    """Summary per (problem, budget, method), the closest method per (problem, budget <= 200), goal."""
+    summary: dict[str, Any] = {}
+    verdicts: dict[str, Any] = {}
+    for p in problems:
+        summary[p], verdicts[p] = {}, {}
+        for b in budgets:
+            per = {}
+            for m in ["exact", *methods]:
+                reason = skip_reason(m, b)
+                if reason:
+                    per[m] = {"skipped": reason}
+                    continue
+                per[m] = summarise([cells[(p, m, b, s)] for s in seeds if (p, m, b, s) in cells])
+            summary[p][str(b)] = per
+            if b <= GOAL_MAX_BUDGET:
+                verdicts[p][str(b)] = closest(per, len(seeds))
+    goal_budgets = [b for b in budgets if b <= GOAL_MAX_BUDGET]
+    met = {
+        p: bool(goal_budgets) and all(verdicts[p][str(b)]["surrogate_closest"] for b in goal_budgets) for p in problems
+    }
+    misses = [
+        {"problem": p, "budget": b, **{k: verdicts[p][str(b)].get(k) for k in ("closest", "within_seed_error", "why")}}
+        for p in problems
+        for b in goal_budgets
+        if not verdicts[p][str(b)]["surrogate_closest"]
+    ]
+    goal = {
+        "statement": GOAL,
+        "budgets": goal_budgets,
+        "problems_met": [p for p in problems if met[p]],
+        "problems_needed": 4 if len(problems) == len(PROBLEM_NAMES) else None,
+        "met": sum(met.values()) >= 4 if len(problems) == len(PROBLEM_NAMES) else None,
+        "misses": misses,
+    }
+    return summary, verdicts, goal
+
+
+# ----------------------------------------------------------------------------- main
+
+
+def parse(argv: Sequence[str] | None) -> argparse.Namespace:
     p = argparse.ArgumentParser(description=(__doc__ or "").split("\n\n")[0])
-    p.add_argument("--budgets", type=int, nargs="+", default=[50, 100, 200])
-    p.add_argument("--seeds", type=int, nargs="+", default=[0])
-    p.add_argument("--observed", type=float, nargs=2, default=[1.5, -0.5])
-    p.add_argument("--draws", type=int, default=1000, help="posterior draws of the surrogate and of BOLFI")
-    p.add_argument("--energy-draws", type=int, default=1000, help="draws used in the energy distance")
-    p.add_argument("--timeout", type=float, default=1800, help="seconds per peer process")
-    p.add_argument("--cache-dir", type=Path, default=Path.home() / ".cache" / "jaxabc_benchmarks")
-    p.add_argument("--quick", action="store_true", help="budget 60, seed 0, to results/quick/")
+    p.add_argument("--problems", nargs="+", default=list(PROBLEM_NAMES), choices=PROBLEM_NAMES)
+    p.add_argument("--methods", nargs="+", default=list(METHODS), choices=METHODS)
+    p.add_argument("--budgets", type=int, nargs="+", default=[50, 100, 200, 500])
+    p.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2, 3, 4])
+    p.add_argument("--draws", type=int, default=1000, help="posterior draws asked of each method")
+    p.add_argument("--energy-draws", type=int, default=1000, help="most draws of a method in the energy distance")
+    p.add_argument("--exact-draws", type=int, default=2000, help="exact draws in the energy distance")
+    p.add_argument("--timeout", type=float, default=1800, help="seconds per cell's process")
+    default_cache = Path.home() / ".cache" / "jaxabc_benchmarks"
+    p.add_argument("--cache-dir", type=Path, default=default_cache / "surrogate_peers", help="finished cells")
+    p.add_argument("--venv-dir", type=Path, default=default_cache, help="the peers' virtual environments")
+    p.add_argument("--fresh", action="store_true", help="rerun cells already in the cache (and append them)")
+    p.add_argument("--retry-errors", action="store_true", help="rerun cached cells that ended in an error")
+    p.add_argument("--quick", action="store_true", help="linear + banana, B 60, seed 0, surrogate + sbi NPE")
+    p.add_argument("--output", type=Path, help="write the result here instead of benchmarks/results/")
+    p.add_argument("--child", help=argparse.SUPPRESS)
     args = p.parse_args(argv)
     if args.quick:
-        args.budgets, args.seeds = [60], [0]
+        args.problems, args.budgets, args.seeds = ["linear", "banana"], [60], [0]
+        args.methods, args.fresh = ["jaxabc_surrogate", "sbi_npe"], True
+    return args
+
+
+def main(argv: Sequence[str] | None = None) -> dict[str, Any] | None:
+    args = parse(argv)
+    if args.child:
+        print(json.dumps(run_jaxabc_child(json.loads(args.child))))
+        return None
+    # The jaxabc runs happen in child processes: importing what they run puts it in this result's
+    # fingerprint.
+    import jax
+
+    import jaxabc
+    import jaxabc.surrogate
+    from benchmarks._common import command_line, write_result
+
     t_start = time.perf_counter()
-    observed = np.asarray(args.observed, float)
-    exact = np.random.default_rng(12345).multivariate_normal(observed, COV, size=args.energy_draws)
-    envs = {
-        "bolfi": make_venv(args.cache_dir, "elfi_smc", PEERS["elfi_smc"]["requirement"], "elfi"),
-        "pyabc_abcsmc": make_venv(args.cache_dir, "pyabc_abcsmc", PEERS["pyabc_abcsmc"]["requirement"], "pyabc"),
+    cache_file = args.cache_dir / "cells.jsonl"
+    cached = load_cache(cache_file)
+    p_hash = problem_hash()
+    m_hash = {m: method_hash(m) for m in args.methods}
+    envs = make_envs(args.methods, args.venv_dir)
+    cells: dict[tuple[str, str, int, int], dict[str, Any]] = {}
+    ran = reused = 0
+    for p in args.problems:
+        for s in args.seeds:
+            inst = instance(p, s, args.exact_draws)
+            reference = accuracy(inst.reference_draws, np.ones(len(inst.reference_draws)), inst)
+            for b in args.budgets:
+                cells[(p, "exact", b, s)] = reference
+                for m in args.methods:
+                    if skip_reason(m, b):
+                        continue
+                    key = cell_key(p, m, b, s, p_hash, m_hash[m])
+                    hit = cached.get(key)
+                    # A cell without draws (an earlier cache format) is run again.
+                    usable = hit is not None and ("particles" in hit["result"] or "error" in hit["result"])
+                    if (
+                        hit is not None
+                        and usable
+                        and not args.fresh
+                        and not (args.retry_errors and "error" in hit["result"])
+                    ):
+                        cells[(p, m, b, s)] = score(hit["result"], inst, b, args.energy_draws)
+                        reused += 1
+                        continue
+                    t0 = time.perf_counter()
+                    raw = run_cell(inst, m, b, envs, args)
+                    ran += 1
+                    if not str(raw.get("error", "")).startswith("virtual environment"):
+                        cell = {"key": key, "problem": p, "method": m, "budget": b, "seed": s, "result": raw}
+                        append_cache(cache_file, cell)
+                    result = cells[(p, m, b, s)] = score(raw, inst, b, args.energy_draws)
+                    print(f"{p} B={b} seed={s} {m}: {_brief(result)} ({time.perf_counter() - t0:.0f} s)", flush=True)
+    summary, verdicts, goal = assemble(cells, args.problems, args.methods, args.budgets, args.seeds)
+    versions = {
+        m: sorted({str(c.get("version")) for (_, mm, _, _), c in cells.items() if mm == m and "version" in c})
+        for m in args.methods
     }
-    scripts = {"bolfi": BOLFI_SCRIPT, "pyabc_abcsmc": PYABC_SCRIPT}
-    rows = []
-    for budget in args.budgets:
-        for seed in args.seeds:
-            row: dict = {"budget": budget, "seed": seed}
-            runs = {"jaxabc_surrogate": {"output": jaxabc_run(budget, seed, observed, args.draws)}}
-            for name, env in envs.items():
-                if "error" in env:
-                    runs[name] = env
-                    continue
-                extra = [str(args.draws)] if name == "bolfi" else []
-                argv_peer = [env["python"], "-c", scripts[name], str(budget), str(seed), json.dumps(observed.tolist())]
-                runs[name] = run_process([*argv_peer, *extra], args.timeout)
-            for name, out in runs.items():
-                if "error" in out:
-                    row[name] = {"error": out["error"]}
-                    continue
-                o = out["output"]
-                row[name] = {
-                    "num_simulations": o["num_simulations"],
-                    "run_s": o["run_s"],
-                    **{k: o[k] for k in ("version", "validated", "generations") if k in o},
-                    **accuracy(o["particles"], o["weights"], observed, exact, args.energy_draws, seed),
-                }
-            print(json.dumps(row)[:600], flush=True)
-            rows.append(row)
-    methods = ("jaxabc_surrogate", "bolfi", "pyabc_abcsmc")
-    summary = {}
-    for m in methods:
-        per_budget = {}
-        for budget in args.budgets:
-            ok = [r[m] for r in rows if r["budget"] == budget and "energy_distance" in r.get(m, {})]
-            if ok:
-                per_budget[str(budget)] = {
-                    "runs": len(ok),
-                    "energy_distance_mean": float(np.mean([o["energy_distance"] for o in ok])),
-                    "mean_error_in_sd_mean": float(np.mean([o["mean_error_in_sd"] for o in ok])),
-                    "sd_ratio_mean": np.mean([o["sd_ratio"] for o in ok], axis=0).tolist(),
-                    "correlation_mean": float(np.mean([o["correlation"] for o in ok])),
-                    "run_s_mean": float(np.mean([o["run_s"] for o in ok])),
-                }
-        summary[m] = per_budget
     payload = {
-        "benchmark": "surrogate_peers",
+        "format": 2,
         "description": (__doc__ or "").split("\n\n")[0],
-        "problem": PROBLEM,
-        "observed": observed.tolist(),
-        "exact_posterior": {"mean": observed.tolist(), "cov": COV.tolist()},
+        "problems": {p: {k: v for k, v in PROBLEMS[p].items()} for p in args.problems},
+        "methods": list(args.methods),
+        "method_versions": versions,
+        "sbi_install": SBI_INSTALL,
+        "nle_mcmc": NLE_MCMC,
         "budgets": args.budgets,
         "seeds": args.seeds,
         "draws": args.draws,
-        "peers": envs,
-        "rows": rows,
+        "exact_draws": args.exact_draws,
+        "energy_draws": args.energy_draws,
+        "problem_hash": p_hash,
+        "peers": {
+            m: {"venv": peers()[m].venv, "requirement": peers()[m].requirement, **_only_error(envs[m])} for m in envs
+        },
+        "cells": [
+            {"problem": p, "method": m, "budget": b, "seed": s, **c}
+            for (p, m, b, s), c in sorted(cells.items(), key=lambda kv: (kv[0][0], kv[0][2], kv[0][1], kv[0][3]))
+        ],
         "summary": summary,
-        "goal": "fewer simulations than BOLFI at equal accuracy",
+        "closest": verdicts,
+        "goal": goal,
+        "cells_run": ran,
+        "cells_reused": reused,
         "benchmark_wall_s": time.perf_counter() - t_start,
         "jax": jax.__version__,
+        "jaxabc": jaxabc.__version__,
     }
-    path = write_result("surrogate_peers", payload, quick=args.quick, command=command_line())
+    name = args.output if args.output else "surrogate_peers"
+    path = write_result(name, payload, quick=args.quick, command=command_line())
+    print(summary_text(payload))
     print(f"wrote {path}")
     return payload
+
+
+def _only_error(env: dict[str, Any]) -> dict[str, Any]:
+    return {"error": env["error"]} if "error" in env else {}
+
+
+def _brief(result: dict[str, Any]) -> str:
+    if "error" in result:
+        return f"error: {str(result['error'])[:300]}"
+    sd = np.round(result["sd_ratio"], 2).tolist()
+    return (
+        f"ED {result['energy_distance']:.3f} mean err {result['mean_error_in_sd']:.2f} sd ratio {sd} "
+        f"sims {result['num_simulations']} run {result.get('run_s', float('nan')):.1f} s"
+    )
+
+
+def summary_text(d: dict[str, Any]) -> str:
+    """A plain-text summary of a result: energy distance per (problem, budget, method)."""
+    lines = []
+    for p, per_budget in d["summary"].items():
+        for b, per in per_budget.items():
+            lines.append(f"{p} B={b}")
+            for m, s in per.items():
+                if "skipped" in s:
+                    continue
+                if "energy_distance" not in s:
+                    lines.append(f"  {m:22s} errors: {s.get('errors')}")
+                    continue
+                ed, se = s["energy_distance"]
+                sd = "/".join(f"{r[0]:.2f}" for r in s["sd_ratio"])
+                wall = s["run_s"][0] if s.get("run_s") and s["run_s"][0] is not None else float("nan")
+                lines.append(
+                    f"  {m:22s} ED {ed:.3f}"
+                    + (f" +- {se:.3f}" if se is not None else "")
+                    + f"  mean err {s['mean_error_in_sd'][0]:.2f}  sd ratio {sd}  cov90 {s['coverage_90']:.2f}"
+                    + f"  sims {s['num_simulations']:.0f}  run {wall:.1f} s"
+                )
+            v = d["closest"].get(p, {}).get(b)
+            if v:
+                lines.append(f"  closest: {v['closest']}; surrogate closest: {v['surrogate_closest']}")
+    lines.append(f"goal: {d['goal']}")
+    return "\n".join(lines)
 
 
 if __name__ == "__main__":

@@ -7,7 +7,7 @@ from typing import Any
 
 import numpy as np
 
-from benchmarks.docpages.common import f, g, load, source, table
+from benchmarks.docpages.common import f, g, load, source, span, table
 
 
 def page_surrogate_coverage() -> str:
@@ -265,54 +265,207 @@ not by that alone wrong (the surrogate's calibration is checked on an exact prob
 {body}"""
 
 
-def page_surrogate_peers() -> str:
-    d = load("surrogate_peers")
-    title = "# Surrogate against BOLFI and pyABC"
-    if d is None:
-        return f"{title}\n\nNot saved yet: run `python -m benchmarks.surrogate_peers`.\n"
-    labels = {"jaxabc_surrogate": "jaxabc surrogate", "bolfi": "ELFI BOLFI", "pyabc_abcsmc": "pyABC ABC-SMC"}
-    rows = []
-    for r in d["rows"]:
-        for key, label in labels.items():
-            o = r.get(key, {})
-            if "error" in o or not o:
-                rows.append([r["budget"], r["seed"], label, "-", o.get("error", "not run"), "", "", "", "", ""])
-                continue
-            note = o.get("version", "")
-            if "validated" in o:
-                note = "validated" if o["validated"] else "NOT validated"
-            if "generations" in o:
-                note = f"{o['generations']} generations"
-            rows.append(
-                [
-                    r["budget"],
-                    r["seed"],
-                    label,
-                    o["num_simulations"],
-                    f(o["energy_distance"], 4),
-                    f(o["mean_error_in_sd"], 2),
-                    " / ".join(f(v, 2) for v in o["sd_ratio"]),
-                    f(o["correlation"], 2),
-                    f"{o['run_s']:.0f}",
-                ]
-                + ([note] if note else [""])
-            )
-    header = ["budget", "seed", "method", "simulations", "energy distance", "mean error (sd)", "sd / exact sd"]
-    return f"""{title}
+_PEER_LABELS = {
+    "exact": "exact (independent draws)",
+    "jaxabc_surrogate": "jaxabc surrogate",
+    "jaxabc_surrogate_abc": "jaxabc surrogate, ABC mode",
+    "sbi_npe": "sbi NPE",
+    "sbi_nle": "sbi NLE",
+    "sbi_snpe": "sbi SNPE (2 rounds)",
+    "sbi_snle": "sbi SNLE (2 rounds)",
+    "bolfi": "ELFI BOLFI",
+    "pyabc_abcsmc": "pyABC ABC-SMC",
+}
+_PEERS_TITLE = "# Surrogate against sbi, BOLFI and pyABC"
+_PEERS_RUN = "python -m benchmarks.surrogate_peers"
 
-The same exact problem ({d["problem"]}; observed {d["observed"]}) and the same simulation budgets for
-the GP surrogate and for the peers a user would pick instead: ELFI's BOLFI and pyABC's ABC-SMC, each
-in its own environment.  Accuracy against the exact posterior: energy distance to exact draws (0 for
-equal laws), the posterior mean's error in exact-posterior sd, each sd over the exact sd (1), the
-correlation (exact 0.8).  Wall seconds are the run alone (imports excluded).  Goal: {d["goal"]}.
-BOLFI's posterior is its own approximation, an ABC posterior at the GP's minimum discrepancy,
-wider than the exact one by construction; pyABC checks its budget at generation ends and can
-overshoot it (the simulations column counts what each method ran).
 
-{source("surrogate_peers")}
+def _peer_label(method: str) -> str:
+    return _PEER_LABELS.get(method, method)
 
-{table([*header, "corr", "wall s", "notes"], rows)}
+
+def _pm(pair: list | None, digits: int) -> str:
+    """'mean +- s.e.' of a [mean, s.e.] pair ('-' when missing; the mean alone for one seed)."""
+    if not pair or pair[0] is None:
+        return "-"
+    return f(pair[0], digits) + (f" +- {f(pair[1], digits)}" if pair[1] is not None else "")
+
+
+def _cell_text(text: str, limit: int = 160) -> str:
+    """Free text for a Markdown table cell: no pipes or newlines, at most ``limit`` characters."""
+    text = " ".join(str(text).replace("|", "/").split())
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
+def _peer_row(budget: str, method: str, s: dict[str, Any], d: int) -> list[Any]:
+    label = _peer_label(method)
+    if "skipped" in s:
+        return [budget, label, "-", "-", "-", "-", "-", "-", _cell_text(f"not run: {s['skipped']}")]
+    notes = []
+    if s.get("seeds_ok", 0) < s.get("seeds", 0):
+        notes.append(f"failed on {s['seeds'] - s['seeds_ok']} of {s['seeds']} seeds: " + "; ".join(s["errors"]))
+    if "energy_distance" not in s:
+        return [budget, label, "-", "-", "-", "-", "-", "-", _cell_text("; ".join(notes) or "not run")]
+    if "validated" in s:
+        notes.append(f"validated {s['validated']}/{s['seeds_ok']}")
+    if s.get("over_budget"):
+        notes.append(f"over budget on {s['over_budget']} of {s['seeds_ok']} seeds")
+    ratios = [r[0] for r in s["sd_ratio"]]
+    sd_text = " / ".join(f(r, 2) for r in ratios) if d <= 2 else f"{f(s['sd_ratio_geomean'][0], 2)} ({span(ratios)})"
+    sims = (
+        "-"
+        if method == "exact"
+        else f"{s['num_simulations']:.0f}"
+        + (f" (max {s['max_simulations']})" if s["max_simulations"] != round(s["num_simulations"]) else "")
+    )
+    wall = s.get("run_s") or [None]
+    return [
+        budget,
+        label,
+        _pm(s["energy_distance"], 3),
+        _pm(s["mean_error_in_sd"], 2),
+        sd_text,
+        f"{f(s['coverage_90'], 2)} / {f(s['coverage_90_joint'], 2)}",
+        sims,
+        "-" if wall[0] is None else f"{wall[0]:.1f}",
+        _cell_text("; ".join(notes), 240),
+    ]
+
+
+def _verdict_sentence(budget: str, v: dict[str, Any], per: dict[str, Any]) -> str:
+    """One generated sentence: which method was closest at a budget, and where the surrogate stands."""
+
+    def ed(method: str) -> str:
+        return _pm(per[method]["energy_distance"], 3)
+
+    sur, peer = "jaxabc_surrogate", v.get("closest_peer")
+    abc = "jaxabc_surrogate_abc"
+    abc_note = f" (its ABC mode: {ed(abc)})" if v.get("closest") == abc else ""
+    if v.get("closest") is None:
+        return f"- B = {budget}: no method ran on every seed."
+    why = "; ".join(v.get("why") or [])
+    if v.get("surrogate_closest"):
+        if peer is None:
+            return f"- B = {budget}: the surrogate ({ed(sur)}) ran without peers{abc_note}."
+        return (
+            f"- B = {budget}: the surrogate is closest to exact: energy distance {ed(sur)}{abc_note}, "
+            f"the closest peer {_peer_label(peer)} {ed(peer)}."
+        )
+    if peer is None:
+        return f"- B = {budget}: closest {_peer_label(v['closest'])} ({ed(v['closest'])}); no peer ran on every seed."
+    head = f"- B = {budget}: closest peer {_peer_label(peer)} (energy distance {ed(peer)})"
+    s = per.get(sur, {})
+    if "energy_distance" not in s or s.get("seeds_ok") != s.get("seeds"):
+        return f"{head}; the surrogate did not run on every seed ({why}){abc_note}."
+    within = "within" if v.get("within_seed_error") else "not within"
+    return (
+        f"{head}; the surrogate's {ed(sur)} is larger by {f(v['energy_distance_excess'], 3)}, {within} their "
+        f"combined seed error ({why}){abc_note}."
+    )
+
+
+def _goal_section(d: dict[str, Any]) -> str:
+    goal = d["goal"]
+    met = goal["problems_met"]
+    problems = list(d["summary"])
+    if goal.get("met") is None:
+        verdict = "the goal is not judged (it needs all five problems in one result)"
+    else:
+        verdict = "the goal is met" if goal["met"] else "the goal is not met"
+    lines = [
+        f"Goal: {goal['statement']} (budgets {', '.join(str(b) for b in goal['budgets'])}).  The surrogate "
+        f"is closest at every one of these budgets on {len(met)} of {len(problems)} problems"
+        + (f" ({', '.join(met)})" if met else "")
+        + f": {verdict}."
+    ]
+    from benchmarks.surrogate_peers import METHODS, PROBLEM_NAMES
+
+    left_out = [
+        *(f"problem {n}" for n in PROBLEM_NAMES if n not in d.get("problems", PROBLEM_NAMES)),
+        *(_peer_label(m) for m in METHODS if m not in d.get("methods", METHODS)),
+        *(f"B = {b}" for b in (50, 100, 200, 500) if b not in d.get("budgets", (50, 100, 200, 500))),
+    ]
+    if left_out:
+        lines.append(f"\nThis result is part of the full grid (`{_PEERS_RUN}`); not in it: {', '.join(left_out)}.")
+    if goal["misses"]:
+        lines.append("\nWhere it is not closest:\n")
+        for m in goal["misses"]:
+            closest = _peer_label(m["closest"]) if m.get("closest") else "no method on every seed"
+            within = "; within the seed error" if m.get("within_seed_error") else ""
+            why = "; ".join(m.get("why") or [])
+            lines.append(f"- {m['problem']}, B = {m['budget']}: closest {closest}{within}; the surrogate: {why}.")
+    return "\n".join(lines)
+
+
+def _problem_section(name: str, d: dict[str, Any]) -> str:
+    p = d["problems"][name]
+    rows = [_peer_row(b, m, s, p["d"]) for b, per in d["summary"][name].items() for m, s in per.items()]
+    header = [
+        "B",
+        "method",
+        "energy distance",
+        "mean error (exact sd)",
+        "sd / exact sd",
+        "90 % coverage (per parameter / joint)",
+        "simulations",
+        "wall s",
+        "notes",
+    ]
+    sentences = [_verdict_sentence(b, v, d["summary"][name][b]) for b, v in d.get("closest", {}).get(name, {}).items()]
+    truth = ", ".join(f"[{g(lo, 3)}, {g(hi, 3)}]" for lo, hi in zip(p["truth_low"], p["truth_high"], strict=True))
+    exact = "a fine grid" if p["exact"] == "grid" else "direct sampling with rejection outside the prior"
+    return f"""## {name} (d = {p["d"]})
+
+{p["description"]}.  Truths uniform in {truth}; exact draws by {exact}.
+
+{table(header, rows)}
+
+{chr(10).join(sentences)}
 """
+
+
+def peers_page(d: dict[str, Any] | None) -> str:
+    """The page of a ``surrogate_peers`` result (``d``: its JSON, None when not saved)."""
+    if d is None:
+        return f"{_PEERS_TITLE}\n\nNot saved yet: run `{_PEERS_RUN}`.\n"
+    if d.get("format") != 2:
+        return (
+            f"{_PEERS_TITLE}\n\nNot saved in the new format yet: run `{_PEERS_RUN}` (the saved JSON is the "
+            f"earlier one-problem comparison with BOLFI and pyABC).\n\n{source('surrogate_peers', data=d)}\n"
+        )
+    versions = ", ".join(
+        f"{_peer_label(m)} {'/'.join(v)}" for m, v in d.get("method_versions", {}).items() if v and v != ["None"]
+    )
+    sections = "\n".join(_problem_section(name, d) for name in d["summary"])
+    return f"""{_PEERS_TITLE}
+
+The GP surrogate (`jaxabc.run("surrogate", ...)`, in its synthetic-likelihood mode and in its ABC
+mode) against the peers a user would pick instead, each in its own environment: sbi's neural
+posterior and likelihood estimation (one round; two rounds of B/2 from B = 200), ELFI's BOLFI and
+pyABC's ABC-SMC.  Every method gets the same budget B of simulations per run on problems whose
+posterior is known exactly; each seed draws a new truth and data set.  Versions: {versions}.
+
+Accuracy is measured in the exact posterior's standardised coordinates (whitened with its mean
+and covariance), so that numbers compare across problems: the energy distance between a method's
+draws (at most {d["energy_draws"]}) and {d["exact_draws"]} exact draws (0 for equal laws; the
+`exact` row, independent exact draws, is its floor), the error of the posterior mean in exact sd,
+each parameter's sd over the exact sd, and how often the truth lies in the method's central 90 %
+intervals (per parameter, and all parameters at once; the exact posterior's own rate is the `exact`
+row).  Values are means +- standard errors over seeds {", ".join(str(s) for s in d["seeds"])}; wall
+seconds are each run alone (imports excluded), on one thread.  A method that failed on a seed does
+not compete for closest at that budget.  BOLFI's posterior is its own ABC approximation at the GP's
+minimum discrepancy; pyABC checks its budget at generation ends and can overshoot it (the
+simulations column counts what each method ran).
+
+{source("surrogate_peers", data=d)}
+
+{_goal_section(d)}
+
+{sections}"""
+
+
+def page_surrogate_peers() -> str:
+    return peers_page(load("surrogate_peers"))
 
 
 def page_surrogate_classifier() -> str:

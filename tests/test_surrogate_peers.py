@@ -1,0 +1,310 @@
+"""benchmarks/surrogate_peers.py: exact posteriors, simulators, metrics, cache and page (no peer runs)."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from benchmarks import surrogate_peers as sp
+
+TWO_D = [n for n in sp.PROBLEM_NAMES if sp.PROBLEMS[n]["d"] == 2]
+
+
+def _direct_moments(name: str, x: np.ndarray, n: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    draws = sp.exact_sample(name, x, n, np.random.default_rng(seed))
+    return draws.mean(axis=0), np.cov(draws, rowvar=False)
+
+
+@pytest.mark.parametrize("name", ["banana", "student", "linear"])
+def test_the_grid_agrees_with_the_direct_exact_sampler(name: str) -> None:
+    # Two routes to the same posterior: the likelihood on a grid, and sampling the model's noise.
+    for seed in (0, 1):
+        x = sp.instance(name, seed, exact_draws=10, moment_draws=10).observed
+        mean_g, cov_g = sp.grid_moments(sp.grid_posterior(name, x))
+        mean_d, cov_d = _direct_moments(name, x, 400_000, seed)
+        sd_g, sd_d = np.sqrt(np.diag(cov_g)), np.sqrt(np.diag(cov_d))
+        assert np.all(np.abs(mean_g - mean_d) < 0.01 * sd_g), (name, mean_g, mean_d)
+        assert np.all(np.abs(sd_g / sd_d - 1) < 0.015), (name, sd_g, sd_d)
+
+
+def _mvt_logpdf(y: np.ndarray, loc: np.ndarray, chol: np.ndarray, df: float) -> np.ndarray:
+    d = len(loc)
+    w = np.linalg.solve(chol, (y - loc).T).T
+    q = np.sum(w**2, axis=1)
+    const = math.lgamma((df + d) / 2) - math.lgamma(df / 2) - d / 2 * math.log(df * math.pi)
+    return const - np.log(np.diag(chol)).sum() - (df + d) / 2 * np.log1p(q / df)
+
+
+def _mvt_sample(rng: np.random.Generator, n: int, loc: np.ndarray, chol: np.ndarray, df: float) -> np.ndarray:
+    z = rng.standard_normal((n, len(loc))) @ chol.T
+    return loc + z / np.sqrt(rng.chisquare(df, n) / df)[:, None]
+
+
+def test_the_heteroscedastic_grid_agrees_with_importance_sampling() -> None:
+    name = "heteroscedastic"
+    rng = np.random.default_rng(3)
+    low, high = np.array(sp.PROBLEMS[name]["low"]), np.array(sp.PROBLEMS[name]["high"])
+    for seed in (0, 1, 2):
+        x = sp.instance(name, seed, exact_draws=10).observed
+        mean_g, cov_g = sp.grid_moments(sp.grid_posterior(name, x))
+        chol = np.linalg.cholesky(2.0 * cov_g)
+        y = _mvt_sample(rng, 400_000, mean_g, chol, 4.0)
+        inside = np.all((y >= low) & (y <= high), axis=1)
+        logw = np.where(inside, sp.log_likelihood(name, y, x), -np.inf) - _mvt_logpdf(y, mean_g, chol, 4.0)
+        w = np.exp(logw - logw.max())
+        w /= w.sum()
+        mean_i = w @ y
+        sd_i = np.sqrt(w @ (y - mean_i) ** 2)
+        sd_g = np.sqrt(np.diag(cov_g))
+        assert np.all(np.abs(mean_i - mean_g) < 0.015 * sd_g), (seed, mean_i, mean_g)
+        assert np.all(np.abs(sd_i / sd_g - 1) < 0.02), (seed, sd_i, sd_g)
+
+
+def test_the_grid_is_fine_enough() -> None:
+    # Doubling the fine grid's resolution moves no moment by more than 0.2 % of a posterior sd.
+    x = sp.instance("heteroscedastic", 0, exact_draws=10).observed
+    mean_1, cov_1 = sp.grid_moments(sp.grid_posterior("heteroscedastic", x, fine=1000))
+    mean_2, cov_2 = sp.grid_moments(sp.grid_posterior("heteroscedastic", x, fine=2000))
+    sd_1, sd_2 = np.sqrt(np.diag(cov_1)), np.sqrt(np.diag(cov_2))
+    assert np.all(np.abs(mean_1 - mean_2) < 0.002 * sd_1)
+    assert np.all(np.abs(sd_1 / sd_2 - 1) < 0.002)
+
+
+@pytest.mark.parametrize("name", sp.PROBLEM_NAMES)
+def test_each_likelihood_is_the_density_of_its_simulator(name: str) -> None:
+    # Importance sampling over summaries x from a heavy-tailed proposal with the likelihood as the
+    # target: it integrates to one and puts the simulator's quartiles where the simulations do.
+    p = sp.PROBLEMS[name]
+    rng = np.random.default_rng(7)
+    theta = rng.uniform(p["truth_low"], p["truth_high"])
+    sims = sp.simulate_np(name, np.repeat(theta[None], 200_000, axis=0), rng)
+    q25, q50, q75 = np.quantile(sims, [0.25, 0.5, 0.75], axis=0)
+    scale = (q75 - q25) / 1.35
+    chol = np.linalg.cholesky(np.diag((2.0 * scale) ** 2))
+    y = _mvt_sample(rng, 400_000, q50, chol, 2.0)
+    logw = sp.log_likelihood(name, np.repeat(theta[None], len(y), axis=0), y) - _mvt_logpdf(y, q50, chol, 2.0)
+    w = np.exp(logw)
+    assert abs(w.mean() - 1) < 0.03, w.mean()
+    for q, level in ((q25, 0.25), (q50, 0.5), (q75, 0.75)):
+        below = (w[:, None] * (y <= q)).sum(axis=0) / w.sum()
+        assert np.all(np.abs(below - level) < 0.015), (name, level, below)
+
+
+def test_the_jax_simulators_follow_the_numpy_ones() -> None:
+    import jax
+
+    sims = sp._jax_simulators()
+    assert set(sims) == set(sp.PROBLEM_NAMES)
+    rng = np.random.default_rng(11)
+    for name, simulate in sims.items():
+        p = sp.PROBLEMS[name]
+        theta = rng.uniform(p["truth_low"], p["truth_high"]).astype(np.float32)
+        keys = jax.random.split(jax.random.key(0), 40_000)
+        x_jax = np.asarray(jax.vmap(simulate, in_axes=(0, None))(keys, theta), float)
+        x_np = sp.simulate_np(name, np.repeat(theta[None].astype(float), 40_000, axis=0), rng)
+        assert x_jax.shape == x_np.shape
+        q_jax, q_np = (np.quantile(a, [0.1, 0.5, 0.9], axis=0) for a in (x_jax, x_np))
+        spread = q_np[2] - q_np[0]
+        assert np.all(np.abs(q_jax - q_np) < 0.04 * spread), (name, q_jax, q_np)
+
+
+def test_the_shipped_problem_block_stands_alone_and_the_peer_scripts_compile() -> None:
+    namespace: dict[str, Any] = {}
+    exec(sp.PEER_PRELUDE + sp.problem_source(), namespace)
+    theta = np.array([[0.5, -1.0]])
+    for name in TWO_D:
+        a = namespace["simulate_np"](name, theta, np.random.default_rng(1))
+        b = sp.simulate_np(name, theta, np.random.default_rng(1))
+        assert np.array_equal(a, b)
+    for script in sp.PEER_SCRIPTS.values():
+        compile(sp.PEER_PRELUDE + sp.problem_source() + sp.PEER_REQUEST + script, "<peer>", "exec")
+
+
+def test_instances_are_reproducible_and_their_truths_lie_in_the_inner_region() -> None:
+    for name in sp.PROBLEM_NAMES:
+        p = sp.PROBLEMS[name]
+        a, b = sp.instance(name, 2, exact_draws=50), sp.instance(name, 2, exact_draws=50)
+        assert np.array_equal(a.truth, b.truth) and np.array_equal(a.exact_draws, b.exact_draws)
+        assert np.all(a.truth >= p["truth_low"]) and np.all(a.truth <= p["truth_high"])
+        assert np.all(a.exact_draws >= p["low"]) and np.all(a.exact_draws <= p["high"])
+        assert not np.array_equal(a.truth, sp.instance(name, 3, exact_draws=50).truth)
+
+
+def test_the_correlated_problem_has_strong_posterior_correlations() -> None:
+    corr = sp._C5_COV / np.outer(sp._C5_SD, sp._C5_SD)
+    off = np.abs(corr[~np.eye(5, dtype=bool)])
+    assert off.max() == pytest.approx(0.8) and (np.sign(corr[0, 1]) != np.sign(corr[2, 3]))
+    assert np.allclose(np.linalg.inv(sp._C5_A.T @ sp._C5_A), sp._C5_COV)
+
+
+def test_the_energy_distance_is_unbiased_for_equal_laws_and_exact_for_a_shift() -> None:
+    rng = np.random.default_rng(0)
+    same = [
+        sp.energy_distance(rng.standard_normal((800, 2)), np.ones(800), rng.standard_normal((800, 2))) for _ in range(5)
+    ]
+    assert abs(np.mean(same)) < 0.005
+    mu = 1.0
+    s = math.sqrt(2)
+    e_xy = s * math.sqrt(2 / math.pi) * math.exp(-(mu**2) / (2 * s**2)) + mu * math.erf(mu / (s * math.sqrt(2)))
+    exact = 2 * e_xy - 2 * (2 / math.sqrt(math.pi))
+    # Monte Carlo sd of one estimate with 1500 + 1500 draws: about 0.025; the mean of 8 is within 0.02.
+    shifted = [
+        sp.energy_distance(rng.standard_normal((1500, 1)) + mu, np.ones(1500), rng.standard_normal((1500, 1)))
+        for _ in range(8)
+    ]
+    assert np.mean(shifted) == pytest.approx(exact, abs=0.02)
+    y = rng.standard_normal((300, 1))
+    # Weights count: doubling a point's weight is duplicating it.
+    a = rng.standard_normal((50, 2))
+    w = np.ones(50)
+    w[0] = 2.0
+    dup = np.vstack([a, a[:1]])
+    assert sp.energy_distance(a, w, y[:300].repeat(2, axis=1)) == pytest.approx(
+        sp.energy_distance(dup, np.ones(51), y[:300].repeat(2, axis=1)), rel=0.05
+    )
+
+
+def test_accuracy_scores_exact_and_shifted_draws() -> None:
+    inst = sp.instance("linear", 0)
+    ref = sp.accuracy(inst.reference_draws, np.ones(len(inst.reference_draws)), inst)
+    assert abs(ref["energy_distance"]) < 0.01 and ref["mean_error_in_sd"] < 0.15
+    assert np.allclose(ref["sd_ratio"], 1, atol=0.06)
+    sd = np.sqrt(np.diag(inst.exact_cov))
+    shifted = inst.reference_draws + np.array([2.0, 0.0]) * sd
+    s = sp.accuracy(shifted, np.ones(len(shifted)), inst)
+    # A shift of 2 sd along the first axis of a correlation-0.8 posterior: Mahalanobis 2 / sqrt(1 - 0.64).
+    assert s["mean_error_in_sd"] == pytest.approx(2 / math.sqrt(1 - 0.64), rel=0.05)
+    assert s["energy_distance"] > 1.0
+    inside = inst.truth[None] + np.zeros((10, 2))
+    assert sp.accuracy(inside + np.linspace(-1, 1, 10)[:, None], np.ones(10), inst)["covered_90"] == [True, True]
+    assert sp.accuracy(inside + 5.0 + np.linspace(0, 1, 10)[:, None], np.ones(10), inst)["covered_90"] == [False] * 2
+    with pytest.raises(ValueError):
+        sp.accuracy(np.full((3, 2), np.nan), np.ones(3), inst)
+
+
+def test_thin_draws_subsamples_equal_weights_and_resamples_unequal_ones() -> None:
+    x = np.arange(3000.0)[:, None]
+    t, w = sp.thin_draws(x, np.ones(3000), 1000, 0)
+    assert len(t) == 1000 and len(np.unique(t)) == 1000 and np.allclose(w, 1e-3)
+    weights = np.zeros(3000)
+    weights[:10] = 1.0
+    t, _ = sp.thin_draws(x, weights, 1000, 0)
+    assert set(np.unique(t)) == set(range(10)) and np.all(np.bincount(t[:, 0].astype(int)) == 100)
+    assert sp.weighted_quantiles(np.array([0.0, 1.0, 2.0, 3.0]), np.ones(4), [0.5])[0] == pytest.approx(1.5)
+
+
+def _cell(ed: float, seed: int = 0, **extra: Any) -> dict[str, Any]:
+    return {
+        "energy_distance": ed + 0.01 * seed,
+        "mean_error_in_sd": 0.2,
+        "sd_ratio": [1.0, 1.1],
+        "covered_90": [True, seed % 2 == 0],
+        "num_simulations": 50,
+        "run_s": 1.0,
+        "process_wall_s": 2.0,
+        **extra,
+    }
+
+
+def test_the_cache_keeps_the_last_line_of_a_key_and_skips_broken_lines(tmp_path: Path) -> None:
+    path = tmp_path / "cells.jsonl"
+    sp.append_cache(path, {"key": "a", "result": {"error": "x"}})
+    sp.append_cache(path, {"key": "a", "result": _cell(0.1)})
+    with path.open("a") as fh:
+        fh.write("{not json\n")
+    sp.append_cache(path, {"key": "b", "result": _cell(0.2)})
+    cells = sp.load_cache(path)
+    assert set(cells) == {"a", "b"} and cells["a"]["result"]["energy_distance"] == 0.1
+    assert sp.cell_key("linear", "bolfi", 50, 0, "p", "m") != sp.cell_key("linear", "bolfi", 50, 0, "p2", "m")
+
+
+def _synthetic(problems: list[str]) -> dict[str, Any]:
+    methods = ["jaxabc_surrogate", "sbi_npe", "sbi_snpe", "bolfi"]
+    budgets, seeds = [50, 200], [0, 1, 2]
+    cells = {}
+    for p in problems:
+        for b in budgets:
+            for s in seeds:
+                cells[(p, "exact", b, s)] = _cell(0.0, s)
+                cells[(p, "sbi_npe", b, s)] = _cell(0.1, s)
+                cells[(p, "bolfi", b, s)] = _cell(0.5, s)
+                sur = 0.05 if p != "student" else 0.3
+                cells[(p, "jaxabc_surrogate", b, s)] = _cell(sur, s, validated=True)
+                if b >= 200:
+                    cells[(p, "sbi_snpe", b, s)] = _cell(0.2, s)
+    cells[("banana", "bolfi", 50, 1)] = {"error": "did not finish in 10 s"}
+    summary, verdicts, goal = sp.assemble(cells, problems, methods, budgets, seeds)
+    return {
+        "format": 2,
+        "problems": {p: sp.PROBLEMS[p] for p in problems},
+        "method_versions": {"sbi_npe": ["0.27.0"]},
+        "seeds": seeds,
+        "budgets": budgets,
+        "energy_draws": 1000,
+        "exact_draws": 2000,
+        "summary": summary,
+        "closest": verdicts,
+        "goal": goal,
+        "provenance": {"commit": "0" * 40, "date_utc": "today", "command": "python -m benchmarks.surrogate_peers"},
+    }
+
+
+def test_the_summary_names_the_closest_method_and_judges_the_goal() -> None:
+    d = _synthetic(list(sp.PROBLEM_NAMES))
+    lin = d["summary"]["linear"]["50"]
+    assert lin["sbi_snpe"] == {"skipped": lin["sbi_snpe"]["skipped"]} and "200" in lin["sbi_snpe"]["skipped"]
+    assert lin["sbi_npe"]["energy_distance"][0] == pytest.approx(0.11)
+    assert lin["sbi_npe"]["coverage_90"] == pytest.approx(5 / 6) and lin["sbi_npe"][
+        "coverage_90_joint"
+    ] == pytest.approx(2 / 3)
+    assert d["closest"]["linear"]["50"]["closest"] == "jaxabc_surrogate"
+    assert d["closest"]["banana"]["50"]["ranking"] == ["jaxabc_surrogate", "sbi_npe"]  # bolfi failed a seed
+    assert d["summary"]["banana"]["50"]["bolfi"]["seeds_ok"] == 2
+    student = d["closest"]["student"]["200"]
+    assert not student["surrogate_closest"] and student["closest_peer"] == "sbi_npe"
+    assert not student["within_seed_error"] and student["energy_distance_excess"] == pytest.approx(0.2)
+    assert d["goal"]["met"] and d["goal"]["problems_met"] == ["linear", "banana", "heteroscedastic", "correlated5"]
+    assert {(m["problem"], m["budget"]) for m in d["goal"]["misses"]} == {("student", 50), ("student", 200)}
+    assert "500" not in d["closest"]["linear"]
+
+
+def test_the_page_is_generated_from_the_result() -> None:
+    from benchmarks.docpages.surrogate import page_surrogate_peers, peers_page
+
+    d = _synthetic(list(sp.PROBLEM_NAMES))
+    text = peers_page(json.loads(json.dumps(d)))
+    assert text.startswith("# Surrogate against sbi, BOLFI and pyABC")
+    assert "Source: `benchmarks/results/surrogate_peers.json`" in text and "commit `" in text
+    for name in sp.PROBLEM_NAMES:
+        assert f"## {name} (d = " in text
+    assert "the goal is met" in text and "- student, B = 50: closest sbi NPE" in text
+    assert "failed on 1 of 3 seeds: did not finish in 10 s" in text
+    assert "not run: sequential rounds" in text
+    assert "the surrogate is closest to exact" in text and "not within their combined seed error" in text
+    partial = peers_page(json.loads(json.dumps(_synthetic(["linear"]))))
+    assert "not judged" in partial
+    old = peers_page({"rows": [], "provenance": d["provenance"]})
+    assert "Not saved in the new format yet: run `python -m benchmarks.surrogate_peers`" in old
+    assert page_surrogate_peers().startswith("# Surrogate against")
+
+
+def test_a_cell_is_scored_from_its_stored_draws() -> None:
+    inst = sp.instance("linear", 1)
+    raw = {"num_simulations": 60, "run_s": 1.0, "particles": inst.reference_draws.tolist()}
+    cell = sp.score(raw, inst, 50, 1000)
+    assert "particles" not in cell and cell["over_budget"] and abs(cell["energy_distance"]) < 0.01
+    weighted = sp.score({**raw, "weights": [1.0] * 999 + [0.0]}, inst, 100, 1000)
+    assert not weighted["over_budget"] and weighted["energy_distance"] == pytest.approx(
+        cell["energy_distance"], abs=0.01
+    )
+    assert sp.score({"error": "boom", "process_wall_s": 3.0}, inst, 50, 1000) == {
+        "error": "boom",
+        "process_wall_s": 3.0,
+    }
+    assert "scoring failed" in sp.score({"particles": [[float("nan")] * 2] * 3}, inst, 50, 1000)["error"]
+    assert sp.sbi_batch_size(50) == 10 and sp.sbi_batch_size(200) == 20 and sp.sbi_batch_size(5000) == 50
