@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import functools
+import gc
 import os
 import shutil
 import subprocess
@@ -38,6 +39,20 @@ _REQUIREMENTS = {
     "lammps": lambda: None if shutil.which("lmp") else "LAMMPS `lmp` not found: apt-get install lammps",
     "mpi": _mpi_missing,
 }
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _free_compiled_programs():
+    """Free each module's compiled programs when it ends.
+
+    XLA:CPU maps every compiled program into the process; a full run keeps hundreds, and late in
+    it (the water engine's large programs) mapping more failed: "LLVM compilation error: Cannot
+    allocate memory" here (vm.max_map_count 65530), a segmentation fault inside jax's
+    compilation-cache write on CI.  The persistent cache makes the recompilations cheap.
+    """
+    yield
+    jax.clear_caches()
+    gc.collect()
 
 
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:

@@ -175,6 +175,7 @@ def test_resume_after_sigkill_equals_uninterrupted_run(tmp_path):
     np.testing.assert_array_equal(a.records["theta"], b.records["theta"])
 
 
+@pytest.mark.slow  # default-suite time: 25-75 s on 2 cores
 def test_surrogate_resume_after_sigkill_equals_uninterrupted_run(tmp_path):
     """A host simulator through the surrogate's design, killed after its second batch."""
     plain = _job(tmp_path, "plain", "surrogate")

@@ -85,6 +85,7 @@ def test_surrogate_evidence_matches_the_analytic_evidence_and_resumes(tmp_path):
     assert np.isnan(loaded.threshold) and "surrogate evidence" in loaded.summary()
 
 
+@pytest.mark.slow  # default-suite time: 25-75 s on 2 cores
 def test_surrogate_model_choice_picks_the_model_that_made_the_data():
     # Model "mirror" predicts s_2 = -s_1; data simulated from "same" (s_2 = s_1) at theta = 0.8.
     def mirror(key, theta):

@@ -184,6 +184,7 @@ def test_failed_simulations_inform_the_design():
     assert np.mean(particles[:, 0] > 0.6) > 0.2  # truncated, not pushed away
 
 
+@pytest.mark.slow  # default-suite time: 25-75 s on 2 cores
 def test_a_misspecified_model_does_not_chase_the_failing_region():
     """Data no feasible theta reproduces (s0 = 5 needs theta0 ~ 4.4, where runs fail): the
     emulator knows nothing beyond the boundary, and without the feasibility cut its variance
@@ -444,6 +445,7 @@ def constant_extra_summary(key, theta):
     return jnp.concatenate([linear_gaussian(key, theta), jnp.zeros(1)])
 
 
+@pytest.mark.slow  # default-suite time: 25-75 s on 2 cores
 def test_a_constant_summary_changes_nothing_and_is_not_checked():
     observed = np.concatenate([OBSERVED, [0.0]])
     algorithm = build(PRIOR, 2000, observed=observed, max_simulations=200)
@@ -784,6 +786,7 @@ def test_too_few_successes_explore_where_runs_succeed():
     assert gaps.min() > 0.05
 
 
+@pytest.mark.slow  # default-suite time: 25-75 s on 2 cores
 def test_a_two_mode_posterior_is_weighed_by_its_mass_not_by_where_chains_start():
     import jaxabc
 
@@ -805,6 +808,7 @@ def test_a_two_mode_posterior_is_weighed_by_its_mass_not_by_where_chains_start()
     assert abs(w[x > 0].sum() - 0.5) < 4.0 * np.sqrt(0.25 / ess)
 
 
+@pytest.mark.slow  # default-suite time: 25-75 s on 2 cores
 def test_the_result_ess_of_nuts_draws_is_the_chains_not_the_rows():
     import jaxabc
 
@@ -894,6 +898,7 @@ def test_a_posterior_of_few_effective_draws_warns(gaussian_run):
     assert extras["ess"] == pytest.approx(5.0)
 
 
+@pytest.mark.slow  # default-suite time: 25-75 s on 2 cores
 def test_a_sharp_two_mode_posterior_is_resolved_by_thousands_of_draws():
     import jaxabc
 
