@@ -32,6 +32,7 @@ from benchmarks.docpages.surrogate import (
     page_surrogate_classifier,
     page_surrogate_coverage,
     page_surrogate_helium,
+    page_surrogate_honesty,
     page_surrogate_peers,
 )
 from benchmarks.docpages.water import block_water_calibrations, block_water_validation, page_water
@@ -40,6 +41,7 @@ from benchmarks.registry import REGISTRY
 from benchmarks.status import format_cost, status_of
 
 _MODEL_CHOICE_LINK = " and [which water model the data prefer](water_model_choice.md)"
+_HONESTY_LINK = "- [Does the surrogate say when it is wrong?](surrogate_honesty.md)\n"
 
 
 def page_index() -> str:
@@ -62,11 +64,19 @@ results the current code still produces.  Currency is numerical: a result whose 
 current again when `python -m benchmarks.verify --budget 30m` reruns its quick mode on today's
 code and gets its saved quick numbers ("code changed, quick mode reproduces"); where the numbers
 differ it is `changed`, and `python -m benchmarks.regenerate --budget 1h` reruns what fits.
+A result without a quick mode of its own (the hours-long water and criticism runs) names in the
+registry (`checked_by`) the quick modes that run its code path; it is current when, for every
+file that changed, one of those quick modes ran the file on today's code and reproduced numbers
+that were made with the result's own version of it ("quick mode of ... reproduces").  Those
+saved quick numbers must therefore be made on the same code as the long run
+(`python -m benchmarks.regenerate --quick --only NAME` right after it); data changes always
+call for a rerun.
 
 - [Helium Table 1](helium_table1.md) and [the choice of the CPU preset](helium_identifiability.md)
 - [Engine throughput](engine_throughput.md) and [agreement with LAMMPS](lammps_agreement.md)
 - [Coverage of credible regions](coverage.md) and [of the surrogate posterior](surrogate_coverage.md)
 - [Surrogate against APMCABC on helium](surrogate_helium.md) and [against sbi, BOLFI and pyABC](surrogate_peers.md)
+{_HONESTY_LINK if "surrogate_honesty.md" in PAGES else ""}\
 - [The surrogate's success classifier on the water runs](surrogate_classifier.md)
 - [Speedup and scheduling](speedup.md)
 - [Cost of an ABC step](abc_overhead.md)
@@ -103,6 +113,8 @@ PAGES: dict[str, Callable[[], str]] = {
 if (RESULTS / "water_model_choice.json").is_file():
     # Hours of GROMACS: a page once there is a result to show (every page names its JSON).
     PAGES["water_model_choice.md"] = page_water_model_choice
+if (RESULTS / "surrogate_honesty.json").is_file():
+    PAGES["surrogate_honesty.md"] = page_surrogate_honesty
 if (RESULTS / "reliability_probes.json").is_file():
     PAGES["reliability.md"] = page_reliability
 

@@ -78,6 +78,12 @@ class Entry:
     after
         Entries whose saved results this command reads: ``regenerate.py`` runs them first and
         holds this one back while any of them is not current.
+    checked_by
+        Entries whose quick modes run this result's code path (the same script or library code
+        on smaller inputs).  When this result's code changed, a file is vouched for when one of
+        their quick checks ran it on today's code and reproduced quick numbers that were made
+        with this result's version of it (``status._vouch``); a result whose every changed file
+        is vouched for is current without its own rerun.  Data changes are never vouched for.
     note
         What a reader of ``status`` should know.
     """
@@ -95,6 +101,7 @@ class Entry:
     compare_tolerance: float = 0.0
     ignore_keys: tuple[str, ...] = ()
     after: tuple[str, ...] = ()
+    checked_by: tuple[str, ...] = ()
     note: str = ""
 
 
@@ -118,6 +125,7 @@ def _water_surrogate(data: str, statistics: str, checkpoint: str, what: str, pre
         estimated_cost_s=3600.0,
         requires=("gmx",),
         note=f"{what}; resumable with --resume",
+        checked_by=("water_simulated:robust", "surrogate_helium", "water_model_choice"),
     )
 
 
@@ -141,6 +149,7 @@ def _water_paper_preset(data: str) -> Entry:
         estimated_cost_s=36000.0,
         requires=("gmx",),
         note="the paper's preset and statistics through the GP surrogate (issue 13); spans sittings",
+        checked_by=("water_simulated:robust", "surrogate_helium", "water_model_choice"),
     )
 
 
@@ -181,6 +190,7 @@ REGISTRY: tuple[Entry, ...] = (
         estimated_cost_s=900.0,
         requires=("lmp",),
         note="no recorded time; the script's docstring says about 15 minutes on 2 cores",
+        checked_by=("helium_lammps_agreement:cpu",),
     ),
     Entry(
         "coverage",
@@ -229,11 +239,21 @@ REGISTRY: tuple[Entry, ...] = (
         note="GP surrogate against sbi (NPE, NLE, sequential), BOLFI and pyABC at equal budgets, five exact problems",
     ),
     Entry(
+        "surrogate_honesty",
+        f"{R}/surrogate_honesty.json",
+        "python -m benchmarks.surrogate_honesty",
+        quick="python -m benchmarks.surrogate_honesty --quick",
+        quick_output=f"{Q}/surrogate_honesty.json",
+        estimated_cost_s=1800.0,
+        note="does the surrogate say NOT VALIDATED when it is wrong: step, conjugate, heteroscedastic, banana",
+    ),
+    Entry(
         "water_misfit",
         f"{R}/water_misfit.json",
         "python -m benchmarks.water_misfit",
         estimated_cost_s=120.0,
         note="the paper-preset X-ray surrogate's observed-data misfit, from its saved checkpoint (no GROMACS)",
+        checked_by=("water_model_choice", "surrogate_helium"),
     ),
     Entry(
         "surrogate_classifier_replay",
@@ -241,6 +261,7 @@ REGISTRY: tuple[Entry, ...] = (
         "python -m benchmarks.surrogate_classifier_replay",
         estimated_cost_s=600.0,
         note="the success classifier scored on the saved water surrogate runs (reads their .npz records)",
+        checked_by=("surrogate_helium",),
     ),
     Entry(
         "engine_throughput",
@@ -259,6 +280,7 @@ REGISTRY: tuple[Entry, ...] = (
         estimated_cost_s=600.0,
         requires=("lmp",),
         note="timings on one pinned core; run on a quiet machine",
+        checked_by=("engine_throughput",),
     ),
     Entry(
         "engine_throughput_small_system",
@@ -268,6 +290,7 @@ REGISTRY: tuple[Entry, ...] = (
         requires=("lmp",),
         note="the 32-atom CPU preset batched over parameters against LAMMPS, in system-steps per CPU "
         "second (robust to a shared machine); --baseline-tree DIR adds the speed-up over an earlier commit",
+        checked_by=("engine_throughput",),
     ),
     *(
         Entry(
@@ -278,6 +301,7 @@ REGISTRY: tuple[Entry, ...] = (
             estimated_cost_s=cost,
             requires=("nvidia-smi",),
             note=_GPU_NOTE,
+            checked_by=("engine_throughput", "helium_table1"),
         )
         for part, flags, cost in (
             ("gpu", " --fused-sizes 1000 5000 --skip-main-job", 120.0),
@@ -293,6 +317,7 @@ REGISTRY: tuple[Entry, ...] = (
         part="water",
         legacy_cost_keys=("systems/water/batch_wall_seconds",),
         requires=("gmx",),
+        checked_by=("imbalance:helium",),
     ),
     Entry(
         "imbalance:helium",
@@ -323,6 +348,7 @@ REGISTRY: tuple[Entry, ...] = (
         estimated_cost_s=900.0,
         requires=("mpiexec",),
         note="no recorded time",
+        checked_by=("speedup:model",),
     ),
     Entry(
         "speedup:real",
@@ -332,6 +358,7 @@ REGISTRY: tuple[Entry, ...] = (
         estimated_cost_s=600.0,
         requires=("mpiexec", "gmx"),
         note="no recorded time",
+        checked_by=("speedup:model",),
     ),
     Entry(
         "speedup_model_simulated_records",
@@ -341,6 +368,7 @@ REGISTRY: tuple[Entry, ...] = (
         "--figure benchmarks/results/speedup_model_simulated_records.png",
         part="model",
         legacy_cost_keys=("model/seconds",),
+        checked_by=("speedup:model",),
     ),
     Entry(
         "water_example_curves",
@@ -387,6 +415,7 @@ REGISTRY: tuple[Entry, ...] = (
         long=True,
         legacy_cost_keys=("robust/wall_time_s",),
         requires=("gmx",),
+        checked_by=("water_simulated:robust",),
     ),
     Entry(
         "water_xray:paper",
@@ -397,6 +426,7 @@ REGISTRY: tuple[Entry, ...] = (
         long=True,
         legacy_cost_keys=("paper/wall_time_s",),
         requires=("gmx",),
+        checked_by=("water_simulated:robust",),
     ),
     Entry(
         "water_neutron:robust",
@@ -407,6 +437,7 @@ REGISTRY: tuple[Entry, ...] = (
         long=True,
         legacy_cost_keys=("robust/wall_time_s",),
         requires=("gmx",),
+        checked_by=("water_simulated:robust",),
     ),
     Entry(
         "water_neutron:paper",
@@ -417,6 +448,7 @@ REGISTRY: tuple[Entry, ...] = (
         long=True,
         legacy_cost_keys=("paper/wall_time_s",),
         requires=("gmx",),
+        checked_by=("water_simulated:robust",),
     ),
     Entry(
         "criticism_water",
@@ -442,6 +474,7 @@ REGISTRY: tuple[Entry, ...] = (
         legacy_cost_keys=("wall_time_s",),
         requires=("gmx",),
         after=("water_neutron:robust",),
+        checked_by=("criticism_water",),
     ),
     Entry(
         "surrogate_coverage",
@@ -477,6 +510,7 @@ REGISTRY: tuple[Entry, ...] = (
         estimated_cost_s=300.0,
         note="each water model at its published parameters on the model choice's protocol and summaries "
         "(295 K for the X-ray data), beside the measured values: the calibrated predictive's reference",
+        checked_by=("water_model_paper_check", "water_simulated:robust"),
     ),
     Entry(
         "water_model_paper_check",
@@ -503,6 +537,7 @@ REGISTRY: tuple[Entry, ...] = (
         note="the same paper-preset check for TIP3P, the model with the highest (unresolved) probability; "
         "runs cached beside TIP4P's (files are named by model)",
         after=("water_model_choice",),
+        checked_by=("water_model_paper_check",),
     ),
     Entry(
         "criticism_water_joint",
@@ -530,6 +565,7 @@ REGISTRY: tuple[Entry, ...] = (
         note="the same criticism of TIP3P, the model with the highest (unresolved) probability; its "
         "simulations share the TIP4P criticism's cache folder (files are named by model)",
         after=("water_model_choice",),
+        checked_by=("criticism_water_joint",),
     ),
     Entry(
         "water_density_relaxation",
@@ -547,6 +583,7 @@ REGISTRY: tuple[Entry, ...] = (
         "python -m benchmarks.water_jaxmd_speed",
         requires=("gmx",),
         note="timings of the jax-md TIP4P engine against GROMACS on one core; run on a quiet machine",
+        checked_by=("water_jaxmd_density",),
     ),
     Entry(
         "water_jaxmd_density",
@@ -566,6 +603,7 @@ REGISTRY: tuple[Entry, ...] = (
         estimated_cost_s=2700.0,
         requires=("gmx",),
         note="NVT, fixed box: U/N, S1..S9 over seeds; the NPT density is water_jaxmd_density",
+        checked_by=("water_jaxmd_density",),
     ),
     Entry(
         "water_jaxmd_agreement_1fs",
@@ -575,6 +613,7 @@ REGISTRY: tuple[Entry, ...] = (
         estimated_cost_s=1800.0,
         requires=("gmx",),
         note="the agreement at 1 fs: separates the integrators' time-step error from the model",
+        checked_by=("water_jaxmd_density",),
     ),
     Entry(
         "criticism_neon",
@@ -583,6 +622,7 @@ REGISTRY: tuple[Entry, ...] = (
         long=True,
         estimated_cost_s=2400.0,
         note="smoke run of the plumbing: python -m benchmarks.criticism_neon --tiny (numbers meaningless)",
+        checked_by=("criticism_water", "helium_table1"),
     ),
     Entry(
         "criticism_argon",
@@ -590,6 +630,7 @@ REGISTRY: tuple[Entry, ...] = (
         "python -m benchmarks.criticism_argon",
         long=True,
         estimated_cost_s=3000.0,
+        checked_by=("criticism_water", "helium_table1"),
     ),
     Entry(
         "mcse_calibration",

@@ -137,7 +137,7 @@ def status_of(entry: Entry, quick: bool = False, root: Path = ROOT) -> Status:
             st.cost_s, st.cost_source = entry.estimated_cost_s, "registry estimate"
         return st
     st.changed = check_provenance(prov, root)
-    _numerical_state(st, entry, quick, root)
+    _numerical_state(st, entry, quick, root, prov)
     st.cost_s, st.cost_source = prov.get("cost_s"), "recorded"
     body = data.get(entry.part, {}) if entry.part and not quick else data
     sittings = body.get("sittings") if isinstance(body, dict) else None
@@ -158,28 +158,96 @@ def load_verifications(root: Path = ROOT) -> dict[str, Any]:
     return json.loads(path.read_text()).get("entries", {})
 
 
-def _numerical_state(st: Status, entry: Entry, quick: bool, root: Path) -> None:
-    """Set ``st.state``/``st.why`` from the fingerprint and, when code changed, the ledger."""
+def _quick_baseline(name: str, root: Path) -> dict[str, Any] | None:
+    """The provenance of registry entry ``name``'s saved quick JSON (None: no quick mode or file)."""
+    entry = next((e for e in REGISTRY if e.name == name), None)
+    if entry is None or entry.quick_output is None or not (root / entry.quick_output).is_file():
+        return None
+    data = json.loads((root / entry.quick_output).read_text())
+    return (_provenance_of(data, entry.part) if entry.part else None) or _provenance_of(data, None)
+
+
+def _vouch(name: str, prov: dict[str, Any], changed: list[str], root: Path) -> tuple[set[str], str]:
+    """The changed files that registry entry ``name``'s quick check vouches for, and why not the rest.
+
+    A file is vouched for when the last check of ``name`` ran on today's code, reproduced the
+    saved quick numbers, ran the file (or the file is gone and was not run), and those saved
+    numbers were made with the result's own version of the file: then that version and today's
+    give the same quick numbers.  Data files are never vouched for.
+    """
+    record = load_verifications(root).get(name)
+    if record is None:
+        return set(), "not checked"
+    since = check_provenance({"fingerprint": record.get("fingerprint", {})}, root)
+    if since:
+        return set(), "code changed since the last check (" + ", ".join(since[:3]) + ")"
+    if not (record.get("outcome") == "reproduces" or record.get("quick_reproduces")):
+        last = (record.get("detail", "").strip().splitlines() or [""])[-1]
+        return set(), f"check {record.get('outcome', '?')}: {last[:160]}".strip()
+    baseline = _quick_baseline(name, root)
+    if baseline is None:
+        return set(), "no saved quick JSON"
+    if record.get("baseline_date_utc", baseline.get("date_utc")) != baseline.get("date_utc"):
+        return set(), "the saved quick JSON was rewritten after the check"
+    mine = prov.get("fingerprint", {}).get("code", {})
+    base = baseline.get("fingerprint", {}).get("code", {})
+    ran = record.get("fingerprint", {}).get("code", {})
+    vouched = set()
+    for item in changed:
+        rel, removed = item.removesuffix(" (removed)"), item.endswith(" (removed)")
+        if rel in mine and base.get(rel) == mine[rel] and (removed or rel in ran):
+            vouched.add(item)
+    rest = [c for c in changed if c not in vouched]
+    return vouched, ("" if not rest else "quick numbers made with other code than the result: " + ", ".join(rest[:3]))
+
+
+def _numerical_state(st: Status, entry: Entry, quick: bool, root: Path, prov: dict[str, Any] | None = None) -> None:
+    """Set ``st.state``/``st.why`` from the fingerprint and, when code changed, the ledger.
+
+    The result's own quick check decides first; then the quick checks of ``entry.checked_by``
+    may vouch, file by file, for what changed (:func:`_vouch`).
+    """
     if not st.changed:
         st.state, st.why = "current", "code unchanged"
         return
     st.state = "stale"
     record = None if quick else load_verifications(root).get(entry.name)
+    if quick:
+        st.why = "code changed, not checked"
+        return
     if record is None:
         st.why = "code changed, not checked" if entry.quick else "code changed; no quick mode to check it"
-        return
-    # The check holds for the code it ran on: the files its quick run imported, as they are now.
-    since = check_provenance({"fingerprint": record.get("fingerprint", {})}, root)
-    if since:
-        st.why = "code changed since the last check (" + ", ".join(since[:3]) + ")"
-        return
-    if record.get("outcome") == "reproduces":
-        st.state, st.why = "current", "code changed, quick mode reproduces"
-    elif record.get("outcome") == "numbers changed":
-        st.state, st.why = "changed", "numbers changed"
     else:
-        last = (record.get("detail", "").strip().splitlines() or [""])[-1]
-        st.why = f"check {record.get('outcome', '?')}: {last[:160]}".strip()
+        # The check holds for the code it ran on: the files its quick run imported, as they are now.
+        since = check_provenance({"fingerprint": record.get("fingerprint", {})}, root)
+        if since:
+            st.why = "code changed since the last check (" + ", ".join(since[:3]) + ")"
+        elif record.get("outcome") == "reproduces":
+            st.state, st.why = "current", "code changed, quick mode reproduces"
+            return
+        elif record.get("outcome") == "numbers changed":
+            st.state, st.why = "changed", "numbers changed"
+            return
+        else:
+            last = (record.get("detail", "").strip().splitlines() or [""])[-1]
+            st.why = f"check {record.get('outcome', '?')}: {last[:160]}".strip()
+    if prov is None:
+        return
+    # File by file: the own check (when it could not vouch for the whole result) and the siblings'.
+    names = ([entry.name] if entry.quick_output and record is not None else []) + list(entry.checked_by)
+    vouched: set[str] = set()
+    by = []
+    for name in names:
+        got, _ = _vouch(name, prov, st.changed, root)
+        if got - vouched:
+            by.append(name)
+        vouched |= got
+    if vouched >= set(st.changed):
+        st.state = "current"
+        st.why = "code changed, quick mode of " + ", ".join(by) + " reproduces"
+    elif entry.checked_by:
+        rest = [c for c in st.changed if c not in vouched]
+        st.why += "; not vouched for by " + ", ".join(entry.checked_by) + ": " + ", ".join(rest[:3])
 
 
 def status_all(quick: bool = False, root: Path = ROOT) -> list[Status]:

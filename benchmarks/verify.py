@@ -82,16 +82,21 @@ def plan(entries: list[Entry], budget_s: float, include_current: bool = False) -
     """``(entry, quick cost, why)`` for every candidate, cheapest first; why is "" for those to run."""
     rows = []
     ledger = load_verifications()
+    # A quick check also vouches for the stale results that name it in ``checked_by``.
+    wanted = {n for r in REGISTRY if r.checked_by and status_of(r).state == "stale" for n in r.checked_by}
     for e in entries:
         st = status_of(e)
         if not e.quick or not e.quick_output:
             continue
-        if st.state in ("unknown", "missing"):
+        if st.state in ("unknown", "missing") and e.name not in wanted:
             continue  # nothing to vouch for: a result without provenance needs a rerun
         record = ledger.get(e.name)
         checked = record is not None and not check_provenance({"fingerprint": record.get("fingerprint", {})})
-        if not include_current and (st.state == "current" or (checked and "fingerprint" in record)):
-            continue  # current, or already checked on this very code (whatever the outcome)
+        if checked and "fingerprint" in record:
+            if not include_current:
+                continue  # already checked on this very code (whatever the outcome)
+        elif st.state == "current" and e.name not in wanted and not include_current:
+            continue
         rows.append((e, _quick_cost(e)))
     rows.sort(key=lambda r: r[1])
     out, left = [], budget_s
@@ -118,6 +123,8 @@ def check(entry: Entry, root: Path = ROOT) -> dict[str, Any]:
     mismatch = baseline_mismatch(entry, root)
     saved_path = root / entry.quick_output
     saved_text = saved_path.read_text()
+    # Which saved numbers the check compared against: status uses a check only while they stand.
+    record["baseline_date_utc"] = (_provenance(json.loads(saved_text), entry.part) or {}).get("date_utc")
     # A quick command may write other quick results too (criticism_water_joint's writes
     # water_model_choice's): every saved quick JSON is put back as it was.
     snapshot = {p: p.read_text() for p in saved_path.parent.glob("*.json")}

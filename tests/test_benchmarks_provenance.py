@@ -430,3 +430,58 @@ def test_results_pages_show_figures_that_exist_and_the_build_publishes_them() ->
     published = {uri.removeprefix("results/figures/") for uri in hook.published()}
     assert shown <= published
     assert not any(p.startswith("quick/") for p in published)
+
+
+def test_a_sibling_quick_check_vouches_file_by_file(fake_repo: Path, monkeypatch) -> None:
+    """A result without a quick mode is current after a refactor when the quick mode it names in
+    ``checked_by`` reproduces on today's code numbers made with the result's own code."""
+    from benchmarks import verify
+
+    sibling = QUICK_ENTRY
+    long = registry.Entry("long", "benchmarks/results/long.json", "python x.py --long", checked_by=("res",))
+    monkeypatch.setattr(status, "REGISTRY", (sibling, long))
+    write_fake(fake_repo)
+    write_fake(fake_repo, name="long")
+    _common.write_result(fake_repo / sibling.quick_output, {"value": 1.5}, inputs=[fake_repo / "data.txt"])
+    module_file = fake_repo / "jaxabc/fake_dependency.py"
+    module_file.write_text(SOURCE.replace("return SCALE", "y = SCALE\n    return y"))  # a refactor
+    st = status.status_of(long, root=fake_repo)
+    assert st.state == "stale" and "no quick mode" in st.why and "not vouched for by res" in st.why
+
+    monkeypatch.setattr(verify, "_run_command", _fake_quick_run(fake_repo, 1.5, sibling))
+    verify._write_ledger("res", verify.check(sibling, fake_repo), fake_repo)
+    st = status.status_of(long, root=fake_repo)
+    assert (st.state, st.why) == ("current", "code changed, quick mode of res reproduces")
+
+    module_file.write_text(SOURCE.replace("SCALE = 2.0", "SCALE = 3.0"))  # a change of meaning
+    assert status.status_of(long, root=fake_repo).state == "stale"  # the check ran on other code
+    monkeypatch.setattr(verify, "_run_command", _fake_quick_run(fake_repo, 2.25, sibling))
+    record = verify.check(sibling, fake_repo)
+    assert record["outcome"] == "numbers changed"
+    verify._write_ledger("res", record, fake_repo)
+    st = status.status_of(long, root=fake_repo)
+    assert st.state == "stale" and "not vouched for by res: jaxabc/fake_dependency.py" in st.why
+
+
+def test_a_sibling_cannot_vouch_with_numbers_made_from_other_code(fake_repo: Path, monkeypatch) -> None:
+    from benchmarks import verify
+
+    sibling = QUICK_ENTRY
+    long = registry.Entry("long", "benchmarks/results/long.json", "python x.py --long", checked_by=("res",))
+    monkeypatch.setattr(status, "REGISTRY", (sibling, long))
+    write_fake(fake_repo, name="long")  # the result: SCALE 2.0
+    module_file = fake_repo / "jaxabc/fake_dependency.py"
+    module_file.write_text(SOURCE.replace("SCALE = 2.0", "SCALE = 3.0"))
+    write_fake(fake_repo)
+    _common.write_result(fake_repo / sibling.quick_output, {"value": 1.5}, inputs=[fake_repo / "data.txt"])
+    monkeypatch.setattr(verify, "_run_command", _fake_quick_run(fake_repo, 1.5, sibling))
+    verify._write_ledger("res", verify.check(sibling, fake_repo), fake_repo)
+    # The sibling reproduces on today's code, but its numbers were made with SCALE 3.0, not 2.0.
+    assert status.status_of(long, root=fake_repo).state == "stale"
+
+    # Nor is a change of data ever vouched for.
+    module_file.write_text(SOURCE)
+    write_fake(fake_repo, name="long")
+    (fake_repo / "data.txt").write_text("1 2 4\n")
+    st = status.status_of(long, root=fake_repo)
+    assert (st.state, st.changed) == ("stale", ["data.txt"])
