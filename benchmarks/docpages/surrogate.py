@@ -515,3 +515,85 @@ above that level and below it, and the share of them that succeeded.
         )
     }
 """
+
+
+_HONESTY_HEADER = [
+    "case",
+    "noise model",
+    "validated",
+    "validated but wrong",
+    "rms z (validated)",
+    "max abs z (validated)",
+    "max abs error (exact sd)",
+    "sd ratio",
+    "s per run",
+]
+_HONESTY_RUN_HEADER = [
+    "case",
+    "noise model",
+    "seed",
+    "validated",
+    "error (exact sd)",
+    "sd ratio",
+    "z",
+    "simulations",
+    "failure named",
+]
+
+
+def page_surrogate_honesty() -> str:
+    """Does the surrogate say NOT VALIDATED when its posterior is wrong (``surrogate_honesty``)."""
+    title = "# Does the surrogate say when it is wrong?"
+    d = load("surrogate_honesty")
+    if d is None:
+        return f"{title}\n\nNot saved yet: run `python -m benchmarks.surrogate_honesty`.\n"
+    rows = []
+    for key, s in d["summary"].items():
+        case, model = key.split("/")
+        rows.append(
+            [
+                case,
+                model,
+                f"{s['validated']} of {s['runs']}",
+                s["validated_but_wrong"],
+                f(s["rms_z_validated"], 2),
+                f(s["max_abs_z_validated"], 2),
+                f(s["max_abs_error_in_exact_sd"], 2),
+                span(s["sd_ratio_range"]),
+                f(s["seconds_mean"], 0),
+            ]
+        )
+    runs = [
+        [
+            r["case"],
+            r["noise_model"],
+            r["seed"],
+            "yes" if r["validated"] else "NO",
+            ", ".join(f(v, 2) for v in r["error_in_exact_sd"]),
+            ", ".join(f(v, 2) for v in r["sd_ratio"]),
+            ", ".join(f(v, 2) for v in r["z"]),
+            r["simulations"],
+            _cell_text(r["failure"] or "", 120),
+        ]
+        for r in d["runs"]
+    ]
+    return f"""{title}
+
+Problems with exact posteriors on which a Gaussian-process surrogate can go wrong (a step in the
+simulator, noise that grows with the parameter, a curved posterior) and one on which it should
+not (a conjugate Gaussian, the check that the reported MCSE is calibrated).  Every run has the same
+budget of {d["budget"]} simulations and 1000 draws.  A run is *wrong* when some parameter's posterior
+mean lies more than {f(d["z_limit"], 0)} reported MCSE (`result.mcse()`, sampling and emulator error
+together) from the exact mean; the figure that matters is how many runs called themselves validated
+while wrong.  A run that says NOT VALIDATED names its failure and is honest whatever its numbers.
+z is the error over the reported MCSE (rms about 1 when the MCSE is calibrated); errors and sds are
+in units of the exact posterior sd.
+
+{source("surrogate_honesty", data=d)}
+
+{table(_HONESTY_HEADER, rows)}
+
+Each run:
+
+{table(_HONESTY_RUN_HEADER, runs)}
+"""
