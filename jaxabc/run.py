@@ -165,7 +165,7 @@ def run(
         metadata=metadata,
     )
     measured = {"observation_error": observation_error, "discrepancy": discrepancy}
-    if type(algorithm) in (list, tuple) or type(simulate) in (list, tuple):
+    if _is_model_list(algorithm, simulate):
         # Model choice, imported here so that a calibration never loads it.
         from jaxabc.model_choice import run_from_driver
 
@@ -193,3 +193,8 @@ def run(
         **measured,
         algorithm_options=algorithm_options,
     )
+
+
+def _is_model_list(algorithm: object, simulate: object) -> bool:
+    """Whether :func:`run` was given a list of models (model choice) rather than one model."""
+    return type(algorithm) in (list, tuple) or type(simulate) in (list, tuple)
