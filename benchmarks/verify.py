@@ -31,6 +31,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+from benchmarks import _common
 from benchmarks._common import ROOT, git_state
 from benchmarks.regenerate import command_argv, parse_budget
 from benchmarks.registry import REGISTRY, VERIFICATIONS, Entry
@@ -92,7 +93,7 @@ def plan(entries: list[Entry], budget_s: float, include_current: bool = False) -
             continue  # nothing to vouch for: a result without provenance needs a rerun
         record = ledger.get(e.name)
         checked = record is not None and not check_provenance({"fingerprint": record.get("fingerprint", {})})
-        if checked and "fingerprint" in record:
+        if checked and record is not None and "fingerprint" in record:
             if not include_current:
                 continue  # already checked on this very code (whatever the outcome)
         elif st.state == "current" and e.name not in wanted and not include_current:
@@ -147,6 +148,19 @@ def check(entry: Entry, root: Path = ROOT) -> dict[str, Any]:
         deterministic_view(new, entry.ignore_keys),
         entry.compare_tolerance,
     )
+    here_cpu = _common.machine().get("cpu")
+    base_cpu = ((_provenance(json.loads(saved_text), entry.part) or {}).get("machine") or {}).get("cpu")
+    record["cpu"], record["baseline_cpu"] = here_cpu, base_cpu
+    if diffs and base_cpu and here_cpu and base_cpu != here_cpu:
+        # Chaotic MD (GROMACS) diverges with the CPU's rounding: other numbers on another CPU say
+        # nothing about the code.  The check must run on the CPU family that made the baseline.
+        return {
+            **record,
+            "outcome": "other machine",
+            "detail": f"{len(diffs)} quick numbers differ on {here_cpu}; the saved ones were made on {base_cpu}",
+            "differences": diffs[:20],
+            "num_differences": len(diffs),
+        }
     if mismatch:
         # The numbers still say whether today's code reproduces the quick JSON, but that JSON was
         # made from other code than the full result, so it cannot vouch for it.

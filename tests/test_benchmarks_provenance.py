@@ -485,3 +485,20 @@ def test_a_sibling_cannot_vouch_with_numbers_made_from_other_code(fake_repo: Pat
     (fake_repo / "data.txt").write_text("1 2 4\n")
     st = status.status_of(long, root=fake_repo)
     assert (st.state, st.changed) == ("stale", ["data.txt"])
+
+
+def test_other_numbers_on_another_cpu_decide_nothing(fake_repo: Path, monkeypatch) -> None:
+    """Chaotic MD differs from CPU to CPU: a check there is recorded, not read as changed numbers."""
+    from benchmarks import verify
+
+    entry = QUICK_ENTRY
+    write_fake(fake_repo)
+    _common.write_result(fake_repo / entry.quick_output, {"value": 1.5}, inputs=[fake_repo / "data.txt"])
+    monkeypatch.setattr(_common, "machine", lambda: {"cpu": "another"})
+    monkeypatch.setattr(verify, "_run_command", _fake_quick_run(fake_repo, 1.6, entry))
+    record = verify.check(entry, fake_repo)
+    assert record["outcome"] == "other machine" and record["baseline_cpu"] == "test"
+    verify._write_ledger(entry.name, record, fake_repo)
+    (fake_repo / "jaxabc/fake_dependency.py").write_text(SOURCE.replace("return SCALE", "y = SCALE\n    return y"))
+    # The ledger's check ran on the code before this refactor: stale, never "changed".
+    assert status.status_of(entry, root=fake_repo).state == "stale"
