@@ -167,8 +167,21 @@ def _quick_baseline(name: str, root: Path) -> dict[str, Any] | None:
     return (_provenance_of(data, entry.part) if entry.part else None) or _provenance_of(data, None)
 
 
-def _vouch(name: str, prov: dict[str, Any], changed: list[str], root: Path) -> tuple[set[str], str]:
-    """The changed files that registry entry ``name``'s quick check vouches for, and why not the rest.
+def _check_problem(record: dict[str, Any], root: Path) -> str:
+    """Why a ledger check says nothing about today's code ("" when it ran on it)."""
+    # The check holds for the code it ran on: the files its quick run imported, as they are now.
+    since = check_provenance({"fingerprint": record.get("fingerprint", {})}, root)
+    return "code changed since the last check (" + ", ".join(since[:3]) + ")" if since else ""
+
+
+def _check_failure(record: dict[str, Any]) -> str:
+    """A ledger check's outcome and the last line of its detail."""
+    last = (record.get("detail", "").strip().splitlines() or [""])[-1]
+    return f"check {record.get('outcome', '?')}: {last[:160]}".strip()
+
+
+def _vouch(name: str, prov: dict[str, Any], changed: list[str], root: Path) -> set[str]:
+    """The changed files that registry entry ``name``'s quick check vouches for.
 
     A file is vouched for when the last check of ``name`` ran on today's code, reproduced the
     saved quick numbers, ran the file (or the file is gone and was not run), and those saved
@@ -176,29 +189,23 @@ def _vouch(name: str, prov: dict[str, Any], changed: list[str], root: Path) -> t
     give the same quick numbers.  Data files are never vouched for.
     """
     record = load_verifications(root).get(name)
-    if record is None:
-        return set(), "not checked"
-    since = check_provenance({"fingerprint": record.get("fingerprint", {})}, root)
-    if since:
-        return set(), "code changed since the last check (" + ", ".join(since[:3]) + ")"
+    if record is None or _check_problem(record, root):
+        return set()
     if not (record.get("outcome") == "reproduces" or record.get("quick_reproduces")):
-        last = (record.get("detail", "").strip().splitlines() or [""])[-1]
-        return set(), f"check {record.get('outcome', '?')}: {last[:160]}".strip()
+        return set()
     baseline = _quick_baseline(name, root)
-    if baseline is None:
-        return set(), "no saved quick JSON"
-    if record.get("baseline_date_utc", baseline.get("date_utc")) != baseline.get("date_utc"):
-        return set(), "the saved quick JSON was rewritten after the check"
+    if baseline is None or record.get("baseline_date_utc", baseline.get("date_utc")) != baseline.get("date_utc"):
+        return set()  # no saved quick JSON, or rewritten after the check
     mine = prov.get("fingerprint", {}).get("code", {})
     base = baseline.get("fingerprint", {}).get("code", {})
     ran = record.get("fingerprint", {}).get("code", {})
-    vouched = set()
-    for item in changed:
-        rel, removed = item.removesuffix(" (removed)"), item.endswith(" (removed)")
-        if rel in mine and base.get(rel) == mine[rel] and (removed or rel in ran):
-            vouched.add(item)
-    rest = [c for c in changed if c not in vouched]
-    return vouched, ("" if not rest else "quick numbers made with other code than the result: " + ", ".join(rest[:3]))
+    return {
+        item
+        for item in changed
+        if (rel := item.removesuffix(" (removed)")) in mine
+        and base.get(rel) == mine[rel]
+        and (item.endswith(" (removed)") or rel in ran)
+    }
 
 
 def _numerical_state(st: Status, entry: Entry, quick: bool, root: Path, prov: dict[str, Any] | None = None) -> None:
@@ -211,26 +218,22 @@ def _numerical_state(st: Status, entry: Entry, quick: bool, root: Path, prov: di
         st.state, st.why = "current", "code unchanged"
         return
     st.state = "stale"
-    record = None if quick else load_verifications(root).get(entry.name)
     if quick:
         st.why = "code changed, not checked"
         return
+    record = load_verifications(root).get(entry.name)
     if record is None:
         st.why = "code changed, not checked" if entry.quick else "code changed; no quick mode to check it"
+    elif problem := _check_problem(record, root):
+        st.why = problem
+    elif record.get("outcome") == "reproduces":
+        st.state, st.why = "current", "code changed, quick mode reproduces"
+        return
+    elif record.get("outcome") == "numbers changed":
+        st.state, st.why = "changed", "numbers changed"
+        return
     else:
-        # The check holds for the code it ran on: the files its quick run imported, as they are now.
-        since = check_provenance({"fingerprint": record.get("fingerprint", {})}, root)
-        if since:
-            st.why = "code changed since the last check (" + ", ".join(since[:3]) + ")"
-        elif record.get("outcome") == "reproduces":
-            st.state, st.why = "current", "code changed, quick mode reproduces"
-            return
-        elif record.get("outcome") == "numbers changed":
-            st.state, st.why = "changed", "numbers changed"
-            return
-        else:
-            last = (record.get("detail", "").strip().splitlines() or [""])[-1]
-            st.why = f"check {record.get('outcome', '?')}: {last[:160]}".strip()
+        st.why = _check_failure(record)
     if prov is None:
         return
     # File by file: the own check (when it could not vouch for the whole result) and the siblings'.
@@ -238,7 +241,7 @@ def _numerical_state(st: Status, entry: Entry, quick: bool, root: Path, prov: di
     vouched: set[str] = set()
     by = []
     for name in names:
-        got, _ = _vouch(name, prov, st.changed, root)
+        got = _vouch(name, prov, st.changed, root)
         if got - vouched:
             by.append(name)
         vouched |= got
