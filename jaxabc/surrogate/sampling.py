@@ -458,7 +458,7 @@ def nuts(
     num_warmup: int,
     num_draws: int,
     thin: int,
-) -> tuple[jax.Array, jax.Array]:
+) -> tuple[jax.Array, jax.Array, jax.Array]:
     """Sample the surrogate posterior with blackjax NUTS, one chain per starting point.
 
     The metric comes from the caller (the importance-weighted covariance of the design-phase
@@ -483,6 +483,8 @@ def nuts(
         Unit-box coordinates.
     acceptance : array, shape (c,)
         Mean NUTS acceptance probability per chain over the kept steps.
+    divergent : array, shape (c,)
+        Share of each chain's kept steps that diverged.
     """
     logdensity = partial(_logdensity_u, model)
     kernel = blackjax.nuts(logdensity, step_size, inverse_mass_matrix)
@@ -494,12 +496,12 @@ def nuts(
 
         def step(state, k):
             state, info = kernel.step(k, state)
-            return state, (state.position, info.acceptance_rate)  # pyright: ignore[reportAttributeAccessIssue]
+            return state, (state.position, info.acceptance_rate, info.is_divergent)  # pyright: ignore[reportAttributeAccessIssue]
 
         k_warm, k_run = jax.random.split(k)
         state, _ = jax.lax.scan(step, state, jax.random.split(k_warm, num_warmup))
-        _, (pos, acc) = jax.lax.scan(step, state, jax.random.split(k_run, num_draws * thin))
-        return jax.nn.sigmoid(pos[thin - 1 :: thin]), jnp.mean(acc)
+        _, (pos, acc, div) = jax.lax.scan(step, state, jax.random.split(k_run, num_draws * thin))
+        return jax.nn.sigmoid(pos[thin - 1 :: thin]), jnp.mean(acc), jnp.mean(div)
 
     return jax.vmap(chain)(jax.random.split(key, x_init.shape[0]), x_init)
 
