@@ -31,6 +31,7 @@ from __future__ import annotations
 import argparse
 import time
 from pathlib import Path
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -70,9 +71,9 @@ def energy_distance(a: np.ndarray, b: np.ndarray, scale: np.ndarray, num: int, r
     return 2 * mean_dist(a, b) - mean_dist(a, a) - mean_dist(b, b)
 
 
-def accuracy(draws: np.ndarray, reference: np.ndarray, scale: np.ndarray, args) -> dict:
+def accuracy(draws: np.ndarray, reference: np.ndarray, scale: np.ndarray, args, seed: int) -> dict:
     """Energy distance to the reference (mean and SE over repeats) and moments in reference sd."""
-    rng = np.random.default_rng(args.seed)
+    rng = np.random.default_rng(seed)
     eds = [energy_distance(draws, reference, scale, args.ed_num, rng) for _ in range(args.ed_repeats)]
     ref_mean, ref_sd = reference.mean(axis=0), reference.std(axis=0)
     return {
@@ -150,9 +151,9 @@ def synthetic_likelihood_reference(simulate, observed, prior, centre, sd, args, 
 
 
 def apmcabc(
-    simulate, prior, observed, particles: int, steps: int, seed: int, distance: str
+    simulate, prior, observed, particles: int, steps: int, seed: int, distance: str, alpha: float = 0.1
 ) -> tuple[jaxabc.ABCResult, float]:
-    """APMCABC at the Table 1 settings (alpha 0.1, acceptance cutoff 0.03)."""
+    """APMCABC with Table 1's acceptance cutoff 0.03 (and its alpha 0.1 by default)."""
     t0 = time.perf_counter()
     result = jaxabc.run(
         "apmcabc",
@@ -163,88 +164,80 @@ def apmcabc(
         num_steps=steps,
         distance=distance,
         seed=seed,
-        alpha=0.1,
+        alpha=alpha,
         acceptance_cutoff=0.03,
     )
     return result, time.perf_counter() - t0
 
 
-def main(argv: list[str] | None = None) -> dict:
-    parser = argparse.ArgumentParser(description=(__doc__ or "").split("\n\n")[0])
-    parser.add_argument("--budgets", type=int, nargs="+", default=[60, 100, 150, 200, 300])
-    parser.add_argument("--preset", default="cpu")
-    parser.add_argument("--seed", type=int, default=0, help="the Table 1 seed: data and inference")
-    parser.add_argument("--reference-particles", type=int, default=1500)
-    parser.add_argument("--reference-steps", type=int, default=8)
-    parser.add_argument("--apmc-particles", type=int, default=500)
-    parser.add_argument("--apmc-steps", type=int, default=6)
-    parser.add_argument("--draws", type=int, default=2000, help="surrogate posterior draws")
-    parser.add_argument("--ed-num", type=int, default=1000, help="rows per energy-distance subsample")
-    parser.add_argument("--ed-repeats", type=int, default=10)
-    parser.add_argument("--sl-coarse", type=int, default=16, help="coarse grid points per axis")
-    parser.add_argument("--sl-coarse-reps", type=int, default=8, help="runs per coarse grid point")
-    parser.add_argument("--sl-fine", type=int, default=30, help="fine grid points per axis")
-    parser.add_argument("--sl-fine-reps", type=int, default=12, help="runs per fine grid point")
-    parser.add_argument("--quick", action="store_true", help="small everything: results/quick/")
-    args = parser.parse_args(argv)
-    if args.quick:
-        args.budgets, args.reference_particles, args.reference_steps = [60], 200, 4
-        args.apmc_particles, args.apmc_steps, args.draws, args.ed_num, args.ed_repeats = 100, 3, 1000, 300, 3
-        args.sl_coarse, args.sl_coarse_reps, args.sl_fine, args.sl_fine_reps = 8, 4, 10, 6
+#: APMCABC's alpha at a surrogate's budget: Table 1's 0.1 would keep 2-8 of the 16-80 particles
+#: such budgets allow.
+BUDGET_ALPHA = 0.5
 
-    simulate_quantiles, prior, observed, observed_q, simulate = quantile_problem(args.preset, args.seed)
+
+def _budget_apmcabc(budget: int) -> tuple[int, int]:
+    """APMCABC (alpha :data:`BUDGET_ALPHA`) particles and generations whose simulations stay
+    within ``budget``: four generations, ``N + 3 (1 - alpha) N <= budget``."""
+    return max(10, int(budget / (1 + 3 * (1 - BUDGET_ALPHA)))), 4
+
+
+def _surrogate_row(result: jaxabc.ABCResult, budget: int, mode: str, seconds: float, truth, against) -> dict:
+    diag = result.diagnostics
+    draws = np.asarray(result.resample(len(result.particles), seed=0))
+    return {
+        "budget": budget,
+        "mode": mode,
+        "simulations": int(result.num_simulations),
+        "failed_simulations": int(diag.get("num_failed_simulations", 0)),
+        "wall_time_s": seconds,
+        "stop_reason": result.stop_reason,
+        "validated": bool(diag.get("validated", False)),
+        "holdout_coverage_95": diag.get("holdout_coverage_95"),
+        "effective_sample_size": float(result.effective_sample_size()),
+        "d_E": float(np.linalg.norm(draws.mean(axis=0) - truth)),
+        "against": {name: against(draws, name) for name in ("quantiles", "synthetic_likelihood")},
+    }
+
+
+def one_seed(args, seed: int) -> dict:
+    """Every run of one data set (``seed``): references, APMCABC at Table 1 settings and at the
+    surrogate's budgets, the surrogate in both modes at each budget."""
+    simulate_quantiles, prior, _, observed_q, _ = quantile_problem(args.preset, seed)
     truth = np.asarray(helium.TRUE_THETA)
     scale = np.asarray(prior.high) - np.asarray(prior.low)
+    ref_draws: dict[str, np.ndarray] = {}
 
-    # Each target (summaries + distance) gets its own long reference and its own Table-1-sized
-    # APMCABC run; seeds differ so that no two runs share their simulation keys.
-    targets = {
-        "kl": (simulate, observed, "kl", "KL distance on the f_B series (Table 1)"),
-        "quantiles": (
-            simulate_quantiles,
-            observed_q,
-            "euclidean",
-            "Euclidean distance on the surrogate's 16 quantiles",
-        ),
-    }
-    references, ref_draws, base_rows = {}, {}, {}
-    for i, (name, (sim, obs, distance, label)) in enumerate(targets.items()):
-        ref, ref_seconds = apmcabc(
-            sim, prior, obs, args.reference_particles, args.reference_steps, 1000 + 10 * i + args.seed, distance
-        )
-        ref_draws[name] = ref.resample(max(4 * args.ed_num, 4000), seed=args.seed)
-        references[name] = {
-            "summaries": label,
+    def against(draws: np.ndarray, name: str) -> dict:
+        return accuracy(draws, ref_draws[name], scale, args, seed)
+
+    # The like-for-like target: the ABC posterior of the Euclidean distance on the 16 quantiles,
+    # measured by a long APMCABC run (seeds differ so that no two runs share simulation keys).
+    ref, ref_seconds = apmcabc(
+        simulate_quantiles,
+        prior,
+        observed_q,
+        args.reference_particles,
+        args.reference_steps,
+        1010 + seed,
+        "euclidean",
+    )
+    ref_draws["quantiles"] = ref.resample(max(4 * args.ed_num, 4000), seed=seed)
+    references = {
+        "quantiles": {
+            "summaries": "Euclidean distance on the surrogate's 16 quantiles (ABC posterior)",
             "num_particles": args.reference_particles,
             "num_steps": args.reference_steps,
             "simulations": int(ref.num_simulations),
             "wall_time_s": ref_seconds,
             "effective_sample_size": float(ref.effective_sample_size()),
             "threshold_final": float(ref.thresholds[-1]),
-            "mean": ref_draws[name].mean(axis=0).tolist(),
-            "sd": ref_draws[name].std(axis=0).tolist(),
-            "correlation": float(np.corrcoef(ref_draws[name].T)[0, 1]),
+            "mean": ref_draws["quantiles"].mean(axis=0).tolist(),
+            "sd": ref_draws["quantiles"].std(axis=0).tolist(),
+            "correlation": float(np.corrcoef(ref_draws["quantiles"].T)[0, 1]),
             "d_E": float(np.linalg.norm(ref.bayes_estimate() - truth)),
         }
-        base, base_seconds = apmcabc(
-            sim, prior, obs, args.apmc_particles, args.apmc_steps, 100 * i + args.seed, distance
-        )
-        base_rows[name] = {
-            "simulations": int(base.num_simulations),
-            "wall_time_s": base_seconds,
-            "effective_sample_size": float(base.effective_sample_size()),
-            "threshold_final": float(base.thresholds[-1]),
-            "d_E": float(np.linalg.norm(base.bayes_estimate() - truth)),
-            **accuracy(base.resample(args.draws, seed=args.seed), ref_draws[name], scale, args),
-        }
-        print(
-            f"{name}: reference {ref.num_simulations} simulations (ESS {ref.effective_sample_size():.0f}); "
-            f"APMCABC {base.num_simulations} simulations, energy distance {base_rows[name]['energy_distance']:.4f}",
-            flush=True,
-        )
-
-    # The surrogate's own target, exactly: its draws are measured against this one, as APMCABC's
-    # against the long ABC run on the same summaries.
+    }
+    # The synthetic-likelihood mode's own exact target, on a grid.
     ref_draws["synthetic_likelihood"], references["synthetic_likelihood"] = synthetic_likelihood_reference(
         simulate_quantiles,
         observed_q,
@@ -252,111 +245,167 @@ def main(argv: list[str] | None = None) -> dict:
         np.asarray(references["quantiles"]["mean"]),
         np.asarray(references["quantiles"]["sd"]),
         args,
-        jax.random.key(5000 + args.seed),
+        jax.random.key(5000 + seed),
     )
-    print(
-        f"synthetic-likelihood reference: {references['synthetic_likelihood']['simulations']} simulations", flush=True
-    )
+
+    def apmc_row(particles: int, steps: int, run_seed: int, label: str, alpha: float = 0.1) -> dict:
+        base, seconds = apmcabc(simulate_quantiles, prior, observed_q, particles, steps, run_seed, "euclidean", alpha)
+        draws = base.resample(args.draws, seed=seed)
+        return {
+            "label": label,
+            "alpha": alpha,
+            "num_particles": particles,
+            "num_steps": steps,
+            "simulations": int(base.num_simulations),
+            "wall_time_s": seconds,
+            "effective_sample_size": float(base.effective_sample_size()),
+            "threshold_final": float(base.thresholds[-1]),
+            "d_E": float(np.linalg.norm(base.bayes_estimate() - truth)),
+            "against": {"quantiles": against(draws, "quantiles")},
+        }
+
+    apmc = [apmc_row(args.apmc_particles, args.apmc_steps, 100 + seed, "Table 1 settings")]
+    for budget in args.budgets:
+        n, steps = _budget_apmcabc(budget)
+        row = apmc_row(n, steps, 200 + 10 * budget + seed, f"budget {budget}", BUDGET_ALPHA)
+        apmc.append({"budget": budget, **row})
 
     rows = []
     for budget in args.budgets:
-        t0 = time.perf_counter()
-        result = jaxabc.run(
-            "surrogate",
-            simulate_quantiles,
-            prior,
-            observed_q,
-            max_simulations=budget,
-            num_particles=args.draws,
-            seed=args.seed,
-        )
-        diag = result.diagnostics
-        draws = np.asarray(result.particles)
-        rows.append(
-            {
-                "budget": budget,
-                "simulations": int(result.num_simulations),
-                "failed_simulations": int(diag.get("num_failed_simulations", 0)),
-                "wall_time_s": time.perf_counter() - t0,
-                "stop_reason": result.stop_reason,
-                "validated": bool(diag.get("validated", False)),
-                "holdout_coverage_95": diag.get("holdout_coverage_95"),
-                "effective_sample_size": float(result.effective_sample_size()),
-                "d_E": float(np.linalg.norm(draws.mean(axis=0) - truth)),
-                "against": {name: accuracy(draws, ref_draws[name], scale, args) for name in ref_draws},
-            }
-        )
-        r = rows[-1]
+        for mode in args.modes:
+            t0 = time.perf_counter()
+            extra = {"mode": "abc", "abc_distance": "euclidean"} if mode == "abc" else {}
+            result = jaxabc.run(
+                "surrogate",
+                simulate_quantiles,
+                prior,
+                observed_q,
+                max_simulations=budget,
+                num_particles=args.draws,
+                seed=seed,
+                **extra,
+            )
+            rows.append(_surrogate_row(result, budget, mode, time.perf_counter() - t0, truth, against))
+            r = rows[-1]
+            print(
+                f"seed {seed} surrogate ({mode}) budget {budget}: {r['simulations']} simulations, validated "
+                f"{r['validated']}, energy distance to the ABC reference "
+                f"{r['against']['quantiles']['energy_distance']:.4f}"
+                f", to the grid SL posterior {r['against']['synthetic_likelihood']['energy_distance']:.4f}"
+                f", {r['wall_time_s']:.0f} s",
+                flush=True,
+            )
+    for a in apmc:
         print(
-            f"surrogate budget {budget}: {r['simulations']} simulations, validated {r['validated']}, "
-            "energy distance "
-            + ", ".join(f"{k} {v['energy_distance']:.4f}" for k, v in r["against"].items())
-            + f", {r['wall_time_s']:.0f} s",
+            f"seed {seed} APMCABC {a['label']}: {a['simulations']} simulations, energy distance "
+            f"{a['against']['quantiles']['energy_distance']:.4f}",
             flush=True,
         )
+    return {"seed": seed, "references": references, "apmcabc": apmc, "surrogate": rows}
 
-    def se(row: dict) -> float:
-        return row["energy_distance_se"] or 0.0
 
-    summary = {}
-    for name in targets:
-        base_row = base_rows[name]
-        matching = [
-            r
-            for r in rows
-            if r["validated"]
-            and r["against"][name]["energy_distance"]
-            <= base_row["energy_distance"] + 2 * np.hypot(se(r["against"][name]), se(base_row))
-        ]
-        best = min(matching, key=lambda r: r["simulations"]) if matching else None
-        summary[name] = {
-            "apmcabc_simulations": base_row["simulations"],
-            "surrogate_simulations_to_match": None if best is None else best["simulations"],
-            "simulation_ratio": None if best is None else base_row["simulations"] / best["simulations"],
+def _mean_se(values: list[float]) -> list[float | None]:
+    v = np.asarray(values, float)
+    return [float(v.mean()), float(v.std(ddof=1) / np.sqrt(len(v))) if len(v) > 1 else None]
+
+
+def over_seeds(per_seed: list[dict], budgets: list[int], modes: list[str]) -> dict:
+    """Per run kind: the energy distance to the ABC reference (mean and s.e. over data sets),
+    simulations, validated runs; and, like for like, in how many data sets the surrogate's ABC
+    mode at each budget is at least as close to the reference as APMCABC at the same budget and
+    at Table 1's 2750 simulations (each within two combined standard errors)."""
+
+    def ed(acc: dict) -> tuple[float, float]:
+        return acc["energy_distance"], acc["energy_distance_se"] or 0.0
+
+    kinds: dict[str, list[dict]] = {}
+    for s in per_seed:
+        for a in s["apmcabc"]:
+            kinds.setdefault(f"APMCABC, {a['label']}", []).append(a)
+        for r in s["surrogate"]:
+            kinds.setdefault(f"surrogate ({r['mode']}), budget {r['budget']}", []).append(r)
+    table = {
+        k: {
+            "data_sets": len(v),
+            "energy_distance": _mean_se([ed(r["against"]["quantiles"])[0] for r in v]),
+            "simulations": _mean_se([r["simulations"] for r in v]),
+            "validated": sum(bool(r.get("validated", True)) for r in v),
+            "effective_sample_size": _mean_se([r["effective_sample_size"] for r in v]),
         }
-    # Each method against the exact version of its own target: APMCABC (quantiles) against the
-    # long ABC run, the surrogate against the grid synthetic-likelihood posterior.
-    base_row = base_rows["quantiles"]
-    matching = [
-        r
-        for r in rows
-        if r["validated"]
-        and r["against"]["synthetic_likelihood"]["energy_distance"]
-        <= base_row["energy_distance"] + 2 * np.hypot(se(r["against"]["synthetic_likelihood"]), se(base_row))
-    ]
-    best = min(matching, key=lambda r: r["simulations"]) if matching else None
-    summary["own_targets"] = {
-        "apmcabc_simulations": base_row["simulations"],
-        "surrogate_simulations_to_match": None if best is None else best["simulations"],
-        "simulation_ratio": None if best is None else base_row["simulations"] / best["simulations"],
-        "criterion": "validated surrogate posterior whose energy distance to the grid synthetic-likelihood "
-        "posterior is at most APMCABC's (quantiles) to the long ABC reference + 2 combined standard errors",
+        for k, v in kinds.items()
     }
-    summary["goal_ratio"] = 10.0
-    summary["criterion"] = (
-        "validated surrogate posterior whose energy distance to the target's reference is at most that of "
-        "APMCABC on the same target + 2 combined standard errors"
+    like: dict[str, Any] = {}
+    for budget in budgets:
+        for mode in modes:
+            at_most_budget = at_most_table1 = 0
+            for s in per_seed:
+                r = next(x for x in s["surrogate"] if x["budget"] == budget and x["mode"] == mode)
+                same = next(a for a in s["apmcabc"] if a.get("budget") == budget)
+                t1 = s["apmcabc"][0]
+                e, es = ed(r["against"]["quantiles"])
+                for peer, counter in ((same, "b"), (t1, "t")):
+                    pe, ps = ed(peer["against"]["quantiles"])
+                    if r["validated"] and e <= pe + 2 * np.hypot(es, ps):
+                        if counter == "b":
+                            at_most_budget += 1
+                        else:
+                            at_most_table1 += 1
+            like[f"{mode}:{budget}"] = {
+                "data_sets": len(per_seed),
+                "as_close_as_apmcabc_same_budget": at_most_budget,
+                "as_close_as_apmcabc_table1": at_most_table1,
+            }
+    return {"runs": table, "like_for_like": like}
+
+
+def main(argv: list[str] | None = None) -> dict:
+    parser = argparse.ArgumentParser(description=(__doc__ or "").split("\n\n")[0])
+    parser.add_argument("--budgets", type=int, nargs="+", default=[100, 200])
+    parser.add_argument(
+        "--modes", nargs="+", default=["abc", "synthetic_likelihood"], choices=["abc", "synthetic_likelihood"]
     )
+    parser.add_argument("--preset", default="cpu")
+    parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2, 3, 4], help="data sets (Table 1 seeds)")
+    parser.add_argument("--reference-particles", type=int, default=1500)
+    parser.add_argument("--reference-steps", type=int, default=8)
+    parser.add_argument("--apmc-particles", type=int, default=500)
+    parser.add_argument("--apmc-steps", type=int, default=6)
+    parser.add_argument("--draws", type=int, default=2000, help="posterior draws of every run")
+    parser.add_argument("--ed-num", type=int, default=1000, help="rows per energy-distance subsample")
+    parser.add_argument("--ed-repeats", type=int, default=10)
+    parser.add_argument("--sl-coarse", type=int, default=16, help="coarse grid points per axis")
+    parser.add_argument("--sl-coarse-reps", type=int, default=8, help="runs per coarse grid point")
+    parser.add_argument("--sl-fine", type=int, default=30, help="fine grid points per axis")
+    parser.add_argument("--sl-fine-reps", type=int, default=12, help="runs per fine grid point")
+    parser.add_argument("--quick", action="store_true", help="small everything, one seed: results/quick/")
+    args = parser.parse_args(argv)
+    if args.quick:
+        args.budgets, args.seeds, args.reference_particles, args.reference_steps = [60], [0], 200, 4
+        args.apmc_particles, args.apmc_steps, args.draws, args.ed_num, args.ed_repeats = 100, 3, 1000, 300, 3
+        args.sl_coarse, args.sl_coarse_reps, args.sl_fine, args.sl_fine_reps = 8, 4, 10, 6
+
+    _, prior, _, _, _ = quantile_problem(args.preset, args.seeds[0])
+    per_seed = [one_seed(args, seed) for seed in args.seeds]
     payload = {
         "description": (__doc__ or "").split("\n\n")[0],
         "setup": {
             "preset": args.preset,
-            "seed": args.seed,
-            "truth": truth.tolist(),
+            "seeds": args.seeds,
+            "truth": np.asarray(helium.TRUE_THETA).tolist(),
             "prior_low": np.asarray(prior.low).tolist(),
             "prior_high": np.asarray(prior.high).tolist(),
             "surrogate_summaries": f"{len(LEVELS)} quantiles of f_B, levels {LEVELS[0]:.2f}..{LEVELS[-1]:.2f}",
             "budgets": args.budgets,
+            "modes": args.modes,
+            "budget_apmcabc": {str(b): list(_budget_apmcabc(b)) for b in args.budgets},
             "draws": args.draws,
             "energy_distance": {"rows": args.ed_num, "repeats": args.ed_repeats, "scale": "prior widths"},
         },
-        "references": references,
-        "apmcabc": base_rows,
-        "surrogate": rows,
-        "summary": summary,
+        "per_seed": per_seed,
+        "summary": over_seeds(per_seed, args.budgets, args.modes),
     }
     path = write_result("surrogate_helium", payload, quick=args.quick)
-    print(f"wrote {path}: {summary}")
+    print(f"wrote {path}: {payload['summary']['like_for_like']}")
     return payload
 
 
