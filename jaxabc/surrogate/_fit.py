@@ -25,6 +25,7 @@ __all__ = [
     "measured_data_terms",
     "noise_correlation",
     "noise_profile_choice",
+    "padded_rows",
 ]
 
 #: Roles of a state's rows: unused, design, held out, held out in a failed validation (then design).
@@ -74,25 +75,47 @@ def fit_likelihood(
     transform = emulator.fit_transform(summaries[rows], max_outputs)
     z_all = np.asarray(transform.apply(jnp.asarray(np.nan_to_num(summaries))))
     x_all = (thetas - low) / (high - low)
-    emu = emulator.fit(x_all, z_all, rows)
-    loo = np.asarray(emulator.loo_residuals(emu))[rows]
+    # The GP sees the fitted rows only, padded to a few sizes: its cost grows with the square
+    # of its rows, so padding to the whole budget made a run's cost follow the budget, not
+    # the simulations made.
+    n = int(rows.sum())
+    size = padded_rows(n, len(rows))
+    x_fit, z_fit = np.full((size, x_all.shape[1]), 0.5), np.zeros((size, z_all.shape[1]))
+    x_fit[:n], z_fit[:n] = x_all[rows], z_all[rows]
+    fit_rows = np.arange(size) < n
+    emu = emulator.fit(x_fit, z_fit, fit_rows)
+    loo = np.asarray(emulator.loo_residuals(emu))[:n]
     # An output constant over the design (a summary the data set does not measure, zeroed by
     # the simulator) carries no information about theta: out of the likelihood.
     active = np.std(z_all[rows], axis=0) > 1e-9
     coef = noise_profile_choice(noise_model, x_all[rows], loo, active)
     if coef is not None:
-        emu = emulator.fit(x_all, z_all, rows, noise_coef=coef)
-        loo = np.asarray(emulator.loo_residuals(emu))[rows]
+        emu = emulator.fit(x_fit, z_fit, fit_rows, noise_coef=coef)
+        loo = np.asarray(emulator.loo_residuals(emu))[:n]
         # Correlation of the residuals in noise-sd units: their scale varies with theta.
         loo = loo / np.asarray(emulator.noise_sd(emu, jnp.asarray(x_all[rows])))
     corr = noise_correlation(loo, active)
-    feas = sampling.fit_feasibility(x_all[used], ok[used], size=int(max_simulations))
+    feas = sampling.fit_feasibility(x_all[used], ok[used], size=padded_rows(int(used.sum()), int(max_simulations)))
     z_obs = transform.apply(jnp.asarray(np.asarray(observed, np.float64).reshape(-1)))
     extra = measured_data_terms(transform, observation_error, discrepancy)
     model = sampling.LikelihoodModel(
         emu, z_obs, jnp.linalg.cholesky(jnp.asarray(corr)), feas, jnp.asarray(active), log_min_feasibility, *extra
     )
     return transform, emu, model, z_all
+
+
+#: The least number of rows the emulator and the feasibility model are padded to; above it,
+#: the next power of two (at most the budget): a handful of compilations per run.
+MIN_PADDED_ROWS = 64
+
+
+def padded_rows(n: int, cap: int) -> int:
+    """Rows to pad ``n`` fitted rows to: the next power of two from :data:`MIN_PADDED_ROWS`,
+    at most ``cap`` (the budget) and at least ``n``."""
+    size = MIN_PADDED_ROWS
+    while size < n:
+        size *= 2
+    return max(n, min(size, cap))
 
 
 def measured_data_terms(
