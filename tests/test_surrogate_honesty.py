@@ -125,9 +125,10 @@ def banana_sd_ratio(seed: int) -> np.ndarray:
 
 
 def test_the_early_stop_on_a_banana_is_not_overconfident():
-    # Seed 4 stopped at 148 of 200 simulations with sds 0.83 and 0.76 of exact: NUTS ran at a
-    # step that just passed a 0.6 acceptance bar, with divergences, and left the curved tails
-    # unvisited.  With Stan's 0.8 target and no divergences: 0.90 and 0.90.
+    # Seed 4 stopped at 148 of 200 simulations with sds 0.83 and 0.76 of exact.  One seed's
+    # design path is sensitive to any change upstream (0.90/0.90 after the NUTS step rule
+    # alone, 0.81/0.77 once the GP was also padded to fewer rows at the box centre); the
+    # five-seed test below is the check of bias, this one a quick guard against a collapse.
     ratio = banana_sd_ratio(4)
     assert np.all(ratio > 0.85), ratio
 
