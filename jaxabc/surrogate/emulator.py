@@ -35,6 +35,9 @@ __all__ = [
 ]
 
 _PAD_VARIANCE = 1e8
+#: Where padding rows sit: so far outside the unit box (500 of the longest length scales) that
+#: their kernel with every real row is exactly 0 in float64, and the fit cannot see them.
+_PAD_X = 1e4
 # Bounds of the log hyper-parameters (unit-box inputs, standardised outputs): length scales from
 # 1/50 to 20 box widths, amplitudes 0.02-30, noise sd 1e-4 to 3.
 _LOG_LS_BOUNDS = (np.log(0.02), np.log(20.0))
@@ -213,7 +216,7 @@ def fit(
     """
     if int(np.sum(mask)) < 3:
         raise ValueError(f"an emulator needs at least 3 successful simulations, got {int(np.sum(mask))}")
-    xj = jnp.asarray(np.where(mask[:, None], x, 0.5))
+    xj = jnp.asarray(np.where(mask[:, None], x, _PAD_X))
     zj = jnp.asarray(np.where(mask[:, None], z, 0.0))
     m = jnp.asarray(mask)
     q, d = z.shape[1], xj.shape[1]
