@@ -157,7 +157,7 @@ REGISTRY: tuple[Entry, ...] = (
     Entry(
         "helium_table1",
         f"{R}/helium_table1.json",
-        "python -m benchmarks.helium_table1 --num-particles 500 --seeds 0 1 2",
+        "python -m benchmarks.helium_table1 --num-particles 500 --seeds 0 1 2 3 4",
         quick="python -m benchmarks.helium_table1 --quick",
         quick_output=f"{Q}/helium_table1.json",
         legacy_cost_keys=("total_wall_time_s",),
