@@ -45,6 +45,7 @@ def fit_likelihood(
     observation_error: np.ndarray | None = None,
     discrepancy: Any = None,
     noise_model: str = "homoscedastic",
+    warm_start: np.ndarray | None = None,
 ) -> tuple[emulator.OutputTransform, emulator.Emulator, sampling.LikelihoodModel, np.ndarray]:
     """Emulator on the successful design rows of ``state`` (a SurrogateState); ``drop`` (bool,
     shape (M,)) leaves rows out.  Returns (transform, emulator, likelihood model, z_all), z_all
@@ -53,7 +54,8 @@ def fit_likelihood(
     ``observation_error`` (k, k), the measurement covariance in summary units, and
     ``discrepancy`` (a :class:`jaxabc.noise.ResolvedDiscrepancy`) are mapped into the emulated
     outputs' coordinates (:func:`.sampling.output_map`) and carried by the model.
-    ``noise_model`` is :func:`noise_profile_choice`'s.
+    ``noise_model`` is :func:`noise_profile_choice`'s.  ``warm_start`` (q, d + 2), an earlier
+    fit's hyper-parameters, is the optimiser's only start (:func:`.emulator.fit`'s ``init``).
 
     Raises
     ------
@@ -83,14 +85,15 @@ def fit_likelihood(
     x_fit, z_fit = np.full((size, x_all.shape[1]), 0.5), np.zeros((size, z_all.shape[1]))
     x_fit[:n], z_fit[:n] = x_all[rows], z_all[rows]
     fit_rows = np.arange(size) < n
-    emu = emulator.fit(x_fit, z_fit, fit_rows)
+    emu = emulator.fit(x_fit, z_fit, fit_rows, init=warm_start)
     loo = np.asarray(emulator.loo_residuals(emu))[:n]
     # An output constant over the design (a summary the data set does not measure, zeroed by
     # the simulator) carries no information about theta: out of the likelihood.
     active = np.std(z_all[rows], axis=0) > 1e-9
     coef = noise_profile_choice(noise_model, x_all[rows], loo, active)
     if coef is not None:
-        emu = emulator.fit(x_fit, z_fit, fit_rows, noise_coef=coef)
+        # Started from the homoscedastic optimum: the profile only reshapes the noise.
+        emu = emulator.fit(x_fit, z_fit, fit_rows, noise_coef=coef, init=np.asarray(_hyper(emu)))
         loo = np.asarray(emulator.loo_residuals(emu))[:n]
         # Correlation of the residuals in noise-sd units: their scale varies with theta.
         loo = loo / np.asarray(emulator.noise_sd(emu, jnp.asarray(x_all[rows])))
@@ -136,11 +139,18 @@ def measured_data_terms(
     return obs_cov, basis, max_sd
 
 
+def _hyper(emu: emulator.Emulator) -> jax.Array:
+    """An emulator's hyper-parameters ``(q, d + 2)``: log amplitude, log length scales, log noise."""
+    return jnp.column_stack([emu.log_amp, emu.log_ls, emu.log_noise])
+
+
 def fit_surrogate(
-    settings: SurrogateSettings, state: Any
+    settings: SurrogateSettings, state: Any, warm: bool = False
 ) -> tuple[emulator.OutputTransform, emulator.Emulator, sampling.LikelihoodModel, np.ndarray]:
     """:func:`fit_likelihood` of a running surrogate's state (a SurrogateState) under its
-    ``settings``: ``(transform, emulator, likelihood model, z_all)``."""
+    ``settings``: ``(transform, emulator, likelihood model, z_all)``.  ``warm``: start the
+    hyper-parameters from the state's last fit (``state.hyper``), if it has one."""
+    hyper = np.asarray(state.hyper)
     return fit_likelihood(
         state,
         settings.box.low,
@@ -152,6 +162,7 @@ def fit_surrogate(
         observation_error=settings.observation_error,
         discrepancy=settings.discrepancy,
         noise_model=settings.noise_model,
+        warm_start=hyper if warm and np.any(hyper) else None,
     )
 
 

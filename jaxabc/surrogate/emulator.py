@@ -193,6 +193,7 @@ def fit(
     mask: np.ndarray,
     starts: tuple[float, ...] = (0.3, 1.5),
     noise_coef: np.ndarray | None = None,
+    init: np.ndarray | None = None,
 ) -> Emulator:
     """Fit one GP per output column of ``z`` by L-BFGS-B on the log hyper-parameters.
 
@@ -208,6 +209,9 @@ def fit(
     noise_coef : array, shape (q, 1 + 2 d), optional
         A heteroscedastic noise profile (:func:`fit_noise_profile`), held fixed while the
         noise level ``log_noise`` and the other hyper-parameters are fitted.
+    init : array, shape (q, d + 2), optional
+        A warm start (log amplitude, log length scales, log noise per output; an earlier
+        fit's): the only start when given with this shape, clipped into the bounds.
 
     Returns
     -------
@@ -233,9 +237,12 @@ def fit(
             return 1e30, np.zeros_like(flat)
         return v, g
 
+    inits = [np.tile(np.concatenate([[0.0], np.full(d, np.log(ls)), [np.log(0.1)]]), q) for ls in starts]
+    if init is not None and np.shape(init) == (q, d + 2) and np.all(np.isfinite(init)):
+        lo, hi = np.array(bounds, np.float64).T
+        inits = [np.clip(np.asarray(init, np.float64).ravel(), lo, hi)]
     best = None
-    for ls in starts:
-        p0 = np.tile(np.concatenate([[0.0], np.full(d, np.log(ls)), [np.log(0.1)]]), q)
+    for p0 in inits:
         res = scipy.optimize.minimize(
             objective, p0, jac=True, method="L-BFGS-B", bounds=bounds, options={"maxiter": 300}
         )
