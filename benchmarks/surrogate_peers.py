@@ -58,8 +58,12 @@ distance (U-statistic; 0 for equal laws) between the method's draws (at most 100
 weight) and 2000 exact draws; the Mahalanobis error of the posterior mean in exact sd; each
 parameter's sd over the exact sd; whether the truth lies in the method's central 90 % marginal
 interval (per parameter and all at once), summarised over seeds as coverage; the simulations used;
-the wall time of the run (imports excluded) and of its process.  An ``exact`` row (1000
-independent exact draws) gives the energy distance's floor and the exact posterior's coverage.
+the wall time of the run (imports excluded) and of its process.  The jaxabc children share JAX's
+persistent compilation cache (``--cache-dir/xla``; ``--no-compilation-cache`` to compile afresh):
+the same executables, so the same draws, but XLA compiles each shape once for the whole grid
+rather than once per cell, as a user's second run would.  Each jaxabc cell records whether the
+cache was on.  An ``exact`` row (1000 independent exact draws) gives the energy distance's floor
+and the exact posterior's coverage.
 
 Every finished cell (the method's draws and what it reported, or its error) is appended to
 ``--cache-dir/cells.jsonl``, keyed by (problem, method, budget, seed, a hash of the problem block
@@ -757,11 +761,30 @@ def run_child(argv: list[str], timeout: float, env: dict[str, str]) -> dict[str,
     return {"error": f"exit {out.returncode}: {text[-600:]}", "process_wall_s": wall}
 
 
-def run_method(method: str, request: dict[str, Any], envs: dict[str, dict[str, Any]], timeout: float) -> dict[str, Any]:
+def compilation_cache_env(path: Path | None) -> dict[str, str]:
+    """JAX's persistent compilation cache for the jaxabc children (every executable, however quick
+    to compile): the same compiled code, so the same draws, without recompiling it in every cell."""
+    if path is None:
+        return {}
+    return {
+        "JAX_COMPILATION_CACHE_DIR": str(path),
+        "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS": "0",
+        "JAX_PERSISTENT_CACHE_MIN_ENTRY_SIZE_BYTES": "0",
+    }
+
+
+def run_method(
+    method: str,
+    request: dict[str, Any],
+    envs: dict[str, dict[str, Any]],
+    timeout: float,
+    compilation_cache: Path | None = None,
+) -> dict[str, Any]:
     """Run one cell's method in a child process; ``{"output": ...}`` or ``{"error": ...}``."""
     if method in JAXABC_METHODS:
         argv = [sys.executable, "-m", "benchmarks.surrogate_peers", "--child", json.dumps(request)]
-        return run_child(argv, timeout, {**SINGLE_THREAD, "PYTHONPATH": str(ROOT)})
+        env = {**SINGLE_THREAD, "PYTHONPATH": str(ROOT), **compilation_cache_env(compilation_cache)}
+        return run_child(argv, timeout, env)
     env = envs[method]
     if "error" in env:
         return {"error": f"virtual environment: {env['error']}"}
@@ -818,8 +841,11 @@ def run_cell(
 ) -> dict[str, Any]:
     """Run a method on a data set: its draws (5 significant digits; weights only when unequal) and
     what it reports, or an ``error``.  Scoring is :func:`score`'s, from the stored draws."""
-    out = run_method(method, request_of(inst, method, budget, args.draws), envs, args.timeout)
+    cache = None if args.no_compilation_cache else args.cache_dir / "xla"
+    out = run_method(method, request_of(inst, method, budget, args.draws), envs, args.timeout, cache)
     cell: dict[str, Any] = {"process_wall_s": out.get("process_wall_s")}
+    if method in JAXABC_METHODS:
+        cell["compilation_cache"] = cache is not None
     if "error" in out:
         return {**cell, "error": out["error"]}
     o = out["output"]
@@ -1004,6 +1030,11 @@ def parse(argv: Sequence[str] | None) -> argparse.Namespace:
     default_cache = Path.home() / ".cache" / "jaxabc_benchmarks"
     p.add_argument("--cache-dir", type=Path, default=default_cache / "surrogate_peers", help="finished cells")
     p.add_argument("--venv-dir", type=Path, default=default_cache, help="the peers' virtual environments")
+    p.add_argument(
+        "--no-compilation-cache",
+        action="store_true",
+        help="compile every jaxabc cell from scratch (default: JAX's persistent cache under --cache-dir/xla)",
+    )
     p.add_argument("--fresh", action="store_true", help="rerun cells already in the cache (and append them)")
     p.add_argument("--retry-errors", action="store_true", help="rerun cached cells that ended in an error")
     p.add_argument("--quick", action="store_true", help="linear + banana, B 60, seed 0, surrogate + sbi NPE")
@@ -1086,6 +1117,7 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any] | None:
         "exact_draws": args.exact_draws,
         "energy_draws": args.energy_draws,
         "problem_hash": p_hash,
+        "jaxabc_compilation_cache": not args.no_compilation_cache,
         "peers": {
             m: {"venv": peers()[m].venv, "requirement": peers()[m].requirement, **_only_error(envs[m])} for m in envs
         },
