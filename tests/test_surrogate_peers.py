@@ -135,11 +135,23 @@ def test_instances_are_reproducible_and_their_truths_lie_in_the_inner_region() -
         assert not np.array_equal(a.truth, sp.instance(name, 3, exact_draws=50).truth)
 
 
-def test_the_correlated_problem_has_strong_posterior_correlations() -> None:
-    corr = sp._C5_COV / np.outer(sp._C5_SD, sp._C5_SD)
-    off = np.abs(corr[~np.eye(5, dtype=bool)])
-    assert off.max() == pytest.approx(0.8) and (np.sign(corr[0, 1]) != np.sign(corr[2, 3]))
-    assert np.allclose(np.linalg.inv(sp._C5_A.T @ sp._C5_A), sp._C5_COV)
+@pytest.mark.parametrize("a", [sp._C5_A, sp._C8_A], ids=["correlated5", "correlated8"])
+def test_the_correlated_problems_have_strong_posterior_correlations(a: np.ndarray) -> None:
+    cov = np.linalg.inv(a.T @ a)
+    sd = np.sqrt(np.diag(cov))
+    corr = cov / np.outer(sd, sd)
+    d = len(sd)
+    assert np.allclose(np.abs(corr), 0.8 ** np.abs(np.subtract.outer(np.arange(d), np.arange(d))))
+    assert np.sign(corr[0, 1]) != np.sign(corr[2, 3])
+    assert sd[1] == pytest.approx(0.5) and sd[2] == pytest.approx(1.5)
+
+
+def test_a_problems_fingerprint_follows_its_model_not_the_others(monkeypatch: pytest.MonkeyPatch) -> None:
+    before = {n: sp.problem_hash(n) for n in ("linear", "banana")}
+    assert before["linear"] != before["banana"] and sp.problem_hash("linear") == before["linear"]
+    monkeypatch.setitem(sp._BANANA, "b", 0.6)
+    assert sp.problem_hash("banana") != before["banana"]
+    assert sp.problem_hash("linear") == before["linear"]
 
 
 def test_the_energy_distance_is_unbiased_for_equal_laws_and_exact_for_a_shift() -> None:
@@ -283,6 +295,9 @@ def test_the_page_is_generated_from_the_result() -> None:
     for name in sp.PROBLEM_NAMES:
         assert f"## {name} (d = " in text
     assert "the goal is met" in text and "- student, B = 50: closest sbi NPE" in text
+    assert "on 4 of 5 problems" in text  # correlated8 is for the scaling, not the goal
+    scaling = text[text.index("## Scaling in dimension") : text.index("## linear")]
+    assert "| 200 | 8 | correlated8 | 0.0" in scaling and "sbi NPE" in scaling
     assert "failed on 1 of 3 seeds: did not finish in 10 s" in text
     assert "not run: sequential rounds" in text
     assert "the surrogate is closest to exact" in text and "not within their combined seed error" in text

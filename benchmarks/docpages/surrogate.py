@@ -348,9 +348,11 @@ def _verdict_sentence(budget: str, v: dict[str, Any], per: dict[str, Any]) -> st
 
 
 def _goal_section(d: dict[str, Any]) -> str:
+    from benchmarks.surrogate_peers import GOAL_PROBLEMS
+
     goal = d["goal"]
     met = goal["problems_met"]
-    problems = list(d["summary"])
+    problems = goal.get("problems") or [p for p in d["summary"] if p in GOAL_PROBLEMS]
     if goal.get("met") is None:
         verdict = "the goal is not judged (it needs all five problems in one result)"
     else:
@@ -378,6 +380,59 @@ def _goal_section(d: dict[str, Any]) -> str:
             why = "; ".join(m.get("why") or [])
             lines.append(f"- {m['problem']}, B = {m['budget']}: closest {closest}{within}; the surrogate: {why}.")
     return "\n".join(lines)
+
+
+def _scaling_section(d: dict[str, Any]) -> str:
+    """Accuracy and cost against the number of parameters: the surrogate and sbi's best, by budget."""
+    from benchmarks.surrogate_peers import SCALING_PROBLEMS
+
+    names = [n for n in SCALING_PROBLEMS if n in d["summary"]]
+    if len(names) < 2:
+        return ""
+    rows = []
+    for b in d["budgets"]:
+        for n in names:
+            per = d["summary"][n].get(str(b), {})
+            sur = per.get("jaxabc_surrogate", {})
+            sbi = [
+                (s["energy_distance"][0], m, s)
+                for m, s in per.items()
+                if m.startswith("sbi_") and "energy_distance" in s and s.get("seeds_ok") == s.get("seeds")
+            ]
+            best = min(sbi, key=lambda t: t[0]) if sbi else None
+            sur_ok = "energy_distance" in sur and sur.get("seeds_ok") == sur.get("seeds")
+            rows.append(
+                [
+                    b,
+                    d["problems"][n]["d"],
+                    n,
+                    _pm(sur["energy_distance"], 3) if sur_ok else "-",
+                    f"{sur['num_simulations']:.0f}" if sur_ok else "-",
+                    _pm(sur.get("run_s"), 1) if sur_ok else "-",
+                    _peer_label(best[1]) if best else "-",
+                    _pm(best[2]["energy_distance"], 3) if best else "-",
+                    _pm(best[2].get("run_s"), 1) if best else "-",
+                ]
+            )
+    header = [
+        "B",
+        "parameters",
+        "problem",
+        "surrogate energy distance",
+        "surrogate simulations",
+        "surrogate wall s",
+        "best sbi method",
+        "its energy distance",
+        "its wall s",
+    ]
+    return f"""## Scaling in dimension
+
+The linear-Gaussian family at 2, 5 and 8 parameters (`linear`, `correlated5`, `correlated8`): how
+the surrogate's accuracy, the simulations it spends and its own wall time grow with the number of
+parameters, against the closest sbi method at the same budget (means +- standard errors over seeds).
+
+{table(header, rows)}
+"""
 
 
 def _problem_section(name: str, d: dict[str, Any]) -> str:
@@ -435,7 +490,7 @@ draws (at most {d["energy_draws"]}) and {d["exact_draws"]} exact draws (0 for eq
 each parameter's sd over the exact sd, and how often the truth lies in the method's central 90 %
 intervals (per parameter, and all parameters at once; the exact posterior's own rate is the `exact`
 row).  Values are means +- standard errors over seeds {", ".join(str(s) for s in d["seeds"])}; wall
-seconds are each run alone (imports excluded), on one thread.  A method that failed on a seed does
+seconds are each run alone (imports excluded), on one thread{_cache_note(d)}.  A method that failed on a seed does
 not compete for closest at that budget.  BOLFI's posterior is its own ABC approximation at the GP's
 minimum discrepancy; pyABC checks its budget at generation ends and can overshoot it (the
 simulations column counts what each method ran).
@@ -444,7 +499,17 @@ simulations column counts what each method ran).
 
 {_goal_section(d)}
 
+{_scaling_section(d)}
 {sections}"""
+
+
+def _cache_note(d: dict[str, Any]) -> str:
+    if not d.get("jaxabc_compilation_cache"):
+        return ""
+    return (
+        "; the jaxabc runs share JAX's persistent compilation cache, so XLA compiles each shape once "
+        "for the whole grid, as on a user's second run, not once per run"
+    )
 
 
 def page_surrogate_peers() -> str:
