@@ -941,6 +941,8 @@ def summarise(cells: list[dict[str, Any]]) -> dict[str, Any]:
         "seeds_ok": len(ok),
         "errors": sorted({c["error"] for c in cells if "error" in c}),
     }
+    if any("not_run" in c for c in cells):
+        out["not_run"] = sum("not_run" in c for c in cells)
     if not ok:
         return out
     covered = np.array([c["covered_90"] for c in ok], bool)
@@ -1086,6 +1088,11 @@ def parse(argv: Sequence[str] | None) -> argparse.Namespace:
         action="store_true",
         help="compile every jaxabc cell from scratch (default: JAX's persistent cache under --cache-dir/xla)",
     )
+    p.add_argument(
+        "--cached-only",
+        action="store_true",
+        help="assemble the result from cached cells only; the others are reported as not run",
+    )
     p.add_argument("--fresh", action="store_true", help="rerun cells already in the cache (and append them)")
     p.add_argument("--retry-errors", action="store_true", help="rerun cached cells that ended in an error")
     p.add_argument("--quick", action="store_true", help="linear + banana, B 60, seed 0, surrogate + sbi NPE")
@@ -1141,6 +1148,9 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any] | None:
                         cells[(p, m, b, s)] = score(hit["result"], inst, b, args.energy_draws)
                         reused += 1
                         continue
+                    if args.cached_only:
+                        cells[(p, m, b, s)] = {"not_run": "not in the cache (--cached-only)"}
+                        continue
                     t0 = time.perf_counter()
                     raw = run_cell(inst, m, b, envs, args)
                     ran += 1
@@ -1180,6 +1190,7 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any] | None:
         "closest": verdicts,
         "goal": goal,
         "cells_run": ran,
+        "cells_not_run": sum("not_run" in c for c in cells.values()),
         "cells_reused": reused,
         "benchmark_wall_s": time.perf_counter() - t_start,
         "jax": jax.__version__,

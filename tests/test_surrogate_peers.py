@@ -250,6 +250,7 @@ def _synthetic(problems: list[str]) -> dict[str, Any]:
                 if b >= 200:
                     cells[(p, "sbi_snpe", b, s)] = _cell(0.2, s)
     cells[("banana", "bolfi", 50, 1)] = {"error": "did not finish in 10 s"}
+    cells[("banana", "bolfi", 200, 2)] = {"not_run": "not in the cache (--cached-only)"}
     summary, verdicts, goal = sp.assemble(cells, problems, methods, budgets, seeds)
     return {
         "format": 2,
@@ -277,6 +278,8 @@ def test_the_summary_names_the_closest_method_and_judges_the_goal() -> None:
     assert d["closest"]["linear"]["50"]["closest"] == "jaxabc_surrogate"
     assert d["closest"]["banana"]["50"]["ranking"] == ["jaxabc_surrogate", "sbi_npe"]  # bolfi failed a seed
     assert d["summary"]["banana"]["50"]["bolfi"]["seeds_ok"] == 2
+    assert d["summary"]["banana"]["200"]["bolfi"]["not_run"] == 1
+    assert "bolfi" not in d["closest"]["banana"]["200"]["ranking"]
     student = d["closest"]["student"]["200"]
     assert not student["surrogate_closest"] and student["closest_peer"] == "sbi_npe"
     assert not student["within_seed_error"] and student["energy_distance_excess"] == pytest.approx(0.2)
@@ -299,6 +302,7 @@ def test_the_page_is_generated_from_the_result() -> None:
     scaling = text[text.index("## Scaling in dimension") : text.index("## linear")]
     assert "| 200 | 8 | correlated8 | 0.0" in scaling and "sbi NPE" in scaling
     assert "failed on 1 of 3 seeds: did not finish in 10 s" in text
+    assert "not run on 1 of 3 seeds" in text and "failed on 1 of 3 seeds: |" not in text
     assert "not run: sequential rounds" in text
     assert "the surrogate is closest to exact" in text and "not within their combined seed error" in text
     partial = peers_page(json.loads(json.dumps(_synthetic(["linear"]))))

@@ -285,8 +285,11 @@ def _peer_row(budget: str, method: str, s: dict[str, Any], d: int) -> list[Any]:
     if "skipped" in s:
         return [budget, label, "-", "-", "-", "-", "-", "-", _cell_text(f"not run: {s['skipped']}")]
     notes = []
-    if s.get("seeds_ok", 0) < s.get("seeds", 0):
-        notes.append(f"failed on {s['seeds'] - s['seeds_ok']} of {s['seeds']} seeds: " + "; ".join(s["errors"]))
+    if s.get("not_run"):
+        notes.append(f"not run on {s['not_run']} of {s['seeds']} seeds")
+    failed = s.get("seeds", 0) - s.get("seeds_ok", 0) - s.get("not_run", 0)
+    if failed > 0:
+        notes.append(f"failed on {failed} of {s['seeds']} seeds: " + "; ".join(s["errors"]))
     if "energy_distance" not in s:
         return [budget, label, "-", "-", "-", "-", "-", "-", _cell_text("; ".join(notes) or "not run")]
     if "validated" in s:
