@@ -81,6 +81,7 @@ Usage::
 
     python -m benchmarks.surrogate_peers                  # all: 6 problems, B 50 100 200 500, seeds 0-4
     python -m benchmarks.surrogate_peers --quick          # linear + banana, B 60, seed 0: results/quick/
+    python -m benchmarks.surrogate_peers --cached-only    # the result from the cached cells alone
     # a subset, written elsewhere than benchmarks/results/:
     python -m benchmarks.surrogate_peers --problems banana --budgets 50 --seeds 0 --methods bolfi --output /tmp/p.json
 """

@@ -18,25 +18,15 @@ import numpy as np
 import pytest
 
 import jaxabc
+from benchmarks.surrogate_honesty import CASES
 from jaxabc.surrogate import diagnostics, emulator
 
-STEP_MEAN = 2.75  # the exact posterior U(0.5, 5)
-
-
-def step_simulate(key: jax.Array, theta: jax.Array) -> jax.Array:
-    return jnp.where(theta[..., :1] > 0.5, 3.0, -3.0) + 0.1 * jax.random.normal(key, (1,))
-
-
-def gaussian_simulate(key: jax.Array, theta: jax.Array) -> jax.Array:
-    return theta + jax.random.normal(key, theta.shape)
-
-
-def noise_sd(theta):
-    return 0.1 + 0.3 * theta
-
-
-def growing_noise_simulate(key: jax.Array, theta: jax.Array) -> jax.Array:
-    return theta + noise_sd(theta) * jax.random.normal(key, theta.shape)
+# The problems, and their exact posteriors, are the surrogate_honesty benchmark's.
+step_simulate, _, _, _exact_step, _, _ = CASES["step"]
+STEP_MEAN = float(_exact_step()[0][0])  # the exact posterior U(0.5, 5)
+gaussian_simulate = CASES["conjugate"][0]
+growing_noise_simulate, _, _, _exact_growing_noise, _, _ = CASES["heteroscedastic"]
+banana_simulate, _, _, _exact_banana, _, _ = CASES["banana"]
 
 
 def run_quiet(*args, **kwargs) -> jaxabc.ABCResult:
@@ -97,23 +87,10 @@ def test_mcse_over_ten_seeds():
     assert np.sqrt(np.mean(zs**2)) < 2.0, zs
 
 
-BANANA_SD = np.array([1.0, 0.3])
-
-
-def banana_simulate(key: jax.Array, theta: jax.Array) -> jax.Array:
-    return jnp.stack([theta[0], theta[1] + theta[0] ** 2]) + jnp.asarray(BANANA_SD) * jax.random.normal(key, (2,))
-
-
 def banana_exact_sd() -> np.ndarray:
     """The exact posterior sds of ``x = (a, b + a^2) + (1, 0.3) z`` at ``x = (0, 0.5)`` on
     U(-5, 5)^2, by an 801^2 grid (b's posterior is a ridge 0.3 wide about ``0.5 - a^2``)."""
-    g = np.linspace(-5.0, 5.0, 801)
-    a, b = np.meshgrid(g, g, indexing="ij")
-    lp = -0.5 * (a / BANANA_SD[0]) ** 2 - 0.5 * ((0.5 - b - a**2) / BANANA_SD[1]) ** 2
-    p = np.exp(lp - lp.max())
-    p /= p.sum()
-    m = np.array([(p * a).sum(), (p * b).sum()])
-    return np.sqrt([(p * (a - m[0]) ** 2).sum(), (p * (b - m[1]) ** 2).sum()])
+    return _exact_banana()[1]
 
 
 def banana_sd_ratio(seed: int) -> np.ndarray:
@@ -162,11 +139,7 @@ def test_misfit_is_part_of_the_result(tmp_path):
 def growing_noise_run(seed: int, noise_model: str) -> tuple[float, float]:
     """Posterior mean error and sd ratio against the exact posterior (quadrature)."""
     prior = jaxabc.Uniform([0.0], [10.0], names=("t",))
-    grid = np.linspace(0.0, 10.0, 20001)
-    lp = -0.5 * ((5.0 - grid) / noise_sd(grid)) ** 2 - np.log(noise_sd(grid))
-    p = np.exp(lp - lp.max())
-    p /= p.sum()
-    mean, sd = p @ grid, np.sqrt(p @ (grid - p @ grid) ** 2)
+    (mean,), (sd,) = _exact_growing_noise()  # quadrature of the exact synthetic likelihood
     r = run_quiet(
         growing_noise_simulate, prior, np.array([5.0]), max_simulations=200, seed=seed, noise_model=noise_model
     )
