@@ -251,6 +251,8 @@ def _synthetic(problems: list[str]) -> dict[str, Any]:
                     cells[(p, "sbi_snpe", b, s)] = _cell(0.2, s)
     cells[("banana", "bolfi", 50, 1)] = {"error": "did not finish in 10 s"}
     cells[("banana", "bolfi", 200, 2)] = {"not_run": "not in the cache (--cached-only)"}
+    for seed in seeds:
+        cells[("linear", "bolfi", 200, seed)] = {"not_run": "not in the cache (--cached-only)"}
     summary, verdicts, goal = sp.assemble(cells, problems, methods, budgets, seeds)
     return {
         "format": 2,
@@ -303,6 +305,7 @@ def test_the_page_is_generated_from_the_result() -> None:
     assert "| 200 | 8 | correlated8 | 0.0" in scaling and "sbi NPE" in scaling
     assert "failed on 1 of 3 seeds: did not finish in 10 s" in text
     assert "not run on 1 of 3 seeds" in text and "failed on 1 of 3 seeds: |" not in text
+    assert "Not run in this result (no cached cell on any seed): B = 200: ELFI BOLFI." in text
     assert "not run: sequential rounds" in text
     assert "the surrogate is closest to exact" in text and "not within their combined seed error" in text
     partial = peers_page(json.loads(json.dumps(_synthetic(["linear"]))))

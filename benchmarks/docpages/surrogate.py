@@ -440,7 +440,17 @@ parameters, against the closest sbi method at the same budget (means +- standard
 
 def _problem_section(name: str, d: dict[str, Any]) -> str:
     p = d["problems"][name]
-    rows = [_peer_row(b, m, s, p["d"]) for b, per in d["summary"][name].items() for m, s in per.items()]
+
+    def absent(s: dict[str, Any]) -> bool:
+        return bool(s.get("not_run")) and s.get("not_run") == s.get("seeds")
+
+    items = [(b, m, s) for b, per in d["summary"][name].items() for m, s in per.items()]
+    rows = [_peer_row(b, m, s, p["d"]) for b, m, s in items if not absent(s)]
+    missing: dict[str, list[str]] = {}
+    for b, m, s in items:
+        if absent(s):
+            missing.setdefault(b, []).append(_peer_label(m))
+    not_run = "; ".join(f"B = {b}: {', '.join(ms)}" for b, ms in missing.items())
     header = [
         "B",
         "method",
@@ -460,7 +470,7 @@ def _problem_section(name: str, d: dict[str, Any]) -> str:
 {p["description"]}.  Truths uniform in {truth}; exact draws by {exact}.
 
 {table(header, rows)}
-
+{f"{chr(10)}Not run in this result (no cached cell on any seed): {not_run}.{chr(10)}" if not_run else ""}
 {chr(10).join(sentences)}
 """
 
