@@ -523,7 +523,8 @@ def test_the_joint_holdout_check_catches_a_wrong_noise_correlation():
 @pytest.mark.parametrize(
     ("options", "match"),
     [
-        ({"max_simulations": 30}, "no room for validation"),
+        ({"max_simulations": 15}, "no room for validation"),
+        ({"max_simulations": 60, "num_initial": 40, "num_holdout": 20}, "no room for validation"),
         ({"max_simulations": 200, "on_failure": "ignore"}, "on_failure"),
         ({"max_simulations": 200, "min_feasibility": 1.0}, "min_feasibility"),
     ],
@@ -533,6 +534,22 @@ def test_bad_settings_are_refused(options, match):
         build(PRIOR, 1000, observed=OBSERVED, **options)
     with pytest.raises(ValueError, match="num_particles"):
         build(PRIOR, 500, observed=OBSERVED, max_simulations=200)
+
+
+def test_design_sizes_follow_a_small_budget_and_keep_given_values():
+    from jaxabc.surrogate._settings import design_defaults
+
+    # From ~134 runs (80 d for the start) the fixed sizes; at 50 in 2-D a start, replicates and
+    # one validation that leave 26 runs (five batches of five) to the design.
+    assert design_defaults(200, 2, None, None, None, None) == (20, 8, 10, 20)
+    assert design_defaults(500, 8, None, None, None, None) == (80, 8, 10, 20)
+    start, reps, batch, holdout = design_defaults(50, 2, None, None, None, None)
+    assert (start, reps, batch, holdout) == (12, 4, 5, 8) and 50 - (start + reps + holdout) >= 5 * batch
+    # Five parameters at 50 runs: the start still has 4 d + 4 points and leaves a batch.
+    start, reps, batch, holdout = design_defaults(50, 5, None, None, None, None)
+    assert start == 24 and 50 - (start + reps + holdout) >= batch
+    assert design_defaults(50, 2, 30, 0, 7, 5) == (30, 0, 7, 5)
+    assert build(PRIOR, 1000, observed=OBSERVED, max_simulations=50).settings["num_holdout"] == 8
 
 
 def step_simulator(key, theta):

@@ -178,6 +178,29 @@ def test_noise_profile_recovers_a_known_slope():
     assert p_flat[0] > 1e-3
 
 
+def test_heteroscedastic_fit_with_padded_rows_finds_the_noise_level():
+    # The design loop pads the emulator's rows; a profile that grows with x (a positive quadratic
+    # term) once overflowed at the padding inputs and turned the gradient to NaN, so the fit
+    # stopped at its start.  Known level: the rows' mean log noise sd (the profile is centred).
+    rng = np.random.default_rng(3)
+    n, size = 150, 256
+    u = rng.uniform(size=(n, 1))
+    log_var = 2.0 * (-1.5) + 6.0 * (u[:, 0] - 0.5) + 8.0 * (u[:, 0] - 0.5) ** 2
+    z = np.sin(3 * u) + np.exp(0.5 * log_var)[:, None] * rng.standard_normal((n, 1))
+    coef, p = emulator.fit_noise_profile(u, z - np.sin(3 * u))
+    assert p[0] < 1e-6 and coef[0, 2] > 0, (coef, p)
+    x = np.full((size, 1), 0.5)
+    zf = np.zeros((size, 1))
+    x[:n], zf[:n] = u, z
+    mask = np.arange(size) < n
+    emu = emulator.fit(x, zf, mask, noise_coef=coef)
+    # Up to the estimation error of 150 residuals' mean log sd (sd of a mean log chi2_1 over 2,
+    # about 0.09) and of the profile's shape.
+    level = 0.5 * log_var.mean()
+    assert abs(float(emu.log_noise[0]) - level) < 0.3, (emu.log_noise, level)
+    assert np.all(np.isfinite(np.asarray(emu.alpha)))
+
+
 def test_noise_profile_needs_enough_rows():
     coef, p = emulator.fit_noise_profile(np.random.default_rng(0).uniform(size=(5, 2)), np.ones((5, 1)))
     assert np.all(coef == 0) and np.all(np.isnan(p))

@@ -272,6 +272,35 @@ def check_budget(
         )
 
 
+def design_defaults(
+    max_simulations: int,
+    d: int,
+    num_initial: int | None,
+    num_replicates: int | None,
+    batch_size: int | None,
+    num_holdout: int | None,
+) -> tuple[int, int, int, int]:
+    """``(num_initial, num_replicates, batch_size, num_holdout)``, each given value kept and each
+    ``None`` sized to the budget ``B = max_simulations`` in ``d`` parameters.
+
+    From ``B`` about 134 up (``B >= 80 d`` for the start) the defaults are fixed: a Sobol start of
+    ``max(20, 10 d)``, 8 replicates, batches of 10, 20 held out.  A smaller budget would spend itself
+    on them and leave no acquisition round (at ``B = 50``, ``d = 2``: 20 + 8 + 20 = 48 runs), so the
+    start takes at most a quarter of ``B`` (not below ``4 d + 4``), replicates ``B / 12`` (4 to 8),
+    batches ``B / 10`` (5 to 10) and held-out runs 15 % of ``B`` (8 to 20).
+    """
+    b = int(max_simulations)
+    if num_initial is None:
+        num_initial = min(max(20, 10 * d), max(4 * d + 4, b // 4))
+    if num_replicates is None:
+        num_replicates = min(8, max(4, b // 12))
+    if batch_size is None:
+        batch_size = min(10, max(5, b // 10))
+    if num_holdout is None:
+        num_holdout = min(20, max(8, round(0.15 * b)))
+    return int(num_initial), int(num_replicates), int(batch_size), int(num_holdout)
+
+
 def make_settings(
     prior: Any,
     num_particles: int,
@@ -279,9 +308,9 @@ def make_settings(
     observed: Any,
     max_simulations: int,
     num_initial: int | None,
-    num_replicates: int,
-    batch_size: int,
-    num_holdout: int,
+    num_replicates: int | None,
+    batch_size: int | None,
+    num_holdout: int | None,
     tolerance: float,
     max_outputs: int,
     num_candidates: int,
@@ -320,7 +349,9 @@ def make_settings(
     disc = resolve_discrepancy(discrepancy, obs.shape)
     box = parameter_box(prior, disc)
     d = box.num_theta
-    num_initial = max(20, 10 * d) if num_initial is None else int(num_initial)
+    num_initial, num_replicates, batch_size, num_holdout = design_defaults(
+        max_simulations, d, num_initial, num_replicates, batch_size, num_holdout
+    )
     abc = abc_settings(mode, num_particles, abc_distance, abc_alpha, abc_acceptance_cutoff, abc_max_generations)
     check_sample_size(num_particles, num_chains, abc is not None)
     log_min_feasibility = sampling.log_level(min_feasibility)

@@ -81,9 +81,9 @@ def build(
     observed: Any,
     max_simulations: int,
     num_initial: int | None = None,
-    num_replicates: int = 8,
-    batch_size: int = 10,
-    num_holdout: int = 20,
+    num_replicates: int | None = None,
+    batch_size: int | None = None,
+    num_holdout: int | None = None,
     tolerance: float = 0.01,
     max_outputs: int = 16,
     num_candidates: int = 4096,
@@ -115,14 +115,17 @@ def build(
     max_simulations : int
         Real simulations in all, design plus held-out validation; never exceeded.
     num_initial : int, optional
-        Sobol points of the start (default ``max(20, 10 d)``).
-    num_replicates : int
+        Sobol points of the start.  This and the next three default to sizes that follow the
+        budget (:func:`._settings.design_defaults`): from about 134 simulations (and ``80 d`` for
+        the start) ``max(20, 10 d)``, 8, 10 and 20; fewer below, so that a small budget still
+        pays for acquisition rounds.
+    num_replicates : int, optional
         Repeat runs that measure the simulator's noise, at two successful runs away from the
         failed ones, once ``max(3, d + 1)`` runs have succeeded (0: none; the lack-of-fit test
         is then skipped, and the nugget rests on the design's scatter alone).
-    batch_size : int
+    batch_size : int, optional
         Simulations per acquisition batch (match the number of workers).
-    num_holdout : int
+    num_holdout : int, optional
         Held-out simulations per validation.
     tolerance : float
         Design stops once the posterior mean of ``mean_j var_j / noise_j^2`` (emulator over

@@ -118,7 +118,10 @@ def _kernel(log_amp: jax.Array, log_ls: jax.Array) -> tinygp.kernels.Kernel:
 
 
 def _diag(log_noise: jax.Array, mask: jax.Array, profile: jax.Array) -> jax.Array:
-    return jnp.where(mask, jnp.exp(2.0 * log_noise + profile), _PAD_VARIANCE)
+    # The profile is zeroed on padded rows before the exp: at the far-away padding inputs its
+    # quadratic overflows, and an inf in the branch ``where`` discards still makes the gradient
+    # NaN, which stopped every heteroscedastic fit at its start.
+    return jnp.where(mask, jnp.exp(2.0 * log_noise + jnp.where(mask, profile, 0.0)), _PAD_VARIANCE)
 
 
 def noise_features(x: jax.Array) -> jax.Array:
