@@ -116,9 +116,8 @@ def build(
         Real simulations in all, design plus held-out validation; never exceeded.
     num_initial : int, optional
         Sobol points of the start.  This and the next three default to sizes that follow the
-        budget (:func:`._settings.design_defaults`): from about 134 simulations (and ``80 d`` for
-        the start) ``max(20, 10 d)``, 8, 10 and 20; fewer below, so that a small budget still
-        pays for acquisition rounds.
+        budget (:func:`._settings.design_defaults`), so that a small budget still pays for
+        acquisition rounds.
     num_replicates : int, optional
         Repeat runs that measure the simulator's noise, at two successful runs away from the
         failed ones, once ``max(3, d + 1)`` runs have succeeded (0: none; the lack-of-fit test
