@@ -73,7 +73,10 @@ Every finished cell (the method's draws and what it reported, or its error) is a
 fingerprint (:func:`problem_hash`: adding a problem keeps the others' cells), a hash of the
 method's code: the peer's child script and settings or, for jaxabc, every module under
 ``jaxabc/``); a rerun skips finished cells, so a long run can be done in several sittings, and
-scores every cell again from its stored draws (a change of the metrics needs no rerun).  The
+scores every cell again from its stored draws (a change of the metrics needs no rerun).  A jaxabc
+change that should not move these runs' numbers (a refactor, a fix of a path they do not take)
+need not rerun the grid: ``--carry-over N`` reruns N cells of the earlier code and, only if each
+gives the same draws, re-keys the rest to the current code (:func:`carry_over`).  The
 result is assembled from the cached cells of the requested grid, with a summary per (problem,
 budget, method) and, for budgets up to 200, which method is closest and whether the surrogate is.
 
@@ -82,6 +85,7 @@ Usage::
     python -m benchmarks.surrogate_peers                  # all: 6 problems, B 50 100 200 500, seeds 0-4
     python -m benchmarks.surrogate_peers --quick          # linear + banana, B 60, seed 0: results/quick/
     python -m benchmarks.surrogate_peers --cached-only    # the result from the cached cells alone
+    python -m benchmarks.surrogate_peers --carry-over 10  # after a jaxabc change: check 10 cells, carry the rest
     # a subset, written elsewhere than benchmarks/results/:
     python -m benchmarks.surrogate_peers --problems banana --budgets 50 --seeds 0 --methods bolfi --output /tmp/p.json
 """
@@ -721,11 +725,46 @@ def skip_reason(method: str, budget: int) -> str | None:
     return None
 
 
+#: Where a surrogate run's own time goes: (module, function) pairs timed in the child, by
+#: phase.  The design rounds and the validation include the fits and pools they call.
+PHASES = {
+    "design_rounds": ("jaxabc.surrogate.algorithm", "design_step"),
+    "validation": ("jaxabc.surrogate.algorithm", "check_holdout"),
+    "final_draws": ("jaxabc.surrogate.algorithm", "finalize"),
+    "gp_fits": ("jaxabc.surrogate.emulator", "fit"),
+    "importance_pools": ("jaxabc.surrogate.design", "importance_pool"),
+}
+
+
+def _time_phases() -> dict[str, float]:
+    """Wrap the functions of :data:`PHASES` (in this child process only) to add up their wall
+    time into the returned dict; the wrappers only time, so the run's numbers are unchanged."""
+    import importlib
+
+    totals = dict.fromkeys(PHASES, 0.0)
+    for phase, (module, name) in PHASES.items():
+        mod = importlib.import_module(module)
+        inner = getattr(mod, name)
+
+        def timed(*a: Any, _inner: Callable = inner, _phase: str = phase, **k: Any) -> Any:
+            t = time.perf_counter()
+            try:
+                return _inner(*a, **k)
+            finally:
+                totals[_phase] += time.perf_counter() - t
+
+        setattr(mod, name, timed)
+    return totals
+
+
 def run_jaxabc_child(request: dict[str, Any]) -> dict[str, Any]:
-    """One jaxabc surrogate run (in a child process): draws, simulations used, wall time."""
+    """One jaxabc surrogate run (in a child process): draws, simulations used, wall time and
+    its split by :data:`PHASES`."""
     import jax.numpy as jnp
 
     import jaxabc
+
+    phases = _time_phases()
 
     name = request["problem"]
     p = PROBLEMS[name]
@@ -748,6 +787,7 @@ def run_jaxabc_child(request: dict[str, Any]) -> dict[str, Any]:
         "weights": np.asarray(r.weights, float).tolist(),
         "num_simulations": int(r.num_simulations),
         "run_s": time.perf_counter() - t0,
+        "phase_s": {k: round(v, 2) for k, v in phases.items()},
         "validated": bool(diag.get("validated", False)),
         "stop_reason": str(r.stop_reason),
         "version": jaxabc.__version__,
@@ -761,7 +801,9 @@ def jaxabc_hash() -> str:
 
     files = sorted((ROOT / "jaxabc").rglob("*.py"))
     return _hash(
-        *(f"{f.relative_to(ROOT)}:{code_hash(f)}" for f in files), _ast_text(inspect.getsource(run_jaxabc_child))
+        *(f"{f.relative_to(ROOT)}:{code_hash(f)}" for f in files),
+        _ast_text(inspect.getsource(run_jaxabc_child)),
+        _ast_text(inspect.getsource(_time_phases)),
     )
 
 
@@ -887,6 +929,95 @@ def append_cache(path: Path, cell: dict[str, Any]) -> None:
         fh.write(json.dumps(cell) + "\n")
 
 
+def carry_over(
+    cached: dict[str, dict[str, Any]],
+    cache_file: Path,
+    grid: list[tuple[str, str, int, int]],
+    p_hash: dict[str, str],
+    m_hash: dict[str, str],
+    num_check: int,
+    run: Callable[[str, str, int, int], dict[str, Any]],
+) -> int:
+    """Re-key the jaxabc cells of the grid made by earlier jaxabc code, if the current code
+    reproduces them: the numerical currency of cells (a refactor or a fix of a path these runs
+    do not take need not rerun hours of cells; a change of numbers is caught).
+
+    The source is the earlier code hash with the most cells of ``grid`` that the current hash
+    lacks.  ``num_check`` of them, spread over problems, methods and the largest budgets, are run
+    again (``run(problem, method, budget, seed)``, the raw cell); only when every one gives the
+    same draws and simulations are the others appended under the current hash, each with
+    ``carried_from`` (the source hash) and ``verified_by`` (the checked cells).  Returns the
+    number carried.
+
+    Raises
+    ------
+    SystemExit
+        A checked cell differs: nothing is carried, and the differences are printed.
+    """
+    sources: dict[str, dict[tuple[str, str, int, int], dict[str, Any]]] = {}
+    for cell in cached.values():
+        p, m, b, sd = cell.get("problem"), cell.get("method"), cell.get("budget"), cell.get("seed")
+        if (p, m, b, sd) not in grid or m not in JAXABC_METHODS or "particles" not in cell.get("result", {}):
+            continue
+        parts = cell["key"].split("|")
+        if parts[4] != p_hash[p] or parts[5] == m_hash[m] or cell_key(p, m, b, sd, p_hash[p], m_hash[m]) in cached:
+            continue
+        sources.setdefault(parts[5], {})[(p, m, b, sd)] = cell
+    if not sources:
+        return 0
+    source = max(sources, key=lambda h: len(sources[h]))
+    cells = sources[source]
+    # Largest budgets first (the longest design loops), one problem after another, the methods
+    # taking turns over the problems.
+    problems = sorted({c[0] for c in cells})
+    methods = sorted({c[1] for c in cells})
+    order = sorted(
+        cells,
+        key=lambda c: (
+            -c[2],
+            c[3],
+            (methods.index(c[1]) - problems.index(c[0])) % len(methods),
+            problems.index(c[0]),
+        ),
+    )
+    checks: list[tuple[str, str, int, int]] = []
+    for c in order:
+        if len(checks) < num_check and c[0] not in {k[0] for k in checks}:
+            checks.append(c)
+    for c in order:
+        if len(checks) < num_check and c not in checks:
+            checks.append(c)
+    print(f"carry-over: {len(cells)} cells of jaxabc code {source}; checking {len(checks)}", flush=True)
+    differ = []
+    for c in checks:
+        old, new = cells[c]["result"], run(*c)
+        same = all(old.get(k) == new.get(k) for k in ("particles", "weights", "num_simulations"))
+        print(f"  {c}: {'same draws' if same else 'DIFFERENT'}", flush=True)
+        if "error" not in new:
+            append_cache(
+                cache_file,
+                {
+                    "key": cell_key(*c, p_hash[c[0]], m_hash[c[1]]),
+                    "problem": c[0],
+                    "method": c[1],
+                    "budget": c[2],
+                    "seed": c[3],
+                    "result": new,
+                },
+            )
+        if not same:
+            differ.append(c)
+    if differ:
+        raise SystemExit(f"carry-over refused: the current jaxabc code changes the draws of {differ}; rerun the cells")
+    verified = [list(c) for c in checks]
+    for c, cell in cells.items():
+        if c in checks:
+            continue
+        result = {**cell["result"], "carried_from": source, "verified_by": verified}
+        append_cache(cache_file, {**cell, "key": cell_key(*c, p_hash[c[0]], m_hash[c[1]]), "result": result})
+    return len(cells) - len(checks)
+
+
 def run_cell(
     inst: Instance, method: str, budget: int, envs: dict[str, dict[str, Any]], args: argparse.Namespace
 ) -> dict[str, Any]:
@@ -900,7 +1031,17 @@ def run_cell(
     if "error" in out:
         return {**cell, "error": out["error"]}
     o = out["output"]
-    keep = ("num_simulations", "run_s", "version", "torch", "validated", "stop_reason", "generations", "settings")
+    keep = (
+        "num_simulations",
+        "run_s",
+        "phase_s",
+        "version",
+        "torch",
+        "validated",
+        "stop_reason",
+        "generations",
+        "settings",
+    )
     cell.update({k: o[k] for k in keep if k in o})
     x = np.asarray(o["particles"], float).reshape(len(o["particles"]), -1)
     w = np.asarray(o["weights"], float)
@@ -1094,6 +1235,13 @@ def parse(argv: Sequence[str] | None) -> argparse.Namespace:
         action="store_true",
         help="assemble the result from cached cells only; the others are reported as not run",
     )
+    p.add_argument(
+        "--carry-over",
+        type=int,
+        default=0,
+        metavar="N",
+        help="re-key jaxabc cells of earlier jaxabc code after N of them reproduce exactly (carry_over)",
+    )
     p.add_argument("--fresh", action="store_true", help="rerun cells already in the cache (and append them)")
     p.add_argument("--retry-errors", action="store_true", help="rerun cached cells that ended in an error")
     p.add_argument("--quick", action="store_true", help="linear + banana, B 60, seed 0, surrogate + sbi NPE")
@@ -1125,6 +1273,23 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any] | None:
     p_hash = {p: problem_hash(p) for p in args.problems}
     m_hash = {m: method_hash(m) for m in args.methods}
     envs = make_envs(args.methods, args.venv_dir)
+    if args.carry_over and not args.cached_only:
+        grid = [
+            (p, m, b, s)
+            for p in args.problems
+            for m in args.methods
+            if m in JAXABC_METHODS
+            for b in args.budgets
+            if not skip_reason(m, b)
+            for s in args.seeds
+        ]
+
+        def rerun(p: str, m: str, b: int, s: int) -> dict[str, Any]:
+            return run_cell(instance(p, s, args.exact_draws), m, b, envs, args)
+
+        carried = carry_over(cached, cache_file, grid, p_hash, m_hash, args.carry_over, rerun)
+        print(f"carry-over: {carried} cells carried to the current jaxabc code", flush=True)
+        cached = load_cache(cache_file)
     cells: dict[tuple[str, str, int, int], dict[str, Any]] = {}
     ran = reused = 0
     for p in args.problems:
@@ -1193,6 +1358,7 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any] | None:
         "cells_run": ran,
         "cells_not_run": sum("not_run" in c for c in cells.values()),
         "cells_reused": reused,
+        "cells_carried": sum("carried_from" in c for c in cells.values()),
         "benchmark_wall_s": time.perf_counter() - t_start,
         "jax": jax.__version__,
         "jaxabc": jaxabc.__version__,

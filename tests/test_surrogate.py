@@ -939,3 +939,12 @@ def test_a_sharp_two_mode_posterior_is_resolved_by_thousands_of_draws():
         ws = w[sel] / w[sel].sum()
         sd = np.sqrt(ws @ (x[sel] - ws @ x[sel]) ** 2)
         assert abs(sd / exact_sd - 1) < 0.15, (sd, exact_sd)
+
+
+def test_padded_rows_double_to_256_then_step_by_64_within_the_budget():
+    from jaxabc.surrogate._fit import padded_rows
+
+    assert [padded_rows(n, 500) for n in (3, 64, 65, 129, 256)] == [64, 64, 128, 256, 256]
+    # Past 256 a doubling would pad 268 rows to the budget (up to 8x the cubic cost).
+    assert [padded_rows(n, 500) for n in (257, 268, 321, 460)] == [320, 320, 384, 500]
+    assert [padded_rows(n, 100) for n in (65, 100)] == [100, 100]

@@ -201,6 +201,22 @@ def test_heteroscedastic_fit_with_padded_rows_finds_the_noise_level():
     assert np.all(np.isfinite(np.asarray(emu.alpha)))
 
 
+def test_a_fit_that_cannot_be_evaluated_is_an_error_not_its_start():
+    # A NaN output makes the marginal likelihood non-finite everywhere: the fit once returned its
+    # start as if it had converged.  With a warm start it also tries the default starts first.
+    rng = np.random.default_rng(0)
+    x = rng.uniform(size=(20, 2))
+    z = np.sin(3 * x[:, :1])
+    z[4, 0] = np.nan
+    mask = np.ones(20, bool)
+    with pytest.raises(FloatingPointError, match="not finite at any start"):
+        emulator.fit(x, z, mask)
+    with pytest.raises(FloatingPointError, match="not finite at any start"):
+        emulator.fit(x, z, mask, init=np.zeros((1, 4)))
+    emu = emulator.fit(x, np.nan_to_num(z), mask, init=np.zeros((1, 4)))
+    assert np.all(np.isfinite(np.asarray(emu.alpha)))
+
+
 def test_noise_profile_needs_enough_rows():
     coef, p = emulator.fit_noise_profile(np.random.default_rng(0).uniform(size=(5, 2)), np.ones((5, 1)))
     assert np.all(coef == 0) and np.all(np.isnan(p))

@@ -330,3 +330,60 @@ def test_a_cell_is_scored_from_its_stored_draws() -> None:
     }
     assert "scoring failed" in sp.score({"particles": [[float("nan")] * 2] * 3}, inst, 50, 1000)["error"]
     assert sp.sbi_batch_size(50) == 10 and sp.sbi_batch_size(200) == 20 and sp.sbi_batch_size(5000) == 50
+
+
+def _old_cells(path: Path, old_hash: str) -> list[tuple[str, str, int, int]]:
+    """Surrogate cells of an earlier jaxabc code hash in a cache file; returns their grid."""
+    grid = []
+    for problem in ("linear", "banana"):
+        for budget in (50, 200):
+            for seed in (0, 1):
+                c = (problem, "jaxabc_surrogate", budget, seed)
+                result = {"particles": [[float(seed), float(budget)]], "num_simulations": budget - 1}
+                key = sp.cell_key(*c, "p" + problem, old_hash)
+                sp.append_cache(
+                    path,
+                    {"key": key, "problem": problem, "method": c[1], "budget": budget, "seed": seed, "result": result},
+                )
+                grid.append(c)
+    return grid
+
+
+def test_carry_over_rekeys_cells_only_when_the_checked_ones_reproduce(tmp_path: Path) -> None:
+    path = tmp_path / "cells.jsonl"
+    grid = _old_cells(path, "old")
+    p_hash = {"linear": "plinear", "banana": "pbanana"}
+    m_hash = {"jaxabc_surrogate": "new"}
+    runs: list[tuple[str, str, int, int]] = []
+
+    def same(p: str, m: str, b: int, s: int) -> dict:
+        runs.append((p, m, b, s))
+        return {"particles": [[float(s), float(b)]], "num_simulations": b - 1, "run_s": 1.0}
+
+    carried = sp.carry_over(sp.load_cache(path), path, grid, p_hash, m_hash, 2, same)
+    # The two checks are at the largest budget, one per problem; the other six are carried.
+    assert carried == 6 and sorted(runs) == [
+        ("banana", "jaxabc_surrogate", 200, 0),
+        ("linear", "jaxabc_surrogate", 200, 0),
+    ]
+    cells = sp.load_cache(path)
+    new = {k: c for k, c in cells.items() if k.endswith("|new")}
+    assert len(new) == 8
+    assert sum("carried_from" in c["result"] for c in new.values()) == 6
+    assert all(c["result"].get("carried_from") in (None, "old") for c in new.values())
+    # Nothing left to carry on a second call.
+    assert sp.carry_over(cells, path, grid, p_hash, m_hash, 2, same) == 0
+
+
+def test_carry_over_refuses_when_a_check_changes_the_draws(tmp_path: Path) -> None:
+    path = tmp_path / "cells.jsonl"
+    grid = _old_cells(path, "old")
+    p_hash = {"linear": "plinear", "banana": "pbanana"}
+
+    def different(p: str, m: str, b: int, s: int) -> dict:
+        return {"particles": [[float(s) + 1e-4, float(b)]], "num_simulations": b - 1}
+
+    with pytest.raises(SystemExit, match="carry-over refused"):
+        sp.carry_over(sp.load_cache(path), path, grid, p_hash, {"jaxabc_surrogate": "new"}, 2, different)
+    carried = [c for c in sp.load_cache(path).values() if "carried_from" in c["result"]]
+    assert carried == []

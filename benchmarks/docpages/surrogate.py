@@ -5,6 +5,8 @@ from __future__ import annotations
 
 from typing import Any
 
+import numpy as np
+
 from benchmarks.docpages.common import f, g, load, source, span, table
 
 
@@ -435,6 +437,49 @@ the surrogate's accuracy, the simulations it spends and its own wall time grow w
 parameters, against the closest sbi method at the same budget (means +- standard errors over seeds).
 
 {table(header, rows)}
+{_phase_section(d)}"""
+
+
+def _phase_section(d: dict[str, Any]) -> str:
+    """Where the surrogate's own time goes, from the cells that recorded a phase split."""
+    from benchmarks.surrogate_peers import PHASES
+
+    groups: dict[tuple[int, str, str], list[dict[str, Any]]] = {}
+    for c in d.get("cells", []):
+        if c["method"].startswith("jaxabc_") and isinstance(c.get("phase_s"), dict) and "run_s" in c:
+            groups.setdefault((c["budget"], c["problem"], c["method"]), []).append(c)
+    if not groups:
+        return ""
+    rows = []
+    for (b, n, m), cs in sorted(groups.items()):
+        run = np.mean([c["run_s"] for c in cs])
+        ph = {k: np.mean([c["phase_s"].get(k, 0.0) for c in cs]) for k in PHASES}
+        rest = run - ph["design_rounds"] - ph["validation"] - ph["final_draws"]
+        rows.append(
+            [b, n, _peer_label(m), len(cs), f"{run:.0f}"]
+            + [f"{ph[k]:.0f}" for k in ("design_rounds", "validation", "final_draws")]
+            + [f"{rest:.0f}", f"{ph['gp_fits']:.0f}", f"{ph['importance_pools']:.0f}"]
+        )
+    header = [
+        "B",
+        "problem",
+        "method",
+        "seeds",
+        "wall s",
+        "design rounds",
+        "validation",
+        "final draws",
+        "simulations and rest",
+        "of all: GP fits",
+        "of all: importance pools",
+    ]
+    return f"""
+Where the surrogate's own time goes, in the runs that recorded it (seconds, means over seeds):
+the design rounds (fit, importance pool of the posterior, acquisition), the held-out validation
+(a refit without the held-out runs and the posterior shift it causes) and the final draws; the last
+two columns add up the GP hyper-parameter fits and the importance pools wherever they ran.
+
+{table(header, rows)}
 """
 
 
@@ -517,12 +562,22 @@ simulations column counts what each method ran).
 
 
 def _cache_note(d: dict[str, Any]) -> str:
-    if not d.get("jaxabc_compilation_cache"):
-        return ""
-    return (
-        "; the jaxabc runs share JAX's persistent compilation cache, so XLA compiles each shape once "
-        "for the whole grid, as on a user's second run, not once per run"
-    )
+    note = ""
+    if d.get("jaxabc_compilation_cache"):
+        note = (
+            "; the jaxabc runs share JAX's persistent compilation cache, so XLA compiles each shape once "
+            "for the whole grid, as on a user's second run, not once per run"
+        )
+    carried = [c for c in d.get("cells", []) if c.get("carried_from")]
+    if carried:
+        checks = sorted({tuple(v) for c in carried for v in c.get("verified_by", [])})
+        listed = ", ".join(f"{p} {_peer_label(m)} B = {b} seed {s}" for p, m, b, s in checks)
+        note += (
+            f". {len(carried)} jaxabc cells were made by earlier jaxabc code and carried over after "
+            f"{len(checks)} of them ({listed}) gave the same draws and simulations on the current code "
+            "(`--carry-over`); their wall times are the earlier runs'"
+        )
+    return note
 
 
 def page_surrogate_peers() -> str:

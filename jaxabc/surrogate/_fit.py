@@ -108,16 +108,23 @@ def fit_likelihood(
 
 
 #: The least number of rows the emulator and the feasibility model are padded to; above it,
-#: the next power of two (at most the budget): a handful of compilations per run.
+#: the next power of two up to :data:`PADDED_ROWS_STEP_FROM`, then the next multiple of
+#: :data:`PADDED_ROWS_STEP` (at most the budget): a handful of compilations per run.
 MIN_PADDED_ROWS = 64
+#: Above this many rows a doubling would cost up to 8x in the cubic fit; steps of
+#: :data:`PADDED_ROWS_STEP` cost a compilation each instead.
+PADDED_ROWS_STEP_FROM = 256
+PADDED_ROWS_STEP = 64
 
 
 def padded_rows(n: int, cap: int) -> int:
-    """Rows to pad ``n`` fitted rows to: the next power of two from :data:`MIN_PADDED_ROWS`,
-    at most ``cap`` (the budget) and at least ``n``."""
+    """Rows to pad ``n`` fitted rows to (see :data:`MIN_PADDED_ROWS`), at most ``cap`` (the
+    budget) and at least ``n``."""
     size = MIN_PADDED_ROWS
-    while size < n:
+    while size < n and size < PADDED_ROWS_STEP_FROM:
         size *= 2
+    if size < n:
+        size = -(-n // PADDED_ROWS_STEP) * PADDED_ROWS_STEP
     return max(n, min(size, cap))
 
 

@@ -6,9 +6,9 @@ amplitude, one length scale per parameter and a nugget: the nugget is the simula
 standard deviation in standardised units, fitted by type-II maximum a posteriori (marginal
 likelihood plus weak log-normal priors that keep length scales off the degenerate ends).
 
-All arrays are padded to a fixed number of rows (the simulation budget) with a mask, so that
-the jitted fit and prediction functions compile once per budget, not once per design size.
-Padded rows get a huge diagonal and carry no information.
+All arrays are padded with a mask to a few fixed numbers of rows (``_fit.padded_rows``), so
+that the jitted fit and prediction functions compile a handful of times per run, not once per
+design size.  Padded rows get a huge diagonal and carry no information.
 """
 
 from __future__ import annotations
@@ -43,6 +43,8 @@ _PAD_X = 1e4
 _LOG_LS_BOUNDS = (np.log(0.02), np.log(20.0))
 _LOG_AMP_BOUNDS = (np.log(0.02), np.log(30.0))
 _LOG_NOISE_BOUNDS = (np.log(1e-4), np.log(3.0))
+#: The objective's value where the marginal likelihood cannot be evaluated (a failed Cholesky).
+_FAILED = 1e30
 
 
 class OutputTransform(NamedTuple):
@@ -220,6 +222,12 @@ def fit(
     -------
     Emulator
         Deterministic given its inputs (fixed starts, no random restarts).
+
+    Raises
+    ------
+    FloatingPointError
+        The marginal likelihood is not finite at any start (a warm start that fails falls back
+        to ``starts`` first).
     """
     if int(np.sum(mask)) < 3:
         raise ValueError(f"an emulator needs at least 3 successful simulations, got {int(np.sum(mask))}")
@@ -237,21 +245,30 @@ def fit(
         g = np.asarray(g, np.float64).ravel()
         if not np.isfinite(v) or not np.all(np.isfinite(g)):
             # A failed Cholesky at extreme hyper-parameters: push the line search back.
-            return 1e30, np.zeros_like(flat)
+            return _FAILED, np.zeros_like(flat)
         return v, g
 
-    inits = [np.tile(np.concatenate([[0.0], np.full(d, np.log(ls)), [np.log(0.1)]]), q) for ls in starts]
+    def best_of(inits: list[np.ndarray]) -> scipy.optimize.OptimizeResult:
+        runs = [
+            scipy.optimize.minimize(objective, p0, jac=True, method="L-BFGS-B", bounds=bounds, options={"maxiter": 300})
+            for p0 in inits
+        ]
+        return min(runs, key=lambda r: r.fun)
+
+    default_inits = [np.tile(np.concatenate([[0.0], np.full(d, np.log(ls)), [np.log(0.1)]]), q) for ls in starts]
     if init is not None and np.shape(init) == (q, d + 2) and np.all(np.isfinite(init)):
         lo, hi = np.array(bounds, np.float64).T
-        inits = [np.clip(np.asarray(init, np.float64).ravel(), lo, hi)]
-    best = None
-    for p0 in inits:
-        res = scipy.optimize.minimize(
-            objective, p0, jac=True, method="L-BFGS-B", bounds=bounds, options={"maxiter": 300}
+        best = best_of([np.clip(np.asarray(init, np.float64).ravel(), lo, hi)])
+        if not best.fun < _FAILED:
+            # The warm start sits where the likelihood cannot be evaluated: start afresh.
+            best = best_of(default_inits)
+    else:
+        best = best_of(default_inits)
+    if not best.fun < _FAILED:
+        raise FloatingPointError(
+            f"GP fit failed: the marginal likelihood is not finite at any start ({len(starts)} starts, "
+            f"{int(np.sum(mask))} rows, {q} outputs); the outputs may hold inf/NaN or identical rows"
         )
-        if best is None or res.fun < best.fun:
-            best = res
-    assert best is not None, "fit needs at least one start"
     return _condition(jnp.asarray(best.x.reshape(q, d + 2)), xj, zj, m, coef)
 
 
