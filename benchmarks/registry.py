@@ -227,7 +227,8 @@ REGISTRY: tuple[Entry, ...] = (
         quick="python -m benchmarks.surrogate_helium_noise --quick",
         quick_output=f"{Q}/surrogate_helium_noise.json",
         estimated_cost_s=180.0,
-        note="the surrogate's constant noise model against replicate runs at its helium posterior",
+        note="the surrogate's noise model (auto: constant or theta-dependent) against replicate runs at its "
+        "helium posterior",
     ),
     Entry(
         "surrogate_peers",

@@ -387,3 +387,11 @@ def test_carry_over_refuses_when_a_check_changes_the_draws(tmp_path: Path) -> No
         sp.carry_over(sp.load_cache(path), path, grid, p_hash, {"jaxabc_surrogate": "new"}, 2, different)
     carried = [c for c in sp.load_cache(path).values() if "carried_from" in c["result"]]
     assert carried == []
+
+
+def test_cells_timed_beside_other_work_count_for_accuracy_not_time() -> None:
+    cells = [_cell(0.1, 0), _cell(0.1, 1, run_s=3.0), _cell(0.1, 2, run_s=700.0, process_wall_s=750.0, cpu_shared=True)]
+    s = sp.summarise(cells)
+    assert s["seeds_ok"] == 3 and s["timed_seeds"] == 2
+    assert s["run_s"][0] == pytest.approx(2.0) and s["process_wall_s"][0] == pytest.approx(2.0)
+    assert s["energy_distance"][0] == pytest.approx(0.11)
