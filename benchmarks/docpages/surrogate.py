@@ -108,11 +108,26 @@ def _noise_grid_section(noise: dict) -> str:
         "of the likelihood changed at a time (mean / sd: sigma / epsilon):\n\n"
         + table(["likelihood", "mean", "sd", "corr", "weight on the grid's edge"], rows)
         + "\n\n"
-        f"The surrogate's draws have the sd of its own likelihood on the grid to within {f(100 * sampler, 0)} % "
-        "(the sampler is not the cause).  Its sd over that of the synthetic likelihood whose covariance varies "
+        + _sampler_sentence(sampler, noise["surrogate"])
+        + "  Its sd over that of the synthetic likelihood whose covariance varies "
         f"with theta: {ratio_local}; over the pooled one: {ratio_pooled}.  The emulated mean's error where the "
         f"posterior lies is {g(min(error), 2)}-{g(max(error), 2)} noise sd per output.\n\n"
     )
+
+
+def _sampler_sentence(sampler: float, sur: dict[str, Any]) -> str:
+    """How far the run's draws are from its own likelihood on the grid (largest relative sd difference)."""
+    text = f"The surrogate's draws have the sd of its own likelihood on the grid to within {f(100 * sampler, 0)} %"
+    if sampler <= 0.05:
+        text += " (the sampler is not the cause)."
+    else:
+        text += (
+            ": more than the draws' Monte Carlo error, so the sampler, or a final fit other than the one refitted "
+            "here from the checkpoint, accounts for part of the width."
+        )
+    if not sur.get("validated", True):
+        text += "  This surrogate run was NOT validated (its own held-out check failed)."
+    return text
 
 
 def _noise_model_sentence(sur: dict[str, Any]) -> str:
@@ -457,11 +472,13 @@ parameters, against the closest sbi method at the same budget (means +- standard
 
 def _phase_section(d: dict[str, Any]) -> str:
     """Where the surrogate's own time goes, from the cells that recorded a phase split."""
-    from benchmarks.surrogate_peers import PHASES
+    from benchmarks.surrogate_peers import PHASES, SCALING_PROBLEMS
 
     groups: dict[tuple[int, str, str], list[dict[str, Any]]] = {}
     for c in d.get("cells", []):
-        if c["method"].startswith("jaxabc_") and isinstance(c.get("phase_s"), dict) and "run_s" in c:
+        if c["problem"] not in SCALING_PROBLEMS or not c["method"].startswith("jaxabc_"):
+            continue
+        if isinstance(c.get("phase_s"), dict) and "run_s" in c:
             groups.setdefault((c["budget"], c["problem"], c["method"]), []).append(c)
     if not groups:
         return ""
@@ -489,7 +506,8 @@ def _phase_section(d: dict[str, Any]) -> str:
         "of all: importance pools",
     ]
     return f"""
-Where the surrogate's own time goes, in the runs that recorded it (seconds, means over seeds):
+Where the surrogate's own time goes, in the runs of these problems that recorded it (seconds,
+means over seeds):
 the design rounds (fit, importance pool of the posterior, acquisition), the held-out validation
 (a refit without the held-out runs and the posterior shift it causes) and the final draws; the last
 two columns add up the GP hyper-parameter fits and the importance pools wherever they ran.
