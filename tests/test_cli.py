@@ -249,7 +249,7 @@ def test_example_refuses_an_interrupted_run_and_resumes_it(
 
 
 def test_ctrl_c_swallowed_by_a_gc_callback_still_ends_the_command(
-    tmp_path: Path, capsys: pytest.CaptureFixture, monkeypatch: pytest.MonkeyPatch
+    tmp_path: Path, capsys: pytest.CaptureFixture, monkeypatch: pytest.MonkeyPatch, request: pytest.FixtureRequest
 ) -> None:
     """A Ctrl-C raised inside a garbage-collection callback (JAX has one) is only printed by
     Python, and the run went on: the command raises it again where it can stop."""
@@ -277,6 +277,10 @@ def test_ctrl_c_swallowed_by_a_gc_callback_still_ends_the_command(
     monkeypatch.setattr(jaxabc, "run", run)
     monkeypatch.setattr(cli.threading, "Timer", CountedTimer)
     monkeypatch.setattr(cli._ReraiseInterrupt, "delay", 0.5)  # after every callback has run
+    # Python's own SIGINT handler, as in a terminal: a shell without job control starts background
+    # jobs (such as a CI run) with SIGINT ignored, and then no Ctrl-C can reach the command at all.
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    request.addfinalizer(lambda: signal.signal(signal.SIGINT, previous))
     assert main(["example", "gaussian", "--output", str(tmp_path / "gauss")]) == 130
     err = capsys.readouterr().err
     assert "Exception ignored" not in err and err.strip().startswith("jaxabc: interrupted"), err
