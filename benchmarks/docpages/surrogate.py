@@ -437,7 +437,8 @@ def _beyond_goal(d: dict[str, Any]) -> str:
         lost = [
             f"{p} ({_peer_label(v['closest_peer'])} "
             f"{_pm(d['summary'][p][str(b)][v['closest_peer']]['energy_distance'], 3)} against the surrogate's "
-            f"{_pm(d['summary'][p][str(b)]['jaxabc_surrogate'].get('energy_distance'), 3)})"
+            f"{_pm(d['summary'][p][str(b)]['jaxabc_surrogate'].get('energy_distance'), 3)}"
+            f"{', within their combined seed error' if v.get('within_seed_error') else ''})"
             for p, v in judged.items()
             if not v.get("surrogate_closest") and v.get("closest_peer")
         ]
@@ -599,7 +600,7 @@ def _phase_section(d: dict[str, Any]) -> str:
         ph = {k: np.mean([c["phase_s"].get(k, 0.0) for c in cs]) for k in PHASES}
         rest = run - ph["design_rounds"] - ph["validation"] - ph["final_draws"]
         rows.append(
-            [b, n, _peer_label(m), len(cs), f"{run:.0f}"]
+            [b, n, _peer_label(m), f"{len(cs)} ({sum(not c.get('cpu_shared') for c in cs)})", f"{run:.0f}"]
             + [f"{ph[k]:.0f}" for k in ("design_rounds", "validation", "final_draws")]
             + [f"{rest:.0f}", f"{ph['gp_fits']:.0f}", f"{ph['importance_pools']:.0f}"]
         )
@@ -607,7 +608,7 @@ def _phase_section(d: dict[str, Any]) -> str:
         "B",
         "problem",
         "method",
-        "seeds",
+        "seeds (run alone)",
         "wall s",
         "design rounds",
         "validation",
@@ -621,7 +622,9 @@ Where the surrogate's own time goes, in the runs of these problems that recorded
 means over seeds):
 the design rounds (fit, importance pool of the posterior, acquisition), the held-out validation
 (a refit without the held-out runs and the posterior shift it causes) and the final draws; the last
-two columns add up the GP hyper-parameter fits and the importance pools wherever they ran.
+two columns add up the GP hyper-parameter fits and the importance pools wherever they ran.  Runs
+made beside other work (the seeds not run alone) take longer than alone; their split still shows
+where the time goes.
 
 {table(header, rows)}
 """
