@@ -45,21 +45,29 @@ def _mvt_sample(rng: np.random.Generator, n: int, loc: np.ndarray, chol: np.ndar
     return loc + z / np.sqrt(rng.chisquare(df, n) / df)[:, None]
 
 
+def _importance_moments(
+    name: str, x: np.ndarray, loc: np.ndarray, cov: np.ndarray, df: float, n: int, rng: np.random.Generator
+) -> tuple[np.ndarray, np.ndarray, float]:
+    """Posterior mean, sds and ESS of the likelihood on the prior box, by importance sampling from
+    a multivariate t (``loc``, scale ``cov``, ``df``)."""
+    p = sp.PROBLEMS[name]
+    chol = np.linalg.cholesky(cov)
+    y = _mvt_sample(rng, n, loc, chol, df)
+    inside = np.all((y >= np.array(p["low"])) & (y <= np.array(p["high"])), axis=1)
+    logw = np.where(inside, sp.log_likelihood(name, y, x), -np.inf) - _mvt_logpdf(y, loc, chol, df)
+    w = np.exp(logw - logw.max())
+    w /= w.sum()
+    mean = w @ y
+    return mean, np.sqrt(w @ (y - mean) ** 2), float(1.0 / np.sum(w**2))
+
+
 def test_the_heteroscedastic_grid_agrees_with_importance_sampling() -> None:
     name = "heteroscedastic"
     rng = np.random.default_rng(3)
-    low, high = np.array(sp.PROBLEMS[name]["low"]), np.array(sp.PROBLEMS[name]["high"])
     for seed in (0, 1, 2):
         x = sp.instance(name, seed, exact_draws=10).observed
         mean_g, cov_g = sp.grid_moments(sp.grid_posterior(name, x))
-        chol = np.linalg.cholesky(2.0 * cov_g)
-        y = _mvt_sample(rng, 400_000, mean_g, chol, 4.0)
-        inside = np.all((y >= low) & (y <= high), axis=1)
-        logw = np.where(inside, sp.log_likelihood(name, y, x), -np.inf) - _mvt_logpdf(y, mean_g, chol, 4.0)
-        w = np.exp(logw - logw.max())
-        w /= w.sum()
-        mean_i = w @ y
-        sd_i = np.sqrt(w @ (y - mean_i) ** 2)
+        mean_i, sd_i, _ = _importance_moments(name, x, mean_g, 2.0 * cov_g, 4.0, 400_000, rng)
         sd_g = np.sqrt(np.diag(cov_g))
         assert np.all(np.abs(mean_i - mean_g) < 0.015 * sd_g), (seed, mean_i, mean_g)
         assert np.all(np.abs(sd_i / sd_g - 1) < 0.02), (seed, sd_i, sd_g)
@@ -69,19 +77,12 @@ def test_the_banana5_direct_sampler_agrees_with_importance_sampling() -> None:
     # Five parameters: no grid; the likelihood times the prior box, reweighted from a wide t proposal.
     name = "banana5"
     rng = np.random.default_rng(5)
-    low, high = np.array(sp.PROBLEMS[name]["low"]), np.array(sp.PROBLEMS[name]["high"])
     for seed in (0, 1):
         x = sp.instance(name, seed, exact_draws=10, moment_draws=10).observed
         mean_d, cov_d = _direct_moments(name, x, 400_000, seed)
-        chol = np.linalg.cholesky(3.0 * cov_d)
-        y = _mvt_sample(rng, 1_000_000, mean_d, chol, 3.0)
-        inside = np.all((y >= low) & (y <= high), axis=1)
-        logw = np.where(inside, sp.log_likelihood(name, y, x), -np.inf) - _mvt_logpdf(y, mean_d, chol, 3.0)
-        w = np.exp(logw - logw.max())
-        w /= w.sum()
-        assert 1.0 / np.sum(w**2) > 50_000  # the proposal covers the banana
-        mean_i = w @ y
-        sd_i, sd_d = np.sqrt(w @ (y - mean_i) ** 2), np.sqrt(np.diag(cov_d))
+        mean_i, sd_i, ess = _importance_moments(name, x, mean_d, 3.0 * cov_d, 3.0, 1_000_000, rng)
+        assert ess > 50_000  # the proposal covers the banana
+        sd_d = np.sqrt(np.diag(cov_d))
         assert np.all(np.abs(mean_i - mean_d) < 0.02 * sd_d), (seed, mean_i, mean_d)
         assert np.all(np.abs(sd_i / sd_d - 1) < 0.03), (seed, sd_i, sd_d)
 
