@@ -114,13 +114,25 @@ def _canonical(node: Any) -> str:
     return repr(node)
 
 
+#: Tree hashes by (source digest, dump): ``status`` and the results pages hash the same few
+#: hundred files thousands of times, and parsing them is most of their time.  Keyed on the bytes,
+#: so an edited file is hashed afresh.
+_TREE_HASHES: dict[tuple[bytes, Callable[[ast.AST], str]], str] = {}
+
+
 def _hash_tree(path: str | Path, dump: Callable[[ast.AST], str]) -> str:
     source = Path(path).read_bytes()
+    key = (hashlib.sha256(source).digest(), dump)
+    if key in _TREE_HASHES:
+        return _TREE_HASHES[key]
     try:
         tree = _strip_docstrings(ast.parse(source))
     except SyntaxError:
-        return "raw:" + hashlib.sha256(source).hexdigest()[:16]
-    return hashlib.sha256(dump(tree).encode()).hexdigest()[:16]
+        digest = "raw:" + hashlib.sha256(source).hexdigest()[:16]
+    else:
+        digest = hashlib.sha256(dump(tree).encode()).hexdigest()[:16]
+    _TREE_HASHES[key] = digest
+    return digest
 
 
 def code_hash(path: str | Path) -> str:
@@ -147,7 +159,11 @@ def legacy_code_hash(path: str | Path) -> str:
 
     It depends on the Python version that computed it; status accepts it beside ``code_hash``.
     """
-    return _hash_tree(path, lambda tree: ast.dump(tree, include_attributes=False))
+    return _hash_tree(path, _legacy_dump)
+
+
+def _legacy_dump(tree: ast.AST) -> str:
+    return ast.dump(tree, include_attributes=False)
 
 
 def data_hash(path: str | Path) -> str:
