@@ -64,7 +64,6 @@ import numpy as np
 import jaxabc
 from benchmarks._common import command_line, guard_resume, write_result
 from jaxabc.model_choice import Model
-from jaxabc.noise import MeasurementError
 from md.water.finite_size import MODEL_VISCOSITY_298K, model_viscosity_mpa_s
 from md.water.joint_data import JOINT_DATA_FILE, joint_observed, joint_record, observation_sd
 from md.water.model_simulator import CachedSummaries, WaterModelSimulator
@@ -207,33 +206,19 @@ def discrepancy_for(fitted_names: list[str]) -> jaxabc.Discrepancy:
     return jaxabc.Discrepancy(max_sd, groups)
 
 
-def _run_accepts(name: str) -> bool:
-    import inspect
-
-    return name in inspect.signature(jaxabc.run).parameters
+#: How the measurement error reaches the likelihood, as the result records it.
+NOISE_VIA = "jaxabc.run(observation_error=sd)"
 
 
-def noise_options(args, data, models: list[Model]) -> tuple[list[Model], dict, str]:
-    """The models and ``jaxabc.run`` keywords that carry the measurement error (and discrepancy).
-
-    ``observation_error=`` when ``jaxabc.run`` accepts it; otherwise every simulation gets the
-    error added (:class:`jaxabc.noise.MeasurementError`), as before that option existed.
-    """
+def noise_options(args, data) -> dict:
+    """The ``jaxabc.run`` keywords that carry the data's measurement error,
+    ``observation_error=sd``, and with ``--discrepancy`` the model discrepancy."""
     sd = observation_sd(args.data)
     fitted_names = [n for n, f in zip(data.names, data.fitted, strict=True) if f]
-    options: dict = {}
-    if _run_accepts("observation_error"):
-        options["observation_error"] = sd
-        how = "jaxabc.run(observation_error=sd)"
-    else:
-        # TODO: remove once every supported jaxabc.run takes observation_error.
-        models = [Model(m.name, MeasurementError(m.simulate, sd), m.prior) for m in models]
-        how = "MeasurementError(simulate, sd)"
+    options: dict = {"observation_error": sd}
     if args.discrepancy:
-        if not _run_accepts("discrepancy"):
-            raise SystemExit("--discrepancy needs a jaxabc.run that accepts discrepancy=")
         options["discrepancy"] = discrepancy_for(fitted_names)
-    return models, options, how
+    return options
 
 
 def pilot_scales(args, models: list[Model], executor) -> tuple[np.ndarray, dict]:
@@ -273,13 +258,13 @@ def simulator_id(args) -> str:
 
 def run_surrogate(args, data, models: list[Model], executor):
     """Model choice by surrogate evidence, with the data's measurement errors."""
-    noisy, options, _ = noise_options(args, data, models)
+    options = noise_options(args, data)
     guard_resume(args.checkpoint_dir, args.resume, modules=("jaxabc.surrogate", "jaxabc.model_choice"))
     return jaxabc.run(
-        noisy,
+        models,
         observed=data.observed[data.fitted],
         method="surrogate",
-        max_simulations=args.budget_per_model * len(noisy),
+        max_simulations=args.budget_per_model * len(models),
         num_particles=2000,
         seed=args.seed,
         executor=executor,
@@ -296,9 +281,9 @@ def run_surrogate(args, data, models: list[Model], executor):
 
 def run_abc_smc(args, data, models: list[Model], executor):
     scales, pilot = pilot_scales(args, models, executor)
-    noisy, options, _ = noise_options(args, data, models)
+    options = noise_options(args, data)
     result = jaxabc.run(
-        noisy,
+        models,
         observed=data.observed[data.fitted],
         num_particles=args.particles,
         num_steps=args.steps,
@@ -450,7 +435,7 @@ def main(argv=None) -> None:
     timeout_s = models[0].simulate.simulate.protocol.timeout_s + 60
     executor = jaxabc.ProcessPoolExecutor(max_workers=args.workers, timeout=timeout_s)
     scales, pilot = None, None
-    _, noise_kwargs, noise_how = noise_options(args, data, models)
+    noise_kwargs = noise_options(args, data)
     try:
         if args.method == "surrogate":
             result = run_surrogate(args, data, models, executor)
@@ -497,7 +482,7 @@ def main(argv=None) -> None:
             if scales is None
             else dict(zip(fitted_names, np.asarray(scales).tolist(), strict=True)),
             "observation_sd": dict(zip(fitted_names, observation_sd(args.data).tolist(), strict=True)),
-            "observation_error_via": noise_how,
+            "observation_error_via": NOISE_VIA,
             "propagated_pointwise_errors": [
                 None if np.isnan(e) else float(e) for e in np.asarray(data.propagated, np.float64)
             ],

@@ -235,3 +235,18 @@ def test_benchmark_priors_and_discrepancy_groups():
         covered = sorted(i for idx in groups.values() for i in idx)
         assert covered == list(range(len(names)))  # every fitted summary in exactly one group
         assert math.isclose(bench.discrepancy_for(names).max_sd[list(groups).index("gOO_heights")], 1.0)
+
+
+@pytest.mark.parametrize("discrepancy", [False, True])
+def test_benchmark_passes_the_stated_errors_to_jaxabc_run(discrepancy):
+    import argparse
+
+    import jaxabc
+
+    bench = _benchmark()
+    data = joint_observed("xray")
+    options = bench.noise_options(argparse.Namespace(data="xray", discrepancy=discrepancy), data)
+    np.testing.assert_array_equal(options["observation_error"], observation_sd("xray"))
+    assert ("discrepancy" in options) == discrepancy
+    if discrepancy:
+        assert isinstance(options["discrepancy"], jaxabc.Discrepancy)
