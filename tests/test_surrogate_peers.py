@@ -426,3 +426,15 @@ def test_cells_timed_beside_other_work_count_for_accuracy_not_time() -> None:
     assert s["seeds_ok"] == 3 and s["timed_seeds"] == 2
     assert s["run_s"][0] == pytest.approx(2.0) and s["process_wall_s"][0] == pytest.approx(2.0)
     assert s["energy_distance"][0] == pytest.approx(0.11)
+
+
+def test_a_failure_reads_as_one_reason_however_many_seeds_hit_it() -> None:
+    from benchmarks.docpages.surrogate import _peer_row
+
+    nuts = "exit 1: ValueError: NUTS: Cannot find acceptable stepsize starting from point [{}]. All trials ended."
+    s = {"seeds": 5, "seeds_ok": 0, "not_run": 3, "errors": [nuts.format(" 0.8 -3.2"), nuts.format("3.4  5.39")]}
+    note = _peer_row("50", "bolfi", s, 5)[-1]
+    assert note == (
+        "not run on 3 of 5 seeds; failed on 2 of 5 seeds: "
+        "ValueError: NUTS: Cannot find acceptable stepsize starting from point. All trials ended."
+    )
