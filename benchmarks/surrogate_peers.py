@@ -106,6 +106,7 @@ import inspect
 import json
 import math
 import os
+import re
 import subprocess
 import sys
 import textwrap
@@ -1156,11 +1157,18 @@ def summarise(cells: list[dict[str, Any]]) -> dict[str, Any]:
     return out
 
 
+def short_error(text: str) -> str:
+    """A failed cell's error without its exit-status prefix and the arrays a library printed
+    (ELFI's NUTS names its start point), so that seeds failing alike read as one reason."""
+    text = re.sub(r"^exit -?\d+: ", "", str(text))
+    return " ".join(re.sub(r"\s*\[[^\]]*\]", "", text).split())
+
+
 def _why(s: dict[str, Any]) -> list[str]:
     """Generated reasons for a surrogate's energy distance: failures, bias, width."""
     reasons = []
     if s.get("seeds_ok", 0) < s.get("seeds", 0):
-        first = s["errors"][0].removeprefix("exit 1: ") if s.get("errors") else "?"
+        first = short_error(s["errors"][0]) if s.get("errors") else "?"
         reasons.append(f"failed on {s['seeds'] - s['seeds_ok']} of {s['seeds']} seeds ({first[:200]})")
     if "energy_distance" not in s:
         return reasons

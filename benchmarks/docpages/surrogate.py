@@ -3,7 +3,6 @@ success classifier replayed on the water runs."""
 
 from __future__ import annotations
 
-import re
 from typing import Any
 
 import numpy as np
@@ -311,13 +310,6 @@ def _cell_text(text: str, limit: int = 160) -> str:
     return text if len(text) <= limit else text[: limit - 3] + "..."
 
 
-def _short_error(text: str) -> str:
-    """A failed cell's error without its exit-status prefix and the arrays a library printed
-    (ELFI's NUTS names its start point), so that seeds failing alike read as one reason."""
-    text = re.sub(r"^exit -?\d+: ", "", str(text))
-    return " ".join(re.sub(r"\s*\[[^\]]*\]", "", text).split())
-
-
 def _peer_row(budget: str, method: str, s: dict[str, Any], d: int) -> list[Any]:
     label = _peer_label(method)
     if "skipped" in s:
@@ -327,7 +319,9 @@ def _peer_row(budget: str, method: str, s: dict[str, Any], d: int) -> list[Any]:
         notes.append(f"not run on {s['not_run']} of {s['seeds']} seeds")
     failed = s.get("seeds", 0) - s.get("seeds_ok", 0) - s.get("not_run", 0)
     if failed > 0:
-        reasons = dict.fromkeys(_short_error(e) for e in s["errors"])
+        from benchmarks.surrogate_peers import short_error
+
+        reasons = dict.fromkeys(short_error(e) for e in s["errors"])
         notes.append(f"failed on {failed} of {s['seeds']} seeds: " + "; ".join(reasons))
     if "energy_distance" not in s:
         return [budget, label, "-", "-", "-", "-", "-", "-", _cell_text("; ".join(notes) or "not run")]
