@@ -79,6 +79,7 @@ def critique(
     num_power_replicates: int = 20,
     power_threshold: float = 0.5,
     candidates: CandidateObservables | None = None,
+    base_prior: str | tuple[Any, Any] = "free",
 ) -> CritiqueReport:
     """Criticise a calibrated simulator: what it gets wrong, why, the extension, and the gain.
 
@@ -151,12 +152,23 @@ def critique(
         (or, without a power estimate, every effect with an expected strength) the report ranks
         them by the signal each would add after the base parameters absorb what they can
         (:func:`jaxabc.criticism.power.design_advice`).
+    base_prior : {"free", "prior"} or (mean, sd)
+        What the base parameters may absorb before misfits are tested and causes ranked.
+        ``"free"`` (default): anything in the span of their sensitivities, however far that
+        moves them.  ``"prior"``: only what ``result.prior`` allows, as a Gaussian with the
+        prior's mean and covariance (a uniform box: its centre and ``(high - low)**2 / 12``);
+        the refit is the maximum a posteriori step and the null covariance includes the prior's
+        spread.  ``(mean, sd)``, each shape (d,): that Gaussian instead (independent knowledge
+        of the parameters, e.g. an ab initio potential's stated uncertainty).  Use a prior only
+        when the box is knowledge, not a search range: then an effect that free parameters
+        would mimic (a quantum correction against a well depth) stays visible.
 
     Returns
     -------
     CritiqueReport
     """
     obs = _validated_observed(observed, result, catalogue)
+    prior_precision, prior_centre = _base_prior_moments(base_prior, result)
     ex = executor if hasattr(executor, "map") else get_executor(executor)
     if getattr(ex, "name", "") == "vmap":
         _check_simulator(simulate_with_effects, result.prior.dim + len(catalogue), obs.size)
@@ -184,7 +196,9 @@ def critique(
         num_power_replicates=int(num_power_replicates),
         power_threshold=power_threshold,
     )
+    settings["base_prior"] = base_prior if isinstance(base_prior, str) else "gaussian"
     pipeline = _make_pipeline(problem, num_refit_iterations, settings)
+    pipeline.prior_precision, pipeline.prior_centre = prior_precision, prior_centre
     diagnosis = pipeline.diagnose(obs, pred)
     powers, advice = _power_and_advice(problem, pipeline, diagnosis, pred, root, settings, candidates)
     causes = diagnosis.causes
@@ -195,6 +209,34 @@ def critique(
         keys = (k_ext, k_base, k_epred, k_bpred)
         _add_extension(report, problem, diagnosis, visible[0].name, keys, refit_base, extend_options)
     return report
+
+
+def _base_prior_moments(base_prior: Any, result: ABCResult) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """(precision (d, d), centre (d,)) of the base parameters' Gaussian prior, or (None, None).
+
+    Raises ValueError for an unknown name, wrongly shaped or non-positive sds.
+    """
+    d = result.prior.dim
+    if isinstance(base_prior, str):
+        if base_prior == "free":
+            return None, None
+        if base_prior != "prior":
+            raise ValueError(f"base_prior={base_prior!r}: use 'free', 'prior' or a (mean, sd) pair")
+        prior = result.prior
+        if type(prior).__name__ == "Uniform":
+            lo, hi = np.asarray(prior.low, float), np.asarray(prior.high, float)
+            return np.diag(12.0 / (hi - lo) ** 2), 0.5 * (lo + hi)
+        draws = np.asarray(prior.sample(jax.random.key(0), 20000), float)  # moments only: fixed key
+        return np.linalg.inv(np.cov(draws.T).reshape(d, d)), draws.mean(0)
+    try:
+        mean, sd = (np.asarray(x, float).reshape(-1) for x in base_prior)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"base_prior must be 'free', 'prior' or (mean, sd) arrays of shape ({d},)") from exc
+    if mean.shape != (d,) or sd.shape != (d,):
+        raise ValueError(f"base_prior (mean, sd) must each have shape ({d},), got {mean.shape} and {sd.shape}")
+    if not (np.all(np.isfinite(mean)) and np.all(np.isfinite(sd)) and np.all(sd > 0)):
+        raise ValueError("base_prior sds must be finite and positive and its mean finite")
+    return np.diag(sd**-2.0), mean
 
 
 def _validated_observed(observed: Any, result: ABCResult, catalogue: Any) -> np.ndarray:

@@ -82,7 +82,9 @@ def adjust_pvalues(p: np.ndarray, method: str = "holm") -> np.ndarray:
     return out
 
 
-def refit_operator(jacobian: np.ndarray, noise_cov: np.ndarray, fitted: np.ndarray) -> np.ndarray:
+def refit_operator(
+    jacobian: np.ndarray, noise_cov: np.ndarray, fitted: np.ndarray, prior_precision: np.ndarray | None = None
+) -> np.ndarray:
     """The linear refit ``A`` (s, s): residual after the base parameters absorb what they can.
 
     Parameters
@@ -92,11 +94,17 @@ def refit_operator(jacobian: np.ndarray, noise_cov: np.ndarray, fitted: np.ndarr
     noise_cov : numpy.ndarray, shape (s, s)
     fitted : numpy.ndarray of bool, shape (s,)
         Summaries the base parameters were fitted to; only these steer the refit.
+    prior_precision : numpy.ndarray, shape (d, d), optional
+        Precision ``L`` of a Gaussian prior on the base parameters: the refit is then the
+        maximum a posteriori step ``(J_f' S^-1 J_f + L)^-1 J_f' S^-1``, so parameters that
+        independent knowledge pins down absorb only what that knowledge allows.  None: free.
     """
     s = jacobian.shape[0]
     jf = jacobian[fitted]
     prec = np.linalg.pinv(noise_cov[np.ix_(fitted, fitted)], rcond=1e-10, hermitian=True)
     normal = jf.T @ prec @ jf
+    if prior_precision is not None:
+        normal = normal + prior_precision
     # pinv: a parameter the fitted summaries do not see (zero column) simply absorbs nothing.
     gain = jacobian @ np.linalg.pinv(normal, rcond=1e-8, hermitian=True) @ jf.T @ prec
     a = np.eye(s)
@@ -168,6 +176,7 @@ def analyse_misfits(
     alpha: float = 0.05,
     correction: str = "holm",
     level: float = 0.9,
+    prior: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
 ) -> MisfitAnalysis:
     """Standardised residuals and calibrated, corrected p-values per summary and per group.
 
@@ -183,6 +192,11 @@ def analyse_misfits(
     correction : {"holm", "bh"}
     level : float
         Predictive band shown in the human-readable lines.
+    prior : (precision (d, d), centre (d,), theta (d,)), optional
+        A Gaussian prior on the base parameters and the point ``theta`` the residual was taken
+        at: the refit becomes the maximum a posteriori step from the prior centre and the null
+        covariance gains the prior's spread, ``J (N + L)^-1 L (N + L)^-1 J'`` with
+        ``N = J_f' S^-1 J_f`` (see :func:`refit_operator`).  None: the base parameters are free.
 
     Returns
     -------
@@ -192,8 +206,8 @@ def analyse_misfits(
     act = predictive.active
     num_rep = predictive.replicates.shape[0]
     r = observed - predictive.replicate_mean
-    a, null = _refit_and_null(predictive, jacobian, held_out)
-    rc = a @ np.where(act, r, 0.0)
+    a, null, shift = _refit_and_null(predictive, jacobian, held_out, prior)
+    rc = a @ np.where(act, r, 0.0) + shift
     tests = _summary_tests(observed, predictive, rc, null, held_out, level)
     tests += _group_tests(observed, predictive, rc, null, held_out, level)
     _adjust_within_families(tests, held_out[act], alpha, correction)
@@ -204,23 +218,43 @@ def analyse_misfits(
 
 
 def _refit_and_null(
-    predictive: PosteriorPredictive, jacobian: np.ndarray, held_out: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
-    """The refit operator ``A`` and the null covariance ``(1 + 1/R) A S A'``, both (s, s).
+    predictive: PosteriorPredictive,
+    jacobian: np.ndarray,
+    held_out: np.ndarray,
+    prior: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The refit operator ``A``, the null covariance ``(1 + 1/R) A S A'`` (both (s, s)) and a
+    shift (s,) to add to ``A r``.
 
     Built on the active summaries and zero elsewhere; only the fitted (not held-out) summaries
     steer the refit.  ``R`` is the number of replicates behind the noise covariance ``S``.
+    Without ``prior`` the shift is zero.  With a prior (precision ``L``, centre ``t0``, residual
+    point ``t``), the refit is linearised about the prior centre: ``r_c = A (r + J (t - t0))
+    = A r + J (N + L)^-1 L (t - t0)``, and the null covariance adds the prior's spread passed
+    through the refit, ``J (N + L)^-1 L (N + L)^-1 J'`` (a linear-Gaussian model whose base
+    parameters are drawn from the prior).
     """
     act = predictive.active
     s = act.shape[0]
     num_rep = predictive.replicates.shape[0]
     cov = predictive.noise_cov[np.ix_(act, act)]
-    a_act = refit_operator(jacobian[act], cov, ~held_out[act])
+    fitted = ~held_out[act]
+    a_act = refit_operator(jacobian[act], cov, fitted, None if prior is None else prior[0])
     a = np.zeros((s, s))
     a[np.ix_(act, act)] = a_act
     null = np.zeros((s, s))
     null[np.ix_(act, act)] = (1.0 + 1.0 / num_rep) * a_act @ cov @ a_act.T
-    return a, null
+    shift = np.zeros(s)
+    if prior is not None:
+        lam, centre, theta = (np.asarray(x, float) for x in prior)
+        jac = jacobian[act]
+        jf = jac[fitted]
+        prec = np.linalg.pinv(cov[np.ix_(fitted, fitted)], rcond=1e-10, hermitian=True)
+        inv = np.linalg.pinv(jf.T @ prec @ jf + lam, rcond=1e-8, hermitian=True)
+        absorbed = jac @ inv @ lam
+        shift[act] = absorbed @ (theta - centre)
+        null[np.ix_(act, act)] += absorbed @ inv @ jac.T
+    return a, null, shift
 
 
 def _summary_tests(

@@ -74,6 +74,10 @@ class Pipeline:
     ambiguity_cosine: float = 0.95
     invisible_snr: float = 3.0
     level: float = 0.9
+    #: Gaussian prior on the base parameters for the local refit: precision (d, d) and centre
+    #: (d,); None leaves them free (see :func:`jaxabc.criticism.critique`'s ``base_prior``).
+    prior_precision: np.ndarray | None = None
+    prior_centre: np.ndarray | None = None
     _memo: dict = field(default_factory=dict, repr=False)
 
     def base_points(self, theta: np.ndarray) -> list[tuple[int, float, float]]:
@@ -126,7 +130,13 @@ class Pipeline:
                 # re-estimated on every other step only (each estimate costs 2 d times the mean's).
                 jac = self._sens(theta, grad_keys, self.base_points(theta))
             jf = jac[fitted]
-            step = np.linalg.pinv(jf.T @ prec_f @ jf, rcond=1e-8, hermitian=True) @ jf.T @ prec_f @ (obs - mu)[fitted]
+            if self.prior_precision is None:
+                normal = np.linalg.pinv(jf.T @ prec_f @ jf, rcond=1e-8, hermitian=True)
+                step = normal @ jf.T @ prec_f @ (obs - mu)[fitted]
+            else:  # the maximum a posteriori step under the base parameters' Gaussian prior
+                lam = self.prior_precision
+                rhs = jf.T @ prec_f @ (obs - mu)[fitted] - lam @ (theta[:d] - self.prior_centre)
+                step = np.linalg.pinv(jf.T @ prec_f @ jf + lam, rcond=1e-8, hermitian=True) @ rhs
             new = np.clip(theta[:d] + step, self.low, self.high)
             moved = np.abs(new - theta[:d])
             theta[:d] = new
@@ -150,8 +160,9 @@ class Pipeline:
         ]
         sens = self._sens(theta, grad_keys, points)
         jac, directions = sens[:, :d], sens[:, d:]
+        prior = None if self.prior_precision is None else (self.prior_precision, self.prior_centre, theta[:d])
         mis = analyse_misfits(
-            obs, pred, jac, self.held_out, alpha=self.alpha, correction=self.correction, level=self.level
+            obs, pred, jac, self.held_out, alpha=self.alpha, correction=self.correction, level=self.level, prior=prior
         )
         causes = rank_causes(
             self.catalogue,

@@ -241,11 +241,19 @@ def detection_power(
     return out
 
 
-def _signal(jac: np.ndarray, v: np.ndarray, cov: np.ndarray, fitted: np.ndarray) -> float:
-    """Norm, in the noise metric, of ``v`` after the base parameters absorb what they can."""
-    a = refit_operator(jac, cov, fitted)
+def _signal(
+    jac: np.ndarray, v: np.ndarray, cov: np.ndarray, fitted: np.ndarray, prior_precision: np.ndarray | None = None
+) -> float:
+    """Norm, in the noise metric, of ``v`` after the base parameters absorb what they can (as
+    far as their prior allows, with ``prior_precision``: :func:`~jaxabc.criticism.misfit.refit_operator`)."""
+    a = refit_operator(jac, cov, fitted, prior_precision)
     u = a @ v
     c = a @ cov @ a.T
+    if prior_precision is not None:
+        jf = jac[fitted]
+        prec_f = np.linalg.pinv(cov[np.ix_(fitted, fitted)], rcond=1e-10, hermitian=True)
+        inv = np.linalg.pinv(jf.T @ prec_f @ jf + prior_precision, rcond=1e-8, hermitian=True)
+        c = c + jac @ inv @ prior_precision @ inv @ jac.T
     prec = np.linalg.pinv(c, rcond=1e-8, hermitian=True)
     return float(np.sqrt(max(float(u @ prec @ u), 0.0)))
 
@@ -287,10 +295,20 @@ def design_advice(
         eff = cat.effects[k]
         strength = abs(float(eff.expected if eff.expected is not None else eff.high) - eff.null)
         v = diagnosis.directions[act, k]
-        current = _signal(jac, v, cov, fitted) * strength
+        current = _signal(jac, v, cov, fitted, pipeline.prior_precision) * strength
         rows = [
             _candidate_row(
-                candidates.names[c], sens_c[c, d + col], sens_c[c, :d], var[c], jac, v, cov, fitted, strength, current
+                candidates.names[c],
+                sens_c[c, d + col],
+                sens_c[c, :d],
+                var[c],
+                jac,
+                v,
+                cov,
+                fitted,
+                strength,
+                current,
+                pipeline.prior_precision,
             )
             for c in range(num_c)
         ]
@@ -330,6 +348,7 @@ def _candidate_row(
     fitted: np.ndarray,
     strength: float,
     current: float,
+    prior_precision: np.ndarray | None = None,
 ) -> dict:
     """One candidate's entry of :func:`design_advice` for one effect.
 
@@ -347,11 +366,11 @@ def _candidate_row(
     v_a = np.concatenate([v, [vc]])
     cov_a = np.zeros((cov.shape[0] + 1,) * 2)
     cov_a[:-1, :-1], cov_a[-1, -1] = cov, var_c
-    snr = _signal(jac_a, v_a, cov_a, np.concatenate([fitted, [True]])) * strength
+    snr = _signal(jac_a, v_a, cov_a, np.concatenate([fitted, [True]]), prior_precision) * strength
     raw = abs(vc) / sd * strength
     # The candidate's own residual response once the parameters fitted to the existing
     # summaries have absorbed the effect there (the candidate not fitted).
-    a_own = refit_operator(jac_a, cov_a, np.concatenate([fitted, [False]]))
+    a_own = refit_operator(jac_a, cov_a, np.concatenate([fitted, [False]]), prior_precision)
     resid = abs(float((a_own @ v_a)[-1])) / sd * strength
     return dict(
         name=name,
