@@ -14,9 +14,11 @@ from scipy import integrate
 from md.fluids.simulator import (
     STATUS_BITS,
     FluidConfig,
+    _pair,
     b2_quadrature,
     fluid_catalogue,
     fluid_setup,
+    mie_prefactor,
     tail_corrections,
 )
 from md.fluids.three_body import axilrod_teller_energy, c9_reduced, nearest_neighbors
@@ -132,25 +134,50 @@ def test_b2_quadrature_matches_adaptive_scipy(temperature, d_star):
     assert got == pytest.approx(b2_reduced(temperature, d_star), rel=1e-6, abs=1e-6)
 
 
-def test_tail_corrections_match_numerical_integrals():
+@pytest.mark.parametrize("n", [12.0, 10.0, 16.8])
+def test_tail_corrections_match_numerical_integrals(n):
     rho, rc, d = 0.8, 2.3, 0.002
+    c = float(mie_prefactor(n))
 
     def u(r):
-        return 4 * (r**-12 - r**-6) + d * 4 * (132 * r**-14 - 30 * r**-8)
+        return c * (r**-n - r**-6) + d * c * (n * (n - 1) * r ** -(n + 2) - 30 * r**-8)
 
     def du(r):
-        return 4 * (-12 * r**-13 + 6 * r**-7) + d * 4 * (-1848 * r**-15 + 240 * r**-9)
+        return c * (-n * r ** -(n + 1) + 6 * r**-7) + d * c * (-(n + 2) * n * (n - 1) * r ** -(n + 3) + 240 * r**-9)
 
     u_num = 2 * math.pi * rho * integrate.quad(lambda r: u(r) * r * r, rc, np.inf)[0]
     p_num = -2 * math.pi / 3 * rho**2 * integrate.quad(lambda r: du(r) * r**3, rc, np.inf)[0]
-    u_tail, p_tail = tail_corrections(jnp.asarray(rho), jnp.asarray(rc), jnp.asarray(d))
+    u_tail, p_tail = tail_corrections(jnp.asarray(rho), jnp.asarray(rc), jnp.asarray(d), n)
     assert float(u_tail) == pytest.approx(u_num, rel=1e-5)
     assert float(p_tail) == pytest.approx(p_num, rel=1e-5)
 
 
+def test_mie_pair_is_lj_bit_for_bit_at_12_and_has_its_well_and_derivative():
+    r2 = jnp.linspace(0.8, 6.0, 500, dtype=jnp.float32)
+    d = jnp.float32(0.003)
+    u, _ = _pair(r2, d)
+    # The plain 12-6 expressions as the engine wrote them before the Mie exponent existed.
+    ir2 = 1.0 / r2
+    ir6 = ir2 * ir2 * ir2
+    ir12 = ir6 * ir6
+    lj = 4.0 * (ir12 - ir6) + d * 4.0 * (132.0 * ir12 - 30.0 * ir6) * ir2
+    assert bool(jnp.all(u == lj))
+    with jax.enable_x64(True):
+        r = jnp.linspace(0.95, 2.0, 200001, dtype=jnp.float64)
+        for n in (9.0, 16.0):
+            e = _pair(r * r, jnp.float64(0.0), n)[0]
+            assert float(e.min()) == pytest.approx(-1.0, abs=1e-9)
+            assert float(_pair(jnp.float64(1.0), jnp.float64(0.0), n)[0]) == pytest.approx(0.0, abs=1e-12)
+            x = jnp.linspace(0.9, 4.0, 40, dtype=jnp.float64)
+            grad = jax.vmap(jax.grad(lambda q, n=n: _pair(q, jnp.float64(0.002), n)[0]))(x)
+            np.testing.assert_allclose(_pair(x, jnp.float64(0.002), n)[1], grad, rtol=1e-10, atol=1e-12)
+
+
 def test_catalogue_setup_and_bad_input():
     cat = fluid_catalogue()
-    assert cat.names == ["temperature_offset", "axilrod_teller", "feynman_hibbs", "density_error", "tail_correction"]
+    assert cat.names == [
+        "temperature_offset", "axilrod_teller", "feynman_hibbs", "density_error", "tail_correction", "pair_shape",
+    ]  # fmt: skip
     s = fluid_setup("neon", state_points=[0, 5], b2_temperatures_k=[30.0, 100.0], config=FluidConfig(num_atoms=64))
     assert len(s.names) == 2 + 2 + 2 and s.observed.shape == s.uncertainty.shape == (6,)
     assert set(s.groups) == {"P 26 K", "U 26 K", "P 30 K", "U 30 K", "B2"}

@@ -25,11 +25,24 @@ FLUIDS: dict[str, dict] = {
         compression=[1.00, 1.03, 1.06],  # rho / rho_sat_liquid(T) on liquid isotherms
         supercritical_density_ratio=[2.0, 2.2, 2.4],  # rho / rho_c on supercritical isotherms
         saturation_k=[25.0, 26.0, 28.0, 30.0, 32.0, 34.0, 36.0, 38.0, 40.0, 42.0, 43.0],
-        b2_k=[30.0, 40.0, 50.0, 70.0, 100.0, 150.0, 200.0, 300.0],
+        b2_k=[25.0, 27.0, 30.0, 35.0, 40.0, 50.0, 70.0, 100.0, 150.0, 200.0, 300.0],
         u_rho=0.002,
         u_energy=0.01,
         u_b2_rel=0.01,
         u_b2_abs=0.5e-6,
+        potentials=(
+            "Reference pair potentials (used by `md.fluids.pair_b2`, coded there from the published "
+            "parameters, not from files):\n\n"
+            "- Tang & Toennies, J. Chem. Phys. 118, 4976 (2003), Ne2: A = 199.5 hartree, b = 2.458 / bohr, "
+            "C6 = 6.383, C8 = 90.34, C10 = 1536 (atomic units); well depth 42.37 K at 3.090 Angstrom "
+            "(computed here).\n"
+            "- Aziz & Slaman, Chem. Phys. 130, 187 (1989), Ne2 HFD-B: eps / k = 42.25 K, r_m = 3.091 Angstrom, "
+            "A* = 895717.95, alpha* = 13.86434671, beta* = -0.12993822, C6 = 1.21317545, C8 = 0.53222749, "
+            "C10 = 0.24570703, D = 1.36.\n\n"
+            "The B2 points at 25 and 27 K lie just above the triple point (24.56 K), where gas-phase "
+            "measurements are few; the 1 % uncertainty there is an assumption, not the equation authors' "
+            "statement."
+        ),
     ),
     "argon": dict(
         coolprop="Argon",
@@ -115,6 +128,7 @@ def generate(fluid: str, data_dir: Path = DATA) -> dict[str, int | str]:
 
 
 def _provenance(fluid: str, cfg: dict, version: str, num_points: int) -> str:
+    potentials = f"\n## Reference pair potentials\n\n{cfg['potentials']}\n" if cfg.get("potentials") else ""
     return f"""# {fluid.capitalize()}: provenance
 
 **What these numbers are.** Values of a reference equation of state, not raw measurements. The
@@ -152,7 +166,7 @@ in liquid density below 30 MPa and 0.2-2 % in heat capacities); they have not be
 by line against the papers' uncertainty tables, and the energy and B2 values are assumptions in
 the spirit of the caloric and gas-phase uncertainties. The model errors of a 64-500 atom LJ
 simulation are far larger than any of them.
-"""
+{potentials}"""
 
 
 if __name__ == "__main__":

@@ -4,7 +4,7 @@
 
     from md.fluids.simulator import fluid_setup
     setup = fluid_setup("neon")
-    summaries = setup.simulate(key, theta_full)      # theta_full = [sigma_nm, epsilon_k, eta_1..eta_5]
+    summaries = setup.simulate(key, theta_full)      # theta_full = [sigma_nm, epsilon_k, eta_1..eta_6]
 
 Model.  A Lennard-Jones fluid of ``num_atoms`` atoms in a cubic box at each (T, rho) state point,
 simulated in LJ reduced units (sigma = epsilon = m = 1) with jax-md's Langevin (BAOAB) integrator;
@@ -31,6 +31,8 @@ Effect parameters (:func:`fluid_catalogue`, in ``theta_full`` order after sigma 
 - ``density_error`` eta: the measured density is off, rho -> rho (1 + eta) (state points only).
 - ``tail_correction`` eta: the analytic long-range corrections for r > r_c (g = 1) are scaled by
   ``1 + eta``; -1 is the truncated potential with no correction, 0 the full LJ estimate.
+- ``pair_shape`` eta: the pair is Mie (12 + eta)-6 with the same sigma and well depth
+  (:func:`mie_prefactor`), in the dynamics, the tail corrections and B2; 0 is LJ.
 
 Failures come back as data: :meth:`FluidSetup.simulate_with_status` returns a status bitmask per
 state point (:data:`STATUS_BITS`) and :meth:`FluidSetup.simulate` NaN for a failed state point
@@ -66,6 +68,7 @@ __all__ = [
     "b2_quadrature",
     "fluid_catalogue",
     "fluid_setup",
+    "mie_prefactor",
     "tail_corrections",
 ]
 
@@ -201,6 +204,18 @@ def fluid_catalogue(physical_nu: float | None = None) -> Catalogue:
                 "B2 (no cutoff) and the density dependence of P",
                 ("epsilon_k", "axilrod_teller"),
             ),
+            Effect(
+                "pair_shape",
+                -4.0,
+                8.0,
+                0.0,
+                "repulsive exponent n - 12 (Mie n-6)",
+                "The 12-6 shape is wrong: a Mie n-6 pair with the same sigma and well depth, steeper "
+                "(n > 12) or softer (n < 12) repulsion and a narrower or wider well.",
+                "physical",
+                "B2 over a wide temperature range (its curvature in 1/T follows the well's width)",
+                ("sigma_nm", "epsilon_k"),
+            ),
         ],
         name="simple fluids (neon, argon)",
         notes=(
@@ -214,12 +229,16 @@ def fluid_catalogue(physical_nu: float | None = None) -> Catalogue:
 # -- pure functions --------------------------------------------------------------------------
 
 
-def tail_corrections(rho: jax.Array, cutoff: jax.Array, d_fh: jax.Array) -> tuple[jax.Array, jax.Array]:
+def tail_corrections(
+    rho: jax.Array, cutoff: jax.Array, d_fh: jax.Array, exponent: jax.Array | float = 12.0
+) -> tuple[jax.Array, jax.Array]:
     """Long-range corrections (g = 1 beyond ``cutoff``) of U per atom and P, reduced.
 
     LJ: ``U = 8/3 pi rho (rc^-9 / 3 - rc^-3)``, ``P = 16/3 pi rho^2 (2/3 rc^-9 - rc^-3)``;
     Feynman-Hibbs term ``4 D (132 r^-14 - 30 r^-8)``: ``U = 8 pi rho D (12 rc^-11 - 6 rc^-5)``,
-    ``P = -(8 pi / 3) rho^2 D (-168 rc^-11 + 48 rc^-5)``.
+    ``P = -(8 pi / 3) rho^2 D (-168 rc^-11 + 48 rc^-5)``.  For a Mie ``n``-6 pair
+    (:func:`mie_prefactor`; ``exponent`` = n) the same integrals with ``r^-n`` in place of
+    ``r^-12``; at n = 12 the LJ expressions above are used as they are.
     """
     i3 = cutoff**-3.0
     i9 = i3**3
@@ -228,20 +247,46 @@ def tail_corrections(rho: jax.Array, cutoff: jax.Array, d_fh: jax.Array) -> tupl
     p = 16.0 / 3.0 * math.pi * rho**2 * (2.0 / 3.0 * i9 - i3) - 8.0 * math.pi / 3.0 * rho**2 * d_fh * (
         -168.0 * i11 + 48.0 * i5
     )
-    return u, p
+    n = jnp.asarray(exponent, jnp.result_type(float))
+    c = mie_prefactor(n)
+    rn3, rn1 = cutoff ** (3.0 - n), cutoff ** (1.0 - n)
+    two_pi_rho = 2.0 * math.pi * rho
+    u_mie = two_pi_rho * c * (rn3 / (n - 3.0) - i3 / 3.0) + two_pi_rho * d_fh * c * (n * rn1 - 6.0 * i5)
+    p_pair = n * rn3 / (n - 3.0) - 2.0 * i3
+    p_fh = -(n + 2.0) * n * rn1 + 48.0 * i5
+    p_mie = two_pi_rho * rho / 3.0 * c * (p_pair - d_fh * p_fh)
+    lj = n == 12.0
+    return jnp.where(lj, u, u_mie), jnp.where(lj, p, p_mie)
 
 
-def _pair(r2: jax.Array, d_fh: jax.Array) -> tuple[jax.Array, jax.Array]:
-    """LJ + Feynman-Hibbs pair energy and its derivative with respect to r^2, reduced."""
+def mie_prefactor(exponent: jax.Array | float) -> jax.Array:
+    """``C(n) = n / (n - 6) (n / 6)^(6 / (n - 6))``: the Mie n-6 pair ``C eps ((s/r)^n - (s/r)^6)``
+    then has its minimum -eps and its zero at sigma; ``C(12) = 4`` exactly (LJ)."""
+    n = jnp.asarray(exponent, jnp.result_type(float))
+    return n / (n - 6.0) * (n / 6.0) ** (6.0 / (n - 6.0))
+
+
+def _pair(r2: jax.Array, d_fh: jax.Array, exponent: jax.Array | float = 12.0) -> tuple[jax.Array, jax.Array]:
+    """Mie n-6 (LJ at n = 12) + Feynman-Hibbs pair energy and its derivative with respect to r^2, reduced.
+
+    ``r^-n`` is ``r^-12 exp(-(n - 12) ln r)``: at n = 12 the factor is exactly 1 and the LJ
+    numbers are bit for bit those of the plain 12-6 expressions.
+    """
+    n = jnp.asarray(exponent, r2.dtype)
+    c = mie_prefactor(n).astype(r2.dtype)
     ir2 = 1.0 / r2
     ir6 = ir2 * ir2 * ir2
-    ir12 = ir6 * ir6
-    u = 4.0 * (ir12 - ir6) + d_fh * 4.0 * (132.0 * ir12 - 30.0 * ir6) * ir2
-    du = 4.0 * (-6.0 * ir12 + 3.0 * ir6) * ir2 + d_fh * 4.0 * (-924.0 * ir12 + 120.0 * ir6) * ir2 * ir2
+    irn = ir6 * ir6 * jnp.exp(-0.5 * (n - 12.0) * jnp.log(r2))
+    # FH: u'' + 2 u' / r of a r^-k is a k (k - 1) r^-(k + 2); d/d(r^2) of a r^-k is -(k / 2) a r^-(k + 2).
+    u = c * (irn - ir6) + d_fh * c * (n * (n - 1.0) * irn - 30.0 * ir6) * ir2
+    du_fh = (-0.5 * (n + 2.0) * n * (n - 1.0) * irn + 120.0 * ir6) * ir2 * ir2
+    du = c * (-0.5 * n * irn + 3.0 * ir6) * ir2 + d_fh * c * du_fh
     return u, du
 
 
-def _all_pairs(position: jax.Array, side: jax.Array, cutoff: jax.Array, d_fh: jax.Array):
+def _all_pairs(
+    position: jax.Array, side: jax.Array, cutoff: jax.Array, d_fh: jax.Array, exponent: jax.Array | float = 12.0
+):
     """Forces (N, 3), energy () and virial W = -dU/dln L () over all minimum-image pairs."""
     n = position.shape[0]
     comps = []
@@ -251,21 +296,23 @@ def _all_pairs(position: jax.Array, side: jax.Array, cutoff: jax.Array, d_fh: ja
         comps.append(d - side * jnp.round(d / side))
     r2 = comps[0] ** 2 + comps[1] ** 2 + comps[2] ** 2
     inside = ~jnp.eye(n, dtype=bool) & (r2 < cutoff * cutoff)
-    u, du = _pair(jnp.where(inside, r2, 1.0), d_fh)
+    u, du = _pair(jnp.where(inside, r2, 1.0), d_fh, exponent)
     u, du = jnp.where(inside, u, 0.0), jnp.where(inside, du, 0.0)
     force = jnp.stack([jnp.sum(2.0 * du * c, axis=1) for c in comps], axis=-1)
     # Every pair appears twice in the (N, N) sums.
     return force, 0.5 * jnp.sum(u), -jnp.sum(du * r2)
 
 
-def b2_quadrature(temperature: jax.Array, d_fh: jax.Array, num_points: int = 2401) -> jax.Array:
+def b2_quadrature(
+    temperature: jax.Array, d_fh: jax.Array, num_points: int = 2401, exponent: jax.Array | float = 12.0
+) -> jax.Array:
     """Reduced ``B2*(T*) = -2 pi int (exp(-u_FH / T*) - 1) r^2 dr`` on a fixed grid (traced, vmappable).
 
     Simpson's rule on [0.5, 12] sigma; the core below 0.5 contributes exactly ``-1 r^2`` and the
     tail beyond 12 sigma its first two orders in u / T*.
     """
     r = jnp.linspace(0.5, 12.0, num_points)
-    u, _ = _pair(r * r, d_fh)
+    u, _ = _pair(r * r, d_fh, exponent)
     f = jnp.expm1(-jnp.minimum(u / temperature, 200.0)) * r * r
     h = (12.0 - 0.5) / (num_points - 1)
     w = jnp.ones(num_points).at[1:-1:2].set(4.0).at[2:-1:2].set(2.0) * h / 3.0
@@ -316,7 +363,7 @@ class FluidSetup:
 
     Attributes
     ----------
-    simulate : callable ``(key, theta_full (2 + 5,)) -> summaries (2 P + B,)``
+    simulate : callable ``(key, theta_full (2 + 6,)) -> summaries (2 P + B,)``
         Pure JAX, vmappable; NaN at a failed state point.
     simulate_with_status : callable ``(key, theta_full) -> (summaries, status (P,) int32)``
     diagnose : callable ``(key, theta_full) -> (summaries, dict of (P,) arrays)``
@@ -376,14 +423,14 @@ def _make_simulator(
     fh_per_t_sigma2 = HBAR**2 / (24.0 * 0.5 * mass_amu * AMU * K_B)
     r_gas_kj = K_B * N_A / 1000.0
 
-    def state_point(key: jax.Array, t_star: jax.Array, rho: jax.Array, d_fh: jax.Array) -> dict:
+    def state_point(key: jax.Array, t_star: jax.Array, rho: jax.Array, d_fh: jax.Array, exponent: jax.Array) -> dict:
         side = (n / rho) ** (1.0 / 3.0)
         cutoff = jnp.minimum(cfg.cutoff, 0.4999 * side)
         displacement, shift = space.periodic(side)
         del displacement
 
         def force_fn(position: jax.Array, **unused) -> jax.Array:
-            return _all_pairs(position, side, cutoff, d_fh)[0]
+            return _all_pairs(position, side, cutoff, d_fh, exponent)[0]
 
         # jax-md reads kT at trace time only through arithmetic, so a traced T* is fine.
         init_fn, apply_fn = jmd_simulate.nvt_langevin(force_fn, shift, cfg.dt, t_star, gamma=cfg.gamma)  # pyright: ignore[reportArgumentType]
@@ -404,7 +451,7 @@ def _make_simulator(
 
         def sample(state, i):
             state = steps(state, cfg.sample_every)
-            _, energy, virial = _all_pairs(state.position, side, cutoff, d_fh)
+            _, energy, virial = _all_pairs(state.position, side, cutoff, d_fh, exponent)
             kinetic = 0.5 * jnp.sum(state.momentum**2)
 
             def triples(position: jax.Array) -> tuple[jax.Array, jax.Array]:
@@ -453,20 +500,24 @@ def _make_simulator(
         sigma_m = theta[0] * 1e-9
         eps_k = theta[1]
         dt_rel, nu, fh, drho, tail = theta[2], theta[3], theta[4], theta[5], theta[6]
+        # pair_shape: the repulsive exponent n = 12 + eta (a theta without it is the 12-6 model).
+        exponent = 12.0 + (theta[7] if theta.shape[0] > 7 else jnp.zeros((), theta.dtype))
         t_true = t_sp * (1.0 + dt_rel)
         t_star = t_true / eps_k
         rho_star = rho_sp * (1.0 + drho) * N_A * sigma_m**3
         d_fh = fh * fh_per_t_sigma2 / (t_true * sigma_m**2)
         k_md, k_noise = jax.random.split(key)
         keys = jax.random.split(k_md, num_points)
-        sp = jax.vmap(state_point)(keys, t_star, rho_star, d_fh)
-        u_tail, p_tail = tail_corrections(rho_star, sp["cutoff"], d_fh)
+        sp = jax.vmap(state_point, in_axes=(0, 0, 0, 0, None))(keys, t_star, rho_star, d_fh, exponent)
+        u_tail, p_tail = tail_corrections(rho_star, sp["cutoff"], d_fh, exponent)
         u_star = sp["u2"] + nu * sp["u3"] + (1.0 + tail) * u_tail
         p_star = sp["p2"] + nu * sp["p3"] + (1.0 + tail) * p_tail
         pressure_mpa = p_star * eps_k * K_B / sigma_m**3 / 1e6
         energy_kj_mol = u_star * eps_k * r_gas_kj
         tb = t_b2 * (1.0 + dt_rel)
-        b2_star = jax.vmap(b2_quadrature)(tb / eps_k, fh * fh_per_t_sigma2 / (tb * sigma_m**2))
+        b2_star = jax.vmap(lambda t, d: b2_quadrature(t, d, exponent=exponent))(
+            tb / eps_k, fh * fh_per_t_sigma2 / (tb * sigma_m**2)
+        )
         b2_cm3 = b2_star * N_A * sigma_m**3 * 1e6
         out = jnp.concatenate([pressure_mpa, energy_kj_mol, b2_cm3])
         if cfg.measurement_noise:
