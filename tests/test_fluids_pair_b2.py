@@ -9,7 +9,7 @@ import pytest
 
 import jaxabc
 from jaxabc.criticism import critique
-from md.fluids.pair_b2 import BASE_NAMES, NEON_HFD_B, NEON_TT2003, b2_design, b2_pair
+from md.fluids.pair_b2 import BASE_NAMES, NEON_HFD_B, NEON_TT2003, b2_catalogue, b2_design, b2_pair, mie
 from md.fluids.virial import N_A, b2_lj, fh_coefficient
 
 SIGMA_A, EPS_K, MASS = 2.749, 35.6, 20.1797
@@ -50,10 +50,10 @@ def test_classical_potential_within_its_box_misses_the_data_and_feynman_hibbs_fi
 
 
 def test_bad_designs_are_refused():
-    with pytest.raises(ValueError, match="neon only"):
-        b2_design("argon")
+    with pytest.raises(ValueError, match="no pair potentials"):
+        b2_design("xenon")
     with pytest.raises(ValueError, match="unknown potential"):
-        b2_design(potential="lj")
+        b2_design("argon", potential="tt2003")
     with pytest.raises(ValueError, match="among the data"):
         b2_design(temperatures_k=[31.0])
     with pytest.raises(ValueError, match="uncertainty"):
@@ -87,3 +87,37 @@ def test_the_loop_names_feynman_hibbs_at_its_physical_strength_and_nothing_under
     if expect_named:
         assert report.causes[0].name == "feynman_hibbs"
     assert next(c for c in report.causes if c.name == "axilrod_teller").invisible
+
+
+def test_mie_family_is_lj_at_12_and_keeps_its_well():
+    r = jnp.linspace(3.0, 6.0, 30001)
+    for n in (12.0, 16.0):
+        e = np.asarray(mie(r, 3.405, 119.8, n))
+        assert e.min() == pytest.approx(-119.8, rel=1e-5)
+    q = (3.405 / r) ** 6
+    # float32: the terms are up to 4 eps (480 K) before they cancel near sigma, so 1e-3 K absolute.
+    np.testing.assert_allclose(mie(r, 3.405, 119.8), 4 * 119.8 * (q * q - q), rtol=1e-5, atol=1e-3)
+    with pytest.raises(ValueError, match="shape"):
+        b2_catalogue("cubic")
+
+
+def test_lj_argon_b2_names_the_pair_shape():
+    design = b2_design("argon", "lj", length_uncertainty=0.1, energy_uncertainty=0.2)
+    assert design.catalogue.names == ["temperature_offset", "feynman_hibbs", "pair_shape", "axilrod_teller"]
+    train = np.isin(design.temperature_k, [90.0, 130.0, 200.0, 400.0])
+
+    def base(key, theta):
+        return design.simulate(key, jnp.concatenate([theta, jnp.zeros(4, jnp.float32)]))[train]
+
+    prior = jaxabc.Uniform(design.low, design.high, names=BASE_NAMES)
+    result = jaxabc.run(
+        "apmcabc", base, prior, design.observed[train], num_particles=200, num_steps=6, seed=0,
+        distance=jaxabc.distances.standardized_euclidean(design.uncertainty[train]),
+    )  # fmt: skip
+    report = critique(
+        result, design.simulate, design.observed, design.catalogue, held_out=~train, seed=1,
+        groups={"B2": np.arange(design.observed.size)}, num_draws=50, num_replicates=100,
+        num_power_replicates=0, extend=False,
+    )  # fmt: skip
+    assert report.misfits and report.causes[0].name == "pair_shape", report.verdict
+    assert "pair_shape" in report.cause_analysis.needed

@@ -9,11 +9,12 @@ hide: at 25-40 K it shifts B2 by 3.5-12 cm^3/mol, against a length or energy sca
 by 2-4 cm^3/mol per per cent.
 
 The simulator takes ``theta_full = [length_scale, energy_scale, temperature_offset,
-feynman_hibbs, repulsive_wall, axilrod_teller]`` and returns B2 (cm^3/mol) at the design's
+feynman_hibbs, shape, axilrod_teller]`` and returns B2 (cm^3/mol) at the design's
 temperatures with the data's measurement noise (one draw per key)::
 
     u(r) = energy_scale * V(r' / length_scale)          V: the reference potential, in K
     r'   = r_m - (r_m - r) (1 + repulsive_wall)  for r < r_m, else r      (wall steepness)
+    (or, for LJ: u(r) = energy_scale * Mie_{12 + pair_shape}(r / length_scale), same sigma and depth)
     u_FH = u + fh_scale * hbar^2 / (24 mu k T) (u'' + 2 u' / r)           (quadratic FH)
     B2   = -2 pi N_A int (exp(-u_FH / k T') - 1) r^2 dr,   T' = T (1 + temperature_offset)
 
@@ -32,7 +33,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxabc.criticism import Catalogue, Effect
-from md.fluids import load
+from md.fluids import LITERATURE_LJ, load
 from md.fluids.virial import AMU, HBAR, K_B, N_A
 
 __all__ = [
@@ -44,6 +45,7 @@ __all__ = [
     "b2_catalogue",
     "b2_design",
     "b2_pair",
+    "mie",
 ]
 
 HARTREE_K = 3.1577502480407e5  # K per hartree (CODATA 2018)
@@ -100,6 +102,8 @@ class PairPotential:
     ----------
     name, source : str
     energy : callable ``r -> V`` (JAX, elementwise)
+    mie : callable ``(r, n) -> V``, optional
+        The Mie n-6 family the potential belongs to (same sigma and well depth), for LJ.
     r_min : float
         Minimum of ``V`` (Angstrom), found numerically; the wall effect pivots there.
     mass_amu : float
@@ -110,6 +114,9 @@ class PairPotential:
     source: str
     energy: Callable[[jax.Array], jax.Array] = field(repr=False)
     mass_amu: float = 20.1797
+    #: For an n-6 family (LJ), ``mie(r, n)``: its pair-shape effect is the exponent n - 12 rather
+    #: than the repulsive-wall stretch of a reference potential.
+    mie: Callable[[jax.Array, jax.Array], jax.Array] | None = field(default=None, repr=False)
 
     @property
     def r_min(self) -> float:
@@ -134,7 +141,33 @@ NEON_HFD_B = PairPotential(
     "C10 = 0.24570703, D = 1.36",
     lambda r: hfd_b(r, 42.25, 3.091, 8.9571795e5, 13.86434671, -0.12993822, 1.21317545, 0.53222749, 0.24570703, 1.36),
 )
-POTENTIALS: dict[str, PairPotential] = {p.name: p for p in (NEON_TT2003, NEON_HFD_B)}
+
+
+def mie(r: jax.Array, sigma_a: float, eps_k: float, n: jax.Array | float = 12.0) -> jax.Array:
+    """Mie n-6 pair (K) with well depth ``eps_k`` and zero at ``sigma_a`` (Angstrom); LJ at n = 12."""
+    n = jnp.asarray(n, jnp.result_type(float))
+    c = n / (n - 6.0) * (n / 6.0) ** (6.0 / (n - 6.0))
+    x = sigma_a / r
+    return c * eps_k * (x**n - x**6)
+
+
+def _lj(fluid: str, mass_amu: float) -> PairPotential:
+    lit = LITERATURE_LJ[fluid]
+    s_a, e_k = lit["sigma_m"] * 1e10, lit["epsilon_k"]
+    return PairPotential(
+        "lj",
+        f"Lennard-Jones 12-6 at the gas-data parameters of Hirschfelder, Curtiss & Bird (1954): sigma = {s_a} "
+        f"Angstrom, epsilon / k = {e_k} K (an effective potential, not a reference one)",
+        lambda r: mie(r, s_a, e_k),
+        mass_amu,
+        mie=lambda r, n: mie(r, s_a, e_k, n),
+    )
+
+
+POTENTIALS: dict[str, dict[str, PairPotential]] = {
+    "neon": {p.name: p for p in (NEON_TT2003, NEON_HFD_B, _lj("neon", 20.1797))},
+    "argon": {"lj": _lj("argon", 39.948)},
+}
 
 
 def b2_pair(
@@ -173,8 +206,40 @@ def b2_pair(
     return -2.0 * math.pi * integral * N_A * 1e-24
 
 
-def b2_catalogue() -> Catalogue:
-    """The pair-data catalogue (order = ``theta_full`` order after the two scales)."""
+def b2_catalogue(shape: str = "wall") -> Catalogue:
+    """The pair-data catalogue (order = ``theta_full`` order after the two scales).
+
+    ``shape="wall"``: the third effect is the repulsive-wall stretch of a reference potential;
+    ``"mie"``: the repulsive exponent of an n-6 family (``pair_shape``, n = 12 + eta).
+    """
+    if shape not in ("wall", "mie"):
+        raise ValueError(f"shape must be 'wall' or 'mie', not {shape!r}")
+    shape_effect = (
+        Effect(
+            "repulsive_wall",
+            -0.1,
+            0.1,
+            0.0,
+            "relative stretch of r_m - r inside the well",
+            "The repulsive wall is softer (eta > 0) or steeper (eta < 0) than the potential's: a pair-shape error.",
+            "physical",
+            "B2 at high temperatures, where collisions probe the wall",
+            ("length_scale",),
+        )
+        if shape == "wall"
+        else Effect(
+            "pair_shape",
+            -4.0,
+            8.0,
+            0.0,
+            "repulsive exponent n - 12 (Mie n-6)",
+            "The 12-6 shape is wrong: a Mie n-6 pair with the same sigma and well depth, a steeper "
+            "(n > 12) or softer (n < 12) repulsion and a narrower or wider well.",
+            "physical",
+            "B2 over a wide temperature range (its curvature in 1/T follows the well's width)",
+            ("length_scale", "energy_scale"),
+        )
+    )
     return Catalogue(
         [
             Effect(
@@ -200,17 +265,7 @@ def b2_catalogue() -> Catalogue:
                 ("length_scale",),
                 expected=1.0,
             ),
-            Effect(
-                "repulsive_wall",
-                -0.1,
-                0.1,
-                0.0,
-                "relative stretch of r_m - r inside the well",
-                "The repulsive wall is softer (eta > 0) or steeper (eta < 0) than the potential's: a pair-shape error.",
-                "physical",
-                "B2 at high temperatures, where collisions probe the wall",
-                ("length_scale",),
-            ),
+            shape_effect,
             Effect(
                 "axilrod_teller",
                 0.0,
@@ -265,13 +320,16 @@ def b2_design(
     energy_uncertainty: float = 0.02,
     measurement_noise: bool = True,
 ) -> B2Design:
-    """The B2 design of ``fluid`` with a reference ``potential`` held within its uncertainty.
+    """The B2 design of ``fluid`` with a ``potential`` whose scales move within a box.
 
     Parameters
     ----------
-    fluid : {"neon"}
-        Only neon has reference potentials here.
-    potential : name in :data:`POTENTIALS` or a PairPotential
+    fluid : {"neon", "argon"}
+    potential : name in ``POTENTIALS[fluid]`` or a PairPotential
+        A reference potential (neon: ``"tt2003"``, ``"hfd_b"``), whose box states its
+        uncertainty, or ``"lj"`` (both fluids), an effective potential whose box is a search
+        range; an n-6 family gets the ``pair_shape`` effect (Mie exponent), a reference
+        potential the ``repulsive_wall`` stretch (:func:`b2_catalogue`).
     temperatures_k : optional
         A subset of the data's B2 temperatures (default all).
     length_uncertainty, energy_uncertainty : float
@@ -285,11 +343,11 @@ def b2_design(
     ValueError
         Unknown fluid or potential, temperatures not in the data, non-positive uncertainties.
     """
-    if fluid != "neon":
-        raise ValueError(f"B2 reference potentials exist for neon only, not {fluid!r}")
-    pot = POTENTIALS.get(potential) if isinstance(potential, str) else potential
+    if fluid not in POTENTIALS:
+        raise ValueError(f"no pair potentials for fluid {fluid!r}: available are {sorted(POTENTIALS)}")
+    pot = POTENTIALS[fluid].get(potential) if isinstance(potential, str) else potential
     if pot is None:
-        raise ValueError(f"unknown potential {potential!r}: available are {sorted(POTENTIALS)}")
+        raise ValueError(f"unknown potential {potential!r} for {fluid}: available are {sorted(POTENTIALS[fluid])}")
     if not (0 < length_uncertainty < 0.5 and 0 < energy_uncertainty < 0.5):
         raise ValueError("length_uncertainty and energy_uncertainty must lie in (0, 0.5)")
     b2 = load(fluid).b2
@@ -305,10 +363,12 @@ def b2_design(
     t_j, unc_j = jnp.asarray(t), jnp.asarray(unc)
 
     def one(theta: jax.Array, temperature: jax.Array) -> jax.Array:
-        length, energy, dt_rel, fh, wall = theta[0], theta[1], theta[2], theta[3], theta[4]
+        length, energy, dt_rel, fh, shape = theta[0], theta[1], theta[2], theta[3], theta[4]
 
         def u(r: jax.Array) -> jax.Array:
-            inner = jnp.where(r < r_m * length, r_m * length - (r_m * length - r) * (1.0 + wall), r)
+            if pot.mie is not None:
+                return energy * pot.mie(r / length, 12.0 + shape)
+            inner = jnp.where(r < r_m * length, r_m * length - (r_m * length - r) * (1.0 + shape), r)
             return energy * pot.energy(inner / length)
 
         return b2_pair(u, temperature * (1.0 + dt_rel), fh, pot.mass_amu)
@@ -322,7 +382,7 @@ def b2_design(
 
     return B2Design(
         simulate,
-        b2_catalogue(),
+        b2_catalogue("mie" if pot.mie is not None else "wall"),
         np.array([1.0 - length_uncertainty, 1.0 - energy_uncertainty]),
         np.array([1.0 + length_uncertainty, 1.0 + energy_uncertainty]),
         [f"B2 {ti:g} K" for ti in t],
