@@ -113,6 +113,8 @@ def _b2_reading(r: dict) -> str:
     power = f"power of Feynman-Hibbs {f(fh.get('power'), 2)}" if fh else "no power estimate"
     edge = max(max(m) for m in r["base_fit"]["prior_edge_mass"])
     ext = r.get("extension")
+    if not r["flagged"] and r["base_prior"] == "free" and fh and fh.get("power", 1.0) < 0.5:
+        return f"({label}) nothing flagged: with the scales free the correction is absorbed ({power})."
     if not r["flagged"]:
         why = (
             f"; the base fit puts up to {100 * edge:.0f} % of its mass on the box edge, and the power is "

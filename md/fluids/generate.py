@@ -58,6 +58,15 @@ FLUIDS: dict[str, dict] = {
         u_energy=0.005,
         u_b2_rel=0.01,
         u_b2_abs=0.5e-6,
+        potentials=(
+            "Literature values used beside these data (in code, not files):\n\n"
+            "- Lennard-Jones 12-6 at the gas-data parameters of Hirschfelder, Curtiss & Bird, Molecular "
+            "Theory of Gases and Liquids (1954), table I-A: sigma = 3.405 Angstrom, epsilon / k = 119.8 K "
+            "(`md.fluids.LITERATURE_LJ`; prior centres and the B2 design's LJ, not truths).\n"
+            "- Axilrod-Teller triple-dipole coefficient C9 = 521 hartree bohr^9 (Kumar & Meath, Mol. Phys. "
+            "54, 823 (1985), dipole oscillator-strength distributions; `md.fluids.simulator.C9_ATOMIC`): the "
+            "value the refitted three-body term is compared with."
+        ),
     ),
 }
 
@@ -128,7 +137,7 @@ def generate(fluid: str, data_dir: Path = DATA) -> dict[str, int | str]:
 
 
 def _provenance(fluid: str, cfg: dict, version: str, num_points: int) -> str:
-    potentials = f"\n## Reference pair potentials\n\n{cfg['potentials']}\n" if cfg.get("potentials") else ""
+    potentials = f"\n## Potentials and coefficients\n\n{cfg['potentials']}\n" if cfg.get("potentials") else ""
     return f"""# {fluid.capitalize()}: provenance
 
 **What these numbers are.** Values of a reference equation of state, not raw measurements. The
