@@ -63,6 +63,8 @@ def page_criticism() -> str:
 def seen_by_data(c: dict) -> str:
     """Whether the design could have detected a cause: its power where it has an expected
     strength, else whether its largest signal over its prior clears the visibility threshold."""
+    if "power" not in c:
+        return "not assessed: this run predates detection power"
     if c.get("power") is not None:
         verdict = "detectable" if c.get("detectable") else "not detectable"
         return f"{verdict} (power {f(c['power'], 2)} at its expected strength)"
