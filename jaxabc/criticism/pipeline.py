@@ -130,7 +130,7 @@ class Pipeline:
                 # re-estimated on every other step only (each estimate costs 2 d times the mean's).
                 jac = self._sens(theta, grad_keys, self.base_points(theta))
             jf = jac[fitted]
-            if self.prior_precision is None:
+            if self.prior_precision is None or self.prior_centre is None:
                 normal = np.linalg.pinv(jf.T @ prec_f @ jf, rcond=1e-8, hermitian=True)
                 step = normal @ jf.T @ prec_f @ (obs - mu)[fitted]
             else:  # the maximum a posteriori step under the base parameters' Gaussian prior
@@ -160,7 +160,9 @@ class Pipeline:
         ]
         sens = self._sens(theta, grad_keys, points)
         jac, directions = sens[:, :d], sens[:, d:]
-        prior = None if self.prior_precision is None else (self.prior_precision, self.prior_centre, theta[:d])
+        prior = None
+        if self.prior_precision is not None and self.prior_centre is not None:
+            prior = (self.prior_precision, self.prior_centre, theta[:d])
         mis = analyse_misfits(
             obs, pred, jac, self.held_out, alpha=self.alpha, correction=self.correction, level=self.level, prior=prior
         )

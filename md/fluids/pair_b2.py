@@ -172,8 +172,8 @@ POTENTIALS: dict[str, dict[str, PairPotential]] = {
 
 def b2_pair(
     potential: Callable[[jax.Array], jax.Array],
-    temperature_k: jax.Array,
-    fh_scale: jax.Array = 0.0,
+    temperature_k: jax.Array | float,
+    fh_scale: jax.Array | float = 0.0,
     mass_amu: float = 20.1797,
     *,
     r_core: float = 1.6,
