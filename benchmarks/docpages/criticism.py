@@ -151,9 +151,13 @@ def _joint_line(j: dict) -> str:
             f"hartree bohr^9 (95 %), literature {g(c9['literature'], 3)} "
             f"({'inside' if c9['literature_inside_ci95'] else 'outside'} the interval)."
         )
-    edge = max(max(m) for m in j["prior_edge_mass"])
-    if edge > 0.05:
-        line += f"  Up to {100 * edge:.0f} % of a parameter's posterior lies on its prior edge."
+    for name, (lo, hi) in zip(j["names"], j["prior_edge_mass"], strict=True):
+        side, mass = ("lower", lo) if lo >= hi else ("upper", hi)
+        if mass > 0.05:
+            line += (
+                f"  {100 * mass:.0f} % of {name}'s posterior lies within 2 % of its {side} prior bound: "
+                "a wider box could move the estimates that depend on it."
+            )
     return line + "\n"
 
 
