@@ -153,15 +153,9 @@ def critique(
         them by the signal each would add after the base parameters absorb what they can
         (:func:`jaxabc.criticism.power.design_advice`).
     base_prior : {"free", "prior"} or (mean, sd)
-        What the base parameters may absorb before misfits are tested and causes ranked.
-        ``"free"`` (default): anything in the span of their sensitivities, however far that
-        moves them.  ``"prior"``: only what ``result.prior`` allows, as a Gaussian with the
-        prior's mean and covariance (a uniform box: its centre and ``(high - low)**2 / 12``);
-        the refit is the maximum a posteriori step and the null covariance includes the prior's
-        spread.  ``(mean, sd)``, each shape (d,): that Gaussian instead (independent knowledge
-        of the parameters, e.g. an ab initio potential's stated uncertainty).  Use a prior only
-        when the box is knowledge, not a search range: then an effect that free parameters
-        would mimic (a quantum correction against a well depth) stays visible.
+        What the base parameters may absorb: anything (``"free"``), or only what a Gaussian
+        prior allows -- ``result.prior``'s mean and covariance, or ``(mean, sd)`` of shape (d,)
+        -- as a MAP refit with the prior's spread in the null (for a box that is knowledge).
 
     Returns
     -------
@@ -195,14 +189,13 @@ def critique(
         level=level,
         num_power_replicates=int(num_power_replicates),
         power_threshold=power_threshold,
+        base_prior=base_prior if isinstance(base_prior, str) else "gaussian",
     )
-    settings["base_prior"] = base_prior if isinstance(base_prior, str) else "gaussian"
     pipeline = _make_pipeline(problem, num_refit_iterations, settings)
     pipeline.prior_precision, pipeline.prior_centre = prior_precision, prior_centre
     diagnosis = pipeline.diagnose(obs, pred)
     powers, advice = _power_and_advice(problem, pipeline, diagnosis, pred, root, settings, candidates)
-    causes = diagnosis.causes
-    annotate_causes(causes.causes, catalogue, powers, advice, causes.needed, power_threshold)
+    annotate_causes((causes := diagnosis.causes).causes, catalogue, powers, advice, causes.needed, power_threshold)
     report = _initial_report(problem, diagnosis, settings, powers, advice)
     visible = [c for c in causes.causes if not c.invisible]
     if extend and diagnosis.misfits.flagged and visible:
