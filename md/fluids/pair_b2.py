@@ -24,6 +24,7 @@ the report lists it as invisible, which is the honest answer for pair data.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -34,6 +35,7 @@ import numpy as np
 
 from jaxabc.criticism import Catalogue, Effect
 from md.fluids import LITERATURE_LJ, load
+from md.fluids.simulator import fluid_catalogue
 from md.fluids.virial import AMU, HBAR, K_B, N_A
 
 __all__ = [
@@ -227,18 +229,8 @@ def b2_catalogue(shape: str = "wall") -> Catalogue:
             ("length_scale",),
         )
         if shape == "wall"
-        else Effect(
-            "pair_shape",
-            -4.0,
-            8.0,
-            0.0,
-            "repulsive exponent n - 12 (Mie n-6)",
-            "The 12-6 shape is wrong: a Mie n-6 pair with the same sigma and well depth, a steeper "
-            "(n > 12) or softer (n < 12) repulsion and a narrower or wider well.",
-            "physical",
-            "B2 over a wide temperature range (its curvature in 1/T follows the well's width)",
-            ("length_scale", "energy_scale"),
-        )
+        # The engine's Mie-exponent effect, confused here with the scales rather than sigma, epsilon.
+        else dataclasses.replace(fluid_catalogue()["pair_shape"], confusable_with=("length_scale", "energy_scale"))
     )
     return Catalogue(
         [
