@@ -35,7 +35,12 @@ from benchmarks.docpages.surrogate import (
     page_surrogate_honesty,
     page_surrogate_peers,
 )
-from benchmarks.docpages.water import block_water_calibrations, block_water_validation, page_water
+from benchmarks.docpages.water import (
+    block_water_calibrations,
+    block_water_prior_range,
+    block_water_validation,
+    page_water,
+)
 from benchmarks.docpages.water_jaxmd import page_density_relaxation, page_water_jaxmd
 from benchmarks.registry import REGISTRY
 from benchmarks.status import format_cost, status_of
@@ -125,6 +130,7 @@ BLOCKS: dict[str, tuple[str, Callable[[], str]]] = {
     "water_model_outcome": ("md/water/README.md", block_water_model_outcome),
     "water_calibrations": ("md/water/README.md", block_water_calibrations),
     "water_validation": ("md/water/README.md", block_water_validation),
+    "water_prior_range": ("md/water/README.md", block_water_prior_range),
 }
 
 

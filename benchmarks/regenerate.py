@@ -90,7 +90,9 @@ def plan(
             return QUICK_COST_S
         return entry.estimated_cost_s if entry.estimated_cost_s is not None else UNKNOWN_COST_S
 
-    todo = sorted(((e, s, cost_of(e, s)) for e, s in statuses if s.state != "current"), key=lambda t: t[2])
+    todo = sorted(
+        ((e, s, cost_of(e, s)) for e, s in statuses if s.state not in ("current", "retired")), key=lambda t: t[2]
+    )
     known = {**(states or {}), **{e.name: s.state for e, s in statuses}}
     if not quick:
         # Cheapest first among those whose inputs are already planned (a stable topological order).
@@ -170,7 +172,7 @@ def main(argv: list[str] | None = None) -> int:
                 print(f"  run   {e.name:34s} {s.state:8s} {format_cost(cost):>9s}  {e.quick if args.quick else e.full}")
             for e, s, cost, why in skipped:
                 print(f"  skip  {e.name:34s} {s.state:8s} {format_cost(cost):>9s}  {why}")
-            long = [(e, s) for e, s in current if e.long and s.state != "current"]
+            long = [(e, s) for e, s in current if e.long and s.state not in ("current", "retired")]
             if long and not args.quick:
                 total = sum(s.cost_s or UNKNOWN_COST_S for _, s in long)
                 print(f"long runs not current ({format_cost(total)} together on the machine that made them):")

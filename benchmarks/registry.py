@@ -86,6 +86,12 @@ class Entry:
         is vouched for is current without its own rerun.  Data changes are never vouched for.
     note
         What a reader of ``status`` should know.
+    retired
+        Empty for a kept result; else why it is no longer kept and what supersedes it.  A retired
+        result's JSON and figures leave ``benchmarks/results`` (its last version stays in the git
+        history), the pages stop showing it, ``regenerate`` never reruns it, and ``status`` lists it
+        as ``retired`` with this reason.  Its quick mode, if any, still runs as a check that
+        vouches for other results (``checked_by``).
     """
 
     name: str
@@ -103,6 +109,7 @@ class Entry:
     after: tuple[str, ...] = ()
     checked_by: tuple[str, ...] = ()
     note: str = ""
+    retired: str = ""
 
 
 R = "benchmarks/results"
@@ -150,6 +157,14 @@ def _water_paper_preset(data: str) -> Entry:
         requires=("gmx",),
         note="the paper's preset and statistics through the GP surrogate (issue 13); spans sittings",
         checked_by=("water_simulated:robust", "surrogate_helium", "water_model_choice"),
+    )
+
+
+def _retired(what: str, commit: str, file: str, superseded_by: str) -> str:
+    """The ``retired`` reason of a result saved without provenance before 2026-11-23."""
+    return (
+        f"{what} (saved at {commit}, no provenance); superseded by {superseded_by}; last version: "
+        f"`git show {commit}:benchmarks/results/{file}`"
     )
 
 
@@ -392,6 +407,12 @@ REGISTRY: tuple[Entry, ...] = (
         requires=("gmx",),
         quick="python -m benchmarks.water_calibration --quick --data simulated --statistics robust --workers 2",
         quick_output=f"{Q}/water_simulated.json",
+        retired=_retired(
+            "APMCABC on the quick preset, final generation of 10 particles (ESS 7.7)",
+            "4bb9127",
+            "water_simulated.json",
+            "water_simulated_surrogate:robust (same data and preset)",
+        ),
     ),
     _water_surrogate(
         "simulated", "robust", "wsur", "GP surrogate within 300 GROMACS runs (issue 13)", predictive=False
@@ -417,6 +438,12 @@ REGISTRY: tuple[Entry, ...] = (
         legacy_cost_keys=("robust/wall_time_s",),
         requires=("gmx",),
         checked_by=("water_simulated:robust",),
+        retired=_retired(
+            "APMCABC on the quick preset, final generation of 10 particles (ESS 7.0)",
+            "1a3f59f",
+            "water_xray.json",
+            "water_xray_surrogate:robust and, for the verdict, water_model_choice",
+        ),
     ),
     Entry(
         "water_xray:paper",
@@ -428,6 +455,12 @@ REGISTRY: tuple[Entry, ...] = (
         legacy_cost_keys=("paper/wall_time_s",),
         requires=("gmx",),
         checked_by=("water_simulated:robust",),
+        retired=_retired(
+            "APMCABC on the quick preset, final generation of 5 particles (ESS 3.3)",
+            "1a3f59f",
+            "water_xray.json",
+            "water_xray_surrogate:paper (same data and preset)",
+        ),
     ),
     Entry(
         "water_neutron:robust",
@@ -439,6 +472,12 @@ REGISTRY: tuple[Entry, ...] = (
         legacy_cost_keys=("robust/wall_time_s",),
         requires=("gmx",),
         checked_by=("water_simulated:robust",),
+        retired=_retired(
+            "APMCABC on the quick preset, final generation of 10 particles (ESS 8.6)",
+            "81bbd14",
+            "water_neutron.json",
+            "water_neutron_surrogate:robust (same data and preset)",
+        ),
     ),
     Entry(
         "water_neutron:paper",
@@ -450,6 +489,12 @@ REGISTRY: tuple[Entry, ...] = (
         legacy_cost_keys=("paper/wall_time_s",),
         requires=("gmx",),
         checked_by=("water_simulated:robust",),
+        retired=_retired(
+            "APMCABC on the quick preset, final generation of 5 particles (ESS 4.6)",
+            "81bbd14",
+            "water_neutron.json",
+            "water_neutron_surrogate:paper (same data and preset)",
+        ),
     ),
     Entry(
         "criticism_water",
@@ -463,6 +508,12 @@ REGISTRY: tuple[Entry, ...] = (
         quick="python -m benchmarks.criticism_water --tiny --workers 2",
         quick_output=f"{Q}/criticism_water.json",
         after=("water_xray:robust",),
+        retired=_retired(
+            "criticism of TIP4P at the retired APMCABC posterior of one kind of data",
+            "9168cad",
+            "criticism_water.json",
+            "criticism_water_joint (joint X-ray data with stated errors, the model choice's posterior)",
+        ),
     ),
     Entry(
         "criticism_water_neutron",
@@ -476,6 +527,12 @@ REGISTRY: tuple[Entry, ...] = (
         requires=("gmx",),
         after=("water_neutron:robust",),
         checked_by=("criticism_water",),
+        retired=_retired(
+            "criticism of TIP4P at the retired APMCABC posterior of one kind of data",
+            "2e98b0f",
+            "criticism_water_neutron.json",
+            "criticism_water_joint (joint X-ray data with stated errors, the model choice's posterior)",
+        ),
     ),
     Entry(
         "surrogate_coverage",
@@ -512,6 +569,17 @@ REGISTRY: tuple[Entry, ...] = (
         note="each water model at its published parameters on the model choice's protocol and summaries "
         "(295 K for the X-ray data), beside the measured values: the calibrated predictive's reference",
         checked_by=("water_model_paper_check", "water_simulated:robust"),
+    ),
+    Entry(
+        "water_prior_range",
+        f"{R}/water_prior_range.json",
+        "python -m benchmarks.water_prior_range --workers 2",
+        requires=("gmx",),
+        quick="python -m benchmarks.water_prior_range --quick",
+        quick_output=f"{Q}/water_prior_range.json",
+        estimated_cost_s=900.0,
+        note="every water model at its published sigma and epsilon x the wide prior's bounds (and 1, 1.6, 3): "
+        "is the box still liquid water? the basis of md.water.models.WIDE_EPSILON_FACTORS",
     ),
     Entry(
         "water_model_paper_check",

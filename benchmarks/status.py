@@ -12,7 +12,9 @@ fingerprint only decides whether a check must run; the numbers decide the state:
 - ``changed`` (numbers changed): that check gave other numbers (the first differences are kept
   in ``benchmarks/results/verifications.json``): rerun the result;
 - ``stale``: files changed and no check of the code as it is now exists (they are named);
-- ``unknown`` (no provenance): the result records none (written before it existed, or by hand).
+- ``unknown`` (no provenance): the result records none (written before it existed, or by hand);
+- ``retired``: the registry retired it (``Entry.retired`` says why and what supersedes it); its
+  files are gone from ``benchmarks/results`` and no page shows it.
 
 Modules that the current code would import but the recorded run did not (a new file after a
 split) are seen through the files that import them, which changed.
@@ -61,7 +63,7 @@ class Status:
 
     name: str
     output: str
-    state: str  # "current", "changed", "stale", "unknown" or "missing"
+    state: str  # "current", "changed", "stale", "unknown", "missing" or "retired"
     changed: list[str] = field(default_factory=list)
     why: str = ""  # "code unchanged", "code changed, quick mode reproduces", "numbers changed", ...
     cost_s: float | None = None
@@ -118,6 +120,12 @@ def status_of(entry: Entry, quick: bool = False, root: Path = ROOT) -> Status:
     """Check one registry entry (its quick output with ``quick``)."""
     output = entry.quick_output if quick else entry.output
     st = Status(entry.name, output or "", "missing", long=entry.long and not quick, note=entry.note)
+    if entry.retired and not quick:
+        st.state, st.why = "retired", entry.retired
+        siblings = [e for e in REGISTRY if e.output == entry.output and e.name != entry.name]
+        if all(e.retired for e in siblings) and (root / entry.output).is_file():
+            st.why += f"; its file {entry.output} is still there: delete it"
+        return st
     if output is None:
         st.state, st.note = "missing", "no quick mode"
         return st
@@ -377,7 +385,7 @@ def render(rows: list[Status]) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Print the status table; exit status 1 when any result is stale, unknown or missing."""
+    """Print the status table; exit status 1 when any result is neither current nor retired."""
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--quick", action="store_true", help="the quick-mode results instead")
     parser.add_argument("--json", action="store_true", help="machine-readable output")
@@ -387,7 +395,7 @@ def main(argv: list[str] | None = None) -> int:
         print(json.dumps([asdict(r) for r in rows], indent=1))
     else:
         print(render(rows))
-    return 0 if all(r.state == "current" for r in rows) else 1
+    return 0 if all(r.state in ("current", "retired") for r in rows) else 1
 
 
 if __name__ == "__main__":

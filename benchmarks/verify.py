@@ -89,7 +89,7 @@ def plan(entries: list[Entry], budget_s: float, include_current: bool = False) -
         st = status_of(e)
         if not e.quick or not e.quick_output:
             continue
-        if st.state in ("unknown", "missing") and e.name not in wanted:
+        if st.state in ("unknown", "missing", "retired") and e.name not in wanted:
             continue  # nothing to vouch for: a result without provenance needs a rerun
         record = ledger.get(e.name)
         checked = record is not None and not check_provenance({"fingerprint": record.get("fingerprint", {})})

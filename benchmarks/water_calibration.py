@@ -650,7 +650,8 @@ def validation_only(args, argv: list[str] | None = None) -> dict:
     if not args.validation_ps:
         raise SystemExit("--validation-only needs --validation-ps (the run length in ps, e.g. 1000)")
     result = jaxabc.load(args.validation_only)
-    path = args.out_dir / f"water_{args.data}.json"
+    suffix = "_surrogate" if args.algorithm == "surrogate" else ""
+    path = args.out_dir / f"water_{args.data}{suffix}.json"
     everything = json.loads(path.read_text()) if path.exists() else {}
     if args.statistics not in everything:
         raise SystemExit(f"{path} has no {args.statistics!r} entry: run the calibration first")

@@ -1,12 +1,13 @@
 """Figures ``fig:md_apmcabc_sim``, ``fig:neutron_data``, ``fig:xray_data`` of Dutta et al. (2018).
 
 The water posteriors of TIP4P's oxygen Lennard-Jones parameters (sigma_OW, epsilon_OW), redrawn
-from saved results only (written by ``benchmarks/water_calibration.py``):
+from saved results only (written by ``benchmarks/water_calibration.py --algorithm surrogate``; the
+earlier APMCABC runs, 5-10 particles each, are retired in ``benchmarks/registry.py``):
 
-* ``benchmarks/results/water_{simulated,neutron,xray}.json``: per statistics variant
+* ``benchmarks/results/water_{simulated,neutron,xray}_surrogate.json``: per statistics variant
   (``robust``, ``paper``) the Bayes estimate, posterior correlation, truth (simulated data) and
   the paper's numbers;
-* ``benchmarks/results/water_{data}_{variant}.npz``: the ABC results (``jaxabc.load``), whose
+* ``benchmarks/results/water_{data}_{variant}_surrogate.npz``: the posterior draws (``jaxabc.load``), whose
   weighted Gaussian-KDE contours (red, as the paper; the same KDE as ``ABCResult.plot_posterior``),
   particles, Bayes estimate (star) and truth (green cross) are drawn.
 
@@ -50,6 +51,8 @@ TITLES = {
 PAPER_FIGURE = {"simulated": "fig:md_apmcabc_sim", "neutron": "fig:neutron_data", "xray": "fig:xray_data"}
 #: TIP4P's own (sigma_OW nm, epsilon_OW kJ/mol), GROMACS oplsaa.ff/tip4p.itp.
 TIP4P_THETA = (0.315365, 0.64852)
+#: File-name suffix of the calibrations drawn: the GP surrogate's (the APMCABC ones are retired).
+SUFFIX = "_surrogate"
 
 
 def available(data: str) -> tuple[dict, list[str]]:
@@ -64,11 +67,11 @@ def available(data: str) -> tuple[dict, list[str]]:
     (dict, list of str)
         Empty when the JSON is missing; a message is printed for everything skipped.
     """
-    path = RESULTS / f"water_{data}.json"
+    path = RESULTS / f"water_{data}{SUFFIX}.json"
     if not path.exists():
         print(
-            f"skipping {data}: {path.relative_to(ROOT)} not found "
-            f"(run: python -m benchmarks.water_calibration --data {data} --statistics robust --predictive 20)"
+            f"skipping {data}: {path.relative_to(ROOT)} not found (run: python -m benchmarks.water_calibration "
+            f"--data {data} --statistics robust --algorithm surrogate --predictive 20)"
         )
         return {}, []
     table = json.loads(path.read_text())
@@ -76,7 +79,7 @@ def available(data: str) -> tuple[dict, list[str]]:
     for variant in VARIANTS:
         if variant not in table:
             continue
-        npz = RESULTS / f"water_{data}_{variant}.npz"
+        npz = RESULTS / f"water_{data}_{variant}{SUFFIX}.npz"
         if npz.exists():
             variants.append(variant)
         else:
@@ -117,7 +120,7 @@ def _kde_contours(ax: plt.Axes, particles: np.ndarray, weights: np.ndarray, xlim
 
 
 def _posterior_panel(ax: plt.Axes, data: str, variant: str, entry: dict) -> None:
-    result = jaxabc.load(RESULTS / f"water_{data}_{variant}.npz")
+    result = jaxabc.load(RESULTS / f"water_{data}_{variant}{SUFFIX}.npz")
     particles, weights = np.asarray(result.particles)[:, :2], np.asarray(result.weights, dtype=np.float64)
     published = datasets.published_posterior(data)
     paper = entry["paper"]["bayes_estimate"]

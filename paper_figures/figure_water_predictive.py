@@ -1,13 +1,14 @@
 """Figures ``fig:pred_neutron_data`` and ``fig:pred_xray_data`` of Dutta et al. (2018).
 
 Posterior-predictive g_OO(r) against the measured curve, redrawn from the ``predictive_goo``
-entry of ``benchmarks/results/water_{neutron,xray}.json`` (written by
-``benchmarks/water_calibration.py --predictive N``: g_OO of N simulations at posterior draws,
-resampled onto r = 0.001..0.801 nm, with keys ``r_nm, min, q25, median, q75, max, num_curves``);
-runs no simulation.  One panel per dataset and statistics variant found: the band between minimum
-and maximum, the band between the 1/4 and 3/4 quantiles, the median (solid; the paper shows the
-mean, which was not saved) and the measured g_OO (dashed: Soper 2013 for neutron, Skinner 2013
-for X-ray).  A dataset whose JSON is missing is skipped with a printed message.
+entry of ``benchmarks/results/water_{neutron,xray}_surrogate.json`` (the APMCABC runs are retired),
+written by ``benchmarks/water_calibration.py --algorithm surrogate --predictive N`` (g_OO of N
+simulations at posterior draws, resampled onto r = 0.001..0.801 nm, with keys ``r_nm, min, q25,
+median, q75, max, num_curves``); runs no simulation.  One panel per dataset and statistics
+variant found: the band between minimum and maximum, the band between the 1/4 and 3/4
+quantiles, the median (solid; the paper shows the mean, which was not saved) and the measured
+g_OO (dashed: Soper 2013 for neutron, Skinner 2013 for X-ray).  A dataset whose JSON is missing
+is skipped with a printed message.
 
 Writes ``paper_figures/out/figure_water_predictive.png`` and prints, over r in [0.2, 0.8] nm,
 the fraction of the measured curve inside each band (the paper: "mostly within the prediction
@@ -39,6 +40,8 @@ VARIANTS = ("robust", "paper")
 PAPER_FIGURE = {"neutron": "fig:pred_neutron_data", "xray": "fig:pred_xray_data"}
 #: r-window (nm) over which the band coverage is reported: the robust statistics' g_OO window.
 WINDOW_NM = (0.2, 0.8)
+#: File-name suffix of the calibrations drawn: the GP surrogate's (the APMCABC ones are retired).
+SUFFIX = "_surrogate"
 
 
 def measured_goo(data: str) -> datasets.ExperimentalCurve:
@@ -56,11 +59,11 @@ def entries() -> list[tuple[str, str, dict, dict]]:
     """
     out = []
     for data in DATASETS:
-        path = RESULTS / f"water_{data}.json"
+        path = RESULTS / f"water_{data}{SUFFIX}.json"
         if not path.exists():
             print(
-                f"skipping {data}: {path.relative_to(ROOT)} not found "
-                f"(run: python -m benchmarks.water_calibration --data {data} --statistics robust --predictive 20)"
+                f"skipping {data}: {path.relative_to(ROOT)} not found (run: python -m benchmarks.water_calibration "
+                f"--data {data} --statistics robust --algorithm surrogate --predictive 20)"
             )
             continue
         table = json.loads(path.read_text())
@@ -122,7 +125,7 @@ def main(out_dir: str | Path | None = None) -> Path:
     """
     rows = entries()
     if not rows:
-        raise FileNotFoundError(f"no predictive_goo in water_{{neutron,xray}}.json under {RESULTS}")
+        raise FileNotFoundError(f"no predictive_goo in water_{{neutron,xray}}{SUFFIX}.json under {RESULTS}")
     fig, axes = plt.subplots(1, len(rows), figsize=(6.4 * len(rows), 5.0), squeeze=False)
     lines = []
     for ax, (data, variant, p, entry) in zip(axes[0], rows, strict=True):

@@ -205,6 +205,28 @@ def test_status_of_entries(fake_repo: Path) -> None:
     assert (st.state, st.changed) == ("stale", ["data.txt"])
 
 
+def test_a_retired_result_is_listed_with_its_reason_and_never_rerun(fake_repo: Path) -> None:
+    reason = "superseded by res_new (same data, with provenance)"
+    gone = registry.Entry("old", "benchmarks/results/old.json", "python -m benchmarks.old", retired=reason)
+    st = status.status_of(gone, root=fake_repo)
+    assert (st.state, st.why) == ("retired", reason)
+    # A retired result whose file is still there says so: the pages would otherwise show it.
+    write_fake(fake_repo, name="old")
+    assert "still there: delete it" in status.status_of(gone, root=fake_repo).why
+    run, skipped = regenerate.plan([(gone, st)], budget_s=1e9)
+    assert not run and not skipped
+    assert "retired" in status.render([st]) and reason in status.render([st])
+
+
+def test_no_kept_result_reads_a_retired_one() -> None:
+    retired = {e.name for e in registry.REGISTRY if e.retired}
+    for e in registry.REGISTRY:
+        if e.retired:
+            assert len(e.retired) > 20, f"{e.name}: say why it is retired and what supersedes it"
+            continue
+        assert not {n for d in e.after for n in retired if n == d or n.split(":")[0] == d}, e.name
+
+
 def test_deterministic_view_and_comparison() -> None:
     saved = {
         "d_E": 0.0272,

@@ -29,9 +29,11 @@ INPUTS: dict[str, list[list[str]]] = {
     "figure4_speedup": [["speedup.json"]],
     "figure5_helium_posterior": [["helium_table1.json", "helium_table1_apmcabc.npz", "helium_table1_abcsubsim.npz"]],
     "figure_water_posteriors": [
-        [f"water_{d}.json", f"water_{d}_{v}.npz"] for d in ("simulated", "neutron", "xray") for v in ("robust", "paper")
+        [f"water_{d}_surrogate.json", f"water_{d}_{v}_surrogate.npz"]
+        for d in ("simulated", "neutron", "xray")
+        for v in ("robust", "paper")
     ],
-    "figure_water_predictive": [[f"water_{d}.json"] for d in ("neutron", "xray")],
+    "figure_water_predictive": [[f"water_{d}_surrogate.json"] for d in ("neutron", "xray")],
     "figure_water_model_choice": [["water_model_choice.json"]],
 }
 
@@ -72,7 +74,7 @@ def test_water_figures_skip_a_missing_dataset(
     name: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture
 ) -> None:
     """With only the X-ray results present, neutron (and simulated) are skipped with a message."""
-    needed = ["water_xray.json", "water_xray_robust.npz"]
+    needed = ["water_xray_surrogate.json", "water_xray_robust_surrogate.npz"]
     if not all((RESULTS / f).exists() for f in needed):
         pytest.skip(f"inputs absent in benchmarks/results: {needed}")
     results = tmp_path / "results"

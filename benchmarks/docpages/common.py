@@ -8,6 +8,7 @@ from collections.abc import Sequence
 from typing import Any
 
 from benchmarks._common import RESULTS, ROOT
+from benchmarks.registry import REGISTRY
 from benchmarks.status import format_cost
 
 DOCS = ROOT / "docs" / "results"
@@ -53,6 +54,13 @@ def source(name: str, part: str | None = None, data: dict[str, Any] | None = Non
         f"version is that of the commit that saved it); {later} later commits changed Python files under "
         "`jaxabc/` or `md/`."
     )
+
+
+def retired(prefixes: Sequence[str]) -> str:
+    """A Markdown list of the retired registry entries whose names start with one of ``prefixes``
+    (why each was retired and what supersedes it), or "" when there are none."""
+    rows = [e for e in REGISTRY if e.retired and e.name.startswith(tuple(prefixes))]
+    return "\n".join(f"- `{e.name}`: {e.retired}." for e in rows)
 
 
 def figure(rel: str, caption: str) -> str:

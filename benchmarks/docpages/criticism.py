@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from benchmarks._common import RESULTS
-from benchmarks.docpages.common import cause_rows, f, figure, g, load, misfit_rows, source, table
+from benchmarks.docpages.common import cause_rows, f, figure, g, load, misfit_rows, retired, source, table
 from benchmarks.status import format_cost
 
 _FIGURES = (
@@ -31,32 +31,13 @@ def page_criticism() -> str:
         "Posterior-predictive misfits, ranked causes from the water catalogue, the refit with the top "
         "cause, and the held-out gain.  GROMACS quick preset.\n",
     ]
-    for name, label in (("criticism_water_neutron", "Neutron data"), ("criticism_water", "X-ray data")):
-        d = load(name)
-        if d is None:
-            continue
-        misfits, causes = misfit_rows(d, 8), cause_rows(d)
-        ext = d["extension"]
-        est = ", ".join(
-            f"{n} {f(b, 4)} [{f(lo, 4)}, {f(hi, 4)}]"
-            for n, b, (lo, hi) in zip(ext["names"], ext["bayes_estimate"], ext["ci95"], strict=True)
+    gone = retired(["criticism_water"])
+    if gone:
+        parts.append(
+            "The criticism of TIP4P on the joint measured data (X-ray g_OO, density, enthalpy of "
+            "vaporisation, diffusion with stated errors) is on [the model choice page](water_model_choice.md).  "
+            "The earlier criticisms on one kind of data are retired:\n\n" + gone + "\n"
         )
-        gain = d["gain"]
-        parts += [
-            f"## {label}\n",
-            source(name, data=d) + "\n",
-            f"Held out: {', '.join(d['held_out'])}; base fit: {d['base_result']}; wall time "
-            f"{format_cost(d['wall_time_s'])}.\n",
-            f"Verdict: {d['verdict']}\n",
-            table(["misfit", "observed", "predictive 90 % band", "z", "adjusted p", ""], misfits) + "\n",
-            table(["cause", "score", "explains", "adjusted p", "ambiguous", "note"], causes) + "\n",
-            _figures(name),
-            f"Refit with the top cause: {est}.  Held-out delta log predictive density "
-            f"{f(gain['delta_lpd'], 2)} +- {f(gain['delta_lpd_se'], 2)} (exceeds its uncertainty: "
-            f"{'yes' if gain['significant'] else 'no'}); the new parameter's posterior is "
-            f"{100 * gain['effect_contraction']:.0f} % narrower than its prior; gain counted: "
-            f"{'yes' if gain['significant'] and gain['effect_excludes_null'] else 'no'}.\n",
-        ]
     return "\n".join(parts)
 
 

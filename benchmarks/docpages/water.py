@@ -9,7 +9,7 @@ from typing import Any
 import numpy as np
 
 from benchmarks._common import RESULTS, ROOT
-from benchmarks.docpages.common import f, figure, git, load, source, sourced_table, table
+from benchmarks.docpages.common import f, figure, load, retired, source, sourced_table, table
 from benchmarks.status import format_cost
 from jaxabc.surrogate.diagnostics import MISFIT_P_VALUE
 
@@ -29,12 +29,13 @@ def _validation_rows() -> tuple[list[list[Any]], list[str]]:
     names: list[str] = []
     exp_row = None
     for data in ("simulated", "xray", "neutron"):
-        d = load(f"water_{data}") or {}
+        name = f"water_{data}_surrogate"
+        d = load(name) or {}
         for stats in ("robust", "paper"):
             v = (d.get(stats) or {}).get("validation")
             if not v:
                 continue
-            names.append(f"water_{data}")
+            names.append(name)
             for point in ("bayes_estimate", "tip4p"):
                 p = v[point]
                 rows.append(
@@ -58,88 +59,13 @@ def _validation_rows() -> tuple[list[list[Any]], list[str]]:
 
 
 def page_water() -> str:
-    rows, sources = [], []
-    saving_commits: set[str] = set()
-    for data in ("simulated", "xray", "neutron"):
-        d = load(f"water_{data}")
-        if d is None:
-            continue
-        for stats in ("robust", "paper"):
-            e = d.get(stats)
-            if not e:
-                continue
-            ci = e["credible_interval_95"]
-            paper = e["paper"]
-            rows.append(
-                [
-                    WATER_LABELS[data],
-                    f"{stats} ({e['settings']['particles']} particles)",
-                    f"{f(e['bayes_estimate'][0], 4)} [{f(ci[0][0], 4)}, {f(ci[0][1], 4)}]",
-                    f"{f(e['bayes_estimate'][1])} [{f(ci[1][0])}, {f(ci[1][1])}]",
-                    f(e["correlation"], 3),
-                    f"{e['num_simulations']} ({e['num_failures']})",
-                    f(e["final_threshold"], 3),
-                    format_cost(e["wall_time_s"]),
-                    f"{paper['bayes_estimate'][0]}, {paper['bayes_estimate'][1]}, {paper['correlation']}",
-                ]
-            )
-            sources.append(f"- {source(f'water_{data}', stats, d)}")
-            if not d.get("provenance_parts", {}).get(stats):
-                saving_commits.add(git("log", "-1", "--format=%h", "--", f"benchmarks/results/water_{data}.json"))
-    # The oldest commit that saved one of these results: every later change to the water pipeline,
-    # the criticism catalogue or the inference core is one that some of them predate.
-    saved = sorted(c for c in saving_commits if c)
-    oldest = max(saved, key=lambda c: int(git("rev-list", "--count", f"{c}..HEAD") or 0)) if saved else None
-    predate = ""
-    if oldest:
-        predate = git(
-            "log",
-            "--format=- `%h` %ad %<(100,trunc)%s",
-            "--date=short",
-            f"{oldest}..HEAD",
-            "--",
-            ":(glob)md/water/**/*.py",
-            "md/water/data",
-            "md/criticism_catalogue.py",
-            ":(glob)jaxabc/**/*.py",
-        )
-    predate = "\n".join(line.rstrip() for line in predate.splitlines())
-    out = f"""# Water calibrations (GROMACS TIP4P, quick preset)
+    out = """# Water calibrations (GROMACS TIP4P, quick preset)
 
-APMCABC, alpha 0.1, acceptance cutoff 0.03, prior U[0.281, 0.53] nm x U[0.2, 0.9] kJ/mol;
-`robust` statistics with the pilot-MAD-scaled mean absolute difference, `paper` statistics with
-the paper's mean absolute difference.  Bayes estimate [95 % interval] (read these intervals as
-roughly 75 % intervals: see the coverage page); simulations (failed); wall time on the machine
-that made them.
-
-{
-        table(
-            [
-                "data",
-                "statistics",
-                "sigma_OW (nm)",
-                "epsilon_OW (kJ/mol)",
-                "corr.",
-                "sims (failed)",
-                "final threshold",
-                "wall time",
-                "paper (sigma, epsilon, corr.)",
-            ],
-            rows,
-        )
-    }
-
-Which code made them: these hours-long runs were saved before results recorded their provenance,
-so the code version is that of the commit that saved each JSON part (the commit of the last
-change to the file bounds it from above):
-
-{chr(10).join(sources)}
-
-Commits after the oldest of these (`{oldest}`) that changed the water pipeline, the criticism
-catalogue or the inference core (`jaxabc/`), newest first; each result predates those made after
-the commit that saved it:
-
-{predate or "- (none)"}
+TIP4P's oxygen Lennard-Jones parameters (sigma_OW, epsilon_OW) calibrated on the simulated,
+X-ray and neutron data of the paper through the GP surrogate (`--algorithm surrogate`, at most
+300 GROMACS runs each), `robust` statistics (pilot-MAD-scaled) and the paper's own.  Which
+water model the joint measured data prefer, with stated errors and a discrepancy term, is
+[the model choice page](water_model_choice.md).
 """
     out += _water_surrogate_section()
     out += _water_paper_preset_section()
@@ -147,6 +73,12 @@ the commit that saved it:
     validation, _ = _validation_rows()
     if validation:
         out += "\n## Validation properties (the paper's Table 2)\n\n" + table(_VALIDATION_HEADER, validation) + "\n"
+    gone = retired(["water_simulated:", "water_xray:", "water_neutron:"])
+    if gone:
+        out += (
+            "\n## Retired\n\nThe APMCABC calibrations of these data were saved before results recorded "
+            "their provenance and kept 5-10 particles; they are no longer shown:\n\n" + gone + "\n"
+        )
     return out
 
 
@@ -526,18 +458,18 @@ _SIDE_BY_SIDE_HEADER = [
 
 
 def _water_side_by_side_rows() -> tuple[list[list[Any]], list[list[Any]]]:
-    """Rows of the measured-data calibrations (APMCABC, surrogate, paper) and of their predictive peaks."""
+    """Rows of the measured-data calibrations (surrogate, paper) and of their predictive peaks."""
     rows, peaks = [], []
     for data in ("xray", "neutron"):
-        apmc, sur = load(f"water_{data}") or {}, load(f"water_{data}_surrogate") or {}
+        sur = load(f"water_{data}_surrogate") or {}
         csv, label = _MEASURED_GOO[data]
         measured = np.loadtxt(ROOT / csv, delimiter=",", comments="#")
         _, r_m, g_m = _first_peak(measured[:, 0], measured[:, 1])
         for stats in ("robust", "paper"):
-            if not sur.get(stats) and not apmc.get(stats):
+            if not sur.get(stats):
                 continue
             first = True
-            for method, e, is_sur in (("APMCABC", apmc.get(stats), False), ("GP surrogate", sur.get(stats), True)):
+            for method, e, is_sur in (("GP surrogate", sur.get(stats), True),):
                 if not e:
                     continue
                 paper = e["paper"]
@@ -578,12 +510,12 @@ def _water_side_by_side_rows() -> tuple[list[list[Any]], list[list[Any]]]:
 
 
 def _water_side_by_side() -> str:
-    """The measured-data calibrations, APMCABC and surrogate side by side with the paper."""
+    """The measured-data calibrations through the surrogate side by side with the paper."""
     rows, peaks = _water_side_by_side_rows()
     if not rows:
         return ""
     return f"""
-## Measured data: APMCABC, the surrogate and the paper side by side
+## Measured data: the surrogate and the paper side by side
 
 Bayes estimate [95 % interval], correlation, real GROMACS runs (failed) and the posterior draws
 with their effective sample size.  The paper's runs used its own preset (515 molecules, 100 ps);
@@ -603,8 +535,11 @@ def block_water_calibrations() -> str:
     """The measured-data calibrations beside the paper's, for ``md/water/README.md``."""
     rows, _ = _water_side_by_side_rows()
     if not rows:
-        return "Not run yet: `python -m benchmarks.regenerate --only water_xray water_neutron --budget 8h`."
-    names = [n for d in ("xray", "neutron") for n in (f"water_{d}", f"water_{d}_surrogate") if load(n)]
+        return (
+            "Not run yet: `python -m benchmarks.regenerate --only water_xray_surrogate water_neutron_surrogate "
+            "--budget 4h`."
+        )
+    names = [f"water_{d}_surrogate" for d in ("xray", "neutron") if load(f"water_{d}_surrogate")]
     return sourced_table(names, _SIDE_BY_SIDE_HEADER, rows)
 
 
@@ -612,5 +547,53 @@ def block_water_validation() -> str:
     """The validation properties, for ``md/water/README.md``."""
     rows, names = _validation_rows()
     if not rows:
-        return "Not run yet: `--validation-ps 500` with a calibration."
+        return (
+            "None kept: the earlier Table-2 runs were at the estimates of the retired APMCABC calibrations.  "
+            "`python -m benchmarks.water_calibration --data xray --statistics paper --algorithm surrogate "
+            "--validation-only benchmarks/results/water_xray_paper_surrogate.npz --validation-ps 500` adds them "
+            "to a surrogate calibration."
+        )
     return sourced_table(names, _VALIDATION_HEADER, rows)
+
+
+def block_water_prior_range() -> str:
+    """The epsilon scan behind the wide prior, for ``md/water/README.md``."""
+    d = load("water_prior_range")
+    if d is None:
+        return "Not run yet: `python -m benchmarks.water_prior_range --workers 2`."
+    rows = []
+    for r in [*d["scan"], *d["long_runs"]]:
+        length = f", {r['length_ps']:g} ps" if "length_ps" in r else ""
+        label = f"{r['model']} x{r['epsilon_factor']:g}{length}"
+        if r["status"] != "ok":
+            rows.append([label, "-", "-", "-", "-", "-", f"no: {r['reason'][:80]}"])
+            continue
+        rows.append(
+            [
+                label,
+                f(r["density_kg_m3"], 0),
+                f(r["S9"], 2),
+                f(r["hvap_kj_mol"], 1),
+                f(r["g_oo_min1"], 2),
+                f"{f(r['r_oo_max2_nm'], 3)}, {f(r['g_oo_max2'], 2)}",
+                "yes" if r["liquid"] else "no",
+            ]
+        )
+    header = [
+        "model x epsilon",
+        "density (kg/m3)",
+        "D (1e-5 cm2/s)",
+        "H_vap (kJ/mol)",
+        "g_OO 1st min",
+        "2nd max r (nm), g",
+        "liquid",
+    ]
+    lo, hi = d["liquid_density_kg_m3"]
+    return "\n\n".join(
+        [
+            source("water_prior_range", data=d),
+            table(header, rows),
+            f"Liquid: GROMACS finishes, density in [{lo:g}, {hi:g}] kg/m3 and D >= "
+            f"{d['min_diffusion_1e5_cm2_s']:g} (Yeh-Hummer corrected) at {d['temperature_k']:g} K.  " + d["verdict"],
+        ]
+    )

@@ -12,8 +12,8 @@ using :func:`model_viscosity_mpa_s`: each model's published 298 K viscosity
 temperature dependence (:func:`water_viscosity_mpa_s`).  The viscosity is that of the model
 at its *published* Lennard-Jones pair; at other (sigma, epsilon) it is an approximation (see
 ``md/water/README.md``).  :func:`measure_viscosity` measures a model's viscosity with GROMACS's
-periodic-perturbation (cos-acceleration) method as a cross-check
-(``benchmarks/results/water_prior_range.json``).
+periodic-perturbation (cos-acceleration) method; it did not reproduce the published values
+(about 0.6-0.7 mPa s for TIP4P and TIP3P alike; ``md/water/README.md``) and is not used.
 """
 
 from __future__ import annotations
@@ -49,7 +49,7 @@ MODEL_VISCOSITY_298K: dict[str, dict[str, object]] = {
     "TIP3P": {"value": 0.321, "source": _GONZALEZ_ABASCAL},
     # Not in Gonzalez & Abascal's table.  0.69 is between SPC/E and TIP4P/2005, as the
     # nano-channel viscosities of Markesteijn, Hartkamp, Luding & Westerweel 2012 (J. Chem.
-    # Phys. 136, 134104) order them; our cos-acceleration run (water_prior_range.json) checks it.
+    # Phys. 136, 134104) order them; not measured here (measure_viscosity is not validated).
     "TIP4P-Ew": {
         "value": 0.69,
         "source": "approximate; ordering of Markesteijn et al. 2012, J. Chem. Phys. 136, 134104; checked by "

@@ -221,10 +221,10 @@ PAPER_TIP4P_ESTIMATES: dict[str, dict[str, Any]] = {
 }
 
 
-#: Epsilon bounds (multiples of the published value) of the wide prior: TIP4P and TIP3P stay
-#: liquid in the quick preset up to 3x (measured, ``benchmarks/results/water_prior_range.json``);
-#: their g_OO loses the tetrahedral first minimum (it moves from 0.33-0.36 nm to 0.45 nm) beyond
-#: 1.6x (TIP4P) or from 1.4x (TIP3P), so 2.5x spans everything water-like with room to spare.
+#: Epsilon bounds (multiples of the published value) of the wide prior: every model stays a
+#: liquid in the quick preset between them (measured: ``benchmarks/water_prior_range.py``); at the
+#: upper bound its g_OO has lost the tetrahedral second shell, so the box spans everything
+#: water-like with room to spare.
 WIDE_EPSILON_FACTORS: tuple[float, float] = (0.6, 2.5)
 
 
