@@ -427,6 +427,22 @@ REGISTRY: tuple[Entry, ...] = (
     _water_surrogate(
         "neutron", "paper", "wnpsur", "the paper's summaries through the GP surrogate within 300 GROMACS runs"
     ),
+    Entry(
+        "water_xray_surrogate_abc:paper",
+        f"{R}/water_xray_surrogate_abc.json",
+        "python -m benchmarks.water_calibration --data xray --statistics paper --algorithm surrogate "
+        "--surrogate-mode abc --max-simulations 300 --workers 2 --predictive 10 --no-progress "
+        f"--checkpoint-dir {CACHE}/water_calibration/xray_paper_abc_checkpoint "
+        f"--run-cache {CACHE}/water_calibration/xray_paper_abc_runs",
+        part="paper",
+        long=True,
+        estimated_cost_s=3600.0,
+        requires=("gmx",),
+        note="the paper's target on the X-ray data: its statistics and unscaled distance, ABC (APMCABC on the "
+        "emulated statistics) instead of the synthetic likelihood; compared with the paper's own final "
+        "generation in water_paper_samples; the same command continues an interrupted run",
+        checked_by=("water_simulated:robust", "surrogate_helium", "water_model_choice"),
+    ),
     _water_paper_preset("xray"),
     Entry(
         "water_xray:robust",

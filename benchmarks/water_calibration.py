@@ -36,7 +36,8 @@ the nine statistics, sequential design, held-out validation) within ``--max-simu
 runs; ``--surrogate-mode abc`` samples it with APMCABC on emulated statistics (same distance as
 APMCABC) instead of the synthetic likelihood.  It needs no pilot scaling (the emulator
 standardises the statistics), so ``--scale`` defaults to ``none`` there.  Its results go to
-``water_<data>_surrogate.json`` and ``water_<data>_<variant>_surrogate.npz``.
+``water_<data>_surrogate.json`` and ``water_<data>_<variant>_surrogate.npz`` (``_surrogate_abc`` in ABC
+mode).
 
 Failures: with the paper's prior U[0.281, 0.53] x U[0.2, 0.9] most draws do not stay liquid at
 298 K and 1 atm (measured with 2 ps quick runs: 11 of 12 prior draws vaporised, density < 500
@@ -645,13 +646,19 @@ def _command(argv: list[str] | None) -> str:
     return command_line(None if argv is None else [__file__, *argv])
 
 
+def _suffix(args: argparse.Namespace) -> str:
+    """File-name suffix of a calibration's results: by algorithm, and the surrogate's ABC mode apart."""
+    if args.algorithm != "surrogate":
+        return ""
+    return "_surrogate_abc" if args.surrogate_mode == "abc" else "_surrogate"
+
+
 def validation_only(args, argv: list[str] | None = None) -> dict:
     """Add the Table-2 properties to an existing calibration's JSON entry."""
     if not args.validation_ps:
         raise SystemExit("--validation-only needs --validation-ps (the run length in ps, e.g. 1000)")
     result = jaxabc.load(args.validation_only)
-    suffix = "_surrogate" if args.algorithm == "surrogate" else ""
-    path = args.out_dir / f"water_{args.data}{suffix}.json"
+    path = args.out_dir / f"water_{args.data}{_suffix(args)}.json"
     everything = json.loads(path.read_text()) if path.exists() else {}
     if args.statistics not in everything:
         raise SystemExit(f"{path} has no {args.statistics!r} entry: run the calibration first")
@@ -672,7 +679,7 @@ def main(argv=None) -> dict:
     prior = jaxabc.Uniform(PRIOR_LOW, PRIOR_HIGH, names=("sigma_OW", "epsilon_OW"), units=("nm", "kJ/mol"))
     executor = make_executor(args, simulate.protocol.timeout_s + 60)
     surrogate = args.algorithm == "surrogate"
-    suffix = "_surrogate" if surrogate else ""
+    suffix = _suffix(args)
     stem = f"water_{args.data}_{args.statistics}{suffix}"
     args.out_dir.mkdir(parents=True, exist_ok=True)
     # Workers report each finished run to the progress file; results are those of `simulate`.
