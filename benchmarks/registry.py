@@ -587,6 +587,18 @@ REGISTRY: tuple[Entry, ...] = (
         checked_by=("water_model_paper_check", "water_simulated:robust"),
     ),
     Entry(
+        "water_paper_samples",
+        f"{R}/water_paper_samples.json",
+        "python -m benchmarks.water_paper_samples --seeds 3 --workers 2",
+        requires=("gmx",),
+        quick="python -m benchmarks.water_paper_samples --quick",
+        quick_output=f"{Q}/water_paper_samples.json",
+        estimated_cost_s=300.0,
+        after=("water_xray_surrogate_abc",),
+        note="the paper-statistics posteriors against the paper's final generation (sample to sample), and the "
+        "density at each estimate beside the paper's Table 2; reads the saved posteriors",
+    ),
+    Entry(
         "water_prior_range",
         f"{R}/water_prior_range.json",
         "python -m benchmarks.water_prior_range --workers 2",

@@ -3,7 +3,7 @@
 The model choice's wide prior lets each model's O-O Lennard-Jones well depth range over
 :data:`md.water.models.WIDE_EPSILON_FACTORS` times its published value, at sigma within its box.
 This scan runs every model at its published sigma and epsilon times each ``--factors`` value
-(one run per point, the model choice's protocol: quick preset, the data's temperature, the 14
+(``--seeds`` runs per point, the model choice's protocol: quick preset, the data's temperature, the 14
 joint summaries with the Yeh-Hummer corrected D), plus ``--long-ps`` runs at the upper box edge
 for TIP4P and TIP3P, whose density after 20 ps is compared with that of a longer run (does the
 liquid keep expanding?).  A point is liquid when GROMACS finishes, the simulator raises no
@@ -15,7 +15,7 @@ across the box (the first-minimum height and the second-shell peak of g_OO).
 
 Usage (from the repository root)::
 
-    python -m benchmarks.water_prior_range --workers 2       # 25 runs + 2 long ones, ~10 min on 2 cores
+    python -m benchmarks.water_prior_range --workers 2       # 50 runs + 2 long ones, ~10 min on 2 cores
     python -m benchmarks.water_prior_range --quick           # TIP4P at the two box edges
 """
 
@@ -24,6 +24,7 @@ from __future__ import annotations
 import argparse
 import concurrent.futures
 import multiprocessing
+import re
 import time
 from pathlib import Path
 
@@ -43,11 +44,13 @@ LIQUID_DENSITY_KG_M3 = (850.0, 1150.0)
 MIN_DIFFUSION = 0.1
 #: Joint summaries reported per point (names of ``JOINT_SUMMARY_NAMES``).
 REPORTED = ("density_kg_m3", "hvap_kj_mol", "S9", "S5", "S7", "S8", "g_oo_min1", "r_oo_max2_nm", "g_oo_max2")
+#: Failure reasons of the summaries themselves (the run finished; its g_OO lacks what they read).
+_UNDEFINED = ("no first peak/minimum found", "no second-shell summaries")
 
 
 def _one(task: tuple) -> dict:
     """Worker: one GROMACS run of ``model`` at (published sigma, factor x published epsilon)."""
-    name, factor, data, temperature_k, num_steps, analysis_start_ps = task
+    name, factor, seed, data, temperature_k, num_steps, analysis_start_ps = task
     from jaxabc.errors import SimulationFailure
 
     model = MODELS[name]
@@ -56,35 +59,60 @@ def _one(task: tuple) -> dict:
         overrides |= {"num_steps": num_steps, "analysis_start_ps": analysis_start_ps}
     simulate = WaterModelSimulator(model, "quick", "robust", data, **overrides)
     theta = (model.lj[0], model.lj[1] * factor)
-    row: dict = {"model": name, "epsilon_factor": factor, "theta": [float(t) for t in theta]}
+    row: dict = {"model": name, "epsilon_factor": factor, "seed": seed, "theta": [float(t) for t in theta]}
     start = time.perf_counter()
     try:
-        summaries = np.asarray(simulate(np.array([0, 7], np.uint32), np.asarray(theta, np.float64)), np.float64)
+        key = np.array([0, 7 + seed], np.uint32)
+        summaries = np.asarray(simulate(key, np.asarray(theta, np.float64)), np.float64)
         values = dict(zip(JOINT_SUMMARY_NAMES, summaries.tolist(), strict=True))
         row |= {"status": "ok", **{k: values[k] for k in REPORTED}}
         lo, hi = LIQUID_DENSITY_KG_M3
         row["liquid"] = bool(lo <= values["density_kg_m3"] <= hi and values["S9"] >= MIN_DIFFUSION)
     except SimulationFailure as failure:
-        row |= {"status": "failed", "reason": str(failure), "liquid": False}
+        reason = str(failure)
+        row |= {"status": "failed", "reason": reason, "liquid": False}
+        density = re.search(r"density ([0-9.eE+-]+) kg/m3", reason)
+        if reason.startswith(_UNDEFINED) and density is not None:
+            # A finished run whose g_OO lacks the peak or minimum the summaries read: liquid or not
+            # by its density, and a failed run for a calibration either way.
+            row["status"], row["density_kg_m3"] = "summaries undefined", float(density.group(1))
+            row["liquid"] = bool(LIQUID_DENSITY_KG_M3[0] <= row["density_kg_m3"] <= LIQUID_DENSITY_KG_M3[1])
     row["wall_s"] = time.perf_counter() - start
     return row
 
 
 def verdict(rows: list[dict], factors: list[float]) -> str:
-    """One sentence from the scan: where (if anywhere) a model stops being liquid, and the densities."""
-    bad = [r for r in rows if not r["liquid"]]
-    ok = [r for r in rows if r["liquid"]]
-    span = f"{min(r['density_kg_m3'] for r in ok):.0f}-{max(r['density_kg_m3'] for r in ok):.0f} kg/m3" if ok else "-"
+    """Sentences from the scan: where a model stops being liquid, where the summaries are undefined."""
     box = f"epsilon x[{min(factors):g}, {max(factors):g}]"
     models = ", ".join(dict.fromkeys(r["model"] for r in rows))
-    if not bad:
-        return (
-            f"{models}: liquid over {box} at the published sigma (densities {span}, all diffusing; "
-            "no vapour, collapse or GROMACS failure): the data, not a failure, decide where a posterior "
-            "in this box sits."
+    dense = [r["density_kg_m3"] for r in rows if r["liquid"]]
+    span = f"{min(dense):.0f}-{max(dense):.0f} kg/m3" if dense else "-"
+
+    def at(r: dict) -> str:
+        return f"{r['model']} x{r['epsilon_factor']:g} seed {r['seed']}" + (
+            f", {r['length_ps']:g} ps" if "length_ps" in r else ""
         )
-    where = ", ".join(f"{r['model']} x{r['epsilon_factor']:g} ({r.get('reason') or 'density or D'})" for r in bad)
-    return f"Not liquid at {where}; elsewhere densities {span}.  A posterior piled there meets a physical limit."
+
+    physical = [r for r in rows if not r["liquid"]]
+    undefined = [r for r in rows if r["liquid"] and r["status"] != "ok"]
+    out = [
+        f"{len(rows) - len(physical)} of {len(rows)} runs of {models} over {box} at the published sigma are "
+        f"liquid (densities {span}; D at least {MIN_DIFFUSION:g})."
+    ]
+    if physical:
+        out.append(
+            "Not liquid: "
+            + "; ".join(f"{at(r)} ({r.get('reason') or 'density or D out of range'})" for r in physical)
+            + ".  A posterior piled there meets a physical limit."
+        )
+    else:
+        out.append("No run vaporised, collapsed, froze or failed in GROMACS: no physical limit bounds the box.")
+    if undefined:
+        out.append(
+            "Liquid, but its g_OO lacks the peak or minimum the summaries read (a failed run for a calibration, "
+            "not a phase limit): " + "; ".join(f"{at(r)} (density {r['density_kg_m3']:.0f})" for r in undefined) + "."
+        )
+    return "  ".join(out)
 
 
 def main(argv: list[str] | None = None) -> dict:
@@ -92,27 +120,33 @@ def main(argv: list[str] | None = None) -> dict:
     p.add_argument("--data", choices=("xray", "neutron"), default="xray", help="whose temperature and summaries")
     p.add_argument("--factors", type=float, nargs="+", default=[WIDE_EPSILON_FACTORS[0], 1.0, 1.6, 2.5, 3.0])
     p.add_argument("--models", nargs="+", default=list(MODELS), choices=list(MODELS))
+    p.add_argument("--seeds", type=int, default=2, help="runs (independent keys) per point")
     p.add_argument("--long-ps", type=float, default=60.0, help="length of the upper-edge runs (0: none)")
     p.add_argument("--workers", type=int, default=2)
     p.add_argument("--quick", action="store_true", help="TIP4P at the box edges only, no long runs")
     args = p.parse_args(argv)
     if args.quick:
-        args.models, args.factors, args.long_ps = ["TIP4P"], list(WIDE_EPSILON_FACTORS), 0.0
-    if any(f <= 0 for f in args.factors):
-        raise SystemExit(f"--factors must be positive, got {args.factors}")
+        args.models, args.factors, args.long_ps, args.seeds = ["TIP4P"], list(WIDE_EPSILON_FACTORS), 0.0, 1
+    if any(f <= 0 for f in args.factors) or args.seeds < 1:
+        raise SystemExit(f"--factors must be positive and --seeds at least 1, got {args.factors}, {args.seeds}")
     start = time.perf_counter()
     data = joint_observed(args.data)
-    tasks = [(m, f, args.data, data.temperature_k, None, None) for m in args.models for f in args.factors]
+    tasks = [
+        (m, f, s, args.data, data.temperature_k, None, None)
+        for m in args.models
+        for f in args.factors
+        for s in range(args.seeds)
+    ]
     edge = max(WIDE_EPSILON_FACTORS)
     long_models = [m for m in ("TIP4P", "TIP3P") if m in args.models] if args.long_ps > 0 else []
     steps = round(args.long_ps / PRESETS["quick"].timestep_ps)
-    tasks += [(m, edge, args.data, data.temperature_k, steps, args.long_ps / 2) for m in long_models]
+    tasks += [(m, edge, 0, args.data, data.temperature_k, steps, args.long_ps / 2) for m in long_models]
     context = multiprocessing.get_context("spawn")
     with concurrent.futures.ProcessPoolExecutor(args.workers, mp_context=context) as pool:
         rows = list(pool.map(_one, tasks))
     scan, long_rows = rows[: len(rows) - len(long_models)], rows[len(rows) - len(long_models) :]
     for row in long_rows:
-        short = next(r for r in scan if r["model"] == row["model"] and r["epsilon_factor"] == edge)
+        short = next(r for r in scan if r["model"] == row["model"] and r["epsilon_factor"] == edge and r["seed"] == 0)
         row["length_ps"], row["analysed_from_ps"] = args.long_ps, args.long_ps / 2
         if row["status"] == "ok" and short["status"] == "ok":
             row["density_change_from_short_kg_m3"] = row["density_kg_m3"] - short["density_kg_m3"]
@@ -124,6 +158,7 @@ def main(argv: list[str] | None = None) -> dict:
         "min_diffusion_1e5_cm2_s": MIN_DIFFUSION,
         "wide_epsilon_factors": list(WIDE_EPSILON_FACTORS),
         "factors": args.factors,
+        "seeds": args.seeds,
         "scan": scan,
         "long_runs": long_rows,
         "verdict": verdict(scan + long_rows, args.factors),
