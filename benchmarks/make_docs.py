@@ -75,7 +75,8 @@ file that changed, one of those quick modes ran the file on today's code and rep
 that were made with the result's own version of it ("quick mode of ... reproduces").  Those
 saved quick numbers must therefore be made on the same code as the long run
 (`python -m benchmarks.regenerate --quick --only NAME` right after it); data changes always
-call for a rerun.
+call for a rerun.  A `retired` result is one the registry no longer keeps (why, what supersedes it
+and the commit of its last version are in the table); no page shows it.
 
 - [Helium Table 1](helium_table1.md) and [the choice of the CPU preset](helium_identifiability.md)
 - [Engine throughput](engine_throughput.md) and [agreement with LAMMPS](lammps_agreement.md)

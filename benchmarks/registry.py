@@ -136,6 +136,27 @@ def _water_surrogate(data: str, statistics: str, checkpoint: str, what: str, pre
     )
 
 
+def _water_abc(data: str) -> Entry:
+    """The paper's target through the surrogate: its statistics and unscaled distance, ABC on the
+    emulated statistics (``--surrogate-mode abc``), compared with the paper's final generation by
+    ``water_paper_samples``; checkpoint and run cache under ``runs/cache``, so the command continues."""
+    folder = f"{CACHE}/water_calibration/{data}_paper_abc"
+    return Entry(
+        f"water_{data}_surrogate_abc:paper",
+        f"{R}/water_{data}_surrogate_abc.json",
+        f"python -m benchmarks.water_calibration --data {data} --statistics paper --algorithm surrogate "
+        f"--surrogate-mode abc --max-simulations 300 --workers 2 --predictive 10 --no-progress "
+        f"--checkpoint-dir {folder}_checkpoint --run-cache {folder}_runs",
+        part="paper",
+        long=True,
+        estimated_cost_s=3600.0,
+        requires=("gmx",),
+        note="the paper's target (its statistics and unscaled distance, ABC on the emulated statistics "
+        "instead of the synthetic likelihood), to compare with its final generation",
+        checked_by=("water_simulated:robust", "surrogate_helium", "water_model_choice"),
+    )
+
+
 def _water_paper_preset(data: str) -> Entry:
     """The paper's own protocol (515 molecules, 100 ps) through the surrogate: hours of GROMACS.
 
@@ -427,22 +448,8 @@ REGISTRY: tuple[Entry, ...] = (
     _water_surrogate(
         "neutron", "paper", "wnpsur", "the paper's summaries through the GP surrogate within 300 GROMACS runs"
     ),
-    Entry(
-        "water_xray_surrogate_abc:paper",
-        f"{R}/water_xray_surrogate_abc.json",
-        "python -m benchmarks.water_calibration --data xray --statistics paper --algorithm surrogate "
-        "--surrogate-mode abc --max-simulations 300 --workers 2 --predictive 10 --no-progress "
-        f"--checkpoint-dir {CACHE}/water_calibration/xray_paper_abc_checkpoint "
-        f"--run-cache {CACHE}/water_calibration/xray_paper_abc_runs",
-        part="paper",
-        long=True,
-        estimated_cost_s=3600.0,
-        requires=("gmx",),
-        note="the paper's target on the X-ray data: its statistics and unscaled distance, ABC (APMCABC on the "
-        "emulated statistics) instead of the synthetic likelihood; compared with the paper's own final "
-        "generation in water_paper_samples; the same command continues an interrupted run",
-        checked_by=("water_simulated:robust", "surrogate_helium", "water_model_choice"),
-    ),
+    _water_abc("simulated"),
+    _water_abc("xray"),
     _water_paper_preset("xray"),
     Entry(
         "water_xray:robust",
@@ -575,6 +582,24 @@ REGISTRY: tuple[Entry, ...] = (
         "its simulations and checkpoints are cached under runs/cache/water_model_choice (not tracked), so the "
         "same command continues an interrupted run",
     ),
+    *(
+        Entry(
+            name,
+            f"{R}/{name}.json",
+            "python -m benchmarks.water_model_choice --data xray --workers 2 --no-progress --continue "
+            f"--prior-width wide{flags} --budget-per-model 60 --predictive 6 --name {name}",
+            long=True,
+            requires=("gmx",),
+            estimated_cost_s=4500.0,
+            note=f"the model choice repeated ({what}): a verdict holds only if it holds in every repeat",
+            checked_by=("water_model_choice",),
+        )
+        for name, flags, what in (
+            ("water_model_choice_seed1", " --discrepancy --seed 1", "seed 1"),
+            ("water_model_choice_seed2", " --discrepancy --seed 2", "seed 2"),
+            ("water_model_choice_no_discrepancy", "", "seed 0 without the discrepancy term"),
+        )
+    ),
     Entry(
         "water_published_predictive",
         f"{R}/water_published_predictive.json",
@@ -594,7 +619,7 @@ REGISTRY: tuple[Entry, ...] = (
         quick="python -m benchmarks.water_paper_samples --quick",
         quick_output=f"{Q}/water_paper_samples.json",
         estimated_cost_s=300.0,
-        after=("water_xray_surrogate_abc",),
+        after=("water_simulated_surrogate_abc", "water_xray_surrogate_abc"),
         note="the paper-statistics posteriors against the paper's final generation (sample to sample), and the "
         "density at each estimate beside the paper's Table 2; reads the saved posteriors",
     ),

@@ -5,6 +5,8 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from benchmarks._common import RESULTS
 from benchmarks.docpages.common import cause_rows, f, figure, load, misfit_rows, source, table
 from md.water.models import PAPER_TIP4P_ESTIMATES
@@ -13,6 +15,13 @@ from md.water.models import PAPER_TIP4P_ESTIMATES
 PAPER_CHECKS = ("water_model_paper_check", "water_model_paper_check_tip3p")
 #: Saved criticisms of models of the model choice, one result each.
 CRITICISMS = ("criticism_water_joint", "criticism_water_joint_tip3p")
+#: The model choice's repeats: (result name, what differs from ``water_model_choice``).
+REPEATS = (
+    ("water_model_choice", "seed 0"),
+    ("water_model_choice_seed1", "seed 1"),
+    ("water_model_choice_seed2", "seed 2"),
+    ("water_model_choice_no_discrepancy", "seed 0, no discrepancy term"),
+)
 
 
 def _saved_figures(d: dict) -> list[str]:
@@ -53,6 +62,7 @@ def page_water_model_choice() -> str:
         + f"; method: {d['model_choice']['metadata'].get('method', d['method'])}.\n",
         f"Stopped: {d['model_choice']['stop_reason']}.\n",
         *_verdict(d),
+        *_repeats(),
         table(_HEADER, [_row(name, row, d["models"][name]) for name, row in d["per_model"].items()]) + "\n",
         "Side by side with the published parameters and the paper's TIP4P calibration:\n",
         side_by_side(d) + "\n",
@@ -86,6 +96,37 @@ def page_water_model_choice() -> str:
         if c is not None:
             parts += _criticism(name, c)
     return "\n".join(parts)
+
+
+def _repeats() -> list[str]:
+    """The verdict and probabilities of every saved repeat (seeds, without the discrepancy term):
+    a statement on this page holds only if it holds in each."""
+    saved = [(name, what, d) for name, what in REPEATS if (d := load(name)) is not None]
+    missing = [name for name, _ in REPEATS if load(name) is None]
+    if len(saved) < 2:
+        return [f"Repeats not run yet ({', '.join(missing)}): the verdict rests on one seed.\n"] if missing else []
+    names = saved[0][2]["model_choice"]["names"]
+    rows = []
+    for name, what, d in saved:
+        mc = d["model_choice"]
+        verdict = d.get("verdict") or {}
+        rows.append(
+            [
+                f"`{name}` ({what})",
+                f"{verdict.get('status', '?')} {verdict.get('model') or ''}".strip(),
+                *(f"{p:.3g}" for p in mc["probabilities"]),
+            ]
+        )
+    statuses = {(d.get("verdict") or {}).get("status") for _, _, d in saved}
+    tops = {d["model_choice"]["names"][int(np.argmax(d["model_choice"]["probabilities"]))] for _, _, d in saved}
+    agree = "the same verdict" if len(statuses) == 1 else "different verdicts"
+    return [
+        f"Repeats: {len(saved)} runs give {agree} ({', '.join(sorted(s or '?' for s in statuses))}); the most "
+        f"probable model is {' or '.join(sorted(tops))}"
+        + (f"; not run yet: {', '.join(missing)}" if missing else "")
+        + ".\n",
+        table(["run", "verdict", *names], rows) + "\n",
+    ]
 
 
 def _published() -> list[str]:
