@@ -19,7 +19,7 @@ from pathlib import Path
 
 from benchmarks._common import RESULTS, ROOT
 from benchmarks.docpages.common import DOCS, table
-from benchmarks.docpages.criticism import page_criticism, page_criticism_fluids
+from benchmarks.docpages.criticism import page_criticism_fluids
 from benchmarks.docpages.engine import page_abc_overhead, page_engine, page_speedup
 from benchmarks.docpages.helium import page_coverage, page_helium_table1, page_identifiability, page_lammps
 from benchmarks.docpages.model_choice import (
@@ -45,7 +45,6 @@ from benchmarks.docpages.water_jaxmd import page_density_relaxation, page_water_
 from benchmarks.registry import REGISTRY
 from benchmarks.status import format_cost, status_of
 
-_MODEL_CHOICE_LINK = " and [which water model the data prefer](water_model_choice.md)"
 _HONESTY_LINK = "- [Does the surrogate say when it is wrong?](surrogate_honesty.md)\n"
 
 
@@ -87,7 +86,7 @@ and the commit of its last version are in the table); no page shows it.
 - [Speedup and scheduling](speedup.md)
 - [Cost of an ABC step](abc_overhead.md)
 - [Water calibrations](water_calibrations.md) and [the quick preset's density relaxation](water_density_relaxation.md)
-- [Model criticism of water](criticism.md){_MODEL_CHOICE_LINK if "water_model_choice.md" in PAGES else ""}
+- [Which water model the data prefer, and the criticism of it](water_model_choice.md)
 - [Model criticism of neon and argon](criticism_fluids.md)
 - [Reliability probes: what a hostile user sees](reliability.md)
 
@@ -112,7 +111,6 @@ PAGES: dict[str, Callable[[], str]] = {
     "abc_overhead.md": page_abc_overhead,
     "water_calibrations.md": page_water,
     "water_density_relaxation.md": page_density_relaxation,
-    "criticism.md": page_criticism,
     "water_jaxmd.md": page_water_jaxmd,
     "criticism_fluids.md": page_criticism_fluids,
 }

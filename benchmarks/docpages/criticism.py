@@ -1,9 +1,9 @@
-"""Model criticism pages: measured water, and neon and argon."""
+"""Model criticism page of neon and argon (water's is on the model-choice page)."""
 
 from __future__ import annotations
 
 from benchmarks._common import RESULTS
-from benchmarks.docpages.common import cause_rows, f, figure, g, load, misfit_rows, retired, source, table
+from benchmarks.docpages.common import cause_rows, f, figure, g, load, misfit_rows, source, table
 from benchmarks.status import format_cost
 
 _FIGURES = (
@@ -23,22 +23,6 @@ def _figures(name: str) -> str:
         if (RESULTS / name / f"{kind}.png").is_file()
     ]
     return "\n\n".join(shown) + "\n" if shown else ""
-
-
-def page_criticism() -> str:
-    parts = [
-        "# Model criticism of calibrated TIP4P water\n",
-        "Posterior-predictive misfits, ranked causes from the water catalogue, the refit with the top "
-        "cause, and the held-out gain.  GROMACS quick preset.\n",
-    ]
-    gone = retired(["criticism_water"])
-    if gone:
-        parts.append(
-            "The criticism of TIP4P on the joint measured data (X-ray g_OO, density, enthalpy of "
-            "vaporisation, diffusion with stated errors) is on [the model choice page](water_model_choice.md).  "
-            "The earlier criticisms on one kind of data are retired:\n\n" + gone + "\n"
-        )
-    return "\n".join(parts)
 
 
 def seen_by_data(c: dict) -> str:

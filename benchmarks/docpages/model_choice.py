@@ -8,7 +8,7 @@ from typing import Any
 import numpy as np
 
 from benchmarks._common import RESULTS
-from benchmarks.docpages.common import cause_rows, f, figure, load, misfit_rows, source, table
+from benchmarks.docpages.common import cause_rows, f, figure, load, misfit_rows, retired, source, table
 from md.water.models import PAPER_TIP4P_ESTIMATES
 
 #: Saved paper-preset checks of models of the model choice, one result each.
@@ -95,6 +95,9 @@ def page_water_model_choice() -> str:
         c = load(name)
         if c is not None:
             parts += _criticism(name, c)
+    gone = retired(["criticism_water"])
+    if gone:
+        parts.append("Earlier criticisms of TIP4P on one kind of data are retired:\n\n" + gone + "\n")
     return "\n".join(parts)
 
 

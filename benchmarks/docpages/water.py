@@ -549,7 +549,8 @@ def block_water_validation() -> str:
     rows, names = _validation_rows()
     if not rows:
         return (
-            "None kept: the earlier Table-2 runs were at the estimates of the retired APMCABC calibrations.  "
+            "Not run yet on a kept calibration (the earlier Table-2 runs were at the estimates of the retired "
+            "APMCABC calibrations; `water_paper_samples` has the density at the paper's estimates).  "
             "`python -m benchmarks.water_calibration --data xray --statistics paper --algorithm surrogate "
             "--validation-only benchmarks/results/water_xray_paper_surrogate.npz --validation-ps 500` adds them "
             "to a surrogate calibration."
