@@ -7,6 +7,8 @@ earlier APMCABC runs, 5-10 particles each, are retired in ``benchmarks/registry.
 * ``benchmarks/results/water_{simulated,neutron,xray}_surrogate.json``: per statistics variant
   (``robust``, ``paper``) the Bayes estimate, posterior correlation, truth (simulated data) and
   the paper's numbers;
+* for the ``paper`` statistics, ``water_{data}_surrogate_abc.json`` and its ``.npz`` when saved:
+  the surrogate's ABC mode on the paper's unscaled distance, the paper's own target;
 * ``benchmarks/results/water_{data}_{variant}_surrogate.npz``: the posterior draws (``jaxabc.load``), whose
   weighted Gaussian-KDE contours (red, as the paper; the same KDE as ``ABCResult.plot_posterior``),
   particles, Bayes estimate (star) and truth (green cross) are drawn.
@@ -56,7 +58,11 @@ SUFFIX = "_surrogate"
 
 
 def available(data: str) -> tuple[dict, list[str]]:
-    """The JSON of a dataset and the variants that have both a JSON entry and an ``.npz``.
+    """The posteriors of a dataset by statistics variant, and the variants found.
+
+    A variant's entry is the calibration's JSON entry plus ``"npz"`` (its posterior file) and
+    ``"mode"``.  For the ``paper`` statistics the surrogate's ABC mode on the paper's distance (the
+    paper's own target) is preferred when saved, else the synthetic likelihood.
 
     Parameters
     ----------
@@ -65,26 +71,24 @@ def available(data: str) -> tuple[dict, list[str]]:
     Returns
     -------
     (dict, list of str)
-        Empty when the JSON is missing; a message is printed for everything skipped.
+        Empty when nothing is saved; a message is printed for everything skipped.
     """
-    path = RESULTS / f"water_{data}{SUFFIX}.json"
-    if not path.exists():
-        print(
-            f"skipping {data}: {path.relative_to(ROOT)} not found (run: python -m benchmarks.water_calibration "
-            f"--data {data} --statistics robust --algorithm surrogate --predictive 20)"
-        )
-        return {}, []
-    table = json.loads(path.read_text())
-    variants = []
+    table: dict = {}
     for variant in VARIANTS:
-        if variant not in table:
-            continue
-        npz = RESULTS / f"water_{data}_{variant}{SUFFIX}.npz"
-        if npz.exists():
-            variants.append(variant)
-        else:
-            print(f"skipping {data} / {variant}: {npz.relative_to(ROOT)} not found")
-    return table, variants
+        modes = (("_abc", "ABC on the paper's distance"), ("", "synthetic likelihood"))
+        for extra, mode in modes if variant == "paper" else modes[1:]:
+            path = RESULTS / f"water_{data}{SUFFIX}{extra}.json"
+            npz = RESULTS / f"water_{data}_{variant}{SUFFIX}{extra}.npz"
+            entry = json.loads(path.read_text()).get(variant) if path.exists() else None
+            if entry and npz.exists():
+                table[variant] = {**entry, "npz": npz, "mode": mode}
+                break
+    if not table:
+        print(
+            f"skipping {data}: no water_{data}{SUFFIX}*.json with a posterior in {RESULTS.relative_to(ROOT)} (run: "
+            f"python -m benchmarks.water_calibration --data {data} --statistics robust --algorithm surrogate)"
+        )
+    return table, list(table)
 
 
 def _curve_panel(ax: plt.Axes, pair: str, data: str) -> None:
@@ -120,7 +124,7 @@ def _kde_contours(ax: plt.Axes, particles: np.ndarray, weights: np.ndarray, xlim
 
 
 def _posterior_panel(ax: plt.Axes, data: str, variant: str, entry: dict) -> None:
-    result = jaxabc.load(RESULTS / f"water_{data}_{variant}{SUFFIX}.npz")
+    result = jaxabc.load(entry["npz"])
     particles, weights = np.asarray(result.particles)[:, :2], np.asarray(result.weights, dtype=np.float64)
     published = datasets.published_posterior(data)
     paper = entry["paper"]["bayes_estimate"]
@@ -167,9 +171,10 @@ def _posterior_panel(ax: plt.Axes, data: str, variant: str, entry: dict) -> None
     ax.set_xlabel("sigma_OW (nm)")
     ax.set_ylabel("epsilon_OW (kJ/mol)")
     ax.set_title(
-        f"{variant} statistics: estimate ({est[0]:.4f}, {est[1]:.3f}), corr {entry['correlation']:+.3f} "
-        f"(paper {entry['paper']['correlation']:+.3f})\n{entry['num_simulations']} simulations "
-        f"({entry['num_failures']} failed), final threshold {entry['final_threshold']:.3g}",
+        f"{variant} statistics, {entry['mode']}\nestimate ({est[0]:.4f}, {est[1]:.3f}), "
+        f"corr {entry['correlation']:+.3f} (paper {entry['paper']['correlation']:+.3f}), "
+        f"{entry['num_simulations']} simulations ({entry['num_failures']} failed), "
+        f"final threshold {entry['final_threshold']:.3g}",
         fontsize=8,
     )
     ax.legend(fontsize=6, loc="upper right")
