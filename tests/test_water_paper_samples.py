@@ -39,3 +39,19 @@ def test_energy_distance_of_shifted_gaussians_matches_the_exact_value() -> None:
     # Its Monte Carlo sd at n = 2000 is 0.031 (30 seeds); the V-statistic's bias, about 2.3 / n, is far less.
     assert abs(got - exact) < 4 * 0.031, (got, exact)
     assert energy_distance(x, np.ones(n), x + 3.0, np.ones(n)) > exact + 4 * 0.031
+
+
+def test_the_null_grows_as_the_paper_sample_loses_effective_size() -> None:
+    """Under the null the paper-like sample is drawn from ours: a sample actually drawn so lies inside
+    it, a shifted one outside, and fewer effective particles widen it (about 1 / ESS)."""
+    from benchmarks.water_paper_samples import null_energy_distance
+
+    rng = np.random.default_rng(2)
+    x, w = rng.normal(size=(1000, 2)), np.ones(1000)
+    flat, skewed = np.ones(100), np.r_[np.full(10, 9.0), np.ones(90)]  # Kish ESS 100 and about 24
+    null_flat = null_energy_distance(x, w, flat, rng)
+    null_skewed = null_energy_distance(x, w, skewed, rng)
+    assert 2.0 < null_skewed["median"] / null_flat["median"] < 8.0
+    y = x[rng.choice(1000, 100)]
+    assert energy_distance(x, w, y, flat) <= null_flat["q95"]
+    assert energy_distance(x, w, y + 1.0, flat) > null_flat["q95"]
