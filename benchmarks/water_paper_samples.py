@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import argparse
 import concurrent.futures
+import json
 import multiprocessing
 import time
 
@@ -103,6 +104,8 @@ def compare(kind: str, rng: np.random.Generator) -> dict:
         if not path.is_file():
             continue
         result = jaxabc.load(path)
+        saved = RESULTS / f"water_{kind}{suffix}.json"
+        run = (json.loads(saved.read_text()).get("paper") or {}) if saved.is_file() else {}
         x = np.asarray(result.particles, np.float64)[:, :2]
         w = np.asarray(result.weights, np.float64)
         ours = weighted_moments(x, w)
@@ -110,7 +113,12 @@ def compare(kind: str, rng: np.random.Generator) -> dict:
             "label": label,
             "paper_target": same_target,
             "file": path.relative_to(RESULTS.parent.parent).as_posix(),
+            "run_file": saved.relative_to(RESULTS.parent.parent).as_posix() if saved.is_file() else None,
             "bayes_estimate": np.asarray(result.bayes_estimate(), np.float64)[:2].tolist(),
+            # The run's own verdicts: a posterior whose emulator failed validation, or under which
+            # no parameter reproduces the data, says so beside the comparison.
+            "validated": (run.get("surrogate") or {}).get("validated"),
+            "misfit_p_value": ((run.get("surrogate") or {}).get("observed_misfit") or {}).get("p_value"),
             "mean_difference_in_paper_sd": ((np.asarray(ours["mean"]) - paper["mean"]) / scale).tolist(),
             "sd_ratio": (np.asarray(ours["sd"]) / scale).tolist(),
             "energy_distance": energy_distance(x / scale, w, px / scale, pw),
@@ -192,7 +200,13 @@ def main(argv: list[str] | None = None) -> dict:
         "wall_time_s": time.perf_counter() - start,
     }
     inputs = [datasets.DATA_DIR / f"dutta2018_abcpy-models_posterior_{k}_final_generation.csv" for k in kinds]
-    inputs += [RESULTS.parent.parent / o["file"] for k in kinds for o in samples[k]["ours"].values()]
+    inputs += [
+        RESULTS.parent.parent / o[key]
+        for k in kinds
+        for o in samples[k]["ours"].values()
+        for key in ("file", "run_file")
+        if o[key]
+    ]
     path = write_result("water_paper_samples", payload, quick=args.quick, inputs=inputs, command=command_line(argv))
     print(f"wrote {path}")
     return payload

@@ -642,7 +642,12 @@ def _paper_samples_section() -> str:
             ratio = ", ".join(f(v, 2) for v in o["sd_ratio"])
             null = o["null_energy_distance"]
             ed = f"{f(o['energy_distance'], 3)} (null {f(null['median'], 3)} [95 %: {f(null['q95'], 3)}])"
-            rows.append(_sample_row(kind, o["label"], o, diff, ratio, ed))
+            flags = ("; NOT VALIDATED" if o.get("validated") is False else "") + (
+                f"; MISFIT p = {o['misfit_p_value']:.1g}"
+                if o.get("misfit_p_value") is not None and o["misfit_p_value"] < MISFIT_P_VALUE
+                else ""
+            )
+            rows.append(_sample_row(kind, o["label"] + flags, o, diff, ratio, ed))
             if o["paper_target"]:
                 verdicts.append(
                     f"- {WATER_LABELS[kind]}: {o['label']} is "
