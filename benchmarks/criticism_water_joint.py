@@ -41,6 +41,7 @@ import numpy as np
 
 import jaxabc
 from benchmarks._common import QUICK_RESULTS, RESULTS, command_line, model_selection_record, write_result
+from benchmarks._water_model_choice_paths import model_choice_folder
 from jaxabc.criticism import critique
 from jaxabc.model_choice import load_model_choice
 from jaxabc.noise import MeasurementError
@@ -86,9 +87,8 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--tiny", action="store_true", help="smoke test: 2 ps runs, tiny budgets, quick JSON")
     args = p.parse_args(argv)
     suffix = f"{args.data}_quick" + ("_tiny" if args.tiny else "")
-    # The tiny model choice writes under runs/ (scratch); the full one keeps its state in results.
-    choice_root = (ROOT / "runs" if args.tiny else RESULTS) / "water_model_choice" / suffix
-    args.model_choice = args.model_choice or choice_root / "result"
+    # The folder the registry's model choice saved (its JSON records it), or the smoke test's.
+    args.model_choice = args.model_choice or model_choice_folder(args.data, args.tiny)
     args.cache_dir = args.cache_dir or (ROOT / "runs" / "criticism_water_joint" / suffix)
     if args.tiny:
         args.num_draws, args.num_replicates, args.num_gradient_replicates = 10, 12, 2

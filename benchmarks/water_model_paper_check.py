@@ -31,6 +31,7 @@ import numpy as np
 
 import jaxabc
 from benchmarks._common import QUICK_RESULTS, RESULTS, command_line, model_selection_record, write_result
+from benchmarks._water_model_choice_paths import model_choice_folder
 from jaxabc.model_choice import load_model_choice
 from md.water.joint_data import JOINT_DATA_FILE, joint_observed, joint_record
 from md.water.model_simulator import CachedSummaries, WaterModelSimulator
@@ -53,8 +54,8 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--tiny", action="store_true", help="smoke test: 2 ps quick-preset runs, quick JSON")
     args = p.parse_args(argv)
     suffix = f"{args.data}_quick" + ("_tiny" if args.tiny else "")
-    choice_root = (ROOT / "runs" if args.tiny else RESULTS) / "water_model_choice" / suffix
-    args.model_choice = args.model_choice or choice_root / "result"
+    # The folder the registry's model choice saved (its JSON records it), or the smoke test's.
+    args.model_choice = args.model_choice or model_choice_folder(args.data, args.tiny)
     args.cache_dir = args.cache_dir or (
         ROOT / "runs" / "water_model_paper_check" / suffix
         if args.tiny

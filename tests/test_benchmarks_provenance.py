@@ -526,3 +526,22 @@ def test_other_numbers_on_another_cpu_decide_nothing(fake_repo: Path, monkeypatc
     (fake_repo / "jaxabc/fake_dependency.py").write_text(SOURCE.replace("return SCALE", "y = SCALE\n    return y"))
     # The ledger's check ran on the code before this refactor: stale, never "changed".
     assert status.status_of(entry, root=fake_repo).state == "stale"
+
+
+def test_the_model_choice_readers_follow_its_saved_folder(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The criticism and the paper check start from the folder the model choice's JSON records."""
+    from benchmarks import _water_model_choice_paths as paths
+
+    monkeypatch.setattr(paths, "RESULTS", tmp_path)
+    monkeypatch.setattr(paths, "ROOT", tmp_path)
+    with pytest.raises(FileNotFoundError, match=r"run python -m benchmarks\.water_model_choice"):
+        paths.model_choice_folder("xray")
+    (tmp_path / "water_model_choice.json").write_text(json.dumps({"data": "xray", "saved_result": "a/b"}))
+    assert paths.model_choice_folder("xray") == tmp_path / "a" / "b"
+    with pytest.raises(FileNotFoundError, match="not 'neutron'"):
+        paths.model_choice_folder("neutron")
+    assert paths.model_choice_folder("xray", tiny=True).parts[-3:] == (
+        "water_model_choice",
+        "xray_quick_tiny",
+        "result",
+    )

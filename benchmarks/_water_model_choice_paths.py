@@ -1,0 +1,39 @@
+"""Where the water model choice's saved result is, for the scripts that start from it.
+
+``water_model_choice.py`` names its folders by variant (data, preset, prior width, discrepancy,
+seed); its JSON records the folder it saved (``saved_result``).  The criticism and the paper-preset
+check read that record, so they follow whatever the registry's model choice last wrote instead of
+a folder name of their own.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from benchmarks._common import RESULTS, ROOT
+
+
+def model_choice_folder(data: str, tiny: bool = False) -> Path:
+    """The saved model-choice folder (holding ``model_choice.json``) for ``data``.
+
+    ``tiny``: the smoke test's, ``runs/cache/water_model_choice/<data>_quick_tiny/result``.
+    Otherwise the ``saved_result`` of ``benchmarks/results/water_model_choice.json``.
+
+    Raises
+    ------
+    FileNotFoundError
+        When the full model choice is not saved, or was made on other data.
+    """
+    if tiny:
+        return ROOT / "runs" / "cache" / "water_model_choice" / f"{data}_quick_tiny" / "result"
+    path = RESULTS / "water_model_choice.json"
+    if not path.is_file():
+        raise FileNotFoundError(f"{path} not found: run python -m benchmarks.water_model_choice first")
+    saved = json.loads(path.read_text())
+    if saved.get("data") != data:
+        raise FileNotFoundError(f"{path} is the model choice on {saved.get('data')!r} data, not {data!r}")
+    return ROOT / saved["saved_result"]
+
+
+__all__ = ["model_choice_folder"]
