@@ -145,7 +145,7 @@ def _water_abc(data: str) -> Entry:
         f"water_{data}_surrogate_abc:paper",
         f"{R}/water_{data}_surrogate_abc.json",
         f"python -m benchmarks.water_calibration --data {data} --statistics paper --algorithm surrogate "
-        f"--surrogate-mode abc --max-simulations 300 --workers 2 --predictive 10 --no-progress "
+        f"--surrogate-mode abc --max-simulations 300 --workers 2 --predictive 10 --no-progress --continue "
         f"--checkpoint-dir {folder}_checkpoint --run-cache {folder}_runs",
         part="paper",
         long=True,
@@ -592,7 +592,7 @@ REGISTRY: tuple[Entry, ...] = (
             requires=("gmx",),
             estimated_cost_s=4500.0,
             note=f"the model choice repeated ({what}): a verdict holds only if it holds in every repeat",
-            checked_by=("water_model_choice",),
+            checked_by=("water_model_choice", "surrogate_helium"),
         )
         for name, flags, what in (
             ("water_model_choice_seed1", " --discrepancy --seed 1", "seed 1"),

@@ -4,6 +4,7 @@ sample size of what is reported."""
 
 from __future__ import annotations
 
+import warnings
 from functools import partial
 from typing import Any, NamedTuple
 
@@ -68,10 +69,21 @@ def evaluate_in_chunks(
     settings: SurrogateSettings, model: sampling.LikelihoodModel, x: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
     """:func:`._support.log_posterior_terms` in chunks of ``num_candidates`` points: one
-    compiled shape, bounded memory."""
+    compiled shape, bounded memory.  NaN log densities become ``-inf`` with a ``RuntimeWarning``."""
     size = settings.num_candidates
     out = [log_posterior_terms(model, x[i : i + size]) for i in range(0, len(x), size)]
-    return np.concatenate([o[0] for o in out]), np.concatenate([o[1] for o in out])
+    lp = np.concatenate([o[0] for o in out])
+    if np.isnan(lp).any():
+        # A NaN (the emulator or the success classifier not evaluable there, far from every run)
+        # would poison every importance weight; such a point gets none, and the run says so.
+        warnings.warn(
+            "surrogate: the log density is NaN at some candidate points (the emulator or the success "
+            "classifier cannot be evaluated there); they get zero weight",
+            RuntimeWarning,
+            stacklevel=2,
+        )
+        lp = np.where(np.isnan(lp), -np.inf, lp)
+    return lp, np.concatenate([o[1] for o in out])
 
 
 def importance_sample(
