@@ -744,7 +744,7 @@ REGISTRY: tuple[Entry, ...] = (
         long=True,
         estimated_cost_s=2400.0,
         note="smoke run of the plumbing: python -m benchmarks.criticism_neon --tiny (numbers meaningless)",
-        checked_by=("criticism_water", "helium_table1", "criticism_argon_b2", "criticism_neon_b2"),
+        checked_by=("criticism_water", "helium_table1", "criticism_argon_b2", "criticism_neon_b2", "surrogate_helium"),
     ),
     Entry(
         "criticism_neon_b2",
@@ -770,7 +770,7 @@ REGISTRY: tuple[Entry, ...] = (
         "python -m benchmarks.criticism_argon",
         long=True,
         estimated_cost_s=3000.0,
-        checked_by=("criticism_water", "helium_table1", "criticism_argon_b2", "criticism_neon_b2"),
+        checked_by=("criticism_water", "helium_table1", "criticism_argon_b2", "criticism_neon_b2", "surrogate_helium"),
     ),
     Entry(
         "mcse_calibration",
