@@ -119,20 +119,35 @@ Q = "benchmarks/results/quick"
 CACHE = "runs/cache"
 
 
+#: The quick checks that run a water calibration's code path (script and surrogate library).
+_WATER_CHECKS = ("water_simulated:robust", "surrogate_helium", "water_model_choice")
+
+
+def _water_calibration(name: str, output: str, command: str, cost_s: float, note: str) -> Entry:
+    """A long GROMACS water calibration writing the ``paper``/``robust`` part ``name`` names."""
+    return Entry(
+        name,
+        output,
+        f"python -m benchmarks.water_calibration {command}",
+        part=name.split(":", 1)[1],
+        long=True,
+        estimated_cost_s=cost_s,
+        requires=("gmx",),
+        note=note,
+        checked_by=_WATER_CHECKS,
+    )
+
+
 def _water_surrogate(data: str, statistics: str, checkpoint: str, what: str, predictive: bool = True) -> Entry:
     """A quick-preset water calibration through the GP surrogate (``--algorithm surrogate``)."""
-    return Entry(
+    return _water_calibration(
         f"water_{data}_surrogate:{statistics}",
         f"{R}/water_{data}_surrogate.json",
-        f"python -m benchmarks.water_calibration --data {data} --statistics {statistics} --algorithm surrogate "
+        f"--data {data} --statistics {statistics} --algorithm surrogate "
         f"--max-simulations 300 --workers 2{' --predictive 20' if predictive else ''} "
         f"--checkpoint-dir /tmp/{checkpoint}_ckpt --no-progress",
-        part=statistics,
-        long=True,
-        estimated_cost_s=3600.0,
-        requires=("gmx",),
-        note=f"{what}; resumable with --resume",
-        checked_by=("water_simulated:robust", "surrogate_helium", "water_model_choice"),
+        3600.0,
+        f"{what}; resumable with --resume",
     )
 
 
@@ -141,19 +156,15 @@ def _water_abc(data: str) -> Entry:
     emulated statistics (``--surrogate-mode abc``), compared with the paper's final generation by
     ``water_paper_samples``; checkpoint and run cache under ``runs/cache``, so the command continues."""
     folder = f"{CACHE}/water_calibration/{data}_paper_abc"
-    return Entry(
+    return _water_calibration(
         f"water_{data}_surrogate_abc:paper",
         f"{R}/water_{data}_surrogate_abc.json",
-        f"python -m benchmarks.water_calibration --data {data} --statistics paper --algorithm surrogate "
+        f"--data {data} --statistics paper --algorithm surrogate "
         f"--surrogate-mode abc --max-simulations 300 --workers 2 --predictive 10 --no-progress --continue "
         f"--checkpoint-dir {folder}_checkpoint --run-cache {folder}_runs",
-        part="paper",
-        long=True,
-        estimated_cost_s=3600.0,
-        requires=("gmx",),
-        note="the paper's target (its statistics and unscaled distance, ABC on the emulated statistics "
+        3600.0,
+        "the paper's target (its statistics and unscaled distance, ABC on the emulated statistics "
         "instead of the synthetic likelihood), to compare with its final generation",
-        checked_by=("water_simulated:robust", "surrogate_helium", "water_model_choice"),
     )
 
 
@@ -165,19 +176,15 @@ def _water_paper_preset(data: str) -> Entry:
     finished runs of a batch that a sitting cut short (``--run-cache``).
     """
     folder = f"{R}/water_paper_preset"
-    return Entry(
+    return _water_calibration(
         f"water_{data}_surrogate_paper_preset:paper",
         f"{folder}/water_{data}_surrogate.json",
-        f"python -m benchmarks.water_calibration --data {data} --statistics paper --preset paper "
+        f"--data {data} --statistics paper --preset paper "
         "--algorithm surrogate --max-simulations 200 --surrogate-tolerance 0.04 --workers 2 --predictive 10 "
         f"--checkpoint-dir {folder}/checkpoint_{data} --continue "
         f"--run-cache {CACHE}/water_paper_preset/run_cache_{data} --out-dir {folder} --no-progress",
-        part="paper",
-        long=True,
-        estimated_cost_s=36000.0,
-        requires=("gmx",),
-        note="the paper's preset and statistics through the GP surrogate (issue 13); spans sittings",
-        checked_by=("water_simulated:robust", "surrogate_helium", "water_model_choice"),
+        36000.0,
+        "the paper's preset and statistics through the GP surrogate (issue 13); spans sittings",
     )
 
 
