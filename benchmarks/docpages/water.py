@@ -397,9 +397,9 @@ def _predictive_peak(e: dict[str, Any]) -> str:
     )
 
 
-def _water_npz(data: str, stats: str, surrogate: bool) -> Path:
-    """The saved posterior of a water calibration (``water_calibration.py`` names it so)."""
-    return RESULTS / f"water_{data}_{stats}{'_surrogate' if surrogate else ''}.npz"
+def _water_npz(data: str, stats: str) -> Path:
+    """The saved posterior of a surrogate water calibration (``water_calibration.py`` names it so)."""
+    return RESULTS / f"water_{data}_{stats}_surrogate.npz"
 
 
 def _wall_time(entry: dict) -> str:
@@ -413,7 +413,7 @@ def _wall_time(entry: dict) -> str:
 def _gromacs_seconds(data: str, stats: str) -> str:
     """Summed wall time of a surrogate run's GROMACS runs, over every sitting (a resumed run's
     own wall time covers only its last one)."""
-    path = _water_npz(data, stats, surrogate=True)
+    path = _water_npz(data, stats)
     if not path.exists():
         return "-"
     with np.load(path, allow_pickle=True) as z:
@@ -421,9 +421,9 @@ def _gromacs_seconds(data: str, stats: str) -> str:
         return format_cost(float(np.nansum(z[key]))) if key in z.files else "-"
 
 
-def _posterior_draws(data: str, stats: str, surrogate: bool) -> str:
+def _posterior_draws(data: str, stats: str) -> str:
     """Number of posterior draws and their effective sample size, from the saved result."""
-    path = _water_npz(data, stats, surrogate)
+    path = _water_npz(data, stats)
     if not path.exists():
         return "-"
     with np.load(path, allow_pickle=True) as z:
@@ -467,46 +467,31 @@ def _water_side_by_side_rows() -> tuple[list[list[Any]], list[list[Any]]]:
         measured = np.loadtxt(ROOT / csv, delimiter=",", comments="#")
         _, r_m, g_m = _first_peak(measured[:, 0], measured[:, 1])
         for stats in ("robust", "paper"):
-            if not sur.get(stats):
+            e = sur.get(stats)
+            if not e:
                 continue
-            first = True
-            for method, e, is_sur in (("GP surrogate", sur.get(stats), True),):
-                if not e:
-                    continue
-                paper = e["paper"]
-                if first:
-                    pe = paper["bayes_estimate"]
-                    rows.append(
-                        [
-                            WATER_LABELS[data],
-                            stats,
-                            "paper (Dutta et al. 2018)",
-                            pe[0],
-                            pe[1],
-                            paper["correlation"],
-                            "-",
-                            "-",
-                        ]
-                    )
-                    first = False
-                ci = e["credible_interval_95"]
-                # A surrogate posterior whose emulator failed its held-out check says so here.
-                validated = (e.get("surrogate") or {}).get("validated", True)
-                rows.append(
-                    [
-                        WATER_LABELS[data],
-                        stats,
-                        _method_label(method, e, validated),
-                        f"{f(e['bayes_estimate'][0], 4)} [{f(ci[0][0], 4)}, {f(ci[0][1], 4)}]",
-                        f"{f(e['bayes_estimate'][1])} [{f(ci[1][0])}, {f(ci[1][1])}]",
-                        f(e["correlation"], 3),
-                        f"{e['num_simulations']} ({e['num_failures']})",
-                        _posterior_draws(data, stats, is_sur),
-                    ]
-                )
-                peaks.append(
-                    [WATER_LABELS[data], stats, method, _predictive_peak(e), f"{f(r_m, 3)} nm, {f(g_m, 2)} ({label})"]
-                )
+            paper = e["paper"]
+            pe = paper["bayes_estimate"]
+            rows.append(
+                [WATER_LABELS[data], stats, "paper (Dutta et al. 2018)", pe[0], pe[1], paper["correlation"], "-", "-"]
+            )
+            ci = e["credible_interval_95"]
+            # A surrogate posterior whose emulator failed its held-out check says so here.
+            validated = (e.get("surrogate") or {}).get("validated", True)
+            rows.append(
+                [
+                    WATER_LABELS[data],
+                    stats,
+                    _method_label("GP surrogate", e, validated),
+                    f"{f(e['bayes_estimate'][0], 4)} [{f(ci[0][0], 4)}, {f(ci[0][1], 4)}]",
+                    f"{f(e['bayes_estimate'][1])} [{f(ci[1][0])}, {f(ci[1][1])}]",
+                    f(e["correlation"], 3),
+                    f"{e['num_simulations']} ({e['num_failures']})",
+                    _posterior_draws(data, stats),
+                ]
+            )
+            measured_peak = f"{f(r_m, 3)} nm, {f(g_m, 2)} ({label})"
+            peaks.append([WATER_LABELS[data], stats, "GP surrogate", _predictive_peak(e), measured_peak])
     return rows, peaks
 
 
