@@ -12,11 +12,18 @@ the full result (on the files both imported); otherwise it is recorded as ``not 
 the result stays stale until it is rerun.  The saved quick JSON is restored after each check, so
 the tree stays as it was; only the ledger is written.
 
+When the saved quick JSON cannot serve (made on another CPU family, whose rounding changes chaotic
+runs, or from other code than the full result), ``--rebaseline`` first remakes it here: the quick
+mode runs in a temporary git worktree at the full result's own commit, and its output replaces the
+saved quick JSON.  The check then compares the result's code with today's on one machine, so a
+number that moves is the code's doing, not the CPU's.
+
 Usage::
 
     python -m benchmarks.verify --budget 30m             # the stale results that fit
     python -m benchmarks.verify --only coverage --budget 10m
     python -m benchmarks.verify --budget 1h --dry-run    # the plan only
+    python -m benchmarks.verify --only surrogate_peers --budget 20m --rebaseline
 """
 
 from __future__ import annotations
@@ -44,7 +51,7 @@ from benchmarks.status import (
     status_of,
 )
 
-__all__ = ["baseline_mismatch", "check", "main", "plan"]
+__all__ = ["baseline_mismatch", "check", "main", "plan", "rebaseline"]
 
 #: Seconds assumed for a quick mode whose saved JSON records no cost.
 DEFAULT_QUICK_COST_S = 300.0
@@ -175,6 +182,45 @@ def check(entry: Entry, root: Path = ROOT) -> dict[str, Any]:
     return {**record, "outcome": "reproduces"}
 
 
+def rebaseline(entry: Entry, root: Path = ROOT) -> dict[str, Any]:
+    """Remake ``entry``'s saved quick JSON here, with the code of the full result's own commit.
+
+    The quick command runs in a temporary worktree at that commit (beside ``root``, so relative
+    data paths such as ``../shared`` resolve as they do for ``root``); its quick JSON replaces the
+    saved one.  Returns what was done: ``{"commit", "seconds", "mismatch"}``, where ``mismatch``
+    lists the files whose hash still differs from the full result's (it was written from a tree
+    with uncommitted changes): those stay unvouched.
+
+    Raises
+    ------
+    RuntimeError
+        The result records no commit, the worktree cannot be made, or the quick command fails.
+    """
+    assert entry.quick and entry.quick_output, "only entries with a quick mode"
+    full = _provenance(json.loads((root / entry.output).read_text()), entry.part) or {}
+    commit = full.get("commit")
+    if not commit:
+        raise RuntimeError(f"{entry.name}: the full result records no commit to rebaseline from")
+    tree = root.parent / f".verify-rebaseline-{entry.name.replace(':', '-')}"
+    if tree.exists():
+        subprocess.run(["git", "worktree", "remove", "--force", str(tree)], cwd=root, capture_output=True)
+    made = subprocess.run(
+        ["git", "worktree", "add", "--detach", "--force", str(tree), commit], cwd=root, capture_output=True, text=True
+    )
+    if made.returncode != 0:
+        raise RuntimeError(f"{entry.name}: cannot check out {commit[:10]}: {made.stderr.strip()[-300:]}")
+    t0 = time.perf_counter()
+    try:
+        env = {**os.environ, "PYTHONPATH": str(tree)}
+        run = _run_command(command_argv(entry.quick), tree, env)
+        if run.returncode != 0:
+            raise RuntimeError(f"{entry.name}: the quick mode at {commit[:10]} failed: {run.stderr.strip()[-600:]}")
+        (root / entry.quick_output).write_text((tree / entry.quick_output).read_text())
+    finally:
+        subprocess.run(["git", "worktree", "remove", "--force", str(tree)], cwd=root, capture_output=True)
+    return {"commit": commit, "seconds": round(time.perf_counter() - t0, 1), "mismatch": baseline_mismatch(entry, root)}
+
+
 def _write_ledger(name: str, record: dict[str, Any], root: Path = ROOT) -> None:
     path = root / VERIFICATIONS
     ledger = json.loads(path.read_text()) if path.is_file() else {}
@@ -188,6 +234,14 @@ def _write_ledger(name: str, record: dict[str, Any], root: Path = ROOT) -> None:
     path.write_text(json.dumps(ledger, indent=1) + "\n")
 
 
+def _needs_rebaseline(entry: Entry, root: Path = ROOT) -> bool:
+    """Whether the saved quick JSON was made on another CPU or from other code than the result."""
+    assert entry.quick_output is not None
+    saved = _provenance(json.loads((root / entry.quick_output).read_text()), entry.part) or {}
+    base_cpu = (saved.get("machine") or {}).get("cpu")
+    return bool(baseline_mismatch(entry, root)) or (base_cpu is not None and base_cpu != _common.machine().get("cpu"))
+
+
 def main(argv: list[str] | None = None) -> int:
     """Check what fits the budget; exit 1 when any check found changed numbers or failed."""
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
@@ -195,6 +249,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--only", nargs="+", metavar="NAME", help="registry names")
     parser.add_argument("--include-current", action="store_true", help="check current results too")
     parser.add_argument("--dry-run", action="store_true", help="list the plan, run nothing")
+    parser.add_argument(
+        "--rebaseline",
+        action="store_true",
+        help="where the saved quick JSON was made on another CPU or from other code, remake it here at the "
+        "full result's commit first (doubles the cost)",
+    )
     args = parser.parse_args(argv)
     entries = [e for e in REGISTRY if args.only is None or e.name in args.only or e.name.split(":")[0] in args.only]
     rows = plan(entries, args.budget, args.include_current or bool(args.only))
@@ -207,7 +267,18 @@ def main(argv: list[str] | None = None) -> int:
         if why:
             continue
         print(f"[{time.strftime('%H:%M:%S')}] {e.name}: {e.quick}", flush=True)
+        rebased = None
+        if args.rebaseline and _needs_rebaseline(e):
+            try:
+                rebased = rebaseline(e)
+            except RuntimeError as err:
+                print(f"    {err}")
+                bad.append(e.name)
+                continue
+            print(f"    rebaselined at {rebased['commit'][:10]} in {rebased['seconds']} s", flush=True)
         record = check(e)
+        if rebased is not None:
+            record["rebaselined"] = rebased
         _write_ledger(e.name, record)
         print(f"[{time.strftime('%H:%M:%S')}] {e.name}: {record['outcome']} ({record['seconds']} s)", flush=True)
         if record["outcome"] in ("numbers changed", "failed"):

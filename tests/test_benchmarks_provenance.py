@@ -434,6 +434,85 @@ def test_a_quick_json_from_other_code_cannot_vouch_for_the_result(fake_repo: Pat
     assert st.state == "stale" and "other code than the result" in st.why
 
 
+def _git_commit_all(root: Path) -> None:
+    for args in (["init", "-q"], ["add", "-A"], ["-c", "user.name=t", "-c", "user.email=t@t", "commit", "-qm", "c"]):
+        subprocess.run(["git", *args], cwd=root, check=True, capture_output=True)
+
+
+def _fake_quick_run_by_tree(root: Path, values: dict[str, float], entry: registry.Entry, monkeypatch):
+    """The quick command in ``root`` or in a worktree of it: writes with that tree's code and provenance."""
+
+    def run(argv, cwd, env):
+        cwd = Path(cwd)
+        if cwd != root:  # the rebaseline worktree: import its own copy of the module
+            spec = importlib.util.spec_from_file_location("fake_dependency_worktree", cwd / "jaxabc/fake_dependency.py")
+            module = importlib.util.module_from_spec(spec)
+            spec.loader.exec_module(module)
+            monkeypatch.setitem(sys.modules, "fake_dependency_worktree", module)
+        with monkeypatch.context() as m:
+            m.setattr(_common, "ROOT", cwd)
+            _common.write_result(
+                cwd / entry.quick_output,
+                {"value": values["worktree" if cwd != root else "root"]},
+                inputs=[cwd / "data.txt"],
+                command=entry.quick,
+            )
+        if cwd != root:
+            monkeypatch.delitem(sys.modules, "fake_dependency_worktree")
+        return subprocess.CompletedProcess(argv, 0, "", "")
+
+    return run
+
+
+@pytest.mark.parametrize(("today", "outcome"), [(1.5, "reproduces"), (2.25, "numbers changed")])
+def test_rebaseline_compares_the_results_code_with_todays_on_this_machine(
+    fake_repo: Path, monkeypatch, today: float, outcome: str
+) -> None:
+    from benchmarks import verify
+
+    entry = QUICK_ENTRY
+    _git_commit_all(fake_repo)
+    write_fake(fake_repo)
+    # The saved quick numbers were made on another CPU: they differ whatever the code.
+    with monkeypatch.context() as m:
+        m.setattr(_common, "machine", lambda: {"cpu": "other"})
+        _common.write_result(fake_repo / entry.quick_output, {"value": 1.7}, inputs=[fake_repo / "data.txt"])
+    module_file = fake_repo / "jaxabc/fake_dependency.py"
+    module_file.write_text(SOURCE.replace("return SCALE", "y = SCALE\n    return y"))  # today's code
+    assert verify._needs_rebaseline(entry, fake_repo)
+    monkeypatch.setattr(
+        verify, "_run_command", _fake_quick_run_by_tree(fake_repo, {"worktree": 1.5, "root": 1.5}, entry, monkeypatch)
+    )
+    assert verify.check(entry, fake_repo)["outcome"] == "other machine"
+
+    runs = {"worktree": 1.5, "root": today}
+    monkeypatch.setattr(verify, "_run_command", _fake_quick_run_by_tree(fake_repo, runs, entry, monkeypatch))
+    done = verify.rebaseline(entry, fake_repo)
+    full = json.loads((fake_repo / entry.output).read_text())
+    assert done["mismatch"] == [] and done["commit"] == full["provenance"]["commit"]
+    assert not verify._needs_rebaseline(entry, fake_repo)
+    assert not any(p.name.startswith(".verify-rebaseline") for p in fake_repo.parent.iterdir())  # worktree removed
+    saved = json.loads((fake_repo / entry.quick_output).read_text())
+    assert saved["value"] == 1.5 and saved["provenance"]["machine"]["cpu"] == "test"
+    code = "jaxabc/fake_dependency.py"  # made with the result's version of the module, not today's
+    assert saved["provenance"]["fingerprint"]["code"][code] == full["provenance"]["fingerprint"]["code"][code]
+    assert _common.code_hash(module_file) != full["provenance"]["fingerprint"]["code"][code]
+    record = verify.check(entry, fake_repo)
+    assert record["outcome"] == outcome
+    verify._write_ledger(entry.name, record, fake_repo)
+    st = status.status_of(entry, root=fake_repo)
+    assert st.state == ("current" if outcome == "reproduces" else "changed")
+
+
+def test_rebaseline_refuses_a_result_without_a_commit(fake_repo: Path) -> None:
+    from benchmarks import verify
+
+    write_fake(fake_repo)  # no git repository: no commit recorded
+    _common.write_result(fake_repo / QUICK_ENTRY.quick_output, {"value": 1.5}, inputs=[fake_repo / "data.txt"])
+    with pytest.raises(RuntimeError, match="records no commit"):
+        verify.rebaseline(QUICK_ENTRY, fake_repo)
+
+
 def test_results_pages_show_figures_that_exist_and_the_build_publishes_them() -> None:
     """Every ``![...](figures/<rel>)`` on a results page is a saved, non-quick PNG under
     benchmarks/results, and the MkDocs hook publishes exactly those under results/figures/."""
