@@ -457,6 +457,7 @@ REGISTRY: tuple[Entry, ...] = (
     ),
     _water_abc("simulated"),
     _water_abc("xray"),
+    _water_abc("neutron"),
     _water_paper_preset("xray"),
     Entry(
         "water_xray:robust",
@@ -626,7 +627,7 @@ REGISTRY: tuple[Entry, ...] = (
         quick="python -m benchmarks.water_paper_samples --quick",
         quick_output=f"{Q}/water_paper_samples.json",
         estimated_cost_s=300.0,
-        after=("water_simulated_surrogate_abc", "water_xray_surrogate_abc"),
+        after=("water_simulated_surrogate_abc", "water_xray_surrogate_abc", "water_neutron_surrogate_abc"),
         note="the paper-statistics posteriors against the paper's final generation (sample to sample), and the "
         "density at each estimate beside the paper's Table 2; reads the saved posteriors",
     ),
