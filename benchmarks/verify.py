@@ -215,7 +215,17 @@ def rebaseline(entry: Entry, root: Path = ROOT) -> dict[str, Any]:
         run = _run_command(command_argv(entry.quick), tree, env)
         if run.returncode != 0:
             raise RuntimeError(f"{entry.name}: the quick mode at {commit[:10]} failed: {run.stderr.strip()[-600:]}")
-        (root / entry.quick_output).write_text((tree / entry.quick_output).read_text())
+        made_json = json.loads((tree / entry.quick_output).read_text())
+        saved_path = root / entry.quick_output
+        if entry.part is not None and saved_path.is_file():
+            # A file several commands fill in: only this entry's part is remade.
+            merged = json.loads(saved_path.read_text())
+            merged[entry.part] = made_json[entry.part]
+            merged["provenance"] = made_json["provenance"]
+            merged.setdefault("provenance_parts", {})[entry.part] = made_json["provenance_parts"][entry.part]
+            made_json = merged
+        saved_path.parent.mkdir(parents=True, exist_ok=True)
+        saved_path.write_text(json.dumps(made_json, indent=1) + "\n")
     finally:
         subprocess.run(["git", "worktree", "remove", "--force", str(tree)], cwd=root, capture_output=True)
     return {"commit": commit, "seconds": round(time.perf_counter() - t0, 1), "mismatch": baseline_mismatch(entry, root)}

@@ -439,7 +439,9 @@ def _git_commit_all(root: Path) -> None:
         subprocess.run(["git", *args], cwd=root, check=True, capture_output=True)
 
 
-def _fake_quick_run_by_tree(root: Path, values: dict[str, float], entry: registry.Entry, monkeypatch):
+def _fake_quick_run_by_tree(
+    root: Path, values: dict[str, float], entry: registry.Entry, monkeypatch, part: str | None = None
+):
     """The quick command in ``root`` or in a worktree of it: writes with that tree's code and provenance."""
 
     def run(argv, cwd, env):
@@ -451,12 +453,12 @@ def _fake_quick_run_by_tree(root: Path, values: dict[str, float], entry: registr
             monkeypatch.setitem(sys.modules, "fake_dependency_worktree", module)
         with monkeypatch.context() as m:
             m.setattr(_common, "ROOT", cwd)
-            _common.write_result(
-                cwd / entry.quick_output,
-                {"value": values["worktree" if cwd != root else "root"]},
-                inputs=[cwd / "data.txt"],
-                command=entry.quick,
-            )
+            value = values["worktree" if cwd != root else "root"]
+            path = cwd / entry.quick_output
+            payload = {"value": value}
+            if part is not None:  # like water_calibration: update this part of the file in place
+                payload = {**(json.loads(path.read_text()) if path.is_file() else {}), part: {"value": value}}
+            _common.write_result(path, payload, part=part, inputs=[cwd / "data.txt"], command=entry.quick)
         if cwd != root:
             monkeypatch.delitem(sys.modules, "fake_dependency_worktree")
         return subprocess.CompletedProcess(argv, 0, "", "")
@@ -502,6 +504,34 @@ def test_rebaseline_compares_the_results_code_with_todays_on_this_machine(
     verify._write_ledger(entry.name, record, fake_repo)
     st = status.status_of(entry, root=fake_repo)
     assert st.state == ("current" if outcome == "reproduces" else "changed")
+
+
+def test_rebaseline_remakes_only_its_own_part_of_a_shared_quick_json(fake_repo: Path, monkeypatch) -> None:
+    from benchmarks import verify
+
+    entry = registry.Entry(
+        "res:robust",
+        "benchmarks/results/res.json",
+        "python x.py",
+        part="robust",
+        quick="python x.py --quick",
+        quick_output="benchmarks/results/quick/res.json",
+    )
+    _git_commit_all(fake_repo)
+    _common.write_result(fake_repo / entry.output, {"robust": {"value": 1.5}}, part="robust")
+    quick = fake_repo / entry.quick_output
+    with monkeypatch.context() as m:
+        m.setattr(_common, "machine", lambda: {"cpu": "other"})
+        _common.write_result(quick, {"paper": {"value": 9.0}}, part="paper")
+        _common.write_result(quick, {**json.loads(quick.read_text()), "robust": {"value": 1.7}}, part="robust")
+    runs = {"worktree": 1.5, "root": 1.5}
+    monkeypatch.setattr(verify, "_run_command", _fake_quick_run_by_tree(fake_repo, runs, entry, monkeypatch, "robust"))
+    verify.rebaseline(entry, fake_repo)
+    saved = json.loads(quick.read_text())
+    assert saved["robust"] == {"value": 1.5} and saved["paper"] == {"value": 9.0}
+    assert saved["provenance_parts"]["paper"]["machine"]["cpu"] == "other"
+    assert saved["provenance_parts"]["robust"]["machine"]["cpu"] == "test"
+    assert verify.check(entry, fake_repo)["outcome"] == "reproduces"
 
 
 def test_rebaseline_refuses_a_result_without_a_commit(fake_repo: Path) -> None:
