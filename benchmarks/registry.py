@@ -10,6 +10,7 @@ Commands are run from the repository root with ``PYTHONPATH`` set to it.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
 
 __all__ = ["CACHES", "REGISTRY", "TIMING_KEYS", "VERIFICATIONS", "Entry", "by_name"]
 
@@ -123,18 +124,27 @@ CACHE = "runs/cache"
 _WATER_CHECKS = ("water_simulated:robust", "surrogate_helium", "water_model_choice")
 
 
-def _water_calibration(name: str, output: str, command: str, cost_s: float, note: str) -> Entry:
-    """A long GROMACS water calibration writing the ``paper``/``robust`` part ``name`` names."""
+def _water_calibration(
+    name: str, output: str, command: str, cost_s: float, note: str, quick: str | None = None
+) -> Entry:
+    """A long GROMACS water calibration writing the ``paper``/``robust`` part ``name`` names.
+
+    ``quick``: the options of a reproduction check (``--quick``: 5 ps runs, written under
+    ``results/quick/``), whose numbers vouch for the full run when the code changes.
+    """
+    part = name.split(":", 1)[1]
     return Entry(
         name,
         output,
         f"python -m benchmarks.water_calibration {command}",
-        part=name.split(":", 1)[1],
+        part=part,
         long=True,
         estimated_cost_s=cost_s,
         requires=("gmx",),
         note=note,
         checked_by=_WATER_CHECKS,
+        quick=None if quick is None else f"python -m benchmarks.water_calibration {quick} --quick",
+        quick_output=None if quick is None else f"{Q}/{Path(output).name}",
     )
 
 
@@ -148,6 +158,8 @@ def _water_surrogate(data: str, statistics: str, checkpoint: str, what: str, pre
         f"--checkpoint-dir /tmp/{checkpoint}_ckpt --no-progress",
         3600.0,
         f"{what}; resumable with --resume",
+        quick=f"--data {data} --statistics {statistics} --algorithm surrogate --max-simulations 30 "
+        "--surrogate-initial 16 --surrogate-holdout 6 --workers 2 --no-progress",
     )
 
 

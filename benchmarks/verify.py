@@ -245,8 +245,10 @@ def _write_ledger(name: str, record: dict[str, Any], root: Path = ROOT) -> None:
 
 
 def _needs_rebaseline(entry: Entry, root: Path = ROOT) -> bool:
-    """Whether the saved quick JSON was made on another CPU or from other code than the result."""
+    """Whether the saved quick JSON is missing, or was made on another CPU or from other code."""
     assert entry.quick_output is not None
+    if not (root / entry.quick_output).is_file():
+        return True
     saved = _provenance(json.loads((root / entry.quick_output).read_text()), entry.part) or {}
     base_cpu = (saved.get("machine") or {}).get("cpu")
     return bool(baseline_mismatch(entry, root)) or (base_cpu is not None and base_cpu != _common.machine().get("cpu"))
