@@ -14,11 +14,12 @@ from pathlib import Path
 from benchmarks._common import RESULTS, ROOT
 
 
-def model_choice_folder(data: str, tiny: bool = False) -> Path:
+def model_choice_folder(data: str, tiny: bool = False, result: str = "water_model_choice") -> Path:
     """The saved model-choice folder (holding ``model_choice.json``) for ``data``.
 
     ``tiny``: the smoke test's, ``runs/cache/water_model_choice/<data>_quick_tiny/result``.
-    Otherwise the ``saved_result`` of ``benchmarks/results/water_model_choice.json``.
+    Otherwise the ``saved_result`` of ``benchmarks/results/<result>.json`` (the registry's model
+    choice, or one of its repeats such as ``water_model_choice_no_discrepancy``).
 
     Raises
     ------
@@ -27,9 +28,9 @@ def model_choice_folder(data: str, tiny: bool = False) -> Path:
     """
     if tiny:
         return ROOT / "runs" / "cache" / "water_model_choice" / f"{data}_quick_tiny" / "result"
-    path = RESULTS / "water_model_choice.json"
+    path = RESULTS / f"{result}.json"
     if not path.is_file():
-        raise FileNotFoundError(f"{path} not found: run python -m benchmarks.water_model_choice first")
+        raise FileNotFoundError(f"{path} not found: run the registry's {result} first")
     saved = json.loads(path.read_text())
     if saved.get("data") != data:
         raise FileNotFoundError(f"{path} is the model choice on {saved.get('data')!r} data, not {data!r}")

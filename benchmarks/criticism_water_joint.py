@@ -66,6 +66,11 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--data", choices=("xray", "neutron"), default="xray")
     p.add_argument("--model", default=None, help="default: the most probable model of the model choice")
     p.add_argument("--model-choice", type=Path, default=None, help="saved model-choice folder")
+    p.add_argument(
+        "--model-choice-result",
+        default="water_model_choice",
+        help="or the registry result whose saved model choice to start from (e.g. water_model_choice_no_discrepancy)",
+    )
     p.add_argument("--workers", type=int, default=2)
     p.add_argument("--num-draws", type=int, default=100)
     p.add_argument("--num-replicates", type=int, default=64)
@@ -88,7 +93,7 @@ def parse_args(argv=None) -> argparse.Namespace:
     args = p.parse_args(argv)
     suffix = f"{args.data}_quick" + ("_tiny" if args.tiny else "")
     # The folder the registry's model choice saved (its JSON records it), or the smoke test's.
-    args.model_choice = args.model_choice or model_choice_folder(args.data, args.tiny)
+    args.model_choice = args.model_choice or model_choice_folder(args.data, args.tiny, args.model_choice_result)
     args.cache_dir = args.cache_dir or (ROOT / "runs" / "criticism_water_joint" / suffix)
     if args.tiny:
         args.num_draws, args.num_replicates, args.num_gradient_replicates = 10, 12, 2

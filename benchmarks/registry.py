@@ -200,6 +200,14 @@ def _water_paper_preset(data: str) -> Entry:
     )
 
 
+#: Why the TIP3P follow-ups of the model choice are retired.
+_TIP3P_RETIRED = (
+    "TIP3P led the model choice made before the sources' measurement errors, the wide prior and the "
+    "discrepancy term (probability 0.85, interval [5e-13, 1]); the current model choice is undecided over "
+    "its seeds, so the follow-ups go to TIP4P as issue 46 prescribes"
+)
+
+
 def _retired(what: str, commit: str, file: str, superseded_by: str) -> str:
     """The ``retired`` reason of a result saved without provenance before 2026-11-23."""
     return (
@@ -612,7 +620,7 @@ REGISTRY: tuple[Entry, ...] = (
             requires=("gmx",),
             estimated_cost_s=4500.0,
             note=f"the model choice repeated ({what}): a verdict holds only if it holds in every repeat",
-            checked_by=("water_model_choice", "surrogate_helium"),
+            checked_by=("water_model_choice", "surrogate_helium", "water_prior_range"),
         )
         for name, flags, what in (
             ("water_model_choice_seed1", " --discrepancy --seed 1", "seed 1"),
@@ -629,7 +637,7 @@ REGISTRY: tuple[Entry, ...] = (
         estimated_cost_s=300.0,
         note="each water model at its published parameters on the model choice's protocol and summaries "
         "(295 K for the X-ray data), beside the measured values: the calibrated predictive's reference",
-        checked_by=("water_model_paper_check", "water_simulated:robust"),
+        checked_by=("water_model_paper_check", "water_simulated:robust", "water_prior_range"),
     ),
     Entry(
         "water_paper_samples",
@@ -676,10 +684,11 @@ REGISTRY: tuple[Entry, ...] = (
         long=True,
         requires=("gmx",),
         estimated_cost_s=1800.0,
-        note="the same paper-preset check for TIP3P, the model with the highest (unresolved) probability; "
-        "runs cached beside TIP4P's (files are named by model)",
+        note="the same paper-preset check for TIP3P; runs cached beside TIP4P's (files are named by model)",
         after=("water_model_choice",),
         checked_by=("water_model_paper_check",),
+        retired=_TIP3P_RETIRED
+        + "; last version: `git show f74f268:benchmarks/results/water_model_paper_check_tip3p.json`",
     ),
     Entry(
         "criticism_water_joint",
@@ -704,9 +713,24 @@ REGISTRY: tuple[Entry, ...] = (
         long=True,
         requires=("gmx",),
         estimated_cost_s=4000.0,
-        note="the same criticism of TIP3P, the model with the highest (unresolved) probability; its "
-        "simulations share the TIP4P criticism's cache folder (files are named by model)",
+        note="the same criticism of TIP3P; its simulations share the TIP4P criticism's cache folder",
         after=("water_model_choice",),
+        checked_by=("criticism_water_joint",),
+        retired=_TIP3P_RETIRED
+        + "; last version: `git show 9a06d89:benchmarks/results/criticism_water_joint_tip3p.json`",
+    ),
+    Entry(
+        "criticism_water_joint_no_discrepancy",
+        f"{R}/criticism_water_joint_no_discrepancy.json",
+        "python -m benchmarks.criticism_water_joint --data xray --model TIP4P --model-choice-result "
+        "water_model_choice_no_discrepancy --name criticism_water_joint_no_discrepancy --workers 2 "
+        f"--cache-dir {CACHE}/criticism_water_joint/xray_quick",
+        long=True,
+        requires=("gmx",),
+        estimated_cost_s=7200.0,
+        note="the criticism of TIP4P started from the model choice without the discrepancy term; its "
+        "simulations share the criticism's cache folder",
+        after=("water_model_choice_no_discrepancy",),
         checked_by=("criticism_water_joint",),
     ),
     Entry(

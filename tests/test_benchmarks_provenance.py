@@ -643,10 +643,15 @@ def test_the_model_choice_readers_follow_its_saved_folder(tmp_path: Path, monkey
 
     monkeypatch.setattr(paths, "RESULTS", tmp_path)
     monkeypatch.setattr(paths, "ROOT", tmp_path)
-    with pytest.raises(FileNotFoundError, match=r"run python -m benchmarks\.water_model_choice"):
+    with pytest.raises(FileNotFoundError, match=r"run the registry's water_model_choice first"):
         paths.model_choice_folder("xray")
     (tmp_path / "water_model_choice.json").write_text(json.dumps({"data": "xray", "saved_result": "a/b"}))
     assert paths.model_choice_folder("xray") == tmp_path / "a" / "b"
+    # A repeat of the model choice (e.g. without the discrepancy term) is read by its result name.
+    with pytest.raises(FileNotFoundError, match="water_model_choice_no_discrepancy"):
+        paths.model_choice_folder("xray", result="water_model_choice_no_discrepancy")
+    (tmp_path / "water_model_choice_no_discrepancy.json").write_text(json.dumps({"data": "xray", "saved_result": "c"}))
+    assert paths.model_choice_folder("xray", result="water_model_choice_no_discrepancy") == tmp_path / "c"
     with pytest.raises(FileNotFoundError, match="not 'neutron'"):
         paths.model_choice_folder("neutron")
     assert paths.model_choice_folder("xray", tiny=True).parts[-3:] == (

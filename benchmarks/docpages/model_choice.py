@@ -12,9 +12,14 @@ from benchmarks.docpages.common import cause_rows, f, figure, load, misfit_rows,
 from md.water.models import PAPER_TIP4P_ESTIMATES
 
 #: Saved paper-preset checks of models of the model choice, one result each.
-PAPER_CHECKS = ("water_model_paper_check", "water_model_paper_check_tip3p")
+PAPER_CHECKS = ("water_model_paper_check",)
 #: Saved criticisms of models of the model choice, one result each.
-CRITICISMS = ("criticism_water_joint", "criticism_water_joint_tip3p")
+CRITICISMS = ("criticism_water_joint", "criticism_water_joint_no_discrepancy")
+#: Which model choice each criticism starts from.
+_CRITICISM_START = {
+    "criticism_water_joint": "from the model choice with the discrepancy term",
+    "criticism_water_joint_no_discrepancy": "from the model choice without the discrepancy term",
+}
 #: The model choice's repeats: (result name, what differs from ``water_model_choice``).
 REPEATS = (
     ("water_model_choice", "seed 0"),
@@ -95,9 +100,9 @@ def page_water_model_choice() -> str:
         c = load(name)
         if c is not None:
             parts += _criticism(name, c)
-    gone = retired(["criticism_water"])
+    gone = retired(["criticism_water", "water_model_paper_check"])
     if gone:
-        parts.append("Earlier criticisms of TIP4P on one kind of data are retired:\n\n" + gone + "\n")
+        parts.append("Retired criticisms and checks:\n\n" + gone + "\n")
     return "\n".join(parts)
 
 
@@ -333,7 +338,7 @@ def _criticism(name: str, c: dict[str, Any]) -> list[str]:
         if r
     )
     lines = [
-        f"## What {c['model']} still gets wrong\n",
+        f"## What {c['model']} still gets wrong ({_CRITICISM_START.get(name, name)})\n",
         source(name, data=c) + "\n",
         f"Model: {c['model']}, {c.get('model_selected_as', 'the most probable model')}"
         + ("; the model choice found no model that reproduces the data." if c.get("model_choice_misspecified") else ".")
