@@ -128,6 +128,12 @@ def check(entry: Entry, root: Path = ROOT) -> dict[str, Any]:
     """Rerun ``entry``'s quick mode on the code as it is now; the ledger record of the outcome."""
     assert entry.quick and entry.quick_output, "only entries with a quick mode"
     record: dict[str, Any] = {"quick": entry.quick, **git_state(), "date_utc": time.strftime("%Y-%m-%d %H:%M:%S")}
+    if _missing_part(entry, root):
+        return {
+            **record,
+            "outcome": "not applicable",
+            "detail": f"the saved quick JSON has no {entry.part!r} part: make one with --rebaseline",
+        }
     mismatch = baseline_mismatch(entry, root)
     saved_path = root / entry.quick_output
     saved_text = saved_path.read_text()
@@ -244,10 +250,18 @@ def _write_ledger(name: str, record: dict[str, Any], root: Path = ROOT) -> None:
     path.write_text(json.dumps(ledger, indent=1) + "\n")
 
 
+def _missing_part(entry: Entry, root: Path = ROOT) -> bool:
+    """Whether the saved quick JSON lacks ``entry``'s part (another part of the file was saved)."""
+    if entry.part is None:
+        return False
+    saved = json.loads((root / entry.quick_output).read_text())  # type: ignore[operator]
+    return entry.part not in saved.get("provenance_parts", {})
+
+
 def _needs_rebaseline(entry: Entry, root: Path = ROOT) -> bool:
     """Whether the saved quick JSON is missing, or was made on another CPU or from other code."""
     assert entry.quick_output is not None
-    if not (root / entry.quick_output).is_file():
+    if not (root / entry.quick_output).is_file() or _missing_part(entry, root):
         return True
     saved = _provenance(json.loads((root / entry.quick_output).read_text()), entry.part) or {}
     base_cpu = (saved.get("machine") or {}).get("cpu")

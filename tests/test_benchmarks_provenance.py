@@ -532,6 +532,13 @@ def test_rebaseline_remakes_only_its_own_part_of_a_shared_quick_json(fake_repo: 
     assert saved["provenance_parts"]["paper"]["machine"]["cpu"] == "other"
     assert saved["provenance_parts"]["robust"]["machine"]["cpu"] == "test"
     assert verify.check(entry, fake_repo)["outcome"] == "reproduces"
+    # A part the saved quick JSON lacks has no baseline: never compared against the other parts.
+    other = registry.Entry(
+        "res:other", entry.output, "python x.py", part="other", quick="q", quick_output=entry.quick_output
+    )
+    assert verify._needs_rebaseline(other, fake_repo)
+    record = verify.check(other, fake_repo)
+    assert record["outcome"] == "not applicable" and "no 'other' part" in record["detail"]
 
 
 def test_rebaseline_refuses_a_result_without_a_commit(fake_repo: Path) -> None:
