@@ -666,3 +666,26 @@ def test_the_model_choice_readers_follow_its_saved_folder(tmp_path: Path, monkey
         "xray_quick_tiny",
         "result",
     )
+
+
+def test_the_model_choice_page_says_which_box_change_turns_the_verdict() -> None:
+    from benchmarks.docpages.model_choice import _what_would_change
+
+    names = ["A", "B", "C"]
+    nan = float("nan")
+
+    def row(label: str, p: list[float], iv: list[list[float]]) -> dict:
+        return {"label": label, "probabilities": p, "intervals": iv}
+
+    rows = [
+        row("A box x0.5", [0.8, 0.1, 0.1], [[0.6, 0.9], [0.05, 0.2], [0.05, 0.2]]),  # A's interval clears
+        row("B box x0.5", [0.3, 0.5, 0.2], [[0.1, 0.5], [0.3, 0.7], [0.1, 0.4]]),  # still overlapping
+        row("all boxes x2", [nan, nan, nan], [[nan, nan]] * 3),
+    ]
+    text = _what_would_change({"verdict": {"status": "undecided", "model": None}}, names, rows)
+    assert "A box x0.5 gives A preferred (0.80 [0.60, 0.90])" in text
+    assert "Unchanged with B box x0.5." in text and "Narrowing one model's box alone" in text
+    assert "Not computed (they need simulations in the wider boxes): all boxes x2." in text
+    # A preferred verdict that a narrower box leaves as it is, and one it turns to undecided.
+    text = _what_would_change({"verdict": {"status": "preferred", "model": "A"}}, names, rows[:2])
+    assert "B box x0.5 gives undecided (0.50 [0.30, 0.70])" in text and "Unchanged with A box x0.5." in text

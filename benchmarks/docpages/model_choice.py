@@ -160,6 +160,47 @@ def _published() -> list[str]:
     ]
 
 
+def _decided(row: dict[str, Any], names: list[str]) -> str | None:
+    """The model a computed sensitivity row would call preferred (its probability interval above
+    every other's, the rule of ``ModelChoiceResult.verdict``), else None."""
+    p = np.asarray(row["probabilities"], float)
+    if not np.all(np.isfinite(p)):
+        return None
+    iv = np.asarray(row["intervals"], float)
+    best = int(np.argmax(p))
+    return names[best] if all(iv[k, 1] < iv[best, 0] for k in range(len(names)) if k != best) else None
+
+
+def _what_would_change(d: dict[str, Any], names: list[str], rows: list[dict[str, Any]]) -> str:
+    """Which computed box changes would turn the verdict, and which leave it as it is."""
+    verdict = d.get("verdict") or {}
+    base = verdict.get("model") if verdict.get("status") == "preferred" else None
+    computed = [r for r in rows if np.all(np.isfinite(np.asarray(r["probabilities"], float)))]
+    turned, kept, one_box = [], [], False
+    for r in computed:
+        now = _decided(r, names)
+        if now == base:
+            kept.append(r["label"])
+            continue
+        k = names.index(now) if now else int(np.argmax(r["probabilities"]))
+        lo, hi = r["intervals"][k]
+        what = f"{now} preferred" if now else "undecided"
+        turned.append(f"{r['label']} gives {what} ({r['probabilities'][k]:.2f} [{lo:.2f}, {hi:.2f}])")
+        one_box |= r["label"].split(" box ")[0] in names
+    text = "What would change the verdict: " + ("; ".join(turned) or "no computed box change") + "."
+    if kept:
+        text += f" Unchanged with {', '.join(kept)}."
+    if one_box:
+        text += (
+            " Narrowing one model's box alone turns it: the ranking follows the widths of the prior boxes "
+            "(each model's Occam factor) as much as the data."
+        )
+    wider = [r["label"] for r in rows if r not in computed]
+    if wider:
+        text += f" Not computed (they need simulations in the wider boxes): {', '.join(wider)}."
+    return text + "\n"
+
+
 def _verdict(d: dict[str, Any]) -> list[str]:
     """The verdict sentence, the box-sensitivity table, the discrepancy posteriors and the prior
     edges, where the JSON has them (results from before they existed have not)."""
@@ -183,6 +224,7 @@ def _verdict(d: dict[str, Any]) -> list[str]:
             "narrower box from the run itself, a wider one needs simulations there and is not "
             "extrapolated; probability [interval], each log evidence +- 2 s.e.):\n",
             table(["boxes", "status", *names], body) + "\n",
+            _what_would_change(d, names, rows),
         ]
     disc = (d.get("settings") or {}).get("discrepancy")
     if disc:
