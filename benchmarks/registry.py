@@ -204,7 +204,7 @@ def _water_paper_preset(data: str) -> Entry:
 _TIP3P_RETIRED = (
     "TIP3P led the model choice made before the sources' measurement errors, the wide prior and the "
     "discrepancy term (probability 0.85, interval [5e-13, 1]); the current model choice is undecided over "
-    "its seeds, so the follow-ups go to TIP4P as issue 46 prescribes"
+    "its seeds, so the follow-ups go to TIP4P, the rule when the model choice is undecided"
 )
 
 

@@ -125,6 +125,11 @@ def _repeats() -> list[str]:
                 *(f"{p:.3g}" for p in mc["probabilities"]),
             ]
         )
+    with_disc = [d for _, _, d in saved if _missed_groups(d)]
+    unreproduced = {}
+    for d in with_disc:
+        for g, who in _missed_groups(d).items():
+            unreproduced[g] = unreproduced.get(g, 0) + (len(who) == len(d["per_model"]))
     statuses = {(d.get("verdict") or {}).get("status") for _, _, d in saved}
     tops = {d["model_choice"]["names"][int(np.argmax(d["model_choice"]["probabilities"]))] for _, _, d in saved}
     agree = "the same verdict" if len(statuses) == 1 else "different verdicts"
@@ -134,7 +139,14 @@ def _repeats() -> list[str]:
         + (f"; not run yet: {', '.join(missing)}" if missing else "")
         + ".\n",
         table(["run", "verdict", *names], rows) + "\n",
-    ]
+    ] + (
+        [
+            f"In how many of the {len(with_disc)} repeats with the discrepancy term no model reproduces each "
+            "group: " + "; ".join(f"{g} {k} of {len(with_disc)}" for g, k in unreproduced.items()) + ".\n"
+        ]
+        if with_disc
+        else []
+    )
 
 
 def _published() -> list[str]:
@@ -201,6 +213,26 @@ def _what_would_change(d: dict[str, Any], names: list[str], rows: list[dict[str,
     return text + "\n"
 
 
+def _missed_groups(d: dict[str, Any]) -> dict[str, list[str]]:
+    """``{group: models that do not reproduce it}`` of a model choice with the discrepancy term.
+
+    A group is "not reproduced" by a model when its discrepancy sd's 2.5 % point lies outside the
+    2 % band above 0 (the prior-edge band): the data exclude a zero discrepancy there.
+    """
+    disc = (d.get("settings") or {}).get("discrepancy")
+    if not disc:
+        return {}
+    groups = list(disc["groups"])
+    return {
+        g: [
+            name
+            for name, row in d["per_model"].items()
+            if row["credible_interval_95"][len(row["bayes_estimate"]) - len(groups) + j][0] > 0.02 * disc["max_sd"][j]
+        ]
+        for j, g in enumerate(groups)
+    }
+
+
 def _verdict(d: dict[str, Any]) -> list[str]:
     """The verdict sentence, the box-sensitivity table, the discrepancy posteriors and the prior
     edges, where the JSON has them (results from before they existed have not)."""
@@ -236,17 +268,7 @@ def _verdict(d: dict[str, Any]) -> list[str]:
             body.append(
                 [name, *(f"{est[k + j]:.3g} [{ci[k + j][0]:.3g}, {ci[k + j][1]:.3g}]" for j in range(len(groups)))]
             )
-        # A group "not reproduced" by a model: its discrepancy sd's 2.5 % point lies outside the
-        # 2 % band above 0 (the prior-edge band), so the data exclude a zero discrepancy there.
-        missed = {
-            g: [
-                name
-                for name, row in d["per_model"].items()
-                if row["credible_interval_95"][len(row["bayes_estimate"]) - len(groups) + j][0]
-                > 0.02 * disc["max_sd"][j]
-            ]
-            for j, g in enumerate(groups)
-        }
+        missed = _missed_groups(d)
         everyone = [g for g, names in missed.items() if len(names) == len(d["per_model"])]
         out.append(
             (
