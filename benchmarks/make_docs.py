@@ -76,8 +76,9 @@ saved quick numbers must therefore be made on the same code as the long run
 (`python -m benchmarks.regenerate --quick --only NAME` right after it); where they were made on
 another CPU family or from other code, `python -m benchmarks.verify --rebaseline` first remakes them
 here at the result's own commit (in a temporary git worktree), so that the check compares two code
-versions on one machine.  Data changes always call for a rerun.  A `retired` result is one the registry no longer keeps (why, what supersedes it
-and the commit of its last version are in the table); no page shows it.
+versions on one machine.  Data changes always call for a rerun.  A `retired` result is one the
+registry no longer keeps (why, what supersedes it and the commit of its last version are in the
+table); no page shows it.
 
 - [Helium Table 1](helium_table1.md) and [the choice of the CPU preset](helium_identifiability.md)
 - [Engine throughput](engine_throughput.md) and [agreement with LAMMPS](lammps_agreement.md)
