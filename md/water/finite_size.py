@@ -52,8 +52,7 @@ MODEL_VISCOSITY_298K: dict[str, dict[str, object]] = {
     # Phys. 136, 134104) order them; not measured here (measure_viscosity is not validated).
     "TIP4P-Ew": {
         "value": 0.69,
-        "source": "approximate; ordering of Markesteijn et al. 2012, J. Chem. Phys. 136, 134104; "
-        "not measured here",
+        "source": "approximate; ordering of Markesteijn et al. 2012, J. Chem. Phys. 136, 134104; not measured here",
     },
 }
 
