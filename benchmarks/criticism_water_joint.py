@@ -33,6 +33,7 @@ Usage::
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import time
 from pathlib import Path
@@ -101,6 +102,30 @@ def parse_args(argv=None) -> argparse.Namespace:
     return args
 
 
+def physical_marginal(result: jaxabc.ABCResult) -> jaxabc.ABCResult:
+    """``result`` without the discrepancy sds a model choice with ``--discrepancy`` appends.
+
+    The criticism asks what the simulation itself misses, and the simulator takes the force-field
+    parameters only; the discrepancy sds (``discrepancy_sd[<group>]``) are dropped, the weights and
+    the run's effective sample size kept.
+    """
+    keep = [i for i, n in enumerate(result.names) if not n.startswith("discrepancy_sd[")]
+    if len(keep) == len(result.names):
+        return result
+    prior = result.prior
+    sub = jaxabc.Uniform(
+        low=np.asarray(prior.low)[keep],
+        high=np.asarray(prior.high)[keep],
+        names=tuple(prior.names[i] for i in keep),
+        units=tuple(prior.units[i] for i in keep) if prior.units else None,
+    )
+    # The run's ESS (the surrogate's chain ESS) and history stay; per-parameter diagnostics and
+    # the records' full theta would no longer match the columns, so they go.
+    return dataclasses.replace(
+        result, particles=np.asarray(result.particles)[:, keep], prior=sub, diagnostics={}, records={}, check=False
+    )
+
+
 def main(argv=None) -> dict:
     args = parse_args(argv)
     t0 = time.perf_counter()
@@ -111,7 +136,7 @@ def main(argv=None) -> dict:
         water_model_choice.main(["--tiny", "--resume", "--no-progress", "--workers", str(args.workers)])
     choice = load_model_choice(args.model_choice)
     name = args.model or choice.best
-    base = choice.posterior(name)
+    base = physical_marginal(choice.posterior(name))
     data = joint_observed(args.data)
     overrides = {"num_steps": 1000, "analysis_start_ps": 0.4} if args.tiny else {}
     effects = WaterModelWithEffects(name, "quick", "robust", args.data, **overrides)
