@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 from typing import Any
 
@@ -122,6 +123,7 @@ def _repeats() -> list[str]:
             [
                 f"`{name}` ({what})",
                 f"{verdict.get('status', '?')} {verdict.get('model') or ''}".strip(),
+                ", ".join(_flags(mc["stop_reason"])) or "-",
                 *(f"{p:.3g}" for p in mc["probabilities"]),
             ]
         )
@@ -133,20 +135,41 @@ def _repeats() -> list[str]:
     statuses = {(d.get("verdict") or {}).get("status") for _, _, d in saved}
     tops = {d["model_choice"]["names"][int(np.argmax(d["model_choice"]["probabilities"]))] for _, _, d in saved}
     agree = "the same verdict" if len(statuses) == 1 else "different verdicts"
-    return [
-        f"Repeats: {len(saved)} runs give {agree} ({', '.join(sorted(s or '?' for s in statuses))}); the most "
-        f"probable model is {' or '.join(sorted(tops))}"
-        + (f"; not run yet: {', '.join(missing)}" if missing else "")
-        + ".\n",
-        table(["run", "verdict", *names], rows) + "\n",
-    ] + (
+    return (
         [
-            f"In how many of the {len(with_disc)} repeats with the discrepancy term no model reproduces each "
-            "group: " + "; ".join(f"{g} {k} of {len(with_disc)}" for g, k in unreproduced.items()) + ".\n"
+            f"Repeats: {len(saved)} runs give {agree} ({', '.join(sorted(s or '?' for s in statuses))}); the most "
+            f"probable model is {' or '.join(sorted(tops))}"
+            + (f"; not run yet: {', '.join(missing)}" if missing else "")
+            + ".\n",
+            table(["run", "verdict", "flags", *names], rows) + "\n",
         ]
-        if with_disc
-        else []
+        + _misspecified_sentence(saved)
+        + (
+            [
+                f"In how many of the {len(with_disc)} repeats with the discrepancy term no model reproduces each "
+                "group: " + "; ".join(f"{g} {k} of {len(with_disc)}" for g, k in unreproduced.items()) + ".\n"
+            ]
+            if with_disc
+            else []
+        )
     )
+
+
+def _misspecified_sentence(saved: list[tuple[str, str, dict[str, Any]]]) -> list[str]:
+    """Which repeats are MISSPECIFIED (their probabilities rank misfits), and which are not."""
+    mis = [f"`{name}`" for name, _, d in saved if "MISSPECIFIED" in _flags(d["model_choice"]["stop_reason"])]
+    if not mis:
+        return []
+    ok = [f"`{name}`" for name, _, d in saved if f"`{name}`" not in mis]
+    return [
+        f"MISSPECIFIED (no model reproduces the data within the noise, misfit p < 0.01 for every model, so the "
+        f"probabilities rank misfits): {', '.join(mis)}" + (f"; not in {', '.join(ok)}" if ok else "") + ".\n"
+    ]
+
+
+def _flags(stop_reason: str) -> list[str]:
+    """The upper-case flags a model choice's stop reason starts its sentences with (UNTRUSTED, ...)."""
+    return re.findall(r"\b([A-Z]{5,}):", stop_reason)
 
 
 def _published() -> list[str]:
