@@ -3,14 +3,18 @@
 ``water_model_choice.py`` names its folders by variant (data, preset, prior width, discrepancy,
 seed); its JSON records the folder it saved (``saved_result``).  The criticism and the paper-preset
 check read that record, so they follow whatever the registry's model choice last wrote instead of
-a folder name of their own.
+a folder name of their own.  :func:`physical_marginal` gives them the posterior they start from.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
 
+import numpy as np
+
+import jaxabc
 from benchmarks._common import RESULTS, ROOT
 
 
@@ -37,4 +41,28 @@ def model_choice_folder(data: str, tiny: bool = False, result: str = "water_mode
     return ROOT / saved["saved_result"]
 
 
-__all__ = ["model_choice_folder"]
+def physical_marginal(result: jaxabc.ABCResult) -> jaxabc.ABCResult:
+    """``result`` without the discrepancy sds a model choice with ``--discrepancy`` appends.
+
+    The criticism asks what the simulation itself misses, and the simulator takes the force-field
+    parameters only; the discrepancy sds (``discrepancy_sd[<group>]``) are dropped, the weights and
+    the run's effective sample size kept.
+    """
+    keep = [i for i, n in enumerate(result.names) if not n.startswith("discrepancy_sd[")]
+    if len(keep) == len(result.names):
+        return result
+    prior = result.prior
+    sub = jaxabc.Uniform(
+        low=np.asarray(prior.low)[keep],
+        high=np.asarray(prior.high)[keep],
+        names=tuple(prior.names[i] for i in keep),
+        units=tuple(prior.units[i] for i in keep) if prior.units else None,
+    )
+    # The run's ESS (the surrogate's chain ESS) and history stay; per-parameter diagnostics and
+    # the records' full theta would no longer match the columns, so they go.
+    return dataclasses.replace(
+        result, particles=np.asarray(result.particles)[:, keep], prior=sub, diagnostics={}, records={}, check=False
+    )
+
+
+__all__ = ["model_choice_folder", "physical_marginal"]

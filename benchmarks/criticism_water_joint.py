@@ -33,7 +33,6 @@ Usage::
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 import time
 from pathlib import Path
@@ -42,7 +41,7 @@ import numpy as np
 
 import jaxabc
 from benchmarks._common import QUICK_RESULTS, RESULTS, command_line, model_selection_record, write_result
-from benchmarks._water_model_choice_paths import model_choice_folder
+from benchmarks._water_model_choice_paths import model_choice_folder, physical_marginal
 from jaxabc.criticism import critique
 from jaxabc.model_choice import load_model_choice
 from jaxabc.noise import MeasurementError
@@ -100,30 +99,6 @@ def parse_args(argv=None) -> argparse.Namespace:
         args.num_draws, args.num_replicates, args.num_gradient_replicates = 10, 12, 2
         args.num_refit_iterations, args.refit_budget = 1, 80
     return args
-
-
-def physical_marginal(result: jaxabc.ABCResult) -> jaxabc.ABCResult:
-    """``result`` without the discrepancy sds a model choice with ``--discrepancy`` appends.
-
-    The criticism asks what the simulation itself misses, and the simulator takes the force-field
-    parameters only; the discrepancy sds (``discrepancy_sd[<group>]``) are dropped, the weights and
-    the run's effective sample size kept.
-    """
-    keep = [i for i, n in enumerate(result.names) if not n.startswith("discrepancy_sd[")]
-    if len(keep) == len(result.names):
-        return result
-    prior = result.prior
-    sub = jaxabc.Uniform(
-        low=np.asarray(prior.low)[keep],
-        high=np.asarray(prior.high)[keep],
-        names=tuple(prior.names[i] for i in keep),
-        units=tuple(prior.units[i] for i in keep) if prior.units else None,
-    )
-    # The run's ESS (the surrogate's chain ESS) and history stay; per-parameter diagnostics and
-    # the records' full theta would no longer match the columns, so they go.
-    return dataclasses.replace(
-        result, particles=np.asarray(result.particles)[:, keep], prior=sub, diagnostics={}, records={}, check=False
-    )
 
 
 def main(argv=None) -> dict:

@@ -31,7 +31,7 @@ import numpy as np
 
 import jaxabc
 from benchmarks._common import QUICK_RESULTS, RESULTS, command_line, model_selection_record, write_result
-from benchmarks._water_model_choice_paths import model_choice_folder
+from benchmarks._water_model_choice_paths import model_choice_folder, physical_marginal
 from jaxabc.model_choice import load_model_choice
 from md.water.joint_data import JOINT_DATA_FILE, joint_observed, joint_record
 from md.water.model_simulator import CachedSummaries, WaterModelSimulator
@@ -104,7 +104,7 @@ def main(argv=None) -> dict:
     name = args.model or choice.best
     model = get_model(name)
     data = joint_observed(args.data)
-    posterior = choice.posterior(name)
+    posterior = physical_marginal(choice.posterior(name))  # the force field's parameters only
     draws = np.asarray(posterior.resample(args.runs, seed=args.seed), dtype=np.float64)
     published = np.tile(np.asarray(model.lj, dtype=np.float64), (args.published_runs, 1))
     key = jax.random.key(args.seed + 17)

@@ -1,11 +1,11 @@
-"""The water criticism's start from a model choice with the discrepancy term (no GROMACS)."""
+"""The water criticism's and paper check's start from a model choice with the discrepancy term."""
 
 from __future__ import annotations
 
 import numpy as np
 
 import jaxabc
-from benchmarks.criticism_water_joint import physical_marginal
+from benchmarks._water_model_choice_paths import physical_marginal
 
 
 def test_the_discrepancy_sds_are_dropped_and_the_weights_kept() -> None:
