@@ -444,7 +444,28 @@ def _criticism(name: str, c: dict[str, Any]) -> list[str]:
             f"Surrogate posteriors ({refits}).  Held-out delta log predictive density "
             f"{f(gain['delta_lpd'], 2)} +- {f(gain['delta_lpd_se'], 2)}.\n"
         )
+    edges = _extension_edges(RESULTS / f"{name}_{c['data']}" / "extension.npz")
+    if edges:
+        lines.append(
+            "Prior edges of the extended model's refit: "
+            + "; ".join(edges)
+            + ".  The effect's size, and the gain, depend on where that box was cut.\n"
+        )
     return lines
+
+
+def _extension_edges(path: Path) -> list[str]:
+    """The prior-edge warnings of a criticism's saved extension refit ([] when none or not saved)."""
+    if not path.is_file():
+        return []
+    import warnings
+
+    import jaxabc
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        result = jaxabc.load(path)
+    return list((result.diagnostics.get("prior_edge") or {}).get("messages", []))
 
 
 def misfit_table(d: dict[str, Any]) -> str:
