@@ -164,7 +164,7 @@ def check(entry: Entry, root: Path = ROOT) -> dict[str, Any]:
     here_cpu = _common.machine().get("cpu")
     base_cpu = ((_provenance(json.loads(saved_text), entry.part) or {}).get("machine") or {}).get("cpu")
     record["cpu"], record["baseline_cpu"] = here_cpu, base_cpu
-    if diffs and base_cpu and here_cpu and base_cpu != here_cpu:
+    if diffs and _other_cpu(json.loads(saved_text), entry.part):
         # Chaotic MD (GROMACS) diverges with the CPU's rounding: other numbers on another CPU say
         # nothing about the code.  The check must run on the CPU family that made the baseline.
         return {
@@ -252,10 +252,14 @@ def _write_ledger(name: str, record: dict[str, Any], root: Path = ROOT) -> None:
 
 def _missing_part(entry: Entry, root: Path = ROOT) -> bool:
     """Whether the saved quick JSON lacks ``entry``'s part (another part of the file was saved)."""
-    if entry.part is None:
-        return False
     saved = json.loads((root / entry.quick_output).read_text())  # type: ignore[operator]
-    return entry.part not in saved.get("provenance_parts", {})
+    return entry.part is not None and entry.part not in saved.get("provenance_parts", {})
+
+
+def _other_cpu(saved: dict[str, Any], part: str | None) -> str | None:
+    """The CPU that made a saved quick JSON when it is not this machine's (None when the same or unknown)."""
+    base = ((_provenance(saved, part) or {}).get("machine") or {}).get("cpu")
+    return base if base and base != _common.machine().get("cpu") else None
 
 
 def _needs_rebaseline(entry: Entry, root: Path = ROOT) -> bool:
@@ -263,9 +267,8 @@ def _needs_rebaseline(entry: Entry, root: Path = ROOT) -> bool:
     assert entry.quick_output is not None
     if not (root / entry.quick_output).is_file() or _missing_part(entry, root):
         return True
-    saved = _provenance(json.loads((root / entry.quick_output).read_text()), entry.part) or {}
-    base_cpu = (saved.get("machine") or {}).get("cpu")
-    return bool(baseline_mismatch(entry, root)) or (base_cpu is not None and base_cpu != _common.machine().get("cpu"))
+    saved = json.loads((root / entry.quick_output).read_text())
+    return bool(baseline_mismatch(entry, root)) or _other_cpu(saved, entry.part) is not None
 
 
 def main(argv: list[str] | None = None) -> int:
