@@ -15,15 +15,23 @@ gamma_final 0.67.
 
 Usage::
 
-    python -m benchmarks.helium_table1                      # CPU preset, 300 particles
+    python -m benchmarks.helium_table1                      # cpu64 preset, 300 particles
     python -m benchmarks.helium_table1 --num-particles 1000
     python -m benchmarks.helium_table1 --quick              # 50 particles, 3 steps, seed 0: ~1 min,
                                                             # writes benchmarks/results/quick/ only
+    python -m benchmarks.helium_table1 --preset cpu64 --num-particles 25000 --batch-size 5000 \
+        --output OUT/helium_table1.json                     # on a GPU (members per compiled batch)
+
+``--batch-size`` only sets how many members run in one compiled batch: a member's trajectory does
+not depend on which others share its batch (``md.helium.make_batch_simulator``), so it changes
+the speed, not the result (up to the device's floating-point arithmetic).  After every seed the
+rows so far are written to ``helium_table1.partial.json`` beside the output, so a run stopped early keeps its seeds.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import time
 from pathlib import Path
 
@@ -31,7 +39,7 @@ import jax
 import numpy as np
 
 import jaxabc
-from benchmarks._common import RESULTS, write_result
+from benchmarks._common import RESULTS, relative, write_result
 from md import helium
 from md.helium_calibration import make_model
 
@@ -42,7 +50,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--num-particles", type=int, default=300)
     parser.add_argument("--num-steps", type=int, default=6)
-    parser.add_argument("--preset", default="cpu")
+    parser.add_argument("--preset", default="cpu64", help="helium preset (md.helium.PRESETS)")
     parser.add_argument(
         "--seeds",
         type=int,
@@ -50,6 +58,19 @@ def main() -> None:
         default=[0, 1, 2],
         help="independent repetitions (observed data and inference); the figure and the "
         "saved result files are the first seed's",
+    )
+    parser.add_argument(
+        "--batch-size",
+        type=int,
+        default=None,
+        help="members per compiled batch (default: the preset's); speed only, not the result",
+    )
+    parser.add_argument(
+        "--output",
+        type=Path,
+        default=None,
+        help="result JSON (default benchmarks/results/helium_table1.json); the figure and the "
+        "posterior files go beside it",
     )
     parser.add_argument(
         "--quick",
@@ -61,8 +82,13 @@ def main() -> None:
         args.num_particles, args.num_steps, args.seeds = 50, 3, [0]
     if args.num_particles % 5:
         parser.error("--num-particles must be a multiple of 5 (ABCsubsim with P0 = 0.2)")
-    simulate, prior = make_model(args.preset)
+    preset = helium.get_preset(args.preset)
+    if args.batch_size is not None:
+        preset = helium.get_preset(preset, batch_size=args.batch_size)
+    simulate, prior = make_model(preset)
     truth = np.asarray(helium.TRUE_THETA)
+    out_dir = RESULTS if args.output is None else args.output.parent
+    partial = None if args.quick else (out_dir / "helium_table1.partial.json")
     t_start = time.perf_counter()
     per_seed = []
     for seed in args.seeds:
@@ -72,14 +98,24 @@ def main() -> None:
             first_rows, first_results = rows, results
         if seed == args.seeds[0] and not args.quick:
             for name, result in results.items():
-                result.save(RESULTS / f"helium_table1_{name}.npz", overwrite=True)
-            draw_figure(results, truth, RESULTS / "helium_table1.png")
+                result.save(out_dir / f"helium_table1_{name}.npz", overwrite=True)
+            draw_figure(results, truth, out_dir / "helium_table1.png")
+        if partial is not None:
+            partial.write_text(
+                json.dumps({"per_seed": per_seed, "wall_s": time.perf_counter() - t_start}, default=float)
+            )
     summary = {}
     for name in ("apmcabc", "abcsubsim"):
-        for key in ("d_E", "gamma_final", "simulations", "wall_time_s"):
+        for key in ("d_E", "gamma_final", "simulations", "wall_time_s", "effective_sample_size"):
             vals = np.array([p["algorithms"][name][key] for p in per_seed], dtype=float)
             summary[f"{name}_{key}_mean"] = float(vals.mean())
             summary[f"{name}_{key}_sd"] = float(vals.std(ddof=1)) if vals.size > 1 else None
+        summary[f"{name}_effective_sample_size_min"] = float(
+            min(p["algorithms"][name]["effective_sample_size"] for p in per_seed)
+        )
+        # Coverage of the truth: the share of repetitions whose 95 % interval holds it, per parameter.
+        covered = np.array([p["algorithms"][name]["truth_in_95_interval"] for p in per_seed], dtype=float)
+        summary[f"{name}_coverage_95"] = covered.mean(axis=0).tolist()
     ratios_gamma = [
         p["algorithms"]["apmcabc"]["gamma_final"] / p["algorithms"]["abcsubsim"]["gamma_final"] for p in per_seed
     ]
@@ -93,12 +129,13 @@ def main() -> None:
         "dE_target_met_all_seeds": bool(all(r <= 0.5 for r in ratios_de)),
     }
     path = write_result(
-        "helium_table1",
+        "helium_table1" if args.output is None else args.output,
         {
             "description": __doc__.split("\n\n")[0],
             "setup": {
                 "preset": args.preset,
-                "preset_fields": helium.get_preset(args.preset).__dict__,
+                "preset_fields": preset.__dict__,
+                "device": _device(),
                 "num_particles": args.num_particles,
                 "num_steps": args.num_steps,
                 "seeds": args.seeds,
@@ -113,13 +150,20 @@ def main() -> None:
             "summary_over_seeds": summary,
             "comparison": checks,
             "paper": PAPER,
-            "figure": None if args.quick else "benchmarks/results/helium_table1.png",
+            "figure": None if args.quick else relative(out_dir / "helium_table1.png"),
             "total_wall_time_s": time.perf_counter() - t_start,
         },
         quick=args.quick,
     )
     del first_results
+    if partial is not None:
+        partial.unlink(missing_ok=True)
     print(f"wrote {path}")
+
+
+def _device() -> dict:
+    d = jax.devices()[0]
+    return {"platform": d.platform, "device_kind": d.device_kind}
 
 
 def run_seed(simulate, prior, truth: np.ndarray, args, seed: int):
@@ -142,6 +186,7 @@ def run_seed(simulate, prior, truth: np.ndarray, args, seed: int):
         )
         results[algorithm] = result
         est = result.bayes_estimate()
+        ci = np.asarray(result.credible_interval(0.95))
         rows[algorithm] = {
             "d_E": float(np.linalg.norm(est - truth)),
             "gamma_final": float(result.thresholds[-1]),
@@ -150,7 +195,8 @@ def run_seed(simulate, prior, truth: np.ndarray, args, seed: int):
             "failures": int(result.num_failures),
             "wall_time_s": float(result.wall_time),
             "bayes_estimate": est.tolist(),
-            "credible_interval_95": result.credible_interval(0.95).tolist(),
+            "credible_interval_95": ci.tolist(),
+            "truth_in_95_interval": ((ci[:, 0] <= truth) & (truth <= ci[:, 1])).tolist(),
             "posterior_sd": np.sqrt(np.diag(result.covariance())).tolist(),
             "correlation": float(result.correlation()[0, 1]),
             # ABCsubsim chains that rarely move leave duplicates: the distinct count and the ESS

@@ -28,7 +28,7 @@ from md import helium
 __all__ = ["calibrate", "main", "make_model"]
 
 
-def make_model(preset: str = "cpu"):
+def make_model(preset: str | helium.HeliumPreset = "cpu"):
     """The helium simulator for :func:`jaxabc.run`: a vmappable ``simulate(key, theta)`` that
     carries the host-side batched runner (neighbour-list re-allocation) as ``simulate_batch``."""
     simulate = helium.make_simulator(preset)
