@@ -21,7 +21,10 @@ Every measurement that fails records its error instead of stopping the run.  Wri
 (``--part``), so GPU and CPU rows of the same machine sit side by side.
 
 Run: ``python -m benchmarks.gpu_throughput --part gpu`` on the GPU machine, then
-``python -m benchmarks.gpu_throughput --part cpu --cpu --quick`` on the same one.
+``python -m benchmarks.gpu_throughput --part cpu --cpu --quick`` on the same one.  The main job
+parts need the project pip-installed there (``python3 -m pip install --no-deps --no-index
+--no-build-isolation -e .`` works offline): the helium example is an entry point, which a tree
+run from ``PYTHONPATH`` does not register.
 """
 
 from __future__ import annotations
