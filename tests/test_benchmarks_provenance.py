@@ -689,3 +689,16 @@ def test_the_model_choice_page_says_which_box_change_turns_the_verdict() -> None
     # A preferred verdict that a narrower box leaves as it is, and one it turns to undecided.
     text = _what_would_change({"verdict": {"status": "preferred", "model": "A"}}, names, rows[:2])
     assert "B box x0.5 gives undecided (0.50 [0.30, 0.70])" in text and "Unchanged with A box x0.5." in text
+
+
+def test_a_retired_checker_without_its_full_result_is_still_checked(fake_repo: Path, monkeypatch) -> None:
+    """A retired entry whose full JSON was deleted can still run its quick check for others."""
+    from benchmarks import verify
+
+    entry = QUICK_ENTRY
+    write_fake(fake_repo)
+    _common.write_result(fake_repo / entry.quick_output, {"value": 1.5}, inputs=[fake_repo / "data.txt"])
+    (fake_repo / entry.output).unlink()
+    assert verify.baseline_mismatch(entry, fake_repo) == []
+    monkeypatch.setattr(verify, "_run_command", _fake_quick_run(fake_repo, 1.5, entry))
+    assert verify.check(entry, fake_repo)["outcome"] == "reproduces"
