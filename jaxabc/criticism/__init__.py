@@ -21,7 +21,7 @@ base simulator.  It is a single-theta function, so ``jax.vmap`` batches it.
 """
 
 from jaxabc.criticism.causes import Catalogue, Cause, Effect
-from jaxabc.criticism.core import critique
+from jaxabc.criticism.core import critique, without_discrepancy
 from jaxabc.criticism.misfit import Misfit, adjust_pvalues
 from jaxabc.criticism.power import CandidateObservables
 from jaxabc.criticism.report import CritiqueReport
@@ -35,4 +35,5 @@ __all__ = [
     "Misfit",
     "adjust_pvalues",
     "critique",
+    "without_discrepancy",
 ]

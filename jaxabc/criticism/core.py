@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import jax
@@ -32,9 +32,54 @@ from jaxabc.criticism.predictive import (
 )
 from jaxabc.criticism.report import CritiqueReport
 from jaxabc.executors import get_executor
+from jaxabc.priors import Uniform
 from jaxabc.results import ABCResult
 
-__all__ = ["critique"]
+__all__ = ["critique", "without_discrepancy"]
+
+#: Name prefix of the model-discrepancy sds that ``jaxabc.run(..., discrepancy=...)`` appends.
+_DISCREPANCY_PREFIX = "discrepancy_sd["
+
+
+def without_discrepancy(result: ABCResult) -> ABCResult:
+    """``result``'s marginal over the simulator's own parameters: the discrepancy sds dropped.
+
+    A calibration with a model-discrepancy term (``jaxabc.run(..., discrepancy=...)``) appends
+    one ``discrepancy_sd[<group>]`` column per group; the simulator takes only the others, and
+    so does :func:`critique`.  Weights, thresholds and the run's effective sample size are kept;
+    per-parameter diagnostics and the simulation records (full theta) are dropped, since their
+    columns would no longer match.  Returns ``result`` itself when it has no such column.
+
+    Raises
+    ------
+    TypeError
+        For a prior that is not a :class:`jaxabc.Uniform` box (the only kind a discrepancy fit
+        builds).
+    """
+    keep = [i for i, n in enumerate(result.names) if not n.startswith(_DISCREPANCY_PREFIX)]
+    if len(keep) == len(result.names):
+        return result
+    prior = result.prior
+    if not isinstance(prior, Uniform):
+        raise TypeError(f"without_discrepancy needs a Uniform prior, got {type(prior).__name__}")
+    sub = Uniform(
+        low=np.asarray(prior.low)[keep].tolist(),
+        high=np.asarray(prior.high)[keep].tolist(),
+        names=tuple(prior.names[i] for i in keep),
+        units=tuple(prior.units[i] for i in keep) if prior.units else None,
+    )
+    particles = np.asarray(result.particles)[:, keep]
+    return replace(result, particles=particles, prior=sub, diagnostics={}, records={}, check=False)
+
+
+def _refuse_discrepancy(result: ABCResult) -> None:
+    extra = [n for n in result.names if n.startswith(_DISCREPANCY_PREFIX)]
+    if extra:
+        raise ValueError(
+            f"result has model-discrepancy columns {extra}: critique asks what the simulator itself "
+            "misses, and simulate_with_effects takes the simulator's parameters only.  Pass "
+            "jaxabc.criticism.without_discrepancy(result), its marginal over those parameters"
+        )
 
 
 def _check_simulator(simulate: Callable, dim: int, num_summaries: int) -> None:
@@ -86,7 +131,8 @@ def critique(
     Parameters
     ----------
     result : ABCResult
-        The base calibration (particles of shape (n, d)).
+        The base calibration (particles of shape (n, d)); a fit with model-discrepancy columns is
+        refused (ValueError): pass :func:`without_discrepancy` of it.
     simulate_with_effects : callable ``(key, theta_full) -> summaries``
         ``theta_full`` has shape ``(d + K,)``: the ``d`` base parameters in the order of
         ``result.prior.names``, then one parameter per effect in catalogue order; effects at their
@@ -161,6 +207,7 @@ def critique(
     -------
     CritiqueReport
     """
+    _refuse_discrepancy(result)
     obs = _validated_observed(observed, result, catalogue)
     prior_precision, prior_centre = _base_prior_moments(base_prior, result)
     ex = executor if hasattr(executor, "map") else get_executor(executor)
