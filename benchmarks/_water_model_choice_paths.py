@@ -8,14 +8,12 @@ a folder name of their own.  :func:`physical_marginal` gives them the posterior 
 
 from __future__ import annotations
 
-import dataclasses
 import json
 from pathlib import Path
 
-import numpy as np
-
 import jaxabc
 from benchmarks._common import RESULTS, ROOT
+from jaxabc.criticism import without_discrepancy
 
 
 def model_choice_folder(data: str, tiny: bool = False, result: str = "water_model_choice") -> Path:
@@ -45,24 +43,9 @@ def physical_marginal(result: jaxabc.ABCResult) -> jaxabc.ABCResult:
     """``result`` without the discrepancy sds a model choice with ``--discrepancy`` appends.
 
     The criticism asks what the simulation itself misses, and the simulator takes the force-field
-    parameters only; the discrepancy sds (``discrepancy_sd[<group>]``) are dropped, the weights and
-    the run's effective sample size kept.
+    parameters only: :func:`jaxabc.criticism.without_discrepancy`.
     """
-    keep = [i for i, n in enumerate(result.names) if not n.startswith("discrepancy_sd[")]
-    if len(keep) == len(result.names):
-        return result
-    prior = result.prior
-    sub = jaxabc.Uniform(
-        low=np.asarray(prior.low)[keep],
-        high=np.asarray(prior.high)[keep],
-        names=tuple(prior.names[i] for i in keep),
-        units=tuple(prior.units[i] for i in keep) if prior.units else None,
-    )
-    # The run's ESS (the surrogate's chain ESS) and history stay; per-parameter diagnostics and
-    # the records' full theta would no longer match the columns, so they go.
-    return dataclasses.replace(
-        result, particles=np.asarray(result.particles)[:, keep], prior=sub, diagnostics={}, records={}, check=False
-    )
+    return without_discrepancy(result)
 
 
 __all__ = ["model_choice_folder", "physical_marginal"]
