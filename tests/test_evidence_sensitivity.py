@@ -26,6 +26,7 @@ from jaxabc.model_choice import (
     STATUS_NEEDS_SIMULATIONS,
     STATUS_REUSED,
     Model,
+    interval_leader,
     load_model_choice,
     with_boxes,
 )
@@ -260,3 +261,26 @@ def test_surrogate_model_choice_gives_measurement_error_to_each_builder(monkeypa
     with pytest.raises(Stop):
         jaxabc.run([NEAR, FAR], observed=[Y], method="surrogate", max_simulations=100, observation_error=0.1)
     assert seen[0]["observation_error"] == 0.1 and "discrepancy" not in seen[0]
+
+
+def test_interval_leader_is_the_verdict_rule():
+    """A model leads only when its interval lies wholly above every other's; touching is not enough."""
+    iv = np.array([[0.6, 0.9], [0.05, 0.3], [0.0, 0.2]])
+    assert interval_leader(np.array([0.75, 0.15, 0.10]), iv) == 0
+    iv[1, 1] = 0.6  # reaches the leader's lower end
+    assert interval_leader(np.array([0.75, 0.15, 0.10]), iv) is None
+    assert interval_leader(np.array([np.nan, 0.5, 0.5]), iv) is None
+
+
+def test_sensitivity_rows_name_the_model_their_boxes_would_prefer(separated):
+    r, _ = separated
+    for row in r.sensitivity_table:
+        if not row.computed:
+            assert row.preferred is None
+            continue
+        k = interval_leader(row.probabilities, row.intervals)
+        assert row.preferred == (None if k is None else r.names[k])
+    # The run's own probabilities under the same rule give the verdict's first step.
+    k = interval_leader(r.probabilities, r.probability_intervals())
+    if r.verdict().status == "preferred":
+        assert r.names[k] == r.verdict().model

@@ -10,6 +10,7 @@ import numpy as np
 
 from benchmarks._common import RESULTS
 from benchmarks.docpages.common import cause_rows, f, figure, load, misfit_rows, retired, source, table
+from jaxabc.model_choice import interval_leader
 from md.water.models import PAPER_TIP4P_ESTIMATES
 
 #: Saved paper-preset checks of models of the model choice, one result each.
@@ -196,14 +197,10 @@ def _published() -> list[str]:
 
 
 def _decided(row: dict[str, Any], names: list[str]) -> str | None:
-    """The model a computed sensitivity row would call preferred (its probability interval above
-    every other's, the rule of ``ModelChoiceResult.verdict``), else None."""
-    p = np.asarray(row["probabilities"], float)
-    if not np.all(np.isfinite(p)):
-        return None
-    iv = np.asarray(row["intervals"], float)
-    best = int(np.argmax(p))
-    return names[best] if all(iv[k, 1] < iv[best, 0] for k in range(len(names)) if k != best) else None
+    """The model a computed sensitivity row would call preferred (the library's
+    :func:`jaxabc.model_choice.interval_leader`, the first step of ``verdict``), else None."""
+    k = interval_leader(np.asarray(row["probabilities"], float), np.asarray(row["intervals"], float))
+    return None if k is None else names[k]
 
 
 def _what_would_change(d: dict[str, Any], names: list[str], rows: list[dict[str, Any]]) -> str:

@@ -75,6 +75,25 @@ INTERVAL_Z = 2.0
 _ABC_SMC = "abcsmc_model_choice"  # _model_choice_smc.ALGORITHM_NAME (not imported: no JAX here)
 
 
+def interval_leader(probabilities: np.ndarray, intervals: np.ndarray) -> int | None:
+    """Index of the most probable model when its interval lies above every other's, else None.
+
+    The rule by which :meth:`ModelChoiceResult.verdict` calls a model preferred (before it
+    checks the sensitivity rows).  ``probabilities`` (K,), ``intervals`` (K, 2) as from
+    :func:`probability_bounds`; None too when a probability is not finite.
+    """
+    p = np.asarray(probabilities, float)
+    if p.size == 0 or not np.all(np.isfinite(p)):
+        return None
+    best = int(np.argmax(p))
+    return None if _overlapping(best, np.asarray(intervals, float)) else best
+
+
+def _overlapping(best: int, intervals: np.ndarray) -> list[int]:
+    """The other models whose interval reaches the lower end of model ``best``'s."""
+    return [k for k in range(len(intervals)) if k != best and not intervals[k, 1] < intervals[best, 0]]
+
+
 def probability_bounds(
     log_evidence: np.ndarray,
     log_evidence_errors: np.ndarray,
@@ -181,6 +200,14 @@ class SensitivityRow(NamedTuple):
     def computed(self) -> bool:
         """Whether the probabilities are known (every changed box inside its run box)."""
         return self.status == STATUS_REUSED
+
+    @property
+    def preferred(self) -> str | None:
+        """The model these boxes alone would decide (:func:`interval_leader`), else None."""
+        if not self.computed:
+            return None
+        k = interval_leader(self.probabilities, self.intervals)
+        return None if k is None else self.names[k]
 
     def describe(self) -> str:
         """One line: the probabilities with intervals, or what is missing and the known bound."""
@@ -638,13 +665,9 @@ class ModelChoiceResult:
         return rows
 
     def _overlaps(self, best: int, intervals: np.ndarray) -> list[str]:
-        """The other models whose interval reaches the best model's."""
-        low = intervals[best, 0]
-        return [
-            f"{self.names[k]} [{intervals[k, 0]:.3f}, {intervals[k, 1]:.3f}]"
-            for k in range(len(self.names))
-            if k != best and not intervals[k, 1] < low
-        ]
+        """The other models whose interval reaches the best model's, in words."""
+        iv = intervals
+        return [f"{self.names[k]} [{iv[k, 0]:.3f}, {iv[k, 1]:.3f}]" for k in _overlapping(best, iv)]
 
     def verdict(self, z: float = INTERVAL_Z) -> Verdict:
         """``"preferred"`` with the model only when the data decide it, else ``"undecided"`` and why.
