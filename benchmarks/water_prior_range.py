@@ -124,6 +124,7 @@ def main(argv: list[str] | None = None) -> dict:
     p.add_argument("--long-ps", type=float, default=60.0, help="length of the upper-edge runs (0: none)")
     p.add_argument("--workers", type=int, default=2)
     p.add_argument("--quick", action="store_true", help="TIP4P at the box edges only, no long runs")
+    p.add_argument("--output", type=Path, default=None, help="result JSON (default: the registry's name)")
     args = p.parse_args(argv)
     if args.quick:
         args.models, args.factors, args.long_ps, args.seeds = ["TIP4P"], list(WIDE_EPSILON_FACTORS), 0.0, 1
@@ -165,7 +166,7 @@ def main(argv: list[str] | None = None) -> dict:
         "wall_time_s": time.perf_counter() - start,
     }
     path = write_result(
-        "water_prior_range",
+        "water_prior_range" if args.output is None else args.output,
         payload,
         quick=args.quick,
         inputs=[JOINT_DATA_FILE],
