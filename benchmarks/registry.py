@@ -665,6 +665,17 @@ REGISTRY: tuple[Entry, ...] = (
         "is the box still liquid water? the basis of md.water.models.WIDE_EPSILON_FACTORS",
     ),
     Entry(
+        "water_prior_range_low",
+        f"{R}/water_prior_range_low.json",
+        "python -m benchmarks.water_prior_range --models TIP3P TIP4P --factors 0.2 0.3 0.45 --seeds 2 "
+        "--long-ps 0 --workers 2 --output benchmarks/results/water_prior_range_low.json",
+        requires=("gmx",),
+        estimated_cost_s=210.0,
+        checked_by=("water_prior_range",),
+        note="below the wide prior's lower bound (epsilon x0.6), where TIP3P's posterior piles: does the liquid "
+        "hold? (the same script as water_prior_range, other factors)",
+    ),
+    Entry(
         "water_model_paper_check",
         f"{R}/water_model_paper_check.json",
         "python -m benchmarks.water_model_paper_check --data xray --model TIP4P --workers 2",

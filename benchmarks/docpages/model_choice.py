@@ -319,7 +319,65 @@ def _verdict(d: dict[str, Any]) -> list[str]:
             + (". At a physical limit: " + "; ".join(limits) if limits else "")
             + ".\n"
         )
+        at_low = [m for m, e in edges.items() if any("epsilon" in msg and "lower" in msg for msg in e["messages"])]
+        below = _below_box(d, at_low)
+        if below:
+            out.append(below + "\n")
     return out
+
+
+def _below_box(d: dict[str, Any], piled: list[str]) -> str:
+    """What the liquid does below epsilon's lower bound (``water_prior_range_low``), for the
+    models whose epsilon piles there: whether the bound stands at a physical limit."""
+    low = load("water_prior_range_low")
+    if not piled or low is None:
+        return ""
+    lo, hi = low["liquid_density_kg_m3"]
+    parts = []
+    for model in sorted({r["model"] for r in low["scan"]}):
+        points = []
+        for factor in sorted({r["epsilon_factor"] for r in low["scan"]}, reverse=True):
+            runs = [r for r in low["scan"] if r["model"] == model and r["epsilon_factor"] == factor]
+            dense = [r["density_kg_m3"] for r in runs if r["status"] == "ok"]
+            if dense and not any(r["liquid"] for r in runs):
+                points.append(f"x{factor:g} {min(dense):.0f}-{max(dense):.0f} kg/m3")
+            elif dense:
+                points.append(f"x{factor:g} liquid water ({min(dense):.0f}-{max(dense):.0f} kg/m3)")
+            else:
+                why = runs[0].get("reason", "failed").split(": ", 1)[-1]
+                points.append(f"x{factor:g} {why}")
+        parts.append(f"{model}: " + ", ".join(points))
+    base = load("water_prior_range")
+    edge = min(base["factors"]) if base else None
+
+    def density_at_edge(m: str) -> list[float]:
+        rows = (base or {}).get("scan", [])
+        return [r["density_kg_m3"] for r in rows if (r["model"], r["epsilon_factor"], r["status"]) == (m, edge, "ok")]
+
+    at_edge = [f"{m} {np.mean(density_at_edge(m)):.0f} kg/m3" for m in piled if density_at_edge(m)]
+    corr = [
+        f"{m} {d['per_model'][m]['correlation']:+.2f}"
+        for m in piled
+        if isinstance(d.get("per_model", {}).get(m, {}).get("correlation"), float)
+    ]
+    if any(r["liquid"] for r in low["scan"]):
+        verdict = "the liquid holds below the bound, so the box should be widened and the model choice rerun"
+    else:
+        verdict = (
+            f"at the published sigma none of these runs is liquid water by the scan's criterion (density in "
+            f"[{lo:g}, {hi:g}] kg/m3, against 997 measured), and by x0.3 the liquid collapses.  But the posterior "
+            "trades epsilon for sigma (correlation "
+            + (", ".join(corr) or "not saved")
+            + "): along that ridge, with sigma up to its +5 % bound, the liquid may hold below x"
+            f"{edge:g}, so the scan does not make x{edge:g} a physical limit for the calibrated model.  A rerun "
+            "with the box reaching x0.45 for these models would settle it"
+        )
+    return (
+        f"Below epsilon's lower bound (x{edge:g}"
+        + (f", where the density at the published sigma is {', '.join(at_edge)}" if at_edge else "")
+        + f"), where {', '.join(piled)} piles (`water_prior_range_low`, published sigma, {low['seeds']} runs "
+        "per point): " + "; ".join(parts) + f". So {verdict}."
+    )
 
 
 def side_by_side(d: dict[str, Any]) -> str:

@@ -552,8 +552,11 @@ def _prior_range_row(label: str, runs: list[dict]) -> list[str]:
 
     liquid = sum(r["liquid"] for r in runs)
     undefined = sum(r["status"] == "summaries undefined" and r["liquid"] for r in runs)
-    note = f"{liquid}/{len(runs)}" + (
-        f" ({undefined} without the g_OO extrema the summaries read)" if undefined else ""
+    failed = [r for r in runs if r["status"] == "failed"]
+    note = (
+        f"{liquid}/{len(runs)}"
+        + (f" ({undefined} without the g_OO extrema the summaries read)" if undefined else "")
+        + (f" ({len(failed)} failed: {failed[0].get('reason', '')})" if failed else "")
     )
     dense = [r["density_kg_m3"] for r in runs if "density_kg_m3" in r]
     return [
@@ -572,6 +575,12 @@ def block_water_prior_range() -> str:
     d = load("water_prior_range")
     if d is None:
         return "Not run yet: `python -m benchmarks.water_prior_range --workers 2`."
+    low = load("water_prior_range_low")
+    below = [] if low is None else ["Below the box:", _prior_range_block(low, "water_prior_range_low")]
+    return "\n\n".join([_prior_range_block(d, "water_prior_range"), *below])
+
+
+def _prior_range_block(d: dict[str, Any], name: str) -> str:
     points: dict[str, list[dict]] = {}
     for r in [*d["scan"], *d["long_runs"]]:
         length = f", {r['length_ps']:g} ps" if "length_ps" in r else ""
@@ -589,7 +598,7 @@ def block_water_prior_range() -> str:
     lo, hi = d["liquid_density_kg_m3"]
     return "\n\n".join(
         [
-            source("water_prior_range", data=d),
+            source(name, data=d),
             table(header, rows),
             f"Means over {d['seeds']} runs per point (the runs that gave summaries).  Liquid: GROMACS "
             f"finishes, density in [{lo:g}, {hi:g}] kg/m3 and D >= {d['min_diffusion_1e5_cm2_s']:g} "
