@@ -102,10 +102,56 @@ def page_water_model_choice() -> str:
         c = load(name)
         if c is not None:
             parts += _criticism(name, c)
+    parts += _criticisms_compared({name: load(name) for name in CRITICISMS})
     gone = retired(["criticism_water", "water_model_paper_check"])
     if gone:
         parts.append("Retired criticisms and checks:\n\n" + gone + "\n")
     return "\n".join(parts)
+
+
+def _criticisms_compared(crits: dict[str, dict[str, Any] | None]) -> list[str]:
+    """Whether the criticism's answer survives the discrepancy term: both runs side by side."""
+    saved = {n: c for n, c in crits.items() if c is not None}
+    if len(saved) < 2:
+        return []
+    rows, causes, significant = [], set(), []
+    for name, c in saved.items():
+        top = c["causes"][0] if c.get("causes") else {}
+        g = c.get("gain") or {}
+        worst = max(c.get("misfits") or [{}], key=lambda m: abs(m.get("residual", 0.0)))
+        rows.append(
+            [
+                _CRITICISM_START.get(name, name),
+                f"{worst.get('name', '-')} (z {worst.get('residual', float('nan')):+.1f})",
+                f"{top.get('name', '-')} ({top.get('score', float('nan')):.1f})",
+                ", ".join(c.get("needed") or []) or "-",
+                f"{g.get('delta_lpd', float('nan')):.1f} +- {g.get('delta_lpd_se', float('nan')):.1f}",
+            ]
+        )
+        causes.add(top.get("name"))
+        significant.append(g.get("delta_lpd", 0.0) > 2 * g.get("delta_lpd_se", np.inf))
+    same = len(causes) == 1
+    sentence = (
+        "Both runs name the same cause."
+        if same
+        else "The two runs name different causes: which effect the criticism names depends on whether the "
+        "model discrepancy absorbs part of the misfit, so neither is a finding on its own"
+    )
+    if not same:
+        sentence += (
+            "; only the run with the discrepancy term shows a held-out gain beyond its uncertainty."
+            if significant[0] and not any(significant[1:])
+            else "."
+        )
+    common = set.intersection(*(set(c.get("needed") or []) for c in saved.values()))
+    if common:
+        sentence += f"  Needed jointly in every run: {', '.join(sorted(common))}."
+    return [
+        "## With and without the discrepancy term\n",
+        table(["criticism", "largest misfit", "top cause (score)", "needed jointly", "held-out delta lpd"], rows)
+        + "\n",
+        sentence + "\n",
+    ]
 
 
 def _repeats() -> list[str]:
