@@ -89,6 +89,32 @@ def _quick_cost(entry: Entry, root: Path = ROOT) -> float:
     return DEFAULT_QUICK_COST_S
 
 
+def dependency_order(rows: list[tuple[Entry, float]]) -> list[tuple[Entry, float]]:
+    """``rows`` (cheapest first) with every entry moved after those it names in ``after``.
+
+    A quick check that reads what another writes (the criticism's tiny run reads the tiny model
+    choice, whose saved file records its wall time) must run after it, or the other's rewrite
+    makes the first check's input new again.  ``after`` names match an entry's name or its name
+    before the part (``water_simulated_surrogate_abc`` matches ``...:paper``).
+    """
+
+    def base(name: str) -> str:
+        return name.split(":", 1)[0]
+
+    out: list[tuple[Entry, float]] = []
+    pending = list(rows)
+    while pending:
+        for i, (e, _) in enumerate(pending):
+            waits = set(e.after)
+            if not any(o.name in waits or base(o.name) in waits for o, _ in pending if o is not e):
+                out.append(pending.pop(i))
+                break
+        else:  # a cycle: keep the cost order for the rest
+            out += pending
+            break
+    return out
+
+
 def plan(entries: list[Entry], budget_s: float, include_current: bool = False) -> list[tuple[Entry, float, str]]:
     """``(entry, quick cost, why)`` for every candidate, cheapest first; why is "" for those to run."""
     rows = []
@@ -109,7 +135,7 @@ def plan(entries: list[Entry], budget_s: float, include_current: bool = False) -
         elif st.state == "current" and e.name not in wanted and not include_current:
             continue
         rows.append((e, _quick_cost(e)))
-    rows.sort(key=lambda r: r[1])
+    rows = dependency_order(sorted(rows, key=lambda r: r[1]))
     out, left = [], budget_s
     for e, cost in rows:
         missing = [p for p in e.requires if shutil.which(p) is None]

@@ -702,3 +702,15 @@ def test_a_retired_checker_without_its_full_result_is_still_checked(fake_repo: P
     assert verify.baseline_mismatch(entry, fake_repo) == []
     monkeypatch.setattr(verify, "_run_command", _fake_quick_run(fake_repo, 1.5, entry))
     assert verify.check(entry, fake_repo)["outcome"] == "reproduces"
+
+
+def test_verify_runs_a_check_after_the_checks_it_reads() -> None:
+    from benchmarks import verify
+    from benchmarks.registry import Entry
+
+    model = Entry("model_choice", "m.json", "python -m x", quick="q", quick_output="mq.json")
+    crit = Entry("criticism", "c.json", "python -m y", quick="q", quick_output="cq.json", after=("model_choice",))
+    samples = Entry("samples", "s.json", "python -m z", quick="q", quick_output="sq.json", after=("abc",))
+    abc = Entry("abc:paper", "a.json", "python -m w", quick="q", quick_output="aq.json")
+    rows = [(crit, 1.0), (samples, 2.0), (model, 5.0), (abc, 9.0)]
+    assert [e.name for e, _ in verify.dependency_order(rows)] == ["model_choice", "criticism", "abc:paper", "samples"]
