@@ -131,8 +131,7 @@ def critique(
     Parameters
     ----------
     result : ABCResult
-        The base calibration (particles of shape (n, d)); a fit with model-discrepancy columns is
-        refused (ValueError): pass :func:`without_discrepancy` of it.
+        The base calibration, particles (n, d); not a fit with discrepancy columns (ValueError).
     simulate_with_effects : callable ``(key, theta_full) -> summaries``
         ``theta_full`` has shape ``(d + K,)``: the ``d`` base parameters in the order of
         ``result.prior.names``, then one parameter per effect in catalogue order; effects at their
@@ -207,7 +206,6 @@ def critique(
     -------
     CritiqueReport
     """
-    _refuse_discrepancy(result)
     obs = _validated_observed(observed, result, catalogue)
     prior_precision, prior_centre = _base_prior_moments(base_prior, result)
     ex = executor if hasattr(executor, "map") else get_executor(executor)
@@ -282,9 +280,10 @@ def _base_prior_moments(base_prior: Any, result: ABCResult) -> tuple[np.ndarray 
 def _validated_observed(observed: Any, result: ABCResult, catalogue: Any) -> np.ndarray:
     """``observed`` as a float64 vector (s,), after the checks that need no simulation.
 
-    Raises ValueError for non-finite data or particles that do not match the prior, and
-    TypeError when ``catalogue`` is not a :class:`Catalogue`.
+    Raises ValueError for non-finite data, particles that do not match the prior or
+    model-discrepancy columns, and TypeError when ``catalogue`` is not a :class:`Catalogue`.
     """
+    _refuse_discrepancy(result)
     obs = np.asarray(observed, np.float64).reshape(-1)
     if not np.all(np.isfinite(obs)):
         raise ValueError("observed contains NaN or infinite values: drop or impute them first")
