@@ -85,6 +85,9 @@ class Entry:
         their quick checks ran it on today's code and reproduced quick numbers that were made
         with this result's version of it (``status._vouch``); a result whose every changed file
         is vouched for is current without its own rerun.  Data changes are never vouched for.
+    quick_inputs
+        Untracked paths (caches under ``runs/``) the quick mode reads; ``verify --rebaseline``
+        copies them into its worktree at the result's commit.
     note
         What a reader of ``status`` should know.
     retired
@@ -109,6 +112,7 @@ class Entry:
     ignore_keys: tuple[str, ...] = ()
     after: tuple[str, ...] = ()
     checked_by: tuple[str, ...] = ()
+    quick_inputs: tuple[str, ...] = ()
     note: str = ""
     retired: str = ""
 
@@ -118,6 +122,9 @@ _GPU_NOTE = "made on a lent GPU machine (the device tool) with the cpu parts on 
 Q = "benchmarks/results/quick"
 #: Per-simulation run caches: replayed by a rerun, never read by a page, not tracked (.gitignore).
 CACHE = "runs/cache"
+#: The tiny model choice (``water_model_choice --tiny``) that the criticism's and the paper
+#: check's quick modes start from.
+_TINY_MODEL_CHOICE = f"{CACHE}/water_model_choice/xray_quick_tiny"
 
 
 #: The quick checks that run a water calibration's code path (script and surrogate library).
@@ -682,6 +689,7 @@ REGISTRY: tuple[Entry, ...] = (
         long=True,
         requires=("gmx",),
         quick="python -m benchmarks.water_model_paper_check --tiny --workers 2",
+        quick_inputs=(_TINY_MODEL_CHOICE,),
         quick_output=f"{Q}/water_model_paper_check.json",
         estimated_cost_s=1200.0,
         note="TIP4P's model-choice posterior draws in the paper preset beside the quick one, and its "
@@ -712,6 +720,7 @@ REGISTRY: tuple[Entry, ...] = (
         requires=("gmx",),
         quick="python -m benchmarks.criticism_water_joint --tiny --workers 2",
         quick_output=f"{Q}/criticism_water_joint.json",
+        quick_inputs=(_TINY_MODEL_CHOICE,),
         estimated_cost_s=7200.0,
         note="criticism of TIP4P on the joint data, surrogate refits; needs "
         "water_model_choice first; its simulations are cached under runs/cache/criticism_water_joint "

@@ -246,6 +246,9 @@ def rebaseline(entry: Entry, root: Path = ROOT) -> dict[str, Any]:
         raise RuntimeError(f"{entry.name}: cannot check out {commit[:10]}: {made.stderr.strip()[-300:]}")
     t0 = time.perf_counter()
     try:
+        for rel in entry.quick_inputs:  # untracked caches the quick mode reads
+            if (root / rel).is_dir():
+                shutil.copytree(root / rel, tree / rel, dirs_exist_ok=True)
         env = {**os.environ, "PYTHONPATH": str(tree)}
         run = _run_command(command_argv(entry.quick), tree, env)
         if run.returncode != 0:

@@ -714,3 +714,26 @@ def test_verify_runs_a_check_after_the_checks_it_reads() -> None:
     abc = Entry("abc:paper", "a.json", "python -m w", quick="q", quick_output="aq.json")
     rows = [(crit, 1.0), (samples, 2.0), (model, 5.0), (abc, 9.0)]
     assert [e.name for e, _ in verify.dependency_order(rows)] == ["model_choice", "criticism", "abc:paper", "samples"]
+
+
+def test_rebaseline_copies_the_untracked_caches_its_quick_mode_reads(fake_repo: Path, monkeypatch) -> None:
+    import dataclasses
+
+    from benchmarks import verify
+
+    entry = dataclasses.replace(QUICK_ENTRY, quick_inputs=("runs/cache/tiny",))
+    _git_commit_all(fake_repo)
+    write_fake(fake_repo)
+    cache = fake_repo / "runs/cache/tiny"
+    cache.mkdir(parents=True)
+    (cache / "model_choice.json").write_text("{}")
+    seen = []
+
+    def run(argv, tree, env):
+        seen.append((tree / "runs/cache/tiny/model_choice.json").is_file())
+        _common.write_result(tree / entry.quick_output, {"value": 1.5}, inputs=[tree / "data.txt"])
+        return subprocess.CompletedProcess(argv, 0, "", "")
+
+    monkeypatch.setattr(verify, "_run_command", run)
+    verify.rebaseline(entry, fake_repo)
+    assert seen == [True]

@@ -490,14 +490,14 @@ def _paper_check(name: str, c: dict[str, Any]) -> list[str]:
         return f"{stats['mean'][j]:.4g}{sd}"
 
     rows = []
-    for j, name in enumerate(summaries["names"]):
+    for j, summary in enumerate(summaries["names"]):
         observed = summaries["observed"][j]
         if observed == 0.0:
             continue  # not measured in these data
         d = "-" if shift["se"] is None else f"{shift['mean'][j]:+.3g} +- {shift['se'][j]:.2g}"
         rows.append(
             [
-                name + (" (held out)" if name in summaries["held_out"] else ""),
+                summary + (" (held out)" if summary in summaries["held_out"] else ""),
                 f"{observed:.4g}",
                 cell(sets["calibrated_quick"], j),
                 cell(sets["calibrated_paper"], j),
