@@ -5,9 +5,8 @@
 #   bash scripts/device_checks.sh run      # there (carry .whl): install them, then run every GPU part
 #
 # The device image has jax with CUDA, numpy, scipy, matplotlib, xarray and h5py, but not jax-md,
-# arviz or their pure-Python dependencies. Results go to $OUT (the device's return folder).
-# Measured 2026-11-30 on an H200: the gpu and cpu parts take about 2.5 min, Table 1 (25000
-# particles, 5 seeds) 3.3 min, the main job parts about 1 min.
+# arviz or their pure-Python dependencies. Results go to $OUT (the device's return folder); each
+# JSON's provenance records how long its part took.
 set -o pipefail
 WHEELS="jax-md==0.2.29 jraph==0.0.6.dev0 ml_collections==1.1.0 e3nn-jax==0.21.0 arviz==0.23.4
 xarray-einstats==0.9.1 h5netcdf==1.8.2 platformdirs==4.14.8"
