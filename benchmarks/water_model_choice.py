@@ -67,7 +67,7 @@ from jaxabc.model_choice import Model
 from md.water.finite_size import MODEL_VISCOSITY_298K, model_viscosity_mpa_s
 from md.water.joint_data import JOINT_DATA_FILE, joint_observed, joint_record, observation_sd
 from md.water.model_simulator import CachedSummaries, WaterModelSimulator
-from md.water.models import MODELS, WIDE_EPSILON_FACTORS, model_prior, polarisation_correction_kj_mol
+from md.water.models import MODELS, WIDE_EPSILON_FACTORS, get_model, model_prior, polarisation_correction_kj_mol
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -117,6 +117,14 @@ def parse_arguments(argv=None) -> argparse.Namespace:
         "'S,E' (half-widths as fractions) or 'S,LOW,HIGH' (sigma half-width, epsilon bounds as factors)",
     )
     parser.add_argument(
+        "--epsilon-factors",
+        action="append",
+        default=[],
+        metavar="MODEL=LOW,HIGH",
+        help="one model's epsilon bounds as factors of its published value, replacing --prior-width's "
+        "(repeatable), e.g. TIP3P=0.45,2.5 where its posterior piles on the wide box's lower bound",
+    )
+    parser.add_argument(
         "--discrepancy",
         action="store_true",
         help="infer a model-discrepancy sd per group of summaries (g_OO heights, g_OO lengths, D, hvap)",
@@ -128,10 +136,12 @@ def parse_arguments(argv=None) -> argparse.Namespace:
         args.particles, args.steps, args.pilot = 4, 2, 3
         args.md_steps = args.md_steps or 1000
         args.budget_per_model, args.predictive = 50, 2
+    args.epsilon_factors = model_epsilon_factors(args.epsilon_factors)
     suffix = f"{args.data}_{args.preset}" + ("_tiny" if args.tiny else "")
     variant = (
         suffix
         + ("" if args.prior_width == "default" else f"_{args.prior_width}")
+        + "".join(f"_{name}{low:g}-{high:g}" for name, (low, high) in sorted(args.epsilon_factors.items()))
         + ("_discrepancy" if args.discrepancy else "")
         + ("" if args.seed == 0 else f"_seed{args.seed}")
     )
@@ -167,6 +177,33 @@ def prior_options(width: str) -> dict:
     raise SystemExit(f"--prior-width must be 'default', 'wide', 'S,E' or 'S,LOW,HIGH', got {width!r}")
 
 
+def model_epsilon_factors(items: list[str]) -> dict[str, tuple[float, float]]:
+    """``--epsilon-factors`` values (``MODEL=LOW,HIGH``) as ``{slug: (low, high)}``."""
+    out: dict[str, tuple[float, float]] = {}
+    for item in items:
+        name, _, bounds = item.partition("=")
+        try:
+            slug = get_model(name).slug
+            low, high = (float(v) for v in bounds.split(","))
+        except ValueError as error:
+            message = f"--epsilon-factors wants MODEL=LOW,HIGH with a known model, got {item!r}: {error}"
+            raise SystemExit(message) from None
+        if not 0 < low < high:
+            raise SystemExit(f"--epsilon-factors {item!r}: need 0 < LOW < HIGH")
+        if slug in out:
+            raise SystemExit(f"--epsilon-factors names {name!r} twice")
+        out[slug] = (low, high)
+    return out
+
+
+def prior_of(args, model) -> jaxabc.Uniform:
+    """A model's prior: ``--prior-width``'s box, its epsilon bounds replaced by ``--epsilon-factors``."""
+    options = dict(args.prior_options)
+    if model.slug in args.epsilon_factors:
+        options["epsilon_factors"] = args.epsilon_factors[model.slug]
+    return model_prior(model, **options)
+
+
 def protocol_overrides(args) -> dict:
     overrides = {"temperature_k": args.temperature_k}
     if args.md_steps is None:
@@ -180,7 +217,7 @@ def make_models(args, fitted: np.ndarray) -> list[Model]:
     for model in MODELS.values():
         simulate = WaterModelSimulator(model, args.preset, "robust", args.data, **protocol_overrides(args))
         cached = CachedSummaries(simulate, fitted, args.cache_dir)
-        models.append(Model(model.name, cached, model_prior(model, **args.prior_options)))
+        models.append(Model(model.name, cached, prior_of(args, model)))
     return models
 
 
@@ -250,6 +287,7 @@ def scaled_mean_abs(scale: np.ndarray):
 def simulator_id(args) -> str:
     """Names everything a checkpoint's simulations depend on, so a resume cannot mix them."""
     width = ",".join(f"{k}={v}" for k, v in sorted(args.prior_options.items())) or "default"
+    width += "".join(f":{name}.epsilon_factors={bounds}" for name, bounds in sorted(args.epsilon_factors.items()))
     return (
         f"water_model_choice:{args.data}:{args.preset}:{args.md_steps}:T={args.temperature_k}"
         f":summaries=14:yeh_hummer:prior={width}"
@@ -470,6 +508,9 @@ def main(argv=None) -> None:
             "temperature_k": args.temperature_k,
             "prior_width": args.prior_width,
             "prior_options": {k: list(v) for k, v in args.prior_options.items()},
+            "model_epsilon_factors": {
+                m.name: list(args.epsilon_factors[m.slug]) for m in MODELS.values() if m.slug in args.epsilon_factors
+            },
             "discrepancy": None if "discrepancy" not in noise_kwargs else noise_kwargs["discrepancy"].describe(),
         },
         "summaries": {
@@ -504,8 +545,8 @@ def main(argv=None) -> None:
                 "charge_h_e": m.charge_h_e,
                 "om_distance_nm": m.om_distance_nm,
                 "published_lj": list(m.lj),
-                "prior_low": np.asarray(model_prior(m, **args.prior_options).low).tolist(),
-                "prior_high": np.asarray(model_prior(m, **args.prior_options).high).tolist(),
+                "prior_low": np.asarray(prior_of(args, m).low).tolist(),
+                "prior_high": np.asarray(prior_of(args, m).high).tolist(),
                 "dipole_debye": m.dipole_debye,
                 "polarisation_correction_kj_mol": polarisation_correction_kj_mol(m),
             }

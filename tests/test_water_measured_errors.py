@@ -22,7 +22,7 @@ from md.water.finite_size import (
 )
 from md.water.joint_data import JOINT_NAMES, joint_observed, joint_record, observation_sd
 from md.water.model_simulator import JOINT_SUMMARY_NAMES, WaterModelSimulator
-from md.water.models import MODELS, WIDE_EPSILON_FACTORS, model_prior
+from md.water.models import MODELS, WIDE_EPSILON_FACTORS, get_model, model_prior
 from md.water.protocol import get_protocol
 from md.water.statistics import SECOND_SHELL_NAMES, SECOND_SHELL_WINDOW_NM, second_shell_statistics
 
@@ -228,6 +228,19 @@ def test_benchmark_priors_and_discrepancy_groups():
     assert bench.prior_options("0.05,0.6,2.0") == {"relative_half_width": (0.05, 0.4), "epsilon_factors": (0.6, 2.0)}
     with pytest.raises(SystemExit):
         bench.prior_options("huge")
+    # One model's epsilon box replaced: the others keep --prior-width's.
+    args = bench.parse_arguments(["--prior-width", "wide", "--epsilon-factors", "tip3p=0.45,2.5", "--tiny"])
+    assert args.epsilon_factors == {"tip3p": (0.45, 2.5)}
+    assert "tip3p0.45-2.5" in str(args.cache_dir)
+    tip3p, tip4p = bench.prior_of(args, get_model("TIP3P")), bench.prior_of(args, get_model("TIP4P"))
+    assert math.isclose(float(tip3p.low[1]), 0.45 * get_model("TIP3P").lj[1], rel_tol=1e-6)
+    assert math.isclose(float(tip4p.low[1]), WIDE_EPSILON_FACTORS[0] * get_model("TIP4P").lj[1], rel_tol=1e-6)
+    assert "tip3p.epsilon_factors=(0.45, 2.5)" in bench.simulator_id(args)
+    for bad in ("TIP3P=0.5", "TIP3P=2,1", "nosuch=0.4,2", "TIP3P=x,2"):
+        with pytest.raises(SystemExit):
+            bench.parse_arguments(["--epsilon-factors", bad])
+    with pytest.raises(SystemExit, match="twice"):
+        bench.parse_arguments(["--epsilon-factors", "TIP3P=0.4,2", "--epsilon-factors", "tip3p=0.5,2"])
     for kind in ("xray", "neutron"):
         data = joint_observed(kind)
         names = [n for n, f in zip(data.names, data.fitted, strict=True) if f]
