@@ -372,6 +372,14 @@ def _verdict(d: dict[str, Any]) -> list[str]:
     return out
 
 
+def _epsilon_edge(d: dict[str, Any], model: str) -> float | None:
+    """A model's epsilon lower bound as a factor of its published value (None if not saved)."""
+    row = d.get("models", {}).get(model, {})
+    if "prior_low" not in row or "published_lj" not in row:
+        return None
+    return round(row["prior_low"][1] / row["published_lj"][1], 3)
+
+
 def _below_box(d: dict[str, Any], piled: list[str]) -> str:
     """What the liquid does below epsilon's lower bound (``water_prior_range_low``), for the
     models whose epsilon piles there: whether the bound stands at a physical limit."""
@@ -379,12 +387,23 @@ def _below_box(d: dict[str, Any], piled: list[str]) -> str:
     if not piled or low is None:
         return ""
     lo, hi = low["liquid_density_kg_m3"]
-    parts = []
-    for model in sorted({r["model"] for r in low["scan"]}):
+    base = load("water_prior_range")
+    scans = low["scan"] + ((base or {}).get("scan") or [])
+    edges = {m: _epsilon_edge(d, m) for m in piled}
+    parts, at_edge, liquid_below = [], [], False
+    for model in piled:
+        edge = edges[model]
+        runs_of = [r for r in scans if r["model"] == model]
+        at = [r["density_kg_m3"] for r in runs_of if r["epsilon_factor"] == edge and r["status"] == "ok"]
+        if at:
+            at_edge.append(f"{model} {np.mean(at):.0f} kg/m3 at x{edge:g}")
         points = []
-        for factor in sorted({r["epsilon_factor"] for r in low["scan"]}, reverse=True):
-            runs = [r for r in low["scan"] if r["model"] == model and r["epsilon_factor"] == factor]
+        for factor in sorted(
+            {r["epsilon_factor"] for r in runs_of if edge is None or r["epsilon_factor"] < edge}, reverse=True
+        ):
+            runs = [r for r in runs_of if r["epsilon_factor"] == factor]
             dense = [r["density_kg_m3"] for r in runs if r["status"] == "ok"]
+            liquid_below |= any(r["liquid"] for r in runs)
             if dense and not any(r["liquid"] for r in runs):
                 points.append(f"x{factor:g} {min(dense):.0f}-{max(dense):.0f} kg/m3")
             elif dense:
@@ -392,37 +411,28 @@ def _below_box(d: dict[str, Any], piled: list[str]) -> str:
             else:
                 why = runs[0].get("reason", "failed").split(": ", 1)[-1]
                 points.append(f"x{factor:g} {why}")
-        parts.append(f"{model}: " + ", ".join(points))
-    base = load("water_prior_range")
-    edge = min(base["factors"]) if base else None
-
-    def density_at_edge(m: str) -> list[float]:
-        rows = (base or {}).get("scan", [])
-        return [r["density_kg_m3"] for r in rows if (r["model"], r["epsilon_factor"], r["status"]) == (m, edge, "ok")]
-
-    at_edge = [f"{m} {np.mean(density_at_edge(m)):.0f} kg/m3" for m in piled if density_at_edge(m)]
+        parts.append(f"{model} (box from x{edge:g}): " + (", ".join(points) or "no run below the box"))
     corr = [
         f"{m} {d['per_model'][m]['correlation']:+.2f}"
         for m in piled
         if isinstance(d.get("per_model", {}).get(m, {}).get("correlation"), float)
     ]
-    if any(r["liquid"] for r in low["scan"]):
+    if liquid_below:
         verdict = "the liquid holds below the bound, so the box should be widened and the model choice rerun"
     else:
         verdict = (
-            f"at the published sigma none of these runs is liquid water by the scan's criterion (density in "
-            f"[{lo:g}, {hi:g}] kg/m3, against 997 measured), and by x0.3 the liquid collapses.  But the posterior "
-            "trades epsilon for sigma (correlation "
+            f"at the published sigma none of the runs below the box is liquid water by the scan's criterion "
+            f"(density in [{lo:g}, {hi:g}] kg/m3, against 997 measured).  But the posterior trades epsilon for "
+            "sigma (correlation "
             + (", ".join(corr) or "not saved")
-            + "): along that ridge, with sigma up to its +5 % bound, the liquid may hold below x"
-            f"{edge:g}, so the scan does not make x{edge:g} a physical limit for the calibrated model.  A rerun "
-            "with the box reaching x0.45 for these models would settle it"
+            + "): along that ridge, with sigma up to its +5 % bound, the liquid may hold lower, so the scan does "
+            "not make the bound a physical limit for the calibrated model"
         )
     return (
-        f"Below epsilon's lower bound (x{edge:g}"
-        + (f", where the density at the published sigma is {', '.join(at_edge)}" if at_edge else "")
-        + f"), where {', '.join(piled)} piles (`water_prior_range_low`, published sigma, {low['seeds']} runs "
-        "per point): " + "; ".join(parts) + f". So {verdict}."
+        "Below epsilon's lower bound"
+        + (f" (density at the published sigma: {', '.join(at_edge)})" if at_edge else "")
+        + f", where {', '.join(piled)} piles (`water_prior_range_low` and `water_prior_range`, published sigma, "
+        f"{low['seeds']} runs per point): " + "; ".join(parts) + f". So {verdict}."
     )
 
 
