@@ -117,12 +117,12 @@ def parse_arguments(argv=None) -> argparse.Namespace:
         "'S,E' (half-widths as fractions) or 'S,LOW,HIGH' (sigma half-width, epsilon bounds as factors)",
     )
     parser.add_argument(
-        "--epsilon-factors",
+        "--model-prior",
         action="append",
         default=[],
-        metavar="MODEL=LOW,HIGH",
-        help="one model's epsilon bounds as factors of its published value, replacing --prior-width's "
-        "(repeatable), e.g. TIP3P=0.45,2.5 where its posterior piles on the wide box's lower bound",
+        metavar="MODEL=WIDTH",
+        help="one model's box in --prior-width's terms, replacing it for that model (repeatable), e.g. "
+        "TIP3P=0.08,0.35,2.5 where its posterior piles on a bound of the common box",
     )
     parser.add_argument(
         "--discrepancy",
@@ -136,12 +136,12 @@ def parse_arguments(argv=None) -> argparse.Namespace:
         args.particles, args.steps, args.pilot = 4, 2, 3
         args.md_steps = args.md_steps or 1000
         args.budget_per_model, args.predictive = 50, 2
-    args.epsilon_factors = model_epsilon_factors(args.epsilon_factors)
+    args.model_prior = model_priors(args.model_prior)
     suffix = f"{args.data}_{args.preset}" + ("_tiny" if args.tiny else "")
     variant = (
         suffix
         + ("" if args.prior_width == "default" else f"_{args.prior_width}")
-        + "".join(f"_{name}{low:g}-{high:g}" for name, (low, high) in sorted(args.epsilon_factors.items()))
+        + "".join(f"_{slug}{width.replace(',', '-')}" for slug, (width, _) in sorted(args.model_prior.items()))
         + ("_discrepancy" if args.discrepancy else "")
         + ("" if args.seed == 0 else f"_seed{args.seed}")
     )
@@ -177,31 +177,29 @@ def prior_options(width: str) -> dict:
     raise SystemExit(f"--prior-width must be 'default', 'wide', 'S,E' or 'S,LOW,HIGH', got {width!r}")
 
 
-def model_epsilon_factors(items: list[str]) -> dict[str, tuple[float, float]]:
-    """``--epsilon-factors`` values (``MODEL=LOW,HIGH``) as ``{slug: (low, high)}``."""
-    out: dict[str, tuple[float, float]] = {}
+def model_priors(items: list[str]) -> dict[str, tuple[str, dict]]:
+    """``--model-prior`` values (``MODEL=WIDTH``) as ``{slug: (width, model_prior options)}``."""
+    out: dict[str, tuple[str, dict]] = {}
     for item in items:
-        name, _, bounds = item.partition("=")
+        name, _, width = item.partition("=")
         try:
             slug = get_model(name).slug
-            low, high = (float(v) for v in bounds.split(","))
         except ValueError as error:
-            message = f"--epsilon-factors wants MODEL=LOW,HIGH with a known model, got {item!r}: {error}"
-            raise SystemExit(message) from None
-        if not 0 < low < high:
-            raise SystemExit(f"--epsilon-factors {item!r}: need 0 < LOW < HIGH")
+            raise SystemExit(f"--model-prior wants MODEL=WIDTH with a known model, got {item!r}: {error}") from None
         if slug in out:
-            raise SystemExit(f"--epsilon-factors names {name!r} twice")
-        out[slug] = (low, high)
+            raise SystemExit(f"--model-prior names {name!r} twice")
+        out[slug] = (width, prior_options(width))
+        try:  # a bad width fails here, not after hours of simulations
+            model_prior(slug, **out[slug][1])
+        except ValueError as error:
+            raise SystemExit(f"--model-prior {item!r}: {error}") from None
     return out
 
 
 def prior_of(args, model) -> jaxabc.Uniform:
-    """A model's prior: ``--prior-width``'s box, its epsilon bounds replaced by ``--epsilon-factors``."""
-    options = dict(args.prior_options)
-    if model.slug in args.epsilon_factors:
-        options["epsilon_factors"] = args.epsilon_factors[model.slug]
-    return model_prior(model, **options)
+    """A model's prior: ``--model-prior``'s box for it, else ``--prior-width``'s."""
+    width = args.model_prior.get(model.slug)
+    return model_prior(model, **(args.prior_options if width is None else width[1]))
 
 
 def protocol_overrides(args) -> dict:
@@ -287,7 +285,7 @@ def scaled_mean_abs(scale: np.ndarray):
 def simulator_id(args) -> str:
     """Names everything a checkpoint's simulations depend on, so a resume cannot mix them."""
     width = ",".join(f"{k}={v}" for k, v in sorted(args.prior_options.items())) or "default"
-    width += "".join(f":{name}.epsilon_factors={bounds}" for name, bounds in sorted(args.epsilon_factors.items()))
+    width += "".join(f":{slug}.prior={spec}" for slug, (spec, _) in sorted(args.model_prior.items()))
     return (
         f"water_model_choice:{args.data}:{args.preset}:{args.md_steps}:T={args.temperature_k}"
         f":summaries=14:yeh_hummer:prior={width}"
@@ -508,8 +506,8 @@ def main(argv=None) -> None:
             "temperature_k": args.temperature_k,
             "prior_width": args.prior_width,
             "prior_options": {k: list(v) for k, v in args.prior_options.items()},
-            "model_epsilon_factors": {
-                m.name: list(args.epsilon_factors[m.slug]) for m in MODELS.values() if m.slug in args.epsilon_factors
+            "model_prior_width": {
+                m.name: args.model_prior[m.slug][0] for m in MODELS.values() if m.slug in args.model_prior
             },
             "discrepancy": None if "discrepancy" not in noise_kwargs else noise_kwargs["discrepancy"].describe(),
         },

@@ -228,19 +228,24 @@ def test_benchmark_priors_and_discrepancy_groups():
     assert bench.prior_options("0.05,0.6,2.0") == {"relative_half_width": (0.05, 0.4), "epsilon_factors": (0.6, 2.0)}
     with pytest.raises(SystemExit):
         bench.prior_options("huge")
-    # One model's epsilon box replaced: the others keep --prior-width's.
-    args = bench.parse_arguments(["--prior-width", "wide", "--epsilon-factors", "tip3p=0.45,2.5", "--tiny"])
-    assert args.epsilon_factors == {"tip3p": (0.45, 2.5)}
-    assert "tip3p0.45-2.5" in str(args.cache_dir)
+    # One model's box replaced: the others keep --prior-width's.
+    args = bench.parse_arguments(["--prior-width", "wide", "--model-prior", "tip3p=0.08,0.35,2.5", "--tiny"])
+    assert args.model_prior == {
+        "tip3p": ("0.08,0.35,2.5", {"relative_half_width": (0.08, 0.4), "epsilon_factors": (0.35, 2.5)})
+    }
+    assert "_tip3p0.08-0.35-2.5" in str(args.cache_dir)
     tip3p, tip4p = bench.prior_of(args, get_model("TIP3P")), bench.prior_of(args, get_model("TIP4P"))
-    assert math.isclose(float(tip3p.low[1]), 0.45 * get_model("TIP3P").lj[1], rel_tol=1e-6)
-    assert math.isclose(float(tip4p.low[1]), WIDE_EPSILON_FACTORS[0] * get_model("TIP4P").lj[1], rel_tol=1e-6)
-    assert "tip3p.epsilon_factors=(0.45, 2.5)" in bench.simulator_id(args)
-    for bad in ("TIP3P=0.5", "TIP3P=2,1", "nosuch=0.4,2", "TIP3P=x,2"):
+    published3, published4 = get_model("TIP3P").lj, get_model("TIP4P").lj
+    assert math.isclose(float(tip3p.low[1]), 0.35 * published3[1], rel_tol=1e-6)
+    assert math.isclose(float(tip3p.high[0]), 1.08 * published3[0], rel_tol=1e-6)
+    assert math.isclose(float(tip4p.low[1]), WIDE_EPSILON_FACTORS[0] * published4[1], rel_tol=1e-6)
+    assert math.isclose(float(tip4p.high[0]), 1.05 * published4[0], rel_tol=1e-6)
+    assert "tip3p.prior=0.08,0.35,2.5" in bench.simulator_id(args)
+    for bad in ("TIP3P=huge", "TIP3P=0.05,2,1", "nosuch=0.05,0.4,2", "TIP3P=1.5,0.4"):
         with pytest.raises(SystemExit):
-            bench.parse_arguments(["--epsilon-factors", bad])
+            bench.parse_arguments(["--model-prior", bad])
     with pytest.raises(SystemExit, match="twice"):
-        bench.parse_arguments(["--epsilon-factors", "TIP3P=0.4,2", "--epsilon-factors", "tip3p=0.5,2"])
+        bench.parse_arguments(["--model-prior", "TIP3P=wide", "--model-prior", "tip3p=default"])
     for kind in ("xray", "neutron"):
         data = joint_observed(kind)
         names = [n for n, f in zip(data.names, data.fitted, strict=True) if f]

@@ -66,6 +66,7 @@ def page_water_model_choice() -> str:
         f"(each source's stated error, {summaries.get('observation_error_via', 'added to every simulation')}): "
         + ", ".join(f"{k} {f(v, 3)}" for k, v in added.items() if v)
         + f"; prior width: {settings.get('prior_width', 'default')}"
+        + _own_boxes(settings)
         + f"; method: {d['model_choice']['metadata'].get('method', d['method'])}.\n",
         f"Stopped: {d['model_choice']['stop_reason']}.\n",
         *_verdict(d),
@@ -107,6 +108,19 @@ def page_water_model_choice() -> str:
     if gone:
         parts.append("Retired criticisms and checks:\n\n" + gone + "\n")
     return "\n".join(parts)
+
+
+def _own_boxes(settings: dict[str, Any]) -> str:
+    """The models whose box differs from the prior width's (``--model-prior``)."""
+    own = settings.get("model_prior_width") or {}
+    if not own:
+        return ""
+    return (
+        " ("
+        + ", ".join(f"{m}: {width}" for m, width in own.items())
+        + ": where a posterior piled on a bound of the common box, that model's box was widened and the model "
+        "choice rerun)"
+    )
 
 
 def _criticisms_compared(crits: dict[str, dict[str, Any] | None]) -> list[str]:
