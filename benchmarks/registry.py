@@ -608,7 +608,7 @@ REGISTRY: tuple[Entry, ...] = (
         "water_model_choice",
         f"{R}/water_model_choice.json",
         "python -m benchmarks.water_model_choice --data xray --workers 2 --no-progress --continue "
-        "--prior-width wide --model-prior TIP3P=0.08,0.35,2.5 --discrepancy --budget-per-model 60 --predictive 6",
+        "--prior-width wide --model-prior TIP3P=0.95,1.08,0.4,2.5 --discrepancy --budget-per-model 60 --predictive 6",
         long=True,
         requires=("gmx",),
         quick="python -m benchmarks.water_model_choice --tiny --workers 2 --no-progress",
@@ -616,7 +616,7 @@ REGISTRY: tuple[Entry, ...] = (
         estimated_cost_s=4500.0,
         note="model choice over five rigid water models by surrogate evidence (up to 60 GROMACS runs each) "
         "with the sources' measurement errors, a discrepancy sd per group of summaries and epsilon x[0.6, 2.5] "
-        "(TIP3P sigma +-8 %, epsilon x[0.35, 2.5]: its posterior piled on the common box); "
+        "(TIP3P sigma x[0.95, 1.08], epsilon x[0.4, 2.5]: its posterior piled on the common box); "
         "its simulations and checkpoints are cached under runs/cache/water_model_choice (not tracked), so the "
         "same command continues an interrupted run",
     ),
@@ -625,7 +625,7 @@ REGISTRY: tuple[Entry, ...] = (
             name,
             f"{R}/{name}.json",
             "python -m benchmarks.water_model_choice --data xray --workers 2 --no-progress --continue "
-            f"--prior-width wide --model-prior TIP3P=0.08,0.35,2.5{flags} --budget-per-model 60 --predictive 6 "
+            f"--prior-width wide --model-prior TIP3P=0.95,1.08,0.4,2.5{flags} --budget-per-model 60 --predictive 6 "
             f"--name {name}",
             long=True,
             requires=("gmx",),

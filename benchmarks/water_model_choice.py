@@ -114,7 +114,8 @@ def parse_arguments(argv=None) -> argparse.Namespace:
         "--prior-width",
         default="default",
         help="'default' (sigma +-5 %%, epsilon +-40 %%), 'wide' (sigma +-5 %%, epsilon x[0.6, 2.5]), "
-        "'S,E' (half-widths as fractions) or 'S,LOW,HIGH' (sigma half-width, epsilon bounds as factors)",
+        "'S,E' (half-widths as fractions), 'S,LOW,HIGH' (sigma half-width, epsilon bounds as factors) or "
+        "'SLOW,SHIGH,ELOW,EHIGH' (sigma and epsilon bounds as factors)",
     )
     parser.add_argument(
         "--model-prior",
@@ -174,7 +175,26 @@ def prior_options(width: str) -> dict:
         return {"relative_half_width": tuple(values)}
     if len(values) == 3:
         return {"relative_half_width": (values[0], 0.4), "epsilon_factors": tuple(values[1:])}
-    raise SystemExit(f"--prior-width must be 'default', 'wide', 'S,E' or 'S,LOW,HIGH', got {width!r}")
+    if len(values) == 4:
+        return {"sigma_factors": tuple(values[:2]), "epsilon_factors": tuple(values[2:])}
+    raise SystemExit(
+        f"--prior-width must be 'default', 'wide', 'S,E', 'S,LOW,HIGH' or 'SLOW,SHIGH,ELOW,EHIGH', got {width!r}"
+    )
+
+
+def box_prior(model, options: dict) -> jaxabc.Uniform:
+    """:func:`model_prior` with ``options``; ``sigma_factors`` (an asymmetric sigma box, as
+    multiples of the published sigma) replaces sigma's half-width."""
+    options = dict(options)
+    sigma = options.pop("sigma_factors", None)
+    prior = model_prior(model, **options)
+    if sigma is None:
+        return prior
+    if not 0 < sigma[0] < 1 < sigma[1]:
+        raise ValueError(f"sigma factors must satisfy 0 < low < 1 < high, got {sigma!r}")
+    low, high = np.asarray(prior.low, np.float64), np.asarray(prior.high, np.float64)
+    low[0], high[0] = get_model(model).lj[0] * np.asarray(sigma)
+    return jaxabc.Uniform(low=low.tolist(), high=high.tolist(), names=prior.names, units=prior.units)
 
 
 def model_priors(items: list[str]) -> dict[str, tuple[str, dict]]:
@@ -190,7 +210,7 @@ def model_priors(items: list[str]) -> dict[str, tuple[str, dict]]:
             raise SystemExit(f"--model-prior names {name!r} twice")
         out[slug] = (width, prior_options(width))
         try:  # a bad width fails here, not after hours of simulations
-            model_prior(slug, **out[slug][1])
+            box_prior(slug, out[slug][1])
         except ValueError as error:
             raise SystemExit(f"--model-prior {item!r}: {error}") from None
     return out
@@ -199,7 +219,7 @@ def model_priors(items: list[str]) -> dict[str, tuple[str, dict]]:
 def prior_of(args, model) -> jaxabc.Uniform:
     """A model's prior: ``--model-prior``'s box for it, else ``--prior-width``'s."""
     width = args.model_prior.get(model.slug)
-    return model_prior(model, **(args.prior_options if width is None else width[1]))
+    return box_prior(model, args.prior_options if width is None else width[1])
 
 
 def protocol_overrides(args) -> dict:

@@ -229,19 +229,25 @@ def test_benchmark_priors_and_discrepancy_groups():
     with pytest.raises(SystemExit):
         bench.prior_options("huge")
     # One model's box replaced: the others keep --prior-width's.
-    args = bench.parse_arguments(["--prior-width", "wide", "--model-prior", "tip3p=0.08,0.35,2.5", "--tiny"])
+    args = bench.parse_arguments(["--prior-width", "wide", "--model-prior", "tip3p=0.95,1.08,0.35,2.5", "--tiny"])
     assert args.model_prior == {
-        "tip3p": ("0.08,0.35,2.5", {"relative_half_width": (0.08, 0.4), "epsilon_factors": (0.35, 2.5)})
+        "tip3p": ("0.95,1.08,0.35,2.5", {"sigma_factors": (0.95, 1.08), "epsilon_factors": (0.35, 2.5)})
     }
-    assert "_tip3p0.08-0.35-2.5" in str(args.cache_dir)
+    assert "_tip3p0.95-1.08-0.35-2.5" in str(args.cache_dir)
     tip3p, tip4p = bench.prior_of(args, get_model("TIP3P")), bench.prior_of(args, get_model("TIP4P"))
     published3, published4 = get_model("TIP3P").lj, get_model("TIP4P").lj
     assert math.isclose(float(tip3p.low[1]), 0.35 * published3[1], rel_tol=1e-6)
     assert math.isclose(float(tip3p.high[0]), 1.08 * published3[0], rel_tol=1e-6)
+    assert math.isclose(float(tip3p.low[0]), 0.95 * published3[0], rel_tol=1e-6)
+    assert math.isclose(float(tip3p.high[1]), 2.5 * published3[1], rel_tol=1e-6)
     assert math.isclose(float(tip4p.low[1]), WIDE_EPSILON_FACTORS[0] * published4[1], rel_tol=1e-6)
     assert math.isclose(float(tip4p.high[0]), 1.05 * published4[0], rel_tol=1e-6)
-    assert "tip3p.prior=0.08,0.35,2.5" in bench.simulator_id(args)
-    for bad in ("TIP3P=huge", "TIP3P=0.05,2,1", "nosuch=0.05,0.4,2", "TIP3P=1.5,0.4"):
+    assert "tip3p.prior=0.95,1.08,0.35,2.5" in bench.simulator_id(args)
+    assert bench.parse_arguments(["--model-prior", "TIP3P=0.08,0.4,2"]).model_prior["tip3p"][1] == {
+        "relative_half_width": (0.08, 0.4),
+        "epsilon_factors": (0.4, 2.0),
+    }
+    for bad in ("TIP3P=huge", "TIP3P=0.05,2,1", "nosuch=0.05,0.4,2", "TIP3P=1.5,0.4", "TIP3P=1.01,1.1,0.4,2"):
         with pytest.raises(SystemExit):
             bench.parse_arguments(["--model-prior", bad])
     with pytest.raises(SystemExit, match="twice"):
