@@ -66,7 +66,7 @@ def page_water_model_choice() -> str:
         f"(each source's stated error, {summaries.get('observation_error_via', 'added to every simulation')}): "
         + ", ".join(f"{k} {f(v, 3)}" for k, v in added.items() if v)
         + f"; prior width: {settings.get('prior_width', 'default')}"
-        + _own_boxes(settings)
+        + _own_boxes(d)
         + f"; method: {d['model_choice']['metadata'].get('method', d['method'])}.\n",
         f"Stopped: {d['model_choice']['stop_reason']}.\n",
         *_verdict(d),
@@ -110,16 +110,21 @@ def page_water_model_choice() -> str:
     return "\n".join(parts)
 
 
-def _own_boxes(settings: dict[str, Any]) -> str:
-    """The models whose box differs from the prior width's (``--model-prior``)."""
-    own = settings.get("model_prior_width") or {}
-    if not own:
+def _own_boxes(d: dict[str, Any]) -> str:
+    """The models whose box differs from the prior width's (``--model-prior``), as factors of
+    their published parameters."""
+    own = (d.get("settings") or {}).get("model_prior_width") or {}
+    boxes = []
+    for name in own:
+        m = d["models"][name]
+        lo = [low / p for low, p in zip(m["prior_low"], m["published_lj"], strict=True)]
+        hi = [high / p for high, p in zip(m["prior_high"], m["published_lj"], strict=True)]
+        boxes.append(f"{name} sigma x[{lo[0]:.3g}, {hi[0]:.3g}], epsilon x[{lo[1]:.3g}, {hi[1]:.3g}]")
+    if not boxes:
         return ""
     return (
-        " ("
-        + ", ".join(f"{m}: {width}" for m, width in own.items())
-        + ": where a posterior piled on a bound of the common box, that model's box was widened and the model "
-        "choice rerun)"
+        " (" + ", ".join(boxes) + ": where a posterior piled on a bound of the common box, that model's box was "
+        "widened and the model choice rerun)"
     )
 
 
