@@ -210,6 +210,7 @@ def _repeats() -> list[str]:
             table(["run", "verdict", "flags", *names], rows) + "\n",
         ]
         + _misspecified_sentence(saved)
+        + _repeat_edges(saved)
         + (
             [
                 f"In how many of the {len(with_disc)} repeats with the discrepancy term no model reproduces each "
@@ -219,6 +220,22 @@ def _repeats() -> list[str]:
             else []
         )
     )
+
+
+def _repeat_edges(saved: list[tuple[str, str, dict[str, Any]]]) -> list[str]:
+    """Posteriors piled on a bound of a box (not a physical limit) in any repeat, with whether
+    that model's emulator validated: the prior-edge statement must hold in every run."""
+    piled = []
+    for name, _, d in saved:
+        for model, edge in (d.get("prior_edge") or {}).items():
+            validated = (d.get("per_model", {}).get(model) or {}).get("validated")
+            piled += [
+                f"`{name}` {model}: {msg}" + ("" if validated is not False else " (its emulator failed validation)")
+                for msg in edge.get("messages") or []
+            ]
+    if not piled:
+        return [f"Prior edges in the repeats: no posterior piles on a bound of its box in any of the {len(saved)}.\n"]
+    return ["Prior edges in the repeats: " + "; ".join(piled) + ".\n"]
 
 
 def _misspecified_sentence(saved: list[tuple[str, str, dict[str, Any]]]) -> list[str]:
