@@ -116,9 +116,10 @@ def _own_boxes(d: dict[str, Any]) -> str:
     own = (d.get("settings") or {}).get("model_prior_width") or {}
     boxes = []
     for name in own:
-        m = d["models"][name]
-        lo = [low / p for low, p in zip(m["prior_low"], m["published_lj"], strict=True)]
-        hi = [high / p for high, p in zip(m["prior_high"], m["published_lj"], strict=True)]
+        box = _box_factors(d, name)
+        if box is None:
+            continue
+        lo, hi = box
         boxes.append(f"{name} sigma x[{lo[0]:.3g}, {hi[0]:.3g}], epsilon x[{lo[1]:.3g}, {hi[1]:.3g}]")
     if not boxes:
         return ""
@@ -408,12 +409,20 @@ def _verdict(d: dict[str, Any]) -> list[str]:
     return out
 
 
+def _box_factors(d: dict[str, Any], model: str) -> tuple[list[float], list[float]] | None:
+    """A model's prior box (low, high) as factors of its published (sigma, epsilon); None if not saved."""
+    row = d.get("models", {}).get(model, {})
+    if not all(k in row for k in ("prior_low", "prior_high", "published_lj")):
+        return None
+    lo = [low / p for low, p in zip(row["prior_low"], row["published_lj"], strict=True)]
+    hi = [high / p for high, p in zip(row["prior_high"], row["published_lj"], strict=True)]
+    return lo, hi
+
+
 def _epsilon_edge(d: dict[str, Any], model: str) -> float | None:
     """A model's epsilon lower bound as a factor of its published value (None if not saved)."""
-    row = d.get("models", {}).get(model, {})
-    if "prior_low" not in row or "published_lj" not in row:
-        return None
-    return round(row["prior_low"][1] / row["published_lj"][1], 3)
+    box = _box_factors(d, model)
+    return None if box is None else round(box[0][1], 3)
 
 
 def _below_box(d: dict[str, Any], piled: list[str]) -> str:
