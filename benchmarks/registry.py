@@ -640,6 +640,21 @@ REGISTRY: tuple[Entry, ...] = (
         )
     ),
     Entry(
+        "water_model_choice_seed1_budget120",
+        f"{R}/water_model_choice_seed1_budget120.json",
+        "python -m benchmarks.water_model_choice --data xray --workers 2 --no-progress --continue "
+        "--prior-width wide --model-prior TIP3P=0.95,1.08,0.4,2.5 --discrepancy --seed 1 --budget-per-model 120 "
+        "--predictive 6 --name water_model_choice_seed1_budget120 "
+        f"--cache-dir {CACHE}/water_model_choice/xray_quick_budget120_seed1 "
+        f"--result-dir {R}/water_model_choice/xray_quick_budget120_seed1",
+        long=True,
+        requires=("gmx",),
+        estimated_cost_s=6000.0,
+        note="the model choice of seed 1 with twice the budget (up to 120 GROMACS runs per model): in seed 1 "
+        "three emulators failed validation on 60 runs and TIP3P's epsilon sat on its lower bound",
+        checked_by=("water_model_choice", "surrogate_helium", "water_prior_range"),
+    ),
+    Entry(
         "water_published_predictive",
         f"{R}/water_published_predictive.json",
         "python -m benchmarks.water_published_predictive --data xray --runs 3 --workers 2",
