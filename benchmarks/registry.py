@@ -655,6 +655,22 @@ REGISTRY: tuple[Entry, ...] = (
         checked_by=("water_model_choice", "surrogate_helium", "water_prior_range"),
     ),
     Entry(
+        "water_model_choice_sigma_x2",
+        f"{R}/water_model_choice_sigma_x2.json",
+        "python -m benchmarks.water_model_choice --data xray --workers 2 --no-progress --continue "
+        "--prior-width 0.9,1.1,0.6,2.5 --model-prior TIP3P=0.885,1.145,0.4,2.5 --discrepancy --budget-per-model 60 "
+        "--predictive 6 --name water_model_choice_sigma_x2 "
+        f"--cache-dir {CACHE}/water_model_choice/xray_quick_sigma_x2 "
+        f"--result-dir {R}/water_model_choice/xray_quick_sigma_x2",
+        long=True,
+        requires=("gmx",),
+        estimated_cost_s=4500.0,
+        note="the model choice of seed 0 with every sigma box doubled in width about its centre (the sensitivity "
+        "table's wider boxes need simulations there); epsilon keeps its box, whose bounds are the quick preset's "
+        "liquid range (water_prior_range), a physical limit",
+        checked_by=("water_model_choice", "surrogate_helium", "water_prior_range"),
+    ),
+    Entry(
         "water_published_predictive",
         f"{R}/water_published_predictive.json",
         "python -m benchmarks.water_published_predictive --data xray --runs 3 --workers 2",

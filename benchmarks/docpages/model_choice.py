@@ -28,6 +28,8 @@ REPEATS = (
     ("water_model_choice_seed1", "seed 1"),
     ("water_model_choice_seed2", "seed 2"),
     ("water_model_choice_no_discrepancy", "seed 0, no discrepancy term"),
+    ("water_model_choice_seed1_budget120", "seed 1, twice the budget"),
+    ("water_model_choice_sigma_x2", "seed 0, every sigma box doubled"),
 )
 
 
@@ -191,6 +193,7 @@ def _repeats() -> list[str]:
                 f"`{name}` ({what})",
                 f"{verdict.get('status', '?')} {verdict.get('model') or ''}".strip(),
                 ", ".join(_flags(mc["stop_reason"])) or "-",
+                _validated(d),
                 *(f"{p:.3g}" for p in mc["probabilities"]),
             ]
         )
@@ -208,7 +211,7 @@ def _repeats() -> list[str]:
             f"probable model is {' or '.join(sorted(tops))}"
             + (f"; not run yet: {', '.join(missing)}" if missing else "")
             + ".\n",
-            table(["run", "verdict", "flags", *names], rows) + "\n",
+            table(["run", "verdict", "flags", "emulators validated (runs per model)", *names], rows) + "\n",
         ]
         + _misspecified_sentence(saved)
         + _repeat_edges(saved)
@@ -221,6 +224,13 @@ def _repeats() -> list[str]:
             else []
         )
     )
+
+
+def _validated(d: dict[str, Any]) -> str:
+    """How many of a model choice's emulators passed validation, and its budget per model."""
+    flags = [row.get("validated") for row in d.get("per_model", {}).values()]
+    budget = (d.get("settings") or {}).get("budget_per_model")
+    return f"{sum(v is True for v in flags)} of {len(flags)}" + (f" ({budget})" if budget else "")
 
 
 def _repeat_edges(saved: list[tuple[str, str, dict[str, Any]]]) -> list[str]:
