@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import importlib.util
 import json
+import math
 import subprocess
 import sys
 import textwrap
@@ -689,6 +690,35 @@ def test_the_model_choice_page_says_which_box_change_turns_the_verdict() -> None
     # A preferred verdict that a narrower box leaves as it is, and one it turns to undecided.
     text = _what_would_change({"verdict": {"status": "preferred", "model": "A"}}, names, rows[:2])
     assert "B box x0.5 gives undecided (0.50 [0.30, 0.70])" in text and "Unchanged with A box x0.5." in text
+
+
+def test_the_model_choice_page_computes_wider_boxes_from_a_second_run(monkeypatch) -> None:
+    """One model's doubled box takes its evidence from the wider run, the others' from the first."""
+    from benchmarks.docpages import model_choice as page
+
+    def result(log_z: list[float], validated: list[bool]) -> dict:
+        names = ["A", "B"]
+        return {
+            "model_choice": {
+                "names": names,
+                "log_evidence": log_z,
+                "log_evidence_errors": [0.5, 0.5],
+                "model_prior": [0.5, 0.5],
+            },
+            "per_model": {n: {"validated": v} for n, v in zip(names, validated, strict=True)},
+            "models": {},
+        }
+
+    base = result([0.0, 0.0], [True, True])
+    wide = result([math.log(0.5), 3.0], [True, False])
+    monkeypatch.setattr(page, "load", lambda name: wide if name == "wide" else None)
+    text = "".join(page._wider_boxes(base, "wide"))
+    # A x2: A's evidence halves, so A 1/3 and B 2/3; their intervals (log Z +- 1) overlap.
+    # B x2 from an unvalidated emulator: B's evidence e^3 decides it (1 / (1 + e^3) = 0.0474 for A).
+    assert "| B sigma box x2 | B preferred (B not validated) | 0.0474 [" in text
+    assert "| A sigma box x2 | undecided | 0.333 [0.0634, 0.787] | 0.667 [0.213, 0.937] |" in text
+    assert "A doubled sigma box turns the verdict: B sigma box x2 (B); all sigma boxes x2 (B)." in text
+    assert page._wider_boxes(base, "missing") == ["Wider sigma boxes: `missing` not run yet.\n"]
 
 
 def test_a_retired_checker_without_its_full_result_is_still_checked(fake_repo: Path, monkeypatch) -> None:

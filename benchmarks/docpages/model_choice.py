@@ -366,8 +366,9 @@ def _wider_boxes(d: dict[str, Any], name: str) -> list[str]:
             turned.append(f"{label} ({names[k]})")
     sigma = ", ".join(f"{n} x[{b[0][0]:.3g}, {b[1][0]:.3g}]" for n in names if (b := _box_factors(wide, n)) is not None)
     return [
-        f"Wider boxes, computed (`{name}`: seed 0 again with every sigma box doubled about its centre, {sigma} of "
-        "the published sigma; epsilon keeps its box, whose ends are the quick preset's liquid range, a physical "
+        f"Wider boxes, computed (`{name}`: seed 0 again with every sigma box doubled about its centre"
+        + (f", {sigma} of the published sigma" if sigma else "")
+        + "; epsilon keeps its box, whose ends are the quick preset's liquid range, a physical "
         "limit, so it is not widened). One model's row takes its evidence from that run and the others' from this "
         "one:\n",
         table(["boxes", "verdict", *names], body) + "\n",
