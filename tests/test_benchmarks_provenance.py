@@ -686,7 +686,7 @@ def test_the_model_choice_page_says_which_box_change_turns_the_verdict() -> None
     text = _what_would_change({"verdict": {"status": "undecided", "model": None}}, names, rows)
     assert "A box x0.5 gives A preferred (0.80 [0.60, 0.90])" in text
     assert "Unchanged with B box x0.5." in text and "Narrowing one model's box alone" in text
-    assert "Not computed (they need simulations in the wider boxes): all boxes x2." in text
+    assert "Not computed from this run (they need simulations in the wider boxes): all boxes x2." in text
     # A preferred verdict that a narrower box leaves as it is, and one it turns to undecided.
     text = _what_would_change({"verdict": {"status": "preferred", "model": "A"}}, names, rows[:2])
     assert "B box x0.5 gives undecided (0.50 [0.30, 0.70])" in text and "Unchanged with A box x0.5." in text

@@ -322,7 +322,7 @@ def _what_would_change(d: dict[str, Any], names: list[str], rows: list[dict[str,
         )
     wider = [r["label"] for r in rows if r not in computed]
     if wider:
-        text += f" Not computed (they need simulations in the wider boxes): {', '.join(wider)}."
+        text += f" Not computed from this run (they need simulations in the wider boxes): {', '.join(wider)}."
     return text + "\n"
 
 
