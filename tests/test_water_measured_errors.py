@@ -209,13 +209,6 @@ def test_model_prior_default_and_wide():
     for bad in [(1.5, 1.0), (0.0, 2.0), (0.5,)]:
         with pytest.raises(ValueError, match="epsilon_factors"):
             model_prior("TIP4P", epsilon_factors=bad)
-    own = model_prior("TIP3P", sigma_factors=(0.95, 1.08), epsilon_factors=(0.4, 2.5))
-    t3 = MODELS["TIP3P"]
-    np.testing.assert_allclose([own.low[0], own.high[0]], t3.sigma_oo_nm * np.array([0.95, 1.08]))
-    np.testing.assert_allclose([own.low[1], own.high[1]], t3.epsilon_oo_kj_mol * np.array([0.4, 2.5]))
-    for bad in [(1.01, 1.08), (0.9, 0.99), (float("nan"), 1.1), (0.9,)]:
-        with pytest.raises(ValueError, match="sigma_factors"):
-            model_prior("TIP4P", sigma_factors=bad)
 
 
 def _benchmark():

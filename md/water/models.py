@@ -331,7 +331,6 @@ def model_prior(
     model: WaterModel | str,
     relative_half_width: tuple[float, float] = (0.05, 0.4),
     epsilon_factors: tuple[float, float] | None = None,
-    sigma_factors: tuple[float, float] | None = None,
 ):
     """A uniform prior on ``(sigma_OO, epsilon_OO)`` around the model's published values.
 
@@ -347,9 +346,6 @@ def model_prior(
         the epsilon half-width (an asymmetric box: epsilon cannot go below 0, and the
         calibrations pile against +40 %).  :data:`WIDE_EPSILON_FACTORS` is the range measured
         to stay liquid in the quick preset (``benchmarks/results/water_prior_range.json``).
-    sigma_factors : (float, float), optional
-        Bounds of sigma as multiples of the published value, ``0 < low < 1 < high`` (a box of
-        its own for one model, e.g. TIP3P's ``(0.95, 1.08)``); replaces the sigma half-width.
 
     Returns
     -------
@@ -369,11 +365,6 @@ def model_prior(
         if factors.shape != (2,) or not (np.all(np.isfinite(factors)) and 0 < factors[0] < factors[1]):
             raise ValueError(f"epsilon_factors must be (low, high) with 0 < low < high, got {epsilon_factors!r}")
         low[1], high[1] = centre[1] * factors
-    if sigma_factors is not None:
-        factors = np.asarray(sigma_factors, dtype=float)
-        if factors.shape != (2,) or not (np.all(np.isfinite(factors)) and 0 < factors[0] < 1 < factors[1]):
-            raise ValueError(f"sigma_factors must be (low, high) with 0 < low < 1 < high, got {sigma_factors!r}")
-        low[0], high[0] = centre[0] * factors
     return Uniform(
         low=low.tolist(),
         high=high.tolist(),
