@@ -239,9 +239,21 @@ PRESETS: dict[str, HeliumPreset] = {
         rebuild_every=5,
         batch_size=64,
     ),
+    "cpu64": HeliumPreset(
+        name="cpu64",
+        num_atoms=64,
+        pressure_atm=100.0,
+        dt_ps=0.004,
+        tau_t_ps=0.5,
+        tau_p_ps=0.5,
+        equilibration_ps=4.0,
+        production_ps=10.0,
+        sample_every_ps=0.1,
+        use_neighbor_list=False,
+        rebuild_every=5,
+        batch_size=64,
+    ),
 }
-#: ``cpu`` with 64 atoms (the helium Table 1's preset).
-PRESETS["cpu64"] = dataclasses.replace(PRESETS["cpu"], name="cpu64", num_atoms=64)
 
 
 def get_preset(preset: str | HeliumPreset = "cpu", **overrides: Any) -> HeliumPreset:
