@@ -211,7 +211,7 @@ def _repeats() -> list[str]:
             f"probable model is {' or '.join(sorted(tops))}"
             + (f"; not run yet: {', '.join(missing)}" if missing else "")
             + ".\n",
-            table(["run", "verdict", "flags", "emulators validated (runs per model)", *names], rows) + "\n",
+            table(["run", "verdict", "flags", "emulators validated (runs per model); ESS < 100", *names], rows) + "\n",
         ]
         + _misspecified_sentence(saved)
         + _repeat_edges(saved)
@@ -227,10 +227,17 @@ def _repeats() -> list[str]:
 
 
 def _validated(d: dict[str, Any]) -> str:
-    """How many of a model choice's emulators passed validation, and its budget per model."""
+    """How many of a model choice's emulators passed validation, its budget per model, and any
+    posterior resting on an effective sample size below 100."""
     flags = [row.get("validated") for row in d.get("per_model", {}).values()]
     budget = (d.get("settings") or {}).get("budget_per_model")
-    return f"{sum(v is True for v in flags)} of {len(flags)}" + (f" ({budget})" if budget else "")
+    ess = {name: post.get("ess") for name, post in (d["model_choice"].get("posteriors") or {}).items()}
+    low = {name: e for name, e in ess.items() if e is not None and e < 100}
+    return (
+        f"{sum(v is True for v in flags)} of {len(flags)}"
+        + (f" ({budget})" if budget else "")
+        + "".join(f"; {name} ESS {e:.0f}" for name, e in low.items())
+    )
 
 
 def _repeat_edges(saved: list[tuple[str, str, dict[str, Any]]]) -> list[str]:
