@@ -666,8 +666,8 @@ REGISTRY: tuple[Entry, ...] = (
         requires=("gmx",),
         estimated_cost_s=4500.0,
         note="the model choice of seed 0 with every sigma box doubled in width about its centre (the sensitivity "
-        "table's wider boxes need simulations there); epsilon keeps its box, whose bounds are the quick preset's "
-        "liquid range (water_prior_range), a physical limit",
+        "table's wider boxes need simulations there); epsilon keeps its box (doubled about its centre its low end "
+        "would be negative; below x0.45 the quick box is not liquid at the published sigma: water_prior_range_low)",
         checked_by=("water_model_choice", "surrogate_helium", "water_prior_range"),
     ),
     Entry(

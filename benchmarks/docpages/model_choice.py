@@ -375,9 +375,9 @@ def _wider_boxes(d: dict[str, Any], name: str) -> list[str]:
     return [
         f"Wider boxes, computed (`{name}`: seed 0 again with every sigma box doubled about its centre"
         + (f", {sigma} of the published sigma" if sigma else "")
-        + "; epsilon keeps its box, whose ends are the quick preset's liquid range, a physical "
-        "limit, so it is not widened). One model's row takes its evidence from that run and the others' from this "
-        "one:\n",
+        + "; epsilon keeps its box: doubled about its centre its low end would be negative, and below x0.45 of "
+        "the published epsilon the quick box is no longer liquid at the published sigma, `water_prior_range_low`). "
+        "One model's row takes its evidence from that run and the others' from this one:\n",
         table(["boxes", "verdict", *names], body) + "\n",
         (
             "A doubled sigma box turns the verdict: " + "; ".join(turned) + ".\n"
