@@ -155,6 +155,22 @@ def _water_calibration(
     )
 
 
+def _model_choice_variant(name: str, folder: str, options: str, cost_s: float, note: str) -> Entry:
+    """A repeat of the water model choice with its own options, cache and result folders."""
+    return Entry(
+        name,
+        f"{R}/{name}.json",
+        f"python -m benchmarks.water_model_choice --data xray --workers 2 --no-progress --continue {options} "
+        f"--predictive 6 --name {name} --cache-dir {CACHE}/water_model_choice/{folder} "
+        f"--result-dir {R}/water_model_choice/{folder}",
+        long=True,
+        requires=("gmx",),
+        estimated_cost_s=cost_s,
+        note=note,
+        checked_by=("water_model_choice", "surrogate_helium", "water_prior_range"),
+    )
+
+
 def _water_surrogate(data: str, statistics: str, checkpoint: str, what: str, predictive: bool = True) -> Entry:
     """A quick-preset water calibration through the GP surrogate (``--algorithm surrogate``)."""
     return _water_calibration(
@@ -639,36 +655,22 @@ REGISTRY: tuple[Entry, ...] = (
             ("water_model_choice_no_discrepancy", "", "seed 0 without the discrepancy term"),
         )
     ),
-    Entry(
+    _model_choice_variant(
         "water_model_choice_seed1_budget120",
-        f"{R}/water_model_choice_seed1_budget120.json",
-        "python -m benchmarks.water_model_choice --data xray --workers 2 --no-progress --continue "
-        "--prior-width wide --model-prior TIP3P=0.95,1.08,0.4,2.5 --discrepancy --seed 1 --budget-per-model 120 "
-        "--predictive 6 --name water_model_choice_seed1_budget120 "
-        f"--cache-dir {CACHE}/water_model_choice/xray_quick_budget120_seed1 "
-        f"--result-dir {R}/water_model_choice/xray_quick_budget120_seed1",
-        long=True,
-        requires=("gmx",),
-        estimated_cost_s=6000.0,
-        note="the model choice of seed 1 with twice the budget (up to 120 GROMACS runs per model): in seed 1 "
+        "xray_quick_budget120_seed1",
+        "--prior-width wide --model-prior TIP3P=0.95,1.08,0.4,2.5 --discrepancy --seed 1 --budget-per-model 120",
+        6000.0,
+        "the model choice of seed 1 with twice the budget (up to 120 GROMACS runs per model): in seed 1 "
         "three emulators failed validation on 60 runs and TIP3P's epsilon sat on its lower bound",
-        checked_by=("water_model_choice", "surrogate_helium", "water_prior_range"),
     ),
-    Entry(
+    _model_choice_variant(
         "water_model_choice_sigma_x2",
-        f"{R}/water_model_choice_sigma_x2.json",
-        "python -m benchmarks.water_model_choice --data xray --workers 2 --no-progress --continue "
-        "--prior-width 0.9,1.1,0.6,2.5 --model-prior TIP3P=0.885,1.145,0.4,2.5 --discrepancy --budget-per-model 60 "
-        "--predictive 6 --name water_model_choice_sigma_x2 "
-        f"--cache-dir {CACHE}/water_model_choice/xray_quick_sigma_x2 "
-        f"--result-dir {R}/water_model_choice/xray_quick_sigma_x2",
-        long=True,
-        requires=("gmx",),
-        estimated_cost_s=4500.0,
-        note="the model choice of seed 0 with every sigma box doubled in width about its centre (the sensitivity "
+        "xray_quick_sigma_x2",
+        "--prior-width 0.9,1.1,0.6,2.5 --model-prior TIP3P=0.885,1.145,0.4,2.5 --discrepancy --budget-per-model 60",
+        4500.0,
+        "the model choice of seed 0 with every sigma box doubled in width about its centre (the sensitivity "
         "table's wider boxes need simulations there); epsilon keeps its box (doubled about its centre its low end "
         "would be negative; below x0.45 the quick box is not liquid at the published sigma: water_prior_range_low)",
-        checked_by=("water_model_choice", "surrogate_helium", "water_prior_range"),
     ),
     Entry(
         "water_published_predictive",
