@@ -12,7 +12,20 @@ import numpy as np
 
 from jaxabc.criticism import Catalogue, Effect
 
-__all__ = ["WaterSimulatorWithEffects", "make_water_simulator_with_effects", "water_catalogue"]
+__all__ = [
+    "OH_CONTAMINATION_LIMIT",
+    "WaterSimulatorWithEffects",
+    "make_water_simulator_with_effects",
+    "water_catalogue",
+]
+
+#: Upper bound of ``oh_contamination``, a physical limit: the O-H share of the O-O plus O-H
+#: X-ray weights when nothing of the H contribution is removed.  Faber-Ziman weights
+#: ``c_a c_b f_a f_b (2 - delta_ab) / (sum c f)^2`` at Q = 0 with independent-atom form
+#: factors (f_O = 8, f_H = 1, c_O = 1/3, c_H = 2/3) are O-O 0.64, O-H 0.32, H-H 0.04, so
+#: ``w = 0.32 / (0.64 + 0.32) = 1/3``; at larger Q f_H falls faster than f_O and the share is
+#: smaller.  (The box was [0, 0.1] until the posterior piled on 0.1, a choice.)
+OH_CONTAMINATION_LIMIT = 1.0 / 3.0
 
 
 def water_catalogue() -> Catalogue:
@@ -72,12 +85,16 @@ def water_catalogue() -> Catalogue:
             Effect(
                 "oh_contamination",
                 0.0,
-                0.1,
+                OH_CONTAMINATION_LIMIT,
                 0.0,
                 "weight",
-                "X-ray g_OO contaminated by O-H correlations: g_meas = (1 - w) g_OO + w g_OH.",
+                "X-ray g_OO contaminated by O-H correlations: g_meas = (1 - w) g_OO + w g_OH.  The box "
+                "ends at the limit where none of the H contribution was removed from the X-ray signal "
+                "(OH_CONTAMINATION_LIMIT).",
                 "measurement",
                 "neutron g_OO from isotope substitution (no H weighting issue)",
+                # The box's earlier fifth of a half-range: the mixing is linear in w.
+                step=0.01,
             ),
         ],
         name="water (TIP4P)",
