@@ -666,6 +666,14 @@ REGISTRY: tuple[Entry, ...] = (
         "three emulators failed validation on 60 runs and TIP3P's epsilon sat on its lower bound",
     ),
     _model_choice_variant(
+        "water_model_choice_seed3_budget120",
+        "xray_quick_budget120_seed3",
+        "--prior-width wide --model-prior TIP3P=0.95,1.08,0.4,2.5 --discrepancy --seed 3 --budget-per-model 120",
+        6000.0,
+        "the model choice of seed 3 with twice the budget: at 60 runs per model three of five emulators failed "
+        "validation in seeds 1, 2 and 3, at 120 every one validated in seed 1",
+    ),
+    _model_choice_variant(
         "water_model_choice_sigma_x2",
         "xray_quick_sigma_x2",
         "--prior-width 0.9,1.1,0.6,2.5 --model-prior TIP3P=0.885,1.145,0.4,2.5 --discrepancy --budget-per-model 60",

@@ -31,6 +31,7 @@ REPEATS = (
     ("water_model_choice_seed4", "seed 4"),
     ("water_model_choice_no_discrepancy", "seed 0, no discrepancy term"),
     ("water_model_choice_seed1_budget120", "seed 1, twice the budget"),
+    ("water_model_choice_seed3_budget120", "seed 3, twice the budget"),
     ("water_model_choice_sigma_x2", "seed 0, every sigma box doubled"),
 )
 
