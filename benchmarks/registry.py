@@ -653,7 +653,6 @@ REGISTRY: tuple[Entry, ...] = (
             ("water_model_choice_seed1", " --discrepancy --seed 1", "seed 1"),
             ("water_model_choice_seed2", " --discrepancy --seed 2", "seed 2"),
             ("water_model_choice_seed3", " --discrepancy --seed 3", "seed 3"),
-            ("water_model_choice_seed4", " --discrepancy --seed 4", "seed 4"),
             ("water_model_choice_no_discrepancy", "", "seed 0 without the discrepancy term"),
         )
     ),

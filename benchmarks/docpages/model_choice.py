@@ -28,7 +28,6 @@ REPEATS = (
     ("water_model_choice_seed1", "seed 1"),
     ("water_model_choice_seed2", "seed 2"),
     ("water_model_choice_seed3", "seed 3"),
-    ("water_model_choice_seed4", "seed 4"),
     ("water_model_choice_no_discrepancy", "seed 0, no discrepancy term"),
     ("water_model_choice_seed1_budget120", "seed 1, twice the budget"),
     ("water_model_choice_seed3_budget120", "seed 3, twice the budget"),
@@ -208,10 +207,12 @@ def _repeats() -> list[str]:
     statuses = {(d.get("verdict") or {}).get("status") for _, _, d in saved}
     tops = {d["model_choice"]["names"][int(np.argmax(d["model_choice"]["probabilities"]))] for _, _, d in saved}
     agree = "the same verdict" if len(statuses) == 1 else "different verdicts"
+    trusted = [name for name, _, d in saved if "UNTRUSTED" not in _flags(d["model_choice"]["stop_reason"])]
     return (
         [
             f"Repeats: {len(saved)} runs give {agree} ({', '.join(sorted(s or '?' for s in statuses))}); the most "
-            f"probable model is {' or '.join(sorted(tops))}"
+            f"probable model is {' or '.join(sorted(tops))}; {len(trusted)} of {len(saved)} runs have every "
+            f"emulator validated ({', '.join(f'`{n}`' for n in trusted) or 'none'}), the others are UNTRUSTED"
             + (f"; not run yet: {', '.join(missing)}" if missing else "")
             + ".\n",
             table(["run", "verdict", "flags", "emulators validated (runs per model); ESS < 100", *names], rows) + "\n",
