@@ -688,6 +688,20 @@ def _criticism(name: str, c: dict[str, Any]) -> list[str]:
             f"Surrogate posteriors ({refits}).  Held-out delta log predictive density "
             f"{f(gain['delta_lpd'], 2)} +- {f(gain['delta_lpd_se'], 2)}.\n"
         )
+    ext = c.get("extension")
+    if ext:
+        box = _extension_box(RESULTS / f"{name}_{c['data']}" / "extension.npz")
+        lines.append(
+            "Extended model's posterior (mean [95 %]"
+            + (", prior box" if box else "")
+            + "): "
+            + "; ".join(
+                f"{n} {f(m, 3)} [{f(lo, 3)}, {f(hi, 3)}]"
+                + (f" in [{f(box[0][i], 3)}, {f(box[1][i], 3)}]" if box else "")
+                for i, (n, m, (lo, hi)) in enumerate(zip(ext["names"], ext["bayes_estimate"], ext["ci95"], strict=True))
+            )
+            + ".\n"
+        )
     edges = _extension_edges(RESULTS / f"{name}_{c['data']}" / "extension.npz")
     if edges:
         lines.append(
@@ -696,6 +710,20 @@ def _criticism(name: str, c: dict[str, Any]) -> list[str]:
             + ".  The effect's size, and the gain, depend on where that box was cut.\n"
         )
     return lines
+
+
+def _extension_box(path: Path) -> tuple[list[float], list[float]] | None:
+    """The prior box ``(low, high)`` of a criticism's saved extension refit (None when not saved)."""
+    if not path.is_file():
+        return None
+    import warnings
+
+    import jaxabc
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        prior = jaxabc.load(path).prior
+    return [float(v) for v in prior.low], [float(v) for v in prior.high]
 
 
 def _extension_edges(path: Path) -> list[str]:
