@@ -79,6 +79,16 @@ def test_joint_catalogue_drops_the_m_site_for_three_site_models():
     assert all("msite_shift" not in e.confusable_with for e in joint_catalogue("SPC/E"))
 
 
+def test_joint_catalogue_lets_the_m_site_reach_the_oxygen_and_no_further():
+    from md.water.joint_criticism import joint_catalogue
+    from md.water.models import get_model
+
+    for name in ("TIP4P", "TIP4P-Ew"):
+        shift = joint_catalogue(name)["msite_shift"]
+        assert shift.low == -get_model(name).om_distance_nm  # d_OM + low == 0: M on O
+        assert shift.step == 0.001  # the screening's finite difference of the narrower box
+
+
 def test_joint_simulator_applies_the_effects_to_model_protocol_and_summaries(monkeypatch):
     from md.water import model_simulator
     from md.water.joint_criticism import WaterModelWithEffects

@@ -32,12 +32,24 @@ __all__ = ["WaterModelWithEffects", "joint_catalogue"]
 
 
 def joint_catalogue(model: WaterModel | str) -> Catalogue:
-    """The water catalogue for ``model`` (without ``msite_shift`` for 3-site models)."""
+    """The water catalogue for ``model``: without ``msite_shift`` for 3-site models; for 4-site
+    models its box reaches down to ``-d_OM``, the physical limit where M sits on O."""
     model = get_model(model)
     full = water_catalogue()
-    keep = [e for e in full if model.num_sites == 4 or e.name != "msite_shift"]
-    if len(keep) == len(full):
-        return full
+    if model.num_sites == 4:
+        # The shift's sensitivity step stays that of the catalogue's own box (a fifth of its
+        # half-range), so that widening the box does not move the screening's finite differences.
+        return Catalogue(
+            [
+                replace(e, low=-model.om_distance_nm, step=e.step or 0.2 * (e.high - e.low) / 2)
+                if e.name == "msite_shift"
+                else e
+                for e in full
+            ],
+            name=f"water ({model.name})",
+            notes=full.notes,
+        )
+    keep = [e for e in full if e.name != "msite_shift"]
     keep = [replace(e, confusable_with=tuple(c for c in e.confusable_with if c != "msite_shift")) for e in keep]
     return Catalogue(keep, name=f"water ({model.name})", notes=full.notes)
 
