@@ -700,7 +700,9 @@ def _criticism(name: str, c: dict[str, Any]) -> list[str]:
                 + (f" in [{f(box[0][i], 3)}, {f(box[1][i], 3)}]" if box else "")
                 for i, (n, m, (lo, hi)) in enumerate(zip(ext["names"], ext["bayes_estimate"], ext["ci95"], strict=True))
             )
-            + ".\n"
+            + "."
+            + _extension_validation(RESULTS / f"{name}_{c['data']}" / "extension.npz")
+            + "\n"
         )
     edges = _extension_edges(RESULTS / f"{name}_{c['data']}" / "extension.npz")
     if edges:
@@ -724,6 +726,25 @@ def _extension_box(path: Path) -> tuple[list[float], list[float]] | None:
         warnings.simplefilter("ignore")
         prior = jaxabc.load(path).prior
     return [float(v) for v in prior.low], [float(v) for v in prior.high]
+
+
+def _extension_validation(path: Path) -> str:
+    """Whether a criticism's saved extension refit has a validated emulator ("" when not saved)."""
+    if not path.is_file():
+        return ""
+    import warnings
+
+    import jaxabc
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        result = jaxabc.load(path)
+    if result.diagnostics.get("validated") is not False:
+        return " The extension's emulator validated on held-out runs."
+    return (
+        f" The extension's emulator failed validation ({result.diagnostics.get('failure') or 'see its result'}): "
+        "its posterior, and the gain, are not trustworthy."
+    )
 
 
 def _extension_edges(path: Path) -> list[str]:
