@@ -688,9 +688,9 @@ def _criticism(name: str, c: dict[str, Any]) -> list[str]:
             f"Surrogate posteriors ({refits}).  Held-out delta log predictive density "
             f"{f(gain['delta_lpd'], 2)} +- {f(gain['delta_lpd_se'], 2)}.\n"
         )
-    ext = c.get("extension")
+    ext, saved = c.get("extension"), _extension(RESULTS / f"{name}_{c['data']}" / "extension.npz")
     if ext:
-        box = _extension_box(RESULTS / f"{name}_{c['data']}" / "extension.npz")
+        box = _extension_box(saved)
         lines.append(
             "Extended model's posterior (mean [95 %]"
             + (", prior box" if box else "")
@@ -701,10 +701,10 @@ def _criticism(name: str, c: dict[str, Any]) -> list[str]:
                 for i, (n, m, (lo, hi)) in enumerate(zip(ext["names"], ext["bayes_estimate"], ext["ci95"], strict=True))
             )
             + "."
-            + _extension_validation(RESULTS / f"{name}_{c['data']}" / "extension.npz")
+            + _extension_validation(saved)
             + "\n"
         )
-    edges = _extension_edges(RESULTS / f"{name}_{c['data']}" / "extension.npz")
+    edges = _extension_edges(saved)
     if edges:
         lines.append(
             "Prior edges of the extended model's refit: "
@@ -714,8 +714,8 @@ def _criticism(name: str, c: dict[str, Any]) -> list[str]:
     return lines
 
 
-def _extension_box(path: Path) -> tuple[list[float], list[float]] | None:
-    """The prior box ``(low, high)`` of a criticism's saved extension refit (None when not saved)."""
+def _extension(path: Path) -> Any:
+    """A criticism's saved extension refit (a :class:`jaxabc.ABCResult`), or None when not saved."""
     if not path.is_file():
         return None
     import warnings
@@ -724,21 +724,20 @@ def _extension_box(path: Path) -> tuple[list[float], list[float]] | None:
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        prior = jaxabc.load(path).prior
-    return [float(v) for v in prior.low], [float(v) for v in prior.high]
+        return jaxabc.load(path)
 
 
-def _extension_validation(path: Path) -> str:
-    """Whether a criticism's saved extension refit has a validated emulator ("" when not saved)."""
-    if not path.is_file():
+def _extension_box(result: Any) -> tuple[list[float], list[float]] | None:
+    """The prior box ``(low, high)`` of an extension refit (None when not saved)."""
+    if result is None:
+        return None
+    return [float(v) for v in result.prior.low], [float(v) for v in result.prior.high]
+
+
+def _extension_validation(result: Any) -> str:
+    """Whether an extension refit has a validated emulator ("" when not saved)."""
+    if result is None:
         return ""
-    import warnings
-
-    import jaxabc
-
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        result = jaxabc.load(path)
     if result.diagnostics.get("validated") is not False:
         return " The extension's emulator validated on held-out runs."
     return (
@@ -747,17 +746,10 @@ def _extension_validation(path: Path) -> str:
     )
 
 
-def _extension_edges(path: Path) -> list[str]:
-    """The prior-edge warnings of a criticism's saved extension refit ([] when none or not saved)."""
-    if not path.is_file():
+def _extension_edges(result: Any) -> list[str]:
+    """The prior-edge warnings of an extension refit ([] when none or not saved)."""
+    if result is None:
         return []
-    import warnings
-
-    import jaxabc
-
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        result = jaxabc.load(path)
     return list((result.diagnostics.get("prior_edge") or {}).get("messages", []))
 
 
