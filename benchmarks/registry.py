@@ -155,6 +155,20 @@ def _water_calibration(
     )
 
 
+#: The registry's model-choice results that repeat the verdict, and what each varies (the
+#: results page's repeats table and ``water_emulator_failures`` read them in this order).
+REPEATS = (
+    ("water_model_choice", "seed 0"),
+    ("water_model_choice_seed1", "seed 1"),
+    ("water_model_choice_seed2", "seed 2"),
+    ("water_model_choice_seed3", "seed 3"),
+    ("water_model_choice_no_discrepancy", "seed 0, no discrepancy term"),
+    ("water_model_choice_seed1_budget120", "seed 1, twice the budget"),
+    ("water_model_choice_seed3_budget120", "seed 3, twice the budget"),
+    ("water_model_choice_sigma_x2", "seed 0, every sigma box doubled"),
+)
+
+
 def _model_choice_variant(name: str, folder: str, options: str, cost_s: float, note: str) -> Entry:
     """A repeat of the water model choice with its own options, cache and result folders."""
     return Entry(
@@ -680,6 +694,17 @@ REGISTRY: tuple[Entry, ...] = (
         "the model choice of seed 0 with every sigma box doubled in width about its centre (the sensitivity "
         "table's wider boxes need simulations there); epsilon keeps its box (doubled about its centre its low end "
         "would be negative; below x0.45 the quick box is not liquid at the published sigma: water_prior_range_low)",
+    ),
+    Entry(
+        "water_emulator_failures",
+        f"{R}/water_emulator_failures.json",
+        "python -m benchmarks.water_emulator_failures",
+        quick="python -m benchmarks.water_emulator_failures --quick",
+        quick_output=f"{Q}/water_emulator_failures.json",
+        estimated_cost_s=10.0,
+        after=tuple(name for name, _ in REPEATS),
+        note="why the model choice's emulators fail validation: checks failed, worst-predicted summaries, the "
+        "quick liquid's network break and the held-out errors' tails, over the saved repeats (no GROMACS)",
     ),
     Entry(
         "water_published_predictive",

@@ -1,0 +1,309 @@
+"""Where the water model choice's emulators fail validation, and why.
+
+Reads every saved repeat of the model choice (:data:`benchmarks._water_model_choice_paths.REPEATS`)
+and makes no GROMACS run.  For each repeat and model it reports which validation checks failed
+and the summary, the parameters and the side of the network break of the worst-predicted
+held-out run.  Pooling each model's runs over the repeats, it maps where the hydrogen-bond network
+of the quick-preset liquid breaks:
+
+- a run is *broken* when its first g_OO minimum (S5) lies at or beyond :data:`BROKEN_S5_NM`;
+  the simulated S5 is bimodal (modes near the measured 0.347 nm and near 0.44 nm, the counts in
+  between are reported), so the threshold separates two structures, not two ends of a scale;
+- the share of broken runs by ``sigma / published`` at high epsilon, and the summaries' means
+  on each side next to the boundary, in units of their stated measurement error;
+- each run's posterior share whose nearest design runs (:data:`NEIGHBOURS` in the unit box) are
+  all broken (beyond the break) or mixed (on it).
+
+Usage::
+
+    python -m benchmarks.water_emulator_failures [--quick]
+"""
+
+from __future__ import annotations
+
+import argparse
+import itertools
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import scipy.stats
+
+from benchmarks._common import RESULTS, ROOT, machine, relative, write_result
+from benchmarks.registry import REPEATS
+from jaxabc.surrogate._fit import ROLE_HOLDOUT
+from jaxabc.surrogate._validation import num_targeted
+from jaxabc.surrogate.diagnostics import holdout_bounds, local_check
+
+#: First-minimum position (nm) from which a run counts as broken: between the simulated modes.
+BROKEN_S5_NM = 0.40
+#: Design runs whose labels decide where a posterior draw lies.
+NEIGHBOURS = 5
+#: Epsilon (as a multiple of the published value) from which both structures occur.
+HIGH_EPSILON = 1.15
+#: ``sigma / published`` bins of the boundary table.
+SIGMA_BINS = (0.0, 0.985, 1.0, 1.01, 1.03, np.inf)
+#: Held-out standardised errors counted as misses.
+MISS_SD = 3.0
+
+
+def _load_repeat(name: str) -> dict[str, Any] | None:
+    path = RESULTS / f"{name}.json"
+    return json.loads(path.read_text()) if path.is_file() else None
+
+
+def _posterior(folder: Path, model: str) -> tuple[dict, dict[str, np.ndarray]]:
+    with np.load(folder / f"posterior_{model.replace('/', '_')}.npz", allow_pickle=False) as z:
+        arrays = {k: z[k] for k in ("particles", "weights", "record_theta", "record_summaries")}
+        return json.loads(str(z["metadata"])), arrays
+
+
+def _failed_checks(diag: dict, max_ratio: float) -> list[str]:
+    """The validation checks a saved surrogate failed, by name."""
+    errors = np.asarray(diag["holdout_errors"], np.float64)
+    n = int(np.isfinite(errors).sum())
+    cov_min, msq_max = holdout_bounds(n) if n else (np.nan, np.nan)
+    failed = []
+    if not (diag["holdout_coverage_95"] >= cov_min and diag["holdout_mean_squared_error"] <= msq_max):
+        failed.append("marginal")
+    if not diag["targeted_holdout_ok"]:
+        failed.append("targeted")
+    if not diag["lack_of_fit_ok"]:
+        failed.append("lack_of_fit")
+    if not diag["posterior_stable"]:
+        failed.append("stability")
+    if diag["emulator_to_noise_variance"] > max_ratio:
+        failed.append("resolution")
+    return failed
+
+
+def _neighbour_labels(x_design: np.ndarray, broken: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """Share of broken runs among the :data:`NEIGHBOURS` nearest design runs of each row of ``x``."""
+    d = np.linalg.norm(x[:, None, :] - x_design[None, :, :], axis=-1)
+    nearest = np.argsort(d, axis=1)[:, :NEIGHBOURS]
+    return broken[nearest].mean(axis=1)
+
+
+def _tails(errors: np.ndarray, fitted: list[str], draws: int = 20000) -> dict[str, Any]:
+    """How far the pooled held-out errors ``(n, q)`` are from N(0, 1), and what that does to the checks.
+
+    A Student t (centre 0) is fitted to all errors; the chance that an emulator whose errors
+    followed it fails the marginal check (9 runs x q outputs) or the targeted one (2 runs x q)
+    is estimated from ``draws`` Monte Carlo sets at a fixed seed (independent errors, so a
+    lower bound where outputs are correlated).
+    """
+    a = np.abs(errors).ravel()
+    df, _, scale = scipy.stats.t.fit(errors.ravel(), floc=0.0)
+    rng = np.random.default_rng(0)
+    q = errors.shape[1]
+    e = scale * rng.standard_t(df, size=(draws, 9, q))
+    cov_min, msq_max = holdout_bounds(9 * q)
+    marginal = (np.mean(np.abs(e) <= 1.96, axis=(1, 2)) < cov_min) | (np.mean(e**2, axis=(1, 2)) > msq_max)
+    targeted = e[:, :2, :].reshape(draws, -1)
+    bound = local_check(targeted[0]).bound
+    t_msq = scipy.stats.chi2.ppf(1 - 1e-3, targeted.shape[1]) / targeted.shape[1]
+    targeted_fail = (np.max(np.abs(targeted), axis=1) > bound) | (np.mean(targeted**2, axis=1) > t_msq)
+    return {
+        "errors": int(a.size),
+        "sd_by_summary": dict(zip(fitted, np.std(errors, axis=0).round(4).tolist(), strict=True)),
+        "excess_kurtosis_by_summary": dict(
+            zip(fitted, scipy.stats.kurtosis(errors, axis=0).round(3).tolist(), strict=True)
+        ),
+        "share_beyond": {
+            str(k): {"observed": float(np.mean(a > k)), "normal": float(2 * scipy.stats.norm.sf(k))} for k in (2, 3, 4)
+        },
+        "student_t": {"df": float(df), "scale": float(scale)},
+        "chance_fail_under_t": {
+            "marginal": float(marginal.mean()),
+            "targeted": float(targeted_fail.mean()),
+            "either": float((marginal | targeted_fail).mean()),
+            "draws": draws,
+        },
+    }
+
+
+def analyse(repeats=REPEATS) -> dict[str, Any]:
+    """The payload: per repeat and model, and per model pooled over the repeats."""
+    saved = [(name, what, d) for name, what in repeats if (d := _load_repeat(name)) is not None]
+    if not saved:
+        raise FileNotFoundError("no saved model-choice repeat: run the registry's water_model_choice first")
+    summaries = saved[0][2]["summaries"]
+    fitted = list(summaries["fitted"])
+    sd = np.array([summaries["observation_sd"][n] for n in fitted])
+    i_s5 = fitted.index("S5")
+    models = list(saved[0][2]["per_model"])
+    published = {m: np.asarray(saved[0][2]["models"][m]["published_lj"], np.float64) for m in models}
+
+    # Every run of each model over the repeats, once (repeats share cached runs).
+    pooled: dict[str, dict[tuple, np.ndarray]] = {m: {} for m in models}
+    per_run = []
+    pooled_errors: list[np.ndarray] = []
+    inputs = []
+    for name, what, d in saved:
+        folder = ROOT / d["saved_result"]
+        rows = []
+        for m in models:
+            meta, arr = _posterior(folder, m)
+            inputs.append(folder / f"posterior_{m.replace('/', '_')}.npz")
+            theta, z = arr["record_theta"][:, :2], arr["record_summaries"]
+            for t, s in zip(theta, z, strict=True):
+                if np.all(np.isfinite(s)):  # keyed by the run, so replicates stay apart
+                    pooled[m][(*np.round(t, 12), *np.round(s, 12))] = np.concatenate([t, s])
+            diag = meta["diagnostics"]
+            role = np.asarray(diag["design_role"])
+            ok = np.asarray(diag["design_ok"], bool)
+            holdout = np.flatnonzero(role >= ROLE_HOLDOUT)
+            checked = holdout[ok[holdout]]
+            errors = np.asarray(diag["holdout_errors"], np.float64)[: len(checked)]
+            targeted = np.isin(checked, holdout[len(holdout) - num_targeted(len(holdout)) :])
+            pooled_errors.append(errors[np.all(np.isfinite(errors), axis=1)])
+            worst = np.unravel_index(np.nanargmax(np.abs(errors)), errors.shape) if errors.size else None
+            rows.append(
+                {
+                    "model": m,
+                    "validated": bool(diag["validated"]),
+                    "failed_checks": _failed_checks(diag, float(meta["settings"]["max_emulator_ratio"])),
+                    "targeted_bound": local_check(errors[targeted]).bound,
+                    "misses_by_summary": {
+                        fitted[j]: int(np.sum(np.abs(errors[:, j]) > MISS_SD)) for j in range(len(fitted))
+                    },
+                    "worst": None
+                    if worst is None
+                    else {
+                        "summary": fitted[worst[1]],
+                        "error_sd": float(errors[worst]),
+                        "targeted": bool(targeted[worst[0]]),
+                        "theta_over_published": (theta[checked[worst[0]]] / published[m]).tolist(),
+                        "s5_nm": float(z[checked[worst[0]], i_s5]),
+                    },
+                    "_particles": arr["particles"][:, :2],
+                    "_weights": arr["weights"],
+                }
+            )
+        per_run.append({"result": name, "what": what, "models": rows})
+
+    boundary = {}
+    for m in models:
+        runs = np.array(list(pooled[m].values()))
+        theta, z = runs[:, :2], runs[:, 2:]
+        zf = z  # the records hold the fitted summaries, in ``fitted`` order
+        ratio = theta / published[m]
+        broken = zf[:, i_s5] >= BROKEN_S5_NM
+        high = ratio[:, 1] >= HIGH_EPSILON
+        bins = []
+        for lo, hi in itertools.pairwise(SIGMA_BINS):
+            sel = high & (ratio[:, 0] >= lo) & (ratio[:, 0] < hi)
+            bins.append(
+                {
+                    "sigma_over_published": [lo, None if np.isinf(hi) else hi],
+                    "runs": int(sel.sum()),
+                    "broken_share": float(broken[sel].mean()) if sel.any() else None,
+                    "mean": {n: float(zf[sel, j].mean()) for j, n in enumerate(fitted)} if sel.any() else None,
+                }
+            )
+        near = high & (ratio[:, 0] >= SIGMA_BINS[1]) & (ratio[:, 0] < SIGMA_BINS[4])
+        a, b = zf[near & ~broken], zf[near & broken]
+        jump = ((b.mean(0) - a.mean(0)) / sd).tolist() if len(a) and len(b) else None
+        s5 = zf[:, i_s5]
+        boundary[m] = {
+            "published_lj": published[m].tolist(),
+            "runs": len(theta),
+            "broken_runs": int(broken.sum()),
+            "broken_runs_below_high_epsilon": int(np.sum(broken & ~high)),
+            "s5_counts_nm": {
+                "below_0.38": int(np.sum(s5 < 0.38)),
+                "0.38_to_0.42": int(np.sum((s5 >= 0.38) & (s5 < 0.42))),
+                "from_0.42": int(np.sum(s5 >= 0.42)),
+            },
+            "by_sigma_at_high_epsilon": bins,
+            "jump_near_boundary_in_stated_sd": dict(zip(fitted, jump, strict=True)) if jump else None,
+            "near_boundary_runs": [len(a), len(b)],
+            "_x": (theta - theta.min(0)) / np.ptp(theta, axis=0),
+            "_lo": theta.min(0),
+            "_span": np.ptp(theta, axis=0),
+            "_broken": broken.astype(float),
+        }
+
+    failures = []
+    for run in per_run:
+        for row in run["models"]:
+            m = row["model"]
+            bd = boundary[m]
+            x = (row.pop("_particles") - bd["_lo"]) / bd["_span"]
+            w = row.pop("_weights")
+            w = w / w.sum()
+            share = _neighbour_labels(bd["_x"], bd["_broken"], x)
+            row["posterior_beyond_break"] = float(np.sum(w * (share == 1.0)))
+            row["posterior_on_break"] = float(np.sum(w * ((share > 0.0) & (share < 1.0))))
+            if row["worst"] is not None:
+                t = (np.asarray(row["worst"]["theta_over_published"]) * bd["published_lj"] - bd["_lo"]) / bd["_span"]
+                near = float(_neighbour_labels(bd["_x"], bd["_broken"], t[None, :])[0])
+                row["worst"]["side"] = "beyond" if near == 1.0 else "on" if near > 0.0 else "before"
+            if not row["validated"]:
+                failures.append(row)
+    for bd in boundary.values():
+        for k in ("_x", "_lo", "_span", "_broken"):
+            bd.pop(k)
+
+    def count(rows, key) -> dict[str, int]:
+        out: dict[str, int] = {}
+        for r in rows:
+            for v in key(r):
+                out[v] = out.get(v, 0) + 1
+        return dict(sorted(out.items(), key=lambda kv: -kv[1]))
+
+    all_rows = [r for run in per_run for r in run["models"]]
+    summary = {
+        "emulators": len(all_rows),
+        "failed": len(failures),
+        "failed_checks": count(failures, lambda r: r["failed_checks"]),
+        "worst_summary_of_failed": count(failures, lambda r: [r["worst"]["summary"]] if r["worst"] else []),
+        "worst_side_of_failed": count(failures, lambda r: [r["worst"]["side"]] if r["worst"] else []),
+        "worst_side_of_validated": count(
+            [r for r in all_rows if r["validated"]], lambda r: [r["worst"]["side"]] if r["worst"] else []
+        ),
+        "misses_by_summary": {n: int(sum(r["misses_by_summary"][n] for r in all_rows)) for n in fitted},
+        # Does reaching the break go with failing?  Fisher's exact test on
+        # (posterior share on or beyond the break > 5 %) x (failed validation).
+        "reach_vs_failure": None,
+    }
+    reach = np.array([r["posterior_on_break"] + r["posterior_beyond_break"] > 0.05 for r in all_rows])
+    failed = np.array([not r["validated"] for r in all_rows])
+    table = [[int(np.sum(r & f)) for f in (failed, ~failed)] for r in (reach, ~reach)]
+    summary["reach_vs_failure"] = {
+        "table_reach_failed_validated": table,
+        "fisher_p": float(scipy.stats.fisher_exact(table).pvalue),
+    }
+    summary["heldout_tails"] = _tails(np.concatenate(pooled_errors), fitted)
+    return {
+        "fitted": fitted,
+        "stated_sd": sd.tolist(),
+        "settings": {
+            "broken_s5_nm": BROKEN_S5_NM,
+            "neighbours": NEIGHBOURS,
+            "high_epsilon": HIGH_EPSILON,
+            "miss_sd": MISS_SD,
+        },
+        "summary": summary,
+        "boundary": boundary,
+        "repeats": per_run,
+        "_inputs": inputs,
+    }
+
+
+def main(argv: list[str] | None = None) -> dict[str, Any]:
+    parser = argparse.ArgumentParser(description=(__doc__ or "").split("\n\n")[0])
+    parser.add_argument("--quick", action="store_true", help="write the quick JSON (the same analysis)")
+    args = parser.parse_args(argv)
+    payload = analyse()
+    inputs = payload.pop("_inputs")
+    payload = {"machine": machine(), **payload}
+    out = write_result("water_emulator_failures", payload, quick=args.quick, inputs=inputs)
+    print(json.dumps(payload["summary"], indent=1))
+    print(f"wrote {relative(out)}")
+    return payload
+
+
+if __name__ == "__main__":
+    main()
