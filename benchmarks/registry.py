@@ -707,6 +707,18 @@ REGISTRY: tuple[Entry, ...] = (
         "quick liquid's network break and the held-out errors' tails, over the saved repeats (no GROMACS)",
     ),
     Entry(
+        "water_summary_noise",
+        f"{R}/water_summary_noise.json",
+        "python -m benchmarks.water_summary_noise --runs 40 --workers 2",
+        quick="python -m benchmarks.water_summary_noise --quick",
+        quick_output=f"{Q}/water_summary_noise.json",
+        requires=("gmx",),
+        estimated_cost_s=1800.0,
+        after=("water_model_choice", "water_emulator_failures"),
+        note="is the water summaries' simulator noise Gaussian: 40 replicates per model at its posterior "
+        "estimate, moments with bootstrap intervals, beside the held-out errors' tails",
+    ),
+    Entry(
         "water_published_predictive",
         f"{R}/water_published_predictive.json",
         "python -m benchmarks.water_published_predictive --data xray --runs 3 --workers 2",

@@ -30,3 +30,18 @@ def test_student_t_errors_are_recognised_and_fail_the_gaussian_checks_often() ->
     assert t["chance_fail_under_t"]["targeted"] >= p_max - 4 * se
     assert t["chance_fail_under_t"]["targeted"] <= p_max + 0.03  # the mean-square part adds little
     assert all(k > 1.0 for k in t["excess_kurtosis_by_summary"].values())
+
+
+def test_replicate_moments_find_heavy_tails_and_not_in_normal_noise() -> None:
+    from benchmarks.water_summary_noise import moments, null_pooled_kurtosis
+
+    rng = np.random.default_rng(3)
+    normal = moments(rng.standard_normal(400), rng)
+    heavy = moments(rng.standard_t(4.0, size=400), rng)
+    assert normal["excess_kurtosis_95"][0] < 0.0 < normal["excess_kurtosis_95"][1]
+    assert heavy["excess_kurtosis_95"][0] > 0.0
+    # Normal groups standardised by their own sd: the pooled kurtosis sits just below 0 (by
+    # about -6 / (n + 1) for groups of n) within its sampling error, sqrt(24 / 200) ~ 0.35.
+    low, high = null_pooled_kurtosis([40] * 5, rng, draws=2000)
+    assert low < -6 / 41 < high
+    assert 0.8 < high - low < 2.0
