@@ -707,6 +707,17 @@ REGISTRY: tuple[Entry, ...] = (
         "quick liquid's network break and the held-out errors' tails, over the saved repeats (no GROMACS)",
     ),
     Entry(
+        "water_box_sensitivity",
+        f"{R}/water_box_sensitivity.json",
+        "python -m benchmarks.water_box_sensitivity",
+        quick="python -m benchmarks.water_box_sensitivity --quick",
+        quick_output=f"{Q}/water_box_sensitivity.json",
+        estimated_cost_s=30.0,
+        after=tuple(name for name, _ in REPEATS),
+        note="which prior moves the water model probabilities: each model's force-field box and its "
+        "discrepancy bounds halved apart, from the saved repeats (no GROMACS)",
+    ),
+    Entry(
         "water_summary_noise",
         f"{R}/water_summary_noise.json",
         "python -m benchmarks.water_summary_noise --runs 40 --workers 2",

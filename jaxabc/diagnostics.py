@@ -26,6 +26,7 @@ __all__ = [
     "chain_ess",
     "cluster_variance",
     "count_distinct",
+    "discrepancy_identification",
     "effective_lineages",
     "importance_variance",
     "lineage_variance",
@@ -37,6 +38,10 @@ __all__ = [
 #: ``prior_edge_mass`` above this, at the default width, is a :class:`jaxabc.PriorEdgeWarning`.
 PRIOR_EDGE_LIMIT = 0.05
 PRIOR_EDGE_WIDTH = 0.02
+
+#: A discrepancy sd with at least this share of its posterior in the upper half of its prior
+#: range ``[0, max_sd]`` (a flat posterior puts 0.5 there) is bounded by the data from below only.
+PRIOR_LIKE_SHARE = 0.25
 
 # ArviZ's multi-chain estimate needs this many draws per chain.
 _MIN_DRAWS_FOR_ARVIZ = 4
@@ -274,6 +279,61 @@ def prior_edge_mass(
     near_low = (x <= (lo + band)[None, :]) & finite[None, :]
     near_high = (x >= (hi - band)[None, :]) & finite[None, :]
     return np.stack([w @ near_low, w @ near_high], axis=1)
+
+
+def discrepancy_identification(
+    particles: np.ndarray,
+    weights: np.ndarray | None,
+    names: tuple[str, ...] | list[str],
+    low: np.ndarray,
+    high: np.ndarray,
+) -> tuple[dict[str, float], list[str]]:
+    """How much of each discrepancy sd's posterior the data decide.
+
+    The share of each ``discrepancy_sd[...]`` column's posterior mass in the upper half of its
+    prior range: about 0 for an sd the data pin below ``max_sd``, 0.5 for one whose posterior
+    is its (uniform) prior.  An sd of a group of one summary has one residual ``r``: the data
+    rule out sds well below ``|r|`` and say little above, so its posterior, and the evidence of
+    a model choice through it, follow ``max_sd``.
+
+    Parameters
+    ----------
+    particles : array, shape (n, d)
+    weights : array, shape (n,), or None for equal weights
+    names : sequence of str, length d
+    low, high : array, shape (d,)
+        The prior box.
+
+    Returns
+    -------
+    shares : dict
+        ``{name: share}`` for the discrepancy columns (empty without any).
+    messages : list of str
+        One sentence per sd whose share reaches :data:`PRIOR_LIKE_SHARE`.
+    """
+    from jaxabc.noise import DISCREPANCY_PREFIX
+
+    columns = [j for j, n in enumerate(names) if str(n).startswith(DISCREPANCY_PREFIX)]
+    if not columns:
+        return {}, []
+    x = np.asarray(particles, np.float64)
+    n = x.shape[0]
+    w = np.full(n, 1.0 / max(n, 1)) if weights is None else np.asarray(weights, np.float64)
+    if w.shape != (n,) or not np.all(np.isfinite(w)) or np.any(w < 0) or n == 0 or w.sum() <= 0:
+        raise ValueError("weights must be n finite, non-negative numbers with a positive sum")
+    w = w / w.sum()
+    lo, hi = np.asarray(low, np.float64), np.asarray(high, np.float64)
+    shares, messages = {}, []
+    for j in columns:
+        share = float(w @ (x[:, j] > 0.5 * (lo[j] + hi[j])))
+        shares[str(names[j])] = share
+        if share >= PRIOR_LIKE_SHARE:
+            messages.append(
+                f"{share:.0%} of {names[j]}'s posterior lies in the upper half of its range "
+                f"[{lo[j]:.4g}, {hi[j]:.4g}] (a flat posterior: 50 %): the data bound it from below only, "
+                "so it, and any evidence, follow its max_sd"
+            )
+    return shares, messages
 
 
 def prior_edge_messages(

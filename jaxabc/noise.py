@@ -18,6 +18,7 @@ import jax.numpy as jnp
 import numpy as np
 
 __all__ = [
+    "DISCREPANCY_PREFIX",
     "Discrepancy",
     "MeasurementError",
     "ModelDiscrepancy",
@@ -25,6 +26,10 @@ __all__ = [
     "observation_covariance",
     "wrap_for_abc",
 ]
+
+#: Name prefix of the model-discrepancy sds a run appends to the parameters
+#: (``discrepancy_sd[<group>]``).
+DISCREPANCY_PREFIX = "discrepancy_sd["
 
 # The error's key is folded from the simulation's key with this tag, so it never equals a key
 # the simulator itself draws from.
@@ -286,7 +291,7 @@ class Discrepancy:
         max_sd = np.broadcast_to(self.max_sd, (len(groups),)) if self.max_sd.ndim == 0 else self.max_sd
         if max_sd.shape != (len(groups),):
             raise ValueError(f"Discrepancy max_sd has {max_sd.size} values for {len(groups)} groups")
-        names = tuple(f"discrepancy_sd[{name}]" for name in groups)
+        names = tuple(f"{DISCREPANCY_PREFIX}{name}]" for name in groups)
         return ResolvedDiscrepancy(membership, np.array(max_sd, np.float64), names)
 
 

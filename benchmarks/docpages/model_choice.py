@@ -67,6 +67,8 @@ def page_water_model_choice() -> str:
         *_verdict(d),
         *_repeats(),
         *_emulator_failures(),
+        *_summary_noise(),
+        *_box_sensitivity(),
         table(_HEADER, [_row(name, row, d["models"][name]) for name, row in d["per_model"].items()]) + "\n",
         "Side by side with the published parameters and the paper's TIP4P calibration:\n",
         side_by_side(d) + "\n",
@@ -292,6 +294,138 @@ def _emulator_failures() -> list[str]:
         "(5 replicates at each of 2 sites per emulator), nor what fails the rest (outputs such as S5 and S6 "
         "miss together, which independent draws do not model).  The Gaussian synthetic likelihood assumes "
         "what the checks assume.\n",
+    ]
+
+
+def _summary_noise() -> list[str]:
+    """Is the simulator's noise Gaussian at the posterior estimates (``water_summary_noise.json``)?"""
+    d = load("water_summary_noise")
+    if d is None:
+        return []
+    null = d["pooled_null_excess_kurtosis_95"]
+    held = d.get("heldout_excess_kurtosis_by_summary") or {}
+    rows, heavy = [], []
+    for name in d["fitted"]:
+        m = d["pooled"][name]
+        lo, hi = m["excess_kurtosis_95"]
+        shapiro = sum(
+            1
+            for entry in d["models"].values()
+            if entry.get("summaries") and entry["summaries"][name]["shapiro_p"] < 0.01
+        )
+        if lo > null[1]:
+            heavy.append(name)
+        rows.append(
+            [
+                name,
+                f"{m['excess_kurtosis']:+.2f} [{lo:+.2f}, {hi:+.2f}]",
+                f"{m['skewness']:+.2f}",
+                f"{m['share_beyond_3sd']:.1%}",
+                f"{shapiro} of {len(d['models'])}",
+                f"{held[name]:+.2f}" if name in held else "-",
+            ]
+        )
+    runs = sum(e["num_runs"] for e in d["models"].values())
+    failed = sum(len(e["failures"]) for e in d["models"].values())
+    verdict = (
+        f"The noise itself is heavier-tailed than normal for {', '.join(heavy)} (the interval's lower end "
+        f"above the normal's {null[1]:+.2f}); for the others it is consistent with normal noise, so their "
+        "held-out tails are the emulator's error."
+        if heavy
+        else "For every summary the noise is consistent with normal noise, so the held-out errors' heavy "
+        "tails are the emulator's error, not the simulator's."
+    )
+    return [
+        "### Is the simulator's noise Gaussian?\n",
+        source("water_summary_noise", data=d) + "\n",
+        f"{d['runs_per_model']} runs with independent keys per model at its posterior Bayes estimate in "
+        f"`{d['model_choice']}` ({runs} runs, {failed} failed), on the model choice's protocol.  Each "
+        "model's runs standardised by their own mean and sd, then pooled; excess kurtosis with a bootstrap "
+        f"95 % interval (normal noise, standardised the same way: [{null[0]:+.2f}, {null[1]:+.2f}]), "
+        "beside the held-out errors' excess kurtosis:\n",
+        table(
+            [
+                "summary",
+                "noise excess kurtosis [95 %]",
+                "skewness",
+                "beyond 3 sd (normal 0.27 %)",
+                "models with Shapiro-Wilk p < 0.01",
+                "held-out errors' excess kurtosis",
+            ],
+            rows,
+        )
+        + "\n",
+        verdict + "\n",
+    ]
+
+
+def _box_sensitivity() -> list[str]:
+    """Which prior moves the probabilities (``water_box_sensitivity.json``)."""
+    d = load("water_box_sensitivity")
+    if d is None:
+        return []
+    repeats = d["repeats"]
+    names = repeats[0]["names"]
+    moves = d["log_evidence_change_abs"]
+    rows = []
+    for model in names:
+        cells = []
+        for kind in ("parameters", "discrepancy"):
+            change = [
+                r["log_evidence_change"]
+                for rep in repeats
+                for r in rep["rows"]
+                if r["model"] == model and r["kind"] == kind
+            ]
+            cells.append(f"{np.median(change):+.2f} [{min(change):+.2f}, {max(change):+.2f}]")
+        shares = {}
+        for rep in repeats:
+            for col, v in rep["discrepancy_upper_half_share"][model].items():
+                shares.setdefault(col.removeprefix("discrepancy_sd[").rstrip("]"), []).append(v)
+        first = repeats[0]
+        p0 = first["probabilities"][names.index(model)]
+        halved = {r["kind"]: r["probability"] for r in first["rows"] if r["model"] == model}
+        rows.append(
+            [
+                model,
+                f"{p0:.2f} -> {halved.get('parameters', np.nan):.2f} / {halved.get('discrepancy', np.nan):.2f}",
+                *cells,
+                ", ".join(f"{g} {np.median(v):.2f}" for g, v in shares.items()),
+            ]
+        )
+    unidentified = sorted(
+        {
+            col.removeprefix("discrepancy_sd[").rstrip("]")
+            for rep in repeats
+            for model_shares in rep["discrepancy_upper_half_share"].values()
+            for col, v in model_shares.items()
+            if v >= 0.25
+        }
+    )
+    return [
+        "### Which prior moves the probabilities\n",
+        source("water_box_sensitivity", data=d) + " No GROMACS run: every box is inside the run's.\n",
+        f"Each model's force-field box (sigma, epsilon) and its discrepancy bounds halved apart "
+        f"(`sensitivity(split_discrepancy=True)`), over the {len(repeats)} repeats with the discrepancy "
+        f"term.  Halving a model's discrepancy bounds moves its log evidence by a median "
+        f"{moves['discrepancy']['median']:.2f} (at most {moves['discrepancy']['max']:.2f}); halving its "
+        f"force-field box by a median {moves['parameters']['median']:.2f} (at most "
+        f"{moves['parameters']['max']:.2f}).  The discrepancy sds the data bound from below only (a "
+        f"posterior share of 0.25 or more in the upper half of the range, 0.5 for a flat one): "
+        f"{', '.join(unidentified) or 'none'}, the groups of a single summary.  Their bounds, not the "
+        "force field, weigh most in the evidence; the verdict would change with an independent bound "
+        "on those sds (or with them left out of the model choice), not with more force-field box.\n",
+        table(
+            [
+                "model",
+                f"probability in `{repeats[0]['result']}` -> parameters x0.5 / discrepancy x0.5",
+                "log evidence change, parameters x0.5 (median [range] over repeats)",
+                "log evidence change, discrepancy x0.5",
+                "discrepancy sd's share in the upper half (median)",
+            ],
+            rows,
+        )
+        + "\n",
     ]
 
 

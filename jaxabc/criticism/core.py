@@ -32,13 +32,11 @@ from jaxabc.criticism.predictive import (
 )
 from jaxabc.criticism.report import CritiqueReport
 from jaxabc.executors import get_executor
+from jaxabc.noise import DISCREPANCY_PREFIX
 from jaxabc.priors import Uniform
 from jaxabc.results import ABCResult
 
 __all__ = ["critique", "without_discrepancy"]
-
-#: Name prefix of the model-discrepancy sds that ``jaxabc.run(..., discrepancy=...)`` appends.
-_DISCREPANCY_PREFIX = "discrepancy_sd["
 
 
 def without_discrepancy(result: ABCResult) -> ABCResult:
@@ -56,7 +54,7 @@ def without_discrepancy(result: ABCResult) -> ABCResult:
         For a prior that is not a :class:`jaxabc.Uniform` box (the only kind a discrepancy fit
         builds).
     """
-    keep = [i for i, n in enumerate(result.names) if not n.startswith(_DISCREPANCY_PREFIX)]
+    keep = [i for i, n in enumerate(result.names) if not n.startswith(DISCREPANCY_PREFIX)]
     if len(keep) == len(result.names):
         return result
     prior = result.prior
@@ -73,7 +71,7 @@ def without_discrepancy(result: ABCResult) -> ABCResult:
 
 
 def _refuse_discrepancy(result: ABCResult) -> None:
-    extra = [n for n in result.names if n.startswith(_DISCREPANCY_PREFIX)]
+    extra = [n for n in result.names if n.startswith(DISCREPANCY_PREFIX)]
     if extra:
         raise ValueError(
             f"result has model-discrepancy columns {extra}: critique asks what the simulator itself "

@@ -14,6 +14,7 @@ import numpy as np
 
 from jaxabc.diagnostics import PRIOR_EDGE_WIDTH, prior_edge_mass, prior_edge_messages, prior_limit_notes
 from jaxabc.errors import PriorEdgeWarning, caller_stacklevel
+from jaxabc.noise import DISCREPANCY_PREFIX
 from jaxabc.results import ABCResult
 
 __all__ = [
@@ -535,11 +536,25 @@ class ModelChoiceResult:
             self.log_evidence, self.log_evidence_errors, self.model_prior, self._log_evidence_upper_bounds(), z
         )
 
-    def _scaled_box(self, i: int, scale: float) -> tuple[np.ndarray, np.ndarray]:
+    def _discrepancy_columns(self, i: int) -> np.ndarray:
+        """Which of model ``i``'s parameters are discrepancy sds, shape ``(d,)``."""
+        post = self.posteriors[i]
+        names = list(getattr(post, "names", ()) or ())
+        d = int(np.shape(post.particles)[1])
+        return np.array([str(n).startswith(DISCREPANCY_PREFIX) for n in names[:d]] + [False] * (d - len(names)))
+
+    def _scaled_box(self, i: int, scale: float, which: str = "all") -> tuple[np.ndarray, np.ndarray]:
+        """Model ``i``'s box scaled by ``scale``: every parameter (``which="all"``), the force
+        field's only (``"parameters"``) or the discrepancy sds' only (``"discrepancy"``)."""
         post = self.posteriors[i]
         low, high = _prior_box(post.prior, np.shape(post.particles)[1])
         if not np.all(np.isfinite(high - low)):
             raise ValueError(f"model {self.names[i]!r} has an unbounded prior: give its boxes explicitly")
+        if which != "all":
+            disc = self._discrepancy_columns(i)
+            keep = ~disc if which == "discrepancy" else disc
+            scaled_low, scaled_high = self._scaled_box(i, scale)
+            return np.where(keep, low, scaled_low), np.where(keep, high, scaled_high)
         centre, half = 0.5 * (low + high), 0.5 * scale * (high - low)
         new_low, new_high = centre - half, centre + half
         # A bound that is a physical limit (a discrepancy sd's 0) stays: the width is scaled from it.
@@ -613,7 +628,10 @@ class ModelChoiceResult:
         )
 
     def sensitivity(
-        self, scales: Sequence[float] = (0.5, 2.0), boxes: Mapping[str, Any] | None = None
+        self,
+        scales: Sequence[float] = (0.5, 2.0),
+        boxes: Mapping[str, Any] | None = None,
+        split_discrepancy: bool = False,
     ) -> list[SensitivityRow]:
         """How the model probabilities move when the prior boxes change.
 
@@ -641,6 +659,14 @@ class ModelChoiceResult:
         boxes : mapping, optional
             ``{model name: (low, high)}`` or ``{model name: [(low, high), ...]}``, or a prior
             with ``low`` and ``high``; ``low`` and ``high`` one value per parameter.
+        split_discrepancy : bool
+            Also scale, for each model with discrepancy sds and each scale, its force-field box
+            alone (``"<model> parameters x<scale>"``) and its discrepancy bounds alone
+            (``"<model> discrepancy x<scale>"``, each ``max_sd`` scaled from 0), and every
+            model's discrepancy bounds at once (``"all discrepancy x<scale>"``): which prior
+            moves the probabilities.  An sd the data bound from below only
+            (:meth:`jaxabc.ABCResult.discrepancy_identification`) moves its model's evidence
+            with its ``max_sd``.
 
         Returns
         -------
@@ -655,6 +681,17 @@ class ModelChoiceResult:
                 specs.append((f"{name} box x{scale:g}", name, scale, {name: self._scaled_box(i, scale)}))
             every = {name: self._scaled_box(i, scale) for i, name in enumerate(self.names)}
             specs.append((f"all boxes x{scale:g}", "all", scale, every))
+            if split_discrepancy:
+                with_disc = [i for i in range(len(self.names)) if self._discrepancy_columns(i).any()]
+                for i in with_disc:
+                    name = self.names[i]
+                    for which in ("parameters", "discrepancy"):
+                        specs.append(
+                            (f"{name} {which} x{scale:g}", name, scale, {name: self._scaled_box(i, scale, which)})
+                        )
+                if with_disc:
+                    every = {self.names[i]: self._scaled_box(i, scale, "discrepancy") for i in with_disc}
+                    specs.append((f"all discrepancy x{scale:g}", "all", scale, every))
         for name, value in (boxes or {}).items():
             for low, high in self._user_boxes(name, value):
                 text = ", ".join(f"[{lo:g}, {hi:g}]" for lo, hi in zip(low, high, strict=True))
@@ -771,6 +808,9 @@ class ModelChoiceResult:
             )
         for name, info in self.prior_edge.items():
             lines.extend(f"  prior edge, model {name!r}: {message}" for message in info.get("messages", []))
+        for name, post in zip(self.names, self.posteriors, strict=True):
+            if hasattr(post, "discrepancy_identification"):
+                lines.extend(f"  discrepancy, model {name!r}: {m}" for m in post.discrepancy_identification()[1])
         if self.sensitivity_table:
             lines.append(f"  prior-box sensitivity (probability [interval, each log evidence +- {INTERVAL_Z:g} s.e.]):")
             lines.extend(f"    {row.describe()}" for row in self.sensitivity_table)

@@ -31,6 +31,7 @@ import numpy as np
 from jaxabc.diagnostics import (
     PRIOR_EDGE_LIMIT,
     PRIOR_EDGE_WIDTH,
+    discrepancy_identification,
     prior_edge_mass,
     prior_edge_messages,
     prior_limit_notes,
@@ -221,6 +222,13 @@ class ABCResult:
             raise ValueError(f"width must be a fraction of the range in (0, 0.5), got {width!r}")
         low, high = self._prior_box()
         return prior_edge_mass(self.particles, self.weights, low, high, width)
+
+    def discrepancy_identification(self) -> tuple[dict[str, float], list[str]]:
+        """Each discrepancy sd's posterior share in the upper half of its prior range, and a
+        sentence for each the data bound from below only
+        (:func:`jaxabc.diagnostics.discrepancy_identification`); empty without discrepancy sds."""
+        low, high = self._prior_box()
+        return discrepancy_identification(self.particles, self.weights, self.names, low, high)
 
     def _prior_edge_diagnostics(self) -> dict | None:
         """``diagnostics["prior_edge"]``: the mass at the default width and the sentences for
@@ -454,6 +462,8 @@ class ABCResult:
             lines.append(f"  prior edge: {'; '.join(edge['messages'])}")
         if edge.get("at_physical_limits"):
             lines.append(f"  at a physical limit: {'; '.join(edge['at_physical_limits'])}")
+        for message in self.discrepancy_identification()[1]:
+            lines.append(f"  discrepancy: {message}")
         if not np.all(np.isfinite(err)):
             # Say why in words: "+- inf" alone reads like a bug.
             note = self.diagnostics.get("mcse_note") or "collapsed: fewer than 2 distinct particles; MCSE not available"
