@@ -393,6 +393,9 @@ def _box_sensitivity() -> list[str]:
                 ", ".join(f"{g} {np.median(v):.2f}" for g, v in shares.items()),
             ]
         )
+    choice = (load("water_model_choice") or {}).get("model_choice", {})
+    groups = (choice.get("metadata", {}).get("discrepancy") or {}).get("groups", {})
+    sizes = {g: f"{len(idx)} summar{'y' if len(idx) == 1 else 'ies'}" for g, idx in groups.items()}
     unidentified = sorted(
         {
             col.removeprefix("discrepancy_sd[").rstrip("]")
@@ -402,6 +405,7 @@ def _box_sensitivity() -> list[str]:
             if v >= 0.25
         }
     )
+    named = [f"{g} (a group of {sizes.get(g, '?')})" for g in unidentified]
     return [
         "### Which prior moves the probabilities\n",
         source("water_box_sensitivity", data=d) + " No GROMACS run: every box is inside the run's.\n",
@@ -412,9 +416,10 @@ def _box_sensitivity() -> list[str]:
         f"force-field box by a median {moves['parameters']['median']:.2f} (at most "
         f"{moves['parameters']['max']:.2f}).  The discrepancy sds the data bound from below only (a "
         f"posterior share of 0.25 or more in the upper half of the range, 0.5 for a flat one): "
-        f"{', '.join(unidentified) or 'none'}, the groups of a single summary.  Their bounds, not the "
-        "force field, weigh most in the evidence; the verdict would change with an independent bound "
-        "on those sds (or with them left out of the model choice), not with more force-field box.\n",
+        f"{', '.join(named) or 'none'}.  A "
+        "verdict between these models rests on the bounds chosen for those sds more than on the "
+        "force-field boxes; a bound on them from outside the fit (or a model choice without them) is what "
+        "could change it.\n",
         table(
             [
                 "model",
