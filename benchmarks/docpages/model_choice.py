@@ -535,6 +535,14 @@ def _what_would_change(d: dict[str, Any], names: list[str], rows: list[dict[str,
             " Narrowing one model's box alone turns it: the ranking follows the widths of the prior boxes "
             "(each model's Occam factor) as much as the data."
         )
+        split = load("water_box_sensitivity")
+        if split is not None:
+            moves = split["log_evidence_change_abs"]
+            text += (
+                f" Split apart (below), halving a model's discrepancy bounds moves its log evidence by a median "
+                f"{moves['discrepancy']['median']:.2f}, halving its force-field box by "
+                f"{moves['parameters']['median']:.2f}."
+            )
     wider = [r["label"] for r in rows if r not in computed]
     if wider:
         text += f" Not computed from this run (they need simulations in the wider boxes): {', '.join(wider)}."
