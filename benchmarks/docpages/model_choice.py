@@ -334,6 +334,9 @@ def _summary_noise() -> list[str]:
         if heavy
         else "For every summary the noise is consistent with normal noise, so the held-out errors' heavy "
         "tails are the emulator's error, not the simulator's."
+    ) + (
+        "  (The noise was measured at one point per model, its posterior estimate; near the network break "
+        "a run can land on either structure, which no Gaussian noise model describes.)"
     )
     return [
         "### Is the simulator's noise Gaussian?\n",
