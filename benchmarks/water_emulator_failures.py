@@ -104,8 +104,25 @@ def _tails(errors: np.ndarray, fitted: list[str], draws: int = 20000) -> dict[st
     bound = local_check(targeted[0]).bound
     t_msq = scipy.stats.chi2.ppf(1 - 1e-3, targeted.shape[1]) / targeted.shape[1]
     targeted_fail = (np.max(np.abs(targeted), axis=1) > bound) | (np.mean(targeted**2, axis=1) > t_msq)
+    # Run by run: misses that come together in one held-out run are one wrong prediction of the
+    # whole summary vector (or one unusual run), not independent chance.
+    k = np.sum(np.abs(errors) > MISS_SD, axis=1)
+    p3 = 2 * scipy.stats.norm.sf(MISS_SD)
+    rms = np.sqrt(np.mean(errors**2, axis=1))
+    by_run = {
+        "runs": int(errors.shape[0]),
+        "with_a_miss": int(np.sum(k >= 1)),
+        "with_a_miss_normal": float(errors.shape[0] * (1 - (1 - p3) ** q)),
+        "with_two_misses": int(np.sum(k >= 2)),
+        "with_two_misses_normal": float(errors.shape[0] * scipy.stats.binom.sf(1, q, p3)),
+        "rms_quantiles": dict(zip(("0.5", "0.9", "0.99"), np.quantile(rms, [0.5, 0.9, 0.99]).tolist(), strict=True)),
+        "rms_quantiles_normal": dict(
+            zip(("0.5", "0.9", "0.99"), np.sqrt(scipy.stats.chi2.ppf([0.5, 0.9, 0.99], q) / q).tolist(), strict=True)
+        ),
+    }
     return {
         "errors": int(a.size),
+        "by_run": by_run,
         "sd_by_summary": dict(zip(fitted, np.std(errors, axis=0).round(4).tolist(), strict=True)),
         "excess_kurtosis_by_summary": dict(
             zip(fitted, scipy.stats.kurtosis(errors, axis=0).round(3).tolist(), strict=True)

@@ -290,10 +290,22 @@ def _emulator_failures() -> list[str]:
         f"would fail the marginal or the targeted check {chance['either']:.0%} of the time by chance "
         f"(checks built for 0.1 % under a normal), against {s['failed'] / s['emulators']:.0%} observed: chance "
         f"under such tails accounts for {chance['either'] / (s['failed'] / s['emulators']):.0%} of the failure "
-        "rate.  Whether the tails are the simulator's noise or the emulator's error the saved runs cannot tell "
-        "(5 replicates at each of 2 sites per emulator), nor what fails the rest (outputs such as S5 and S6 "
-        "miss together, which independent draws do not model).  The Gaussian synthetic likelihood assumes "
-        "what the checks assume.\n",
+        "rate.  Whether the tails are the simulator's noise or the emulator's error, the replicates below say "
+        "(the designs hold 5 replicates at each of 2 sites per emulator, too few).  The Gaussian synthetic "
+        "likelihood assumes what the checks assume.\n",
+        *(
+            [
+                f"Run by run, {by_run['with_a_miss']} of {by_run['runs']} held-out runs miss a summary by more than "
+                f"{st['miss_sd']:g} sd (independent normal errors: {by_run['with_a_miss_normal']:.0f}) and "
+                f"{by_run['with_two_misses']} miss two or more at once (normal: "
+                f"{by_run['with_two_misses_normal']:.2f}); "
+                f"the 90 % point of a run's rms error is {by_run['rms_quantiles']['0.9']:.2f} (normal: "
+                f"{by_run['rms_quantiles_normal']['0.9']:.2f}).  The misses come together: the emulator gets a few "
+                "runs' whole summary vectors wrong rather than scattering single misses.\n"
+            ]
+            if (by_run := tails.get("by_run"))
+            else []
+        ),
     ]
 
 
