@@ -229,9 +229,12 @@ def rebaseline(entry: Entry, root: Path = ROOT) -> dict[str, Any]:
     Raises
     ------
     RuntimeError
-        The result records no commit, the worktree cannot be made, or the quick command fails.
+        The full result is missing or records no commit, the worktree cannot be made, or the
+        quick command fails.
     """
     assert entry.quick and entry.quick_output, "only entries with a quick mode"
+    if not (root / entry.output).is_file():
+        raise RuntimeError(f"{entry.name}: no full result ({entry.output}) to rebaseline from")
     full = _provenance(json.loads((root / entry.output).read_text()), entry.part) or {}
     commit = full.get("commit")
     if not commit:

@@ -551,6 +551,17 @@ def test_rebaseline_refuses_a_result_without_a_commit(fake_repo: Path) -> None:
         verify.rebaseline(QUICK_ENTRY, fake_repo)
 
 
+def test_rebaseline_refuses_a_retired_result_whose_file_is_gone(fake_repo: Path) -> None:
+    """A retired result's quick mode may still vouch for others; with its full JSON deleted there
+    is no commit to rebaseline at, and the refusal says so instead of a traceback."""
+    from benchmarks import verify
+
+    write_fake(fake_repo)
+    (fake_repo / QUICK_ENTRY.output).unlink(missing_ok=True)
+    with pytest.raises(RuntimeError, match="no full result"):
+        verify.rebaseline(QUICK_ENTRY, fake_repo)
+
+
 def test_results_pages_show_figures_that_exist_and_the_build_publishes_them() -> None:
     """Every ``![...](figures/<rel>)`` on a results page is a saved, non-quick PNG under
     benchmarks/results, and the MkDocs hook publishes exactly those under results/figures/."""
