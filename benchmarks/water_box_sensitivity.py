@@ -17,6 +17,15 @@ evidence follows ``max_sd``.  The posterior share of each discrepancy sd in the 
 bound (``ABCResult.discrepancy_identification``; 0.5 for a flat posterior) says how much of it is
 prior.
 
+Then a bound on the discrepancy sds from outside the fit (:func:`family_bounds`): each group's
+``max_sd`` set to the largest misfit a *published* rigid model makes in that group at its own
+parameters, in the same protocol and against the same data (``water_published_predictive``),
+times :data:`FAMILY_FACTORS`.  That is a reference-class prior ("this model's systematic error
+is no worse than the worst published rigid model's"); it uses the measured values but no fit.
+Each group alone and all groups at once, each model's evidence by the same reuse, and the
+probability intervals and verdict rule of :meth:`~jaxabc.model_choice.ModelChoiceResult.verdict`
+(the leader preferred only when its interval lies above every other's).
+
 Usage::
 
     python -m benchmarks.water_box_sensitivity [--quick]
@@ -32,15 +41,124 @@ import numpy as np
 
 from benchmarks._common import RESULTS, ROOT, machine, relative, write_result
 from benchmarks.registry import REPEATS
-from jaxabc.model_choice import load_model_choice
+from jaxabc.model_choice import (
+    STATUS_REUSED,
+    ModelChoiceResult,
+    interval_leader,
+    load_model_choice,
+    probabilities_with_errors,
+    probability_bounds,
+)
 from jaxabc.noise import DISCREPANCY_PREFIX
 
 #: Width factors (< 1: inside the run's box, computed from the run).
 SCALES = (0.5,)
+#: The published-model bounds times these (capped at the run's own bounds: no extrapolation).
+FAMILY_FACTORS = (1.0, 2.0)
+#: The result holding each published model's summaries at its published parameters.
+PUBLISHED = "water_published_predictive"
 
 
-def analyse_repeat(name: str, what: str, d: dict[str, Any]) -> dict[str, Any] | None:
-    """The split sensitivity of one saved repeat (None without discrepancy columns)."""
+def family_bounds(
+    published: dict[str, Any], fitted: list[str], groups: dict[str, list[int]], data: str, temperature_k: float
+) -> dict[str, float]:
+    """Per discrepancy group, the largest ``|mean - observed|`` over the published models and the
+    group's summaries (its units), from a ``water_published_predictive`` payload.
+
+    ``groups`` index into ``fitted`` (summary names), as a model choice's settings record them.
+
+    Raises
+    ------
+    ValueError
+        The published runs used other data or another temperature, or lack a group's summary,
+        or a model has no mean for it.
+    """
+    if published.get("data") != data or not np.isclose(float(published.get("temperature_k", np.nan)), temperature_k):
+        raise ValueError(
+            f"published-model runs are for data {published.get('data')!r} at {published.get('temperature_k')} K; "
+            f"the model choice is for {data!r} at {temperature_k} K"
+        )
+    names = list(published["summary_names"])
+    observed = published["observed"]
+    out = {}
+    for group, idx in groups.items():
+        wanted = [fitted[i] for i in idx]
+        missing = [n for n in wanted if n not in names]
+        if missing:
+            raise ValueError(f"group {group!r}: the published-model runs lack {missing}")
+        devs = []
+        for model, m in published["models"].items():
+            for n in wanted:
+                k = names.index(n)
+                if m["mean"][k] is None or observed[k] is None:
+                    raise ValueError(f"group {group!r}: no value of {n} for {model} or the data")
+                devs.append(abs(float(m["mean"][k]) - float(observed[k])))
+        out[group] = float(max(devs))
+    return out
+
+
+def _group(column: str) -> str:
+    return column.removeprefix(DISCREPANCY_PREFIX).rstrip("]")
+
+
+def bounded_box(post: Any, bounds: dict[str, float], factor: float, only: str | None = None):
+    """``(low, high)`` of a model's augmented box with the discrepancy bounds ``factor * bounds``
+    (every group, or ``only`` that one), each capped at the run's own bound."""
+    low, high = np.array(post.prior.low, np.float64), np.array(post.prior.high, np.float64)
+    for j, column in enumerate(post.names):
+        if column.startswith(DISCREPANCY_PREFIX) and only in (None, _group(column)):
+            high[j] = min(high[j], factor * bounds[_group(column)])
+    return low, high
+
+
+def family_variant(
+    choice: ModelChoiceResult, bounds: dict[str, float], factor: float, only: str | None = None
+) -> dict[str, Any]:
+    """The model probabilities with every model's discrepancy bounds set by :func:`bounded_box`;
+    each model's evidence reuses its run (:meth:`~jaxabc.model_choice.ModelChoiceResult.sensitivity`
+    with that box).  The verdict rule is the library's: preferred only when the leader's
+    probability interval lies above every other model's."""
+    log_z, se, share_cut = [], [], {}
+    for i, (name, post) in enumerate(zip(choice.names, choice.posteriors, strict=True)):
+        low, high = bounded_box(post, bounds, factor, only)
+        row = choice.sensitivity(scales=(), boxes={name: (low, high)})[0]
+        if row.status != STATUS_REUSED:
+            raise RuntimeError(f"{name}: the bounded box was not computed from the run ({row.status})")
+        log_z.append(float(row.log_evidence[i]))
+        se.append(float(row.log_evidence_errors[i]))
+        x, w = np.asarray(post.particles, np.float64), np.asarray(post.weights, np.float64)
+        w = w / w.sum()
+        share_cut[name] = {
+            _group(c): float(w @ (x[:, j] > high[j]))
+            for j, c in enumerate(post.names)
+            if c.startswith(DISCREPANCY_PREFIX) and only in (None, _group(c))
+        }
+    prior = np.asarray(choice.model_prior, np.float64)
+    p, _ = probabilities_with_errors(np.asarray(log_z), np.asarray(se), prior)
+    iv = probability_bounds(np.asarray(log_z), np.asarray(se), prior)
+    best = int(np.argmax(p))
+    leader = interval_leader(p, iv)
+    return {
+        "groups": "all" if only is None else only,
+        "factor": factor,
+        "bounds": {g: factor * b for g, b in bounds.items() if only in (None, g)},
+        "log_evidence": log_z,
+        "log_evidence_change": (np.asarray(log_z) - np.asarray(choice.log_evidence, np.float64)).tolist(),
+        "log_evidence_errors": se,
+        "probabilities": p.tolist(),
+        "intervals": iv.tolist(),
+        "leader": choice.names[best],
+        "least": choice.names[int(np.argmin(p))],
+        "verdict": "undecided" if leader is None else f"preferred: {choice.names[leader]}",
+        "posterior_share_cut": share_cut,
+    }
+
+
+def analyse_repeat(
+    name: str, what: str, d: dict[str, Any], published: dict[str, Any] | None = None
+) -> dict[str, Any] | None:
+    """The split sensitivity of one saved repeat (None without discrepancy columns), and with
+    ``published`` (a ``water_published_predictive`` payload) its published-model bounds."""
     choice = load_model_choice(ROOT / d["saved_result"])
     if not any(n.startswith(DISCREPANCY_PREFIX) for n in choice.posteriors[0].names):
         return None
@@ -69,6 +187,15 @@ def analyse_repeat(name: str, what: str, d: dict[str, Any]) -> dict[str, Any] | 
     upper_half = {
         model: post.discrepancy_identification()[0] for model, post in zip(choice.names, choice.posteriors, strict=True)
     }
+    family = None
+    if published is not None:
+        groups = d["settings"]["discrepancy"]["groups"]
+        bounds = family_bounds(
+            published, d["summaries"]["fitted"], groups, d["data"], float(d["settings"]["temperature_k"])
+        )
+        variants = [family_variant(choice, bounds, 1.0, g) for g in groups]
+        variants += [family_variant(choice, bounds, f) for f in FAMILY_FACTORS]
+        family = {"bounds": bounds, "run_bounds": d["settings"]["discrepancy"]["max_sd"], "variants": variants}
     return {
         "result": name,
         "what": what,
@@ -76,6 +203,7 @@ def analyse_repeat(name: str, what: str, d: dict[str, Any]) -> dict[str, Any] | 
         "names": list(choice.names),
         "rows": rows,
         "discrepancy_upper_half_share": upper_half,
+        "published_model_bounds": family,
     }
 
 
@@ -84,12 +212,16 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     parser.add_argument("--quick", action="store_true", help="write the quick JSON (the same analysis)")
     args = parser.parse_args(argv)
     repeats, inputs = [], []
+    published_path = RESULTS / f"{PUBLISHED}.json"
+    published = json.loads(published_path.read_text()) if published_path.is_file() else None
+    if published is not None:
+        inputs.append(published_path)
     for name, what in REPEATS:
         path = RESULTS / f"{name}.json"
         if not path.is_file():
             continue
         d = json.loads(path.read_text())
-        out = analyse_repeat(name, what, d)
+        out = analyse_repeat(name, what, d, published)
         if out is not None:
             repeats.append(out)
             inputs.append(ROOT / d["saved_result"] / "model_choice.json")
@@ -102,6 +234,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     payload = {
         "machine": machine(),
         "scales": list(SCALES),
+        "family_factors": list(FAMILY_FACTORS),
+        "published_result": PUBLISHED if published is not None else None,
         "repeats": repeats,
         "log_evidence_change_abs": {
             k: {"median": float(np.median(v)), "max": float(np.max(v)), "n": len(v)} for k, v in moves.items()

@@ -446,6 +446,87 @@ def _box_sensitivity() -> list[str]:
             rows,
         )
         + "\n",
+        *_published_bounds(d),
+    ]
+
+
+def _published_bounds_sentence(d: dict[str, Any]) -> str:
+    """One sentence: the verdicts and the least probable model under the published-model bounds
+    (all groups x1), over the repeats."""
+    variants = [
+        v
+        for r in d["repeats"]
+        for v in (r.get("published_model_bounds") or {}).get("variants", [])
+        if v["groups"] == "all" and v["factor"] == 1.0
+    ]
+    if not variants:
+        return ""
+    least = [v["least"] for v in variants]
+    common = max(set(least), key=least.count)
+    undecided = sum(v["verdict"] == "undecided" for v in variants)
+    return (
+        f" With every discrepancy bound set from the published models' misfits (below), {undecided} of "
+        f"{len(variants)} repeats stay undecided and {common} is the least probable in {least.count(common)} "
+        f"of {len(variants)}."
+    )
+
+
+def _published_bounds(d: dict[str, Any]) -> list[str]:
+    """The model probabilities under discrepancy bounds set from the published models' misfits
+    (``published_model_bounds`` of ``water_box_sensitivity.json``)."""
+    repeats = [r for r in d["repeats"] if r.get("published_model_bounds")]
+    if not repeats:
+        return []
+    names = repeats[0]["names"]
+    first = repeats[0]["published_model_bounds"]
+    run_bounds = dict(zip(first["bounds"], first["run_bounds"], strict=True))
+    groups = list(first["bounds"])
+    bound_text = ", ".join(f"{g} {first['bounds'][g]:.3g} (run: {run_bounds[g]:g})" for g in groups)
+    by_label: dict[str, list[dict[str, Any]]] = {}
+    for rep in repeats:
+        for v in rep["published_model_bounds"]["variants"]:
+            label = f"all groups x{v['factor']:g}" if v["groups"] == "all" else f"{v['groups']} alone x{v['factor']:g}"
+            by_label.setdefault(label, []).append(v)
+    rows = []
+    for label, variants in by_label.items():
+        p = np.array([v["probabilities"] for v in variants])
+        cells = [f"{np.median(p[:, k]):.2f} [{p[:, k].min():.2f}, {p[:, k].max():.2f}]" for k in range(len(names))]
+        least = [v["least"] for v in variants]
+        decided = [v["verdict"] for v in variants if v["verdict"] != "undecided"]
+        rows.append(
+            [
+                label,
+                *cells,
+                ", ".join(f"{m} {least.count(m)}" for m in names if least.count(m)),
+                f"{len(variants) - len(decided)} of {len(variants)} undecided"
+                + (f" ({'; '.join(decided)})" if decided else ""),
+            ]
+        )
+    cut = {
+        m: [rep["published_model_bounds"]["variants"][len(groups)]["posterior_share_cut"][m] for rep in repeats]
+        for m in names
+    }
+    prior_cut = ", ".join(
+        f"{g} {1 - first['bounds'][g] / run_bounds[g]:.2f}" for g in ("D", "hvap") if g in first["bounds"]
+    )
+    cut_text = "; ".join(
+        f"{m} " + ", ".join(f"{g} {np.median([c[g] for c in cut[m]]):.2f}" for g in ("D", "hvap") if g in cut[m][0])
+        for m in names
+    )
+    return [
+        "#### Discrepancy bounds from the published models\n",
+        "A bound on the discrepancy sds from outside the fit: each group's `max_sd` set to the largest "
+        "misfit a published rigid model makes in that group at its own parameters, in the same protocol "
+        f"and against the same data (`{d.get('published_result')}`): {bound_text}.  It says that a "
+        "model's systematic error is no worse than the worst published model's; it uses the measured "
+        "values but no fit.  Each model's evidence is recomputed from its run (every bound is inside the "
+        "run's), the verdict by the library's rule.  Median [range] of each probability over the "
+        f"{len(repeats)} repeats:\n",
+        table(["bounds", *names, "least probable (repeats)", "verdict"], rows),
+        "\nThe D and hvap sds are not identified (one summary each), so the bound cuts their posterior "
+        f"about as it cuts their prior ({prior_cut} of it lies above the bound); the median share of the "
+        f"posterior above the bound, all groups x1: {cut_text}.  A share above the prior's means the model's "
+        "posterior leans to a larger discrepancy there.\n",
     ]
 
 
@@ -558,6 +639,7 @@ def _what_would_change(d: dict[str, Any], names: list[str], rows: list[dict[str,
                 f"{moves['discrepancy']['median']:.2f}, halving its force-field box by "
                 f"{moves['parameters']['median']:.2f}."
             )
+            text += _published_bounds_sentence(split)
     wider = [r["label"] for r in rows if r not in computed]
     if wider:
         text += f" Not computed from this run (they need simulations in the wider boxes): {', '.join(wider)}."
