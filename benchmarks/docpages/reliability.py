@@ -102,7 +102,7 @@ def _z(stats: dict) -> str:
 
 
 def _counts(counter: Counter) -> str:
-    order = ("correct", "clear error", "unclear error", "traceback", "wrong", "hang")
+    order = ("correct", "clear error", "unclear error", "traceback", "wrong", "hang", "not exercised")
     return ", ".join(f"{counter[k]} {k}" for k in order if counter.get(k))
 
 

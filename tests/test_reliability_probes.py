@@ -1,0 +1,44 @@
+"""The probe runner of benchmarks/reliability_probes.py: an interrupt probe whose run finished
+before the signal is tried again, and never classified as what an uninterrupted run does."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from benchmarks._common import ROOT
+from benchmarks.reliability_probes import INTERRUPT, INTERRUPT_TRIES, Probe, _run_one
+
+
+def test_a_run_that_beats_its_interrupt_is_tried_again(tmp_path: Path) -> None:
+    count = tmp_path / "tries"
+    # Finished before the signal on the first two tries, interrupted on the third.
+    cli = (
+        f"n=$(( $(cat {count} 2>/dev/null || echo 0) + 1 )); echo $n > {count}; "
+        "if [ $n -lt 3 ]; then echo 'RACE the run finished before the interrupt'; exit 75; fi; "
+        "echo 'OK interrupted'"
+    )
+    out = _run_one(Probe("race", 4, "race", cli=cli), ROOT, timeout=30)
+    assert out["outcome"] == "correct" and count.read_text().strip() == "3"
+
+
+def test_a_run_that_always_beats_its_interrupt_is_not_exercised(tmp_path: Path) -> None:
+    count = tmp_path / "tries"
+    cli = f"echo x >> {count}; echo 'RACE the run finished before the interrupt'; exit 75"
+    out = _run_one(Probe("race", 4, "race", cli=cli), ROOT, timeout=30)
+    assert out["outcome"] == "not exercised"
+    assert len(count.read_text().split()) == INTERRUPT_TRIES
+
+
+def test_the_interrupt_line_reports_a_finished_run_and_passes_an_interrupted_one(tmp_path: Path) -> None:
+    """The real shell line: a command that ends at once (exit 0) races; one that runs until the
+    signal (exit 130) is interrupted and the line goes on."""
+    import subprocess
+
+    def run(command: str) -> subprocess.CompletedProcess:
+        line = f"mkdir -p f; touch f/checkpoint.npz; {INTERRUPT.format(command=command, folder='f')}echo went-on"
+        return subprocess.run(["bash", "-c", line], cwd=tmp_path, capture_output=True, text=True, timeout=60)
+
+    fast = run("true")
+    assert fast.returncode == 75 and fast.stdout.startswith("RACE")
+    slow = run("sleep 30")
+    assert slow.returncode == 0 and "went-on" in slow.stdout and "RACE" not in slow.stdout
