@@ -10,28 +10,20 @@ the truth, and the exact posterior (grid integration) puts a known, small share 
 from __future__ import annotations
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 import pytest
+from _misspecified import K, grid_posterior, k_values, mean_and_sd, observed
 
 import jaxabc
 from jaxabc.diagnostics import PRIOR_LIKE_SHARE, discrepancy_identification
 from jaxabc.model_choice import Model
 
 SIGMA, M = 0.1, 1.0
-K, S_DISC, TAU, THETA0, M_K = 20, 0.5, 1.0, 1.0, 2.0
+M_K = 2.0
 
 
 def one_value(key, theta):
     return theta + SIGMA * jax.random.normal(key, theta.shape)
-
-
-def k_values(key, theta):
-    return theta[0] + S_DISC * jax.random.normal(key, (K,))
-
-
-def mean_and_sd(observed, simulated):
-    return jnp.abs(observed.mean() - simulated.mean()) + jnp.abs(observed.std(ddof=1) - simulated.std(ddof=1))
 
 
 def _share_se(n_eff: float) -> float:
@@ -60,17 +52,12 @@ def test_a_discrepancy_of_one_summary_follows_its_prior_and_is_named():
 
 def _grid_share(y: np.ndarray) -> float:
     """Exact posterior share of delta in [M_K / 2, M_K] for y_j ~ N(theta, S_DISC^2 + delta^2)."""
-    th, de = np.linspace(-1.0, 3.0, 801), np.linspace(0.0, M_K, 801)
-    t, d = np.meshgrid(th, de, indexing="ij")
-    v = S_DISC**2 + d**2
-    ll = -0.5 * K * np.log(v) - 0.5 * ((y[None, None, :] - t[..., None]) ** 2).sum(-1) / v
-    p = np.exp(ll - ll.max())
-    p /= p.sum()
+    _, d, p = grid_posterior(y, (-1.0, 3.0), M_K, (801, 801))
     return float(p[d > 0.5 * M_K].sum())
 
 
 def test_a_discrepancy_of_many_summaries_is_decided_by_the_data():
-    y = THETA0 + np.sqrt(S_DISC**2 + TAU**2) * np.random.default_rng(7).standard_normal(K)
+    y = observed(7)
     prior = jaxabc.Uniform([-1.0], [3.0], names=("theta",))
     r = jaxabc.run(
         "rejection",

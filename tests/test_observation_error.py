@@ -9,6 +9,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from _misspecified import TAU, K, grid_posterior, k_values, mean_and_sd, observed
 
 import jaxabc
 import jaxabc.model_choice
@@ -41,20 +42,6 @@ def deterministic(key, theta):
 
 PRIOR2 = jaxabc.Uniform([-3.0], [3.0])
 OBS2 = np.array([0.4, 1.1])
-
-
-K, S_DISC, TAU, THETA0 = 20, 0.5, 1.0, 1.0  # the misspecified problem
-
-
-def k_values(key, theta):
-    """K values theta + N(0, S_DISC^2); the data have an extra N(0, TAU^2) the model lacks."""
-    return theta[0] + S_DISC * jax.random.normal(key, (K,))
-
-
-def mean_and_sd(observed, simulated):
-    """Distance on the sufficient statistics (mean, sample sd) of K iid Gaussian values: ABC
-    at a small tolerance then approaches the exact posterior given all K values."""
-    return jnp.abs(observed.mean() - simulated.mean()) + jnp.abs(observed.std(ddof=1) - simulated.std(ddof=1))
 
 
 def _moments(result, column=0):
@@ -179,24 +166,13 @@ def test_noisy_abc_is_reproducible_whatever_the_executor():
 # ----------------------------------------------------------------------------- discrepancy
 
 
-def _grid_posterior(y):
-    """Exact posterior of (theta, delta) for y_j ~ N(theta, S_DISC^2 + delta^2) iid, flat prior
-    on [-1, 2.5] x [0, 2]; returns the grid, its weights and the delta grid."""
-    th, de = np.linspace(-1.0, 2.5, 701), np.linspace(0.0, 2.0, 401)
-    t, d = np.meshgrid(th, de, indexing="ij")
-    v = S_DISC**2 + d**2
-    ll = -0.5 * K * np.log(v) - 0.5 * ((y[None, None, :] - t[..., None]) ** 2).sum(-1) / v
-    p = np.exp(ll - ll.max())
-    return t, d, p / p.sum()
-
-
 def test_discrepancy_recovers_the_known_misspecification():
     """K values per simulation, theta + N(0, S_DISC^2); the data carry an extra N(0, TAU^2) per
     value.  With one discrepancy group over all K values, rejection ABC on the sufficient
     statistics gives the exact posterior of (theta, delta) (grid integration of the Gaussian
     likelihood) and a credible interval for delta that holds TAU.  A simulator that ignored
     delta would leave its posterior at the prior U[0, 2] (mean 1, sd 0.58) and fail."""
-    y = THETA0 + np.sqrt(S_DISC**2 + TAU**2) * np.random.default_rng(7).standard_normal(K)
+    y = observed(7)
     prior = jaxabc.Uniform([-1.0], [2.5], names=("theta",), units=("u",))
     r = jaxabc.run(
         "rejection",
@@ -213,7 +189,7 @@ def test_discrepancy_recovers_the_known_misspecification():
     assert r.prior.units == ("u", "summary units")
     assert r.particles.shape == (1000, 2)
     assert r.settings["discrepancy"] == {"max_sd": 2.0, "groups": {"all": list(range(K))}}
-    t, d, p = _grid_posterior(y)
+    t, d, p = grid_posterior(y, (-1.0, 2.5), 2.0, (701, 401))
     for col, grid in ((0, t), (1, d)):
         mean, var = _moments(r, col)
         g_mean = float((p * grid).sum())
