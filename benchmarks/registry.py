@@ -701,10 +701,11 @@ REGISTRY: tuple[Entry, ...] = (
         "python -m benchmarks.water_emulator_failures",
         quick="python -m benchmarks.water_emulator_failures --quick",
         quick_output=f"{Q}/water_emulator_failures.json",
-        estimated_cost_s=10.0,
+        estimated_cost_s=300.0,
         after=tuple(name for name, _ in REPEATS),
         note="why the model choice's emulators fail validation: checks failed, worst-predicted summaries, the "
-        "quick liquid's network break and the held-out errors' tails, over the saved repeats (no GROMACS)",
+        "quick liquid's network break, the held-out errors' tails and where they sit (each emulator refitted "
+        "on its saved design), over the saved repeats (no GROMACS)",
     ),
     Entry(
         "water_box_sensitivity",

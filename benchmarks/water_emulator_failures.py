@@ -14,6 +14,12 @@ of the quick-preset liquid breaks:
 - each run's posterior share whose nearest design runs (:data:`NEIGHBOURS` in the unit box) are
   all broken (beyond the break) or mixed (on it).
 
+Then where the held-out errors' tails sit (:func:`refit_errors`): each emulator refitted as at its
+last validation (the library's own fit on the saved design; it reproduces the saved held-out
+errors), its design rows' leave-one-out standardised errors as the reference, and the held-out
+errors split by how the run was placed (random or targeted, where the emulator is least sure) and
+by the emulator-to-noise variance ratio at the run, in :data:`RATIO_QUANTILES` bins.
+
 Usage::
 
     python -m benchmarks.water_emulator_failures [--quick]
@@ -32,7 +38,8 @@ import scipy.stats
 
 from benchmarks._common import RESULTS, ROOT, machine, relative, write_result
 from benchmarks.registry import REPEATS
-from jaxabc.surrogate._fit import ROLE_HOLDOUT
+from jaxabc.surrogate import emulator
+from jaxabc.surrogate._fit import ROLE_DESIGN, ROLE_HOLDOUT, fit_likelihood
 from jaxabc.surrogate._validation import num_targeted
 from jaxabc.surrogate.diagnostics import holdout_bounds, local_check
 
@@ -46,6 +53,107 @@ HIGH_EPSILON = 1.15
 SIGMA_BINS = (0.0, 0.985, 1.0, 1.01, 1.03, np.inf)
 #: Held-out standardised errors counted as misses.
 MISS_SD = 3.0
+#: Quantiles of the emulator-to-noise variance ratio that bin the held-out errors.
+RATIO_QUANTILES = (0.0, 0.25, 0.5, 0.75, 0.9, 1.0)
+
+
+def refit_errors(meta: dict, arrays: dict[str, np.ndarray], observed: np.ndarray) -> dict[str, np.ndarray]:
+    """Refit a saved surrogate's emulator as at its last validation: the last ``num_holdout``
+    held-out rows held out, every other successful row in the design.
+
+    Returns ``loo`` (design rows x active outputs: leave-one-out errors over their predictive sd,
+    noise included), ``held_out`` (held-out rows x active outputs), ``targeted`` (bool, held-out
+    rows) and ``ratio`` (held-out rows x active outputs: emulator variance over noise variance).
+    """
+    import jax
+    import jax.numpy as jnp
+
+    diag, settings = meta["diagnostics"], meta["settings"]
+    theta, summaries = arrays["record_theta"][:, :2], arrays["record_summaries"]
+    n = len(theta)
+    role = np.asarray(diag["design_role"])[:n]
+    ok = np.asarray(diag["design_ok"], bool)[:n] & np.all(np.isfinite(summaries), axis=1)
+    last = np.flatnonzero(role >= ROLE_HOLDOUT)[-int(settings["num_holdout"]) :]
+    role = np.where(role >= ROLE_HOLDOUT, ROLE_DESIGN, role)
+    role[last] = ROLE_HOLDOUT
+    low = np.asarray(meta["prior"]["low"][:2], np.float64)
+    high = np.asarray(meta["prior"]["high"][:2], np.float64)
+    state = _State(theta, summaries, role, ok)
+    with jax.enable_x64(True):
+        _, emu, model, z_all = fit_likelihood(
+            state,
+            low,
+            high,
+            observed,
+            int(settings["max_outputs"]),
+            int(settings["max_simulations"]),
+            jnp.log(float(settings["min_feasibility"])),
+            noise_model=str(settings["noise_model"]),
+        )
+        on = np.asarray(model.active, bool)
+        chol, alpha, mask = np.asarray(emu.chol), np.asarray(emu.alpha), np.asarray(emu.mask, bool)
+        loo = []
+        for j in range(chol.shape[0]):
+            k_inv = np.linalg.inv(chol[j] @ chol[j].T)
+            # r_i = alpha_i / [K^-1]_ii over its sd 1 / sqrt([K^-1]_ii)
+            loo.append(alpha[j] / np.sqrt(np.diag(k_inv)))
+        rows = last[ok[last]]
+        x = jnp.asarray((theta[rows] - low) / (high - low))
+        mean, var = (np.asarray(a, np.float64) for a in emulator.predict(emu, x))
+        noise_var = np.asarray(emulator.noise_sd(emu, x), np.float64) ** 2
+    targeted = np.isin(rows, last[len(last) - num_targeted(len(last)) :])
+    return {
+        "loo": np.asarray(loo).T[mask][:, on],
+        "held_out": ((z_all[rows] - mean) / np.sqrt(var + noise_var))[:, on],
+        "targeted": targeted,
+        "ratio": (var / noise_var)[:, on],
+        "active": on,
+    }
+
+
+class _State:
+    """The fields of a surrogate state that :func:`jaxabc.surrogate._fit.fit_likelihood` reads."""
+
+    def __init__(self, thetas: np.ndarray, summaries: np.ndarray, role: np.ndarray, ok: np.ndarray) -> None:
+        self.thetas, self.summaries, self.role, self.ok = thetas, summaries, role, ok
+
+
+def _beyond(z: np.ndarray) -> dict[str, Any]:
+    """Size, sd and shares beyond 3 and 4 of standardised errors (finite ones), with the normal's."""
+    z = np.asarray(z, np.float64).ravel()
+    z = z[np.isfinite(z)]
+    return {
+        "n": int(z.size),
+        "sd": float(z.std()) if z.size else None,
+        "beyond_3": float(np.mean(np.abs(z) > 3)) if z.size else None,
+        "beyond_4": float(np.mean(np.abs(z) > 4)) if z.size else None,
+    }
+
+
+def placement_tails(refits: list[dict[str, np.ndarray]], saved: list[np.ndarray]) -> dict[str, Any]:
+    """Where the held-out tails sit, over every refitted emulator: the design's leave-one-out
+    errors, the held-out errors of random and of targeted runs, and by emulator-to-noise variance
+    ratio (:data:`RATIO_QUANTILES`); ``reproduced_max_abs`` compares the refit's held-out errors
+    with the saved ones (``saved``, the same rows and outputs)."""
+    held = np.concatenate([r["held_out"].ravel() for r in refits])
+    targeted = np.concatenate([np.repeat(r["targeted"], r["held_out"].shape[1]) for r in refits])
+    ratio = np.concatenate([r["ratio"].ravel() for r in refits])
+    edges = np.quantile(ratio, RATIO_QUANTILES)
+    bins = []
+    for i, (lo, hi) in enumerate(itertools.pairwise(edges)):
+        sel = (ratio >= lo) & ((ratio < hi) if i < len(edges) - 2 else (ratio <= hi))
+        bins.append({"ratio_low": float(lo), "ratio_high": float(hi), **_beyond(held[sel])})
+    pairs = [(r["held_out"], s) for r, s in zip(refits, saved, strict=True) if s.shape == r["held_out"].shape]
+    diffs = [float(np.nanmax(np.abs(a - b))) for a, b in pairs if a.size]
+    return {
+        "design_loo": _beyond(np.concatenate([r["loo"].ravel() for r in refits])),
+        "held_out_random": _beyond(held[~targeted]),
+        "held_out_targeted": _beyond(held[targeted]),
+        "by_ratio": bins,
+        "normal": {"beyond_3": float(2 * scipy.stats.norm.sf(3)), "beyond_4": float(2 * scipy.stats.norm.sf(4))},
+        "reproduced_max_abs": max(diffs) if diffs else None,
+        "reproduced_emulators": len(diffs),
+    }
 
 
 def _load_repeat(name: str) -> dict[str, Any] | None:
@@ -148,6 +256,7 @@ def analyse(repeats=REPEATS) -> dict[str, Any]:
     summaries = saved[0][2]["summaries"]
     fitted = list(summaries["fitted"])
     sd = np.array([summaries["observation_sd"][n] for n in fitted])
+    observed = np.array([summaries["observed"][summaries["names"].index(n)] for n in fitted], np.float64)
     i_s5 = fitted.index("S5")
     models = list(saved[0][2]["per_model"])
     published = {m: np.asarray(saved[0][2]["models"][m]["published_lj"], np.float64) for m in models}
@@ -156,6 +265,8 @@ def analyse(repeats=REPEATS) -> dict[str, Any]:
     pooled: dict[str, dict[tuple, np.ndarray]] = {m: {} for m in models}
     per_run = []
     pooled_errors: list[np.ndarray] = []
+    refits: list[dict[str, np.ndarray]] = []
+    saved_held: list[np.ndarray] = []
     inputs = []
     for name, what, d in saved:
         folder = ROOT / d["saved_result"]
@@ -175,6 +286,10 @@ def analyse(repeats=REPEATS) -> dict[str, Any]:
             errors = np.asarray(diag["holdout_errors"], np.float64)[: len(checked)]
             targeted = np.isin(checked, holdout[len(holdout) - num_targeted(len(holdout)) :])
             pooled_errors.append(errors[np.all(np.isfinite(errors), axis=1)])
+            refits.append(refit_errors(meta, arr, observed))
+            saved_held.append(
+                np.asarray(diag["holdout_errors"], np.float64)[: len(refits[-1]["targeted"])][:, refits[-1]["active"]]
+            )
             worst = np.unravel_index(np.nanargmax(np.abs(errors)), errors.shape) if errors.size else None
             rows.append(
                 {
@@ -293,6 +408,7 @@ def analyse(repeats=REPEATS) -> dict[str, Any]:
         "fisher_p": float(scipy.stats.fisher_exact(table).pvalue),
     }
     summary["heldout_tails"] = _tails(np.concatenate(pooled_errors), fitted)
+    summary["tails_by_placement"] = placement_tails(refits, saved_held)
     return {
         "fitted": fitted,
         "stated_sd": sd.tolist(),

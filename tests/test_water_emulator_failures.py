@@ -45,3 +45,48 @@ def test_replicate_moments_find_heavy_tails_and_not_in_normal_noise() -> None:
     low, high = null_pooled_kurtosis([40] * 5, rng, draws=2000)
     assert low < -6 / 41 < high
     assert 0.8 < high - low < 2.0
+
+
+def test_a_saved_emulator_refits_to_its_saved_held_out_errors() -> None:
+    """The refit of a saved repeat's emulator (the library's fit on its saved design) gives back
+    the held-out errors its run saved: the placement analysis reads the emulator that was judged."""
+    import json
+
+    import pytest
+
+    from benchmarks._common import RESULTS, ROOT
+    from benchmarks.water_emulator_failures import _posterior, refit_errors
+
+    path = RESULTS / "water_model_choice_seed1.json"
+    if not path.is_file():
+        pytest.skip("water_model_choice_seed1 not saved")
+    d = json.loads(path.read_text())
+    fitted, names = d["summaries"]["fitted"], d["summaries"]["names"]
+    observed = np.array([d["summaries"]["observed"][names.index(n)] for n in fitted])
+    meta, arrays = _posterior(ROOT / d["saved_result"], "TIP4P")
+    r = refit_errors(meta, arrays, observed)
+    saved = np.asarray(meta["diagnostics"]["holdout_errors"], np.float64)[: len(r["targeted"])][:, r["active"]]
+    assert r["held_out"].shape == saved.shape and saved.size
+    np.testing.assert_allclose(r["held_out"], saved, atol=1e-2)
+    # Leave-one-out errors of the design: one per successful design row and active output.
+    assert r["loo"].shape[1] == r["held_out"].shape[1] and np.all(np.isfinite(r["loo"]))
+    assert r["targeted"].sum() >= 1 and np.all(r["ratio"] > 0)
+
+
+def test_placement_tails_bin_by_ratio_and_count_the_tails() -> None:
+    from benchmarks.water_emulator_failures import placement_tails
+
+    rng = np.random.default_rng(4)
+    refits = []
+    for _ in range(20):
+        ratio = rng.uniform(0.01, 10.0, (9, 3))
+        # Errors three times their stated sd where the emulator's variance dominates (ratio > 3).
+        held = rng.standard_normal((9, 3)) * np.where(ratio > 3.0, 3.0, 1.0)
+        refits.append(
+            {"loo": rng.standard_normal((40, 3)), "held_out": held, "targeted": np.arange(9) >= 6, "ratio": ratio}
+        )
+    t = placement_tails(refits, [r["held_out"] for r in refits])
+    assert t["reproduced_max_abs"] == 0.0 and t["reproduced_emulators"] == 20
+    assert sum(b["n"] for b in t["by_ratio"]) == 20 * 27
+    assert t["by_ratio"][-1]["sd"] > 2.0 > 1.3 > t["by_ratio"][0]["sd"]
+    assert t["held_out_random"]["n"] == 20 * 18 and t["held_out_targeted"]["n"] == 20 * 9
