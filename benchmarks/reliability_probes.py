@@ -121,6 +121,18 @@ INTERRUPT = (
 INTERRUPT_TRIES = 5
 
 
+#: A prefix that runs a probe with SIGINT back to its default.  A process started in the
+#: background of a non-interactive shell (``cmd &``, ``nohup``, a CI step) inherits SIGINT
+#: ignored, and an ignored signal stays ignored through every shell and Python below it, so the
+#: Ctrl-C probes would never interrupt anything.  (An exec, not ``preexec_fn``: forking a
+#: process that runs JAX's threads can deadlock.)
+DEFAULT_SIGINT = (
+    sys.executable,
+    "-c",
+    "import os, signal, sys; signal.signal(signal.SIGINT, signal.SIG_DFL); os.execvp(sys.argv[1], sys.argv[1:])",
+)
+
+
 @dataclass(frozen=True)
 class Probe:
     """One probe: ``code`` (Python after :data:`PRELUDE`) or ``cli`` (a shell line), and the
@@ -497,7 +509,9 @@ def _attempt(probe: Probe, tree: Path, timeout: float) -> tuple[str, str, int | 
             argv = [sys.executable, "-c", wrapped]
         t0 = time.perf_counter()
         try:
-            out = subprocess.run(argv, cwd=tmp, env=env, capture_output=True, text=True, timeout=timeout)
+            out = subprocess.run(
+                [*DEFAULT_SIGINT, *argv], cwd=tmp, env=env, capture_output=True, text=True, timeout=timeout
+            )
             stdout, stderr, code = out.stdout, out.stderr, out.returncode
         except subprocess.TimeoutExpired:
             stdout, stderr, code = "", "", None

@@ -42,3 +42,23 @@ def test_the_interrupt_line_reports_a_finished_run_and_passes_an_interrupted_one
     assert fast.returncode == 75 and fast.stdout.startswith("RACE")
     slow = run("sleep 30")
     assert slow.returncode == 0 and "went-on" in slow.stdout and "RACE" not in slow.stdout
+
+
+def test_the_interrupt_reaches_the_run_when_the_runner_ignores_sigint(tmp_path: Path) -> None:
+    """A runner started in the background of a shell inherits SIGINT ignored; the probe's
+    process gets it back, so its Ctrl-C still interrupts (no RACE, the line goes on)."""
+    import signal
+    import sys
+
+    command = (
+        f"{sys.executable} -c \"import os, time; os.makedirs('f', exist_ok=True); "
+        "open('f/checkpoint.npz', 'w').close(); time.sleep(20)\""
+    )
+    cli = INTERRUPT.format(command=command, folder="f") + "echo 'OK interrupted'"
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        out = _run_one(Probe("ignored", 4, "ignored", cli=cli), ROOT, timeout=60)
+    finally:
+        signal.signal(signal.SIGINT, previous)
+    assert out["outcome"] == "correct", out
+    assert out["seconds"] < 15
