@@ -333,14 +333,16 @@ def _placement(t: dict[str, Any] | None) -> list[str]:
         f"Where the tails sit.  Each emulator refitted as at its last validation (the library's fit on the "
         f"saved design; it reproduces the saved held-out errors of {t['reproduced_emulators']} emulators to "
         f"{t['reproduced_max_abs']:.0e}): the design runs' own leave-one-out errors and the held-out runs placed "
-        f"at random have light tails ({t['design_loo']['beyond_4']:.2%} and {t['held_out_random']['beyond_4']:.2%} "
-        f"beyond 4 sd); the tails are in the targeted runs ({t['held_out_targeted']['beyond_4']:.2%}) and grow "
+        f"at random have much lighter tails ({t['design_loo']['beyond_4']:.2%} and "
+        f"{t['held_out_random']['beyond_4']:.2%} beyond 4 sd); the tails are in the targeted runs "
+        f"({t['held_out_targeted']['beyond_4']:.2%}) and grow "
         f"with the emulator's own variance at the run, from {low['beyond_4']:.2%} beyond 4 sd where it is small "
         f"against the noise to {high['beyond_4']:.2%} where it dominates (normal: {normal['beyond_4']:.4%}).  "
         "Where the emulator is unsure, its error bars are too narrow: the stationary squared-exponential GP with "
         "type-II maximum-likelihood hyper-parameters understates its error away from the design, which is "
         "where the targeted check looks.\n",
-        table(["errors", "n", "sd (1 if right)", f"|e| > 3 (normal {normal['beyond_3']:.2%})", "|e| > 4"], rows) + "\n",
+        table(["errors", "n", "sd (1 if right)", f"beyond 3 sd (normal {normal['beyond_3']:.2%})", "beyond 4 sd"], rows)
+        + "\n",
     ]
 
 
