@@ -55,6 +55,39 @@ SIGMA_BINS = (0.0, 0.985, 1.0, 1.01, 1.03, np.inf)
 MISS_SD = 3.0
 #: Quantiles of the emulator-to-noise variance ratio that bin the held-out errors.
 RATIO_QUANTILES = (0.0, 0.25, 0.5, 0.75, 0.9, 1.0)
+#: Factors on the emulator's variance (not the noise's) for :func:`inflation_checks`.
+INFLATION = (1.0, 1.5, 2.0, 3.0, 4.0, 8.0)
+
+
+def inflation_checks(refits: list[dict[str, np.ndarray]], factors=INFLATION) -> list[dict[str, Any]]:
+    """The marginal and targeted validation checks of every refitted emulator with its variance
+    multiplied by each factor ``c``: ``e_c = e sqrt((1 + r) / (1 + c r))`` for the emulator-to-noise
+    ratio ``r`` (the same error over a wider predictive sd).  Factor 1 is the run's own check.
+    What it does not show: the posterior under the wider emulator, and the other checks."""
+    out = []
+    for c in factors:
+        marginal = targeted = either = 0
+        sd_targeted = []
+        for r in refits:
+            e = r["held_out"] * np.sqrt((1.0 + r["ratio"]) / (1.0 + c * r["ratio"]))
+            ok = np.isfinite(e)
+            cov_min, msq_max = holdout_bounds(int(ok.sum()))
+            m_fail = not (np.mean(np.abs(e[ok]) <= 1.96) >= cov_min and np.mean(e[ok] ** 2) <= msq_max)
+            t_fail = not local_check(e[r["targeted"]]).passed
+            marginal, targeted, either = marginal + m_fail, targeted + t_fail, either + (m_fail or t_fail)
+            sd_targeted.append(e[r["targeted"]].ravel())
+        t = np.concatenate(sd_targeted)
+        out.append(
+            {
+                "factor": float(c),
+                "marginal_failed": int(marginal),
+                "targeted_failed": int(targeted),
+                "either_failed": int(either),
+                "emulators": len(refits),
+                "targeted_sd": float(np.nanstd(t)),
+            }
+        )
+    return out
 
 
 def refit_errors(meta: dict, arrays: dict[str, np.ndarray], observed: np.ndarray) -> dict[str, np.ndarray]:
@@ -409,6 +442,7 @@ def analyse(repeats=REPEATS) -> dict[str, Any]:
     }
     summary["heldout_tails"] = _tails(np.concatenate(pooled_errors), fitted)
     summary["tails_by_placement"] = placement_tails(refits, saved_held)
+    summary["variance_inflation"] = inflation_checks(refits)
     return {
         "fitted": fitted,
         "stated_sd": sd.tolist(),

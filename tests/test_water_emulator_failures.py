@@ -90,3 +90,22 @@ def test_placement_tails_bin_by_ratio_and_count_the_tails() -> None:
     assert sum(b["n"] for b in t["by_ratio"]) == 20 * 27
     assert t["by_ratio"][-1]["sd"] > 2.0 > 1.3 > t["by_ratio"][0]["sd"]
     assert t["held_out_random"]["n"] == 20 * 18 and t["held_out_targeted"]["n"] == 20 * 9
+
+
+def test_inflating_the_emulator_variance_shrinks_the_errors_by_the_exact_factor() -> None:
+    """e_c = e sqrt((1 + r) / (1 + c r)): with the emulator variance r times the noise's and errors
+    drawn with sd sqrt(1 + 3 r) (an emulator whose variance is 3 times too small), factor 3
+    calibrates them exactly and factor 1 fails the checks."""
+    from benchmarks.water_emulator_failures import inflation_checks
+
+    rng = np.random.default_rng(5)
+    refits = []
+    for _ in range(30):
+        ratio = np.full((9, 10), 2.0)
+        held = rng.standard_normal((9, 10)) * np.sqrt((1 + 3 * ratio) / (1 + ratio))
+        refits.append({"held_out": held, "ratio": ratio, "targeted": np.arange(9) >= 6})
+    rows = {r["factor"]: r for r in inflation_checks(refits, (1.0, 3.0))}
+    # 30 x 3 x 10 = 900 targeted errors: the sd's standard error is about 1 / sqrt(1800) = 0.024.
+    assert abs(rows[3.0]["targeted_sd"] - 1.0) < 4 * 0.024
+    assert abs(rows[1.0]["targeted_sd"] - np.sqrt(7 / 3)) < 4 * 0.024 * np.sqrt(7 / 3)
+    assert rows[1.0]["either_failed"] > 20 and rows[3.0]["either_failed"] <= 3
