@@ -41,7 +41,7 @@ from typing import Any
 from benchmarks import _common
 from benchmarks._common import ROOT, git_state
 from benchmarks.regenerate import command_argv, parse_budget
-from benchmarks.registry import REGISTRY, VERIFICATIONS, Entry
+from benchmarks.registry import REGISTRY, VERIFICATIONS, Entry, by_name
 from benchmarks.status import (
     check_provenance,
     compare_numbers,
@@ -153,6 +153,28 @@ def _run_command(argv: list[str], root: Path, env: dict[str, str]) -> subprocess
     return subprocess.run(argv, cwd=root, env=env, capture_output=True, text=True)
 
 
+def make_quick_inputs(entry: Entry, root: Path, env: dict[str, str]) -> subprocess.CompletedProcess | None:
+    """Make the untracked caches ``entry``'s quick mode reads (``quick_inputs``) where they are
+    missing (a fresh clone: caches are not in git), by the quick modes of the entries it runs
+    ``after``.  None when every input is there afterwards, else the failed run (or a made-up
+    one saying which input is missing)."""
+    missing = [rel for rel in entry.quick_inputs if not (root / rel).exists()]
+    if not missing:
+        return None
+    for name in entry.after:
+        producer = by_name(name)
+        if producer.quick:
+            run = _run_command(command_argv(producer.quick), root, env)
+            if run.returncode != 0:
+                return run
+    still = [rel for rel in missing if not (root / rel).exists()]
+    if still:
+        return subprocess.CompletedProcess(
+            [], 1, "", f"quick inputs missing and not made by the quick modes of {list(entry.after)}: {still}"
+        )
+    return None
+
+
 def check(entry: Entry, root: Path = ROOT) -> dict[str, Any]:
     """Rerun ``entry``'s quick mode on the code as it is now; the ledger record of the outcome."""
     assert entry.quick and entry.quick_output, "only entries with a quick mode"
@@ -174,7 +196,8 @@ def check(entry: Entry, root: Path = ROOT) -> dict[str, Any]:
     env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(root), os.environ.get("PYTHONPATH")]))}
     t0 = time.perf_counter()
     try:
-        run = _run_command(command_argv(entry.quick), root, env)
+        made = make_quick_inputs(entry, root, env)
+        run = made if made is not None else _run_command(command_argv(entry.quick), root, env)
         new_text = saved_path.read_text()
     finally:
         for path, text in snapshot.items():
@@ -253,7 +276,8 @@ def rebaseline(entry: Entry, root: Path = ROOT) -> dict[str, Any]:
             if (root / rel).is_dir():
                 shutil.copytree(root / rel, tree / rel, dirs_exist_ok=True)
         env = {**os.environ, "PYTHONPATH": str(tree)}
-        run = _run_command(command_argv(entry.quick), tree, env)
+        made = make_quick_inputs(entry, tree, env)
+        run = made if made is not None else _run_command(command_argv(entry.quick), tree, env)
         if run.returncode != 0:
             raise RuntimeError(f"{entry.name}: the quick mode at {commit[:10]} failed: {run.stderr.strip()[-600:]}")
         made_json = json.loads((tree / entry.quick_output).read_text())

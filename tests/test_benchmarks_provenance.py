@@ -386,6 +386,67 @@ def _fake_quick_run(root: Path, value: float, entry: registry.Entry):
     return run
 
 
+def test_a_missing_quick_input_is_made_by_the_quick_mode_it_runs_after(fake_repo: Path, monkeypatch) -> None:
+    """A fresh clone has no untracked caches: the check makes its quick inputs with the quick mode
+    of the entry it runs after, restores that entry's quick JSON, then checks; an input nothing
+    makes is a clear failure."""
+    from benchmarks import verify
+
+    producer = registry.Entry(
+        "maker",
+        "benchmarks/results/maker.json",
+        "python m.py",
+        quick="python m.py --tiny",
+        quick_output="benchmarks/results/quick/maker.json",
+    )
+    entry = registry.Entry(
+        "res",
+        "benchmarks/results/res.json",
+        "python x.py",
+        quick="python x.py --quick",
+        quick_output="benchmarks/results/quick/res.json",
+        quick_inputs=("runs/cache/tiny",),
+        after=("maker",),
+    )
+    write_fake(fake_repo)
+    _common.write_result(fake_repo / entry.quick_output, {"value": 1.5}, inputs=[fake_repo / "data.txt"])
+    maker_quick = fake_repo / producer.quick_output
+    maker_quick.write_text('{"saved": true}')
+    calls = []
+
+    def run(argv, cwd, env):
+        calls.append(" ".join(argv))
+        if "m.py" in argv:
+            (cwd / "runs/cache/tiny").mkdir(parents=True, exist_ok=True)
+            maker_quick.write_text('{"overwritten": true}')
+            return subprocess.CompletedProcess(argv, 0, "", "")
+        if not (cwd / "runs/cache/tiny").is_dir():
+            return subprocess.CompletedProcess(argv, 1, "", "FileNotFoundError: runs/cache/tiny")
+        return _fake_quick_run(fake_repo, 1.5, entry)(argv, cwd, env)
+
+    monkeypatch.setattr(verify, "by_name", lambda name: {"maker": producer}[name])
+    monkeypatch.setattr(verify, "_run_command", run)
+    record = verify.check(entry, fake_repo)
+    assert record["outcome"] == "reproduces", record
+    assert [c.split()[-1] for c in calls] == ["--tiny", "--quick"]
+    assert maker_quick.read_text() == '{"saved": true}'  # the producer's saved quick JSON is put back
+    # Present now: not made again.
+    calls.clear()
+    assert verify.check(entry, fake_repo)["outcome"] == "reproduces" and len(calls) == 1
+    # An input no quick mode makes.
+    lonely = registry.Entry(
+        "res",
+        "benchmarks/results/res.json",
+        "python x.py",
+        quick="python x.py --quick",
+        quick_output="benchmarks/results/quick/res.json",
+        quick_inputs=("runs/cache/other",),
+        after=("maker",),
+    )
+    failed = verify.check(lonely, fake_repo)
+    assert failed["outcome"] == "failed" and "runs/cache/other" in failed["detail"]
+
+
 def test_a_code_change_is_current_when_the_quick_mode_reproduces(fake_repo: Path, monkeypatch) -> None:
     from benchmarks import verify
 
