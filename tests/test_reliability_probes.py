@@ -6,7 +6,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from benchmarks._common import ROOT
-from benchmarks.reliability_probes import INTERRUPT, INTERRUPT_TRIES, Probe, _run_one
+from benchmarks.reliability_probes import DEFAULT_SIGINT, INTERRUPT, INTERRUPT_TRIES, Probe, _run_one
 
 
 def test_a_run_that_beats_its_interrupt_is_tried_again(tmp_path: Path) -> None:
@@ -31,17 +31,27 @@ def test_a_run_that_always_beats_its_interrupt_is_not_exercised(tmp_path: Path) 
 
 def test_the_interrupt_line_reports_a_finished_run_and_passes_an_interrupted_one(tmp_path: Path) -> None:
     """The real shell line: a command that ends at once (exit 0) races; one that runs until the
-    signal (exit 130) is interrupted and the line goes on."""
+    signal (interrupted, non-zero exit) lets the line go on.  The long command writes its own
+    checkpoint once running, as the probed runs do, so the signal cannot land before it starts."""
     import subprocess
+    import sys
 
     def run(command: str) -> subprocess.CompletedProcess:
-        line = f"mkdir -p f; touch f/checkpoint.npz; {INTERRUPT.format(command=command, folder='f')}echo went-on"
-        return subprocess.run(["bash", "-c", line], cwd=tmp_path, capture_output=True, text=True, timeout=60)
+        line = f"{INTERRUPT.format(command=command, folder='f')}echo went-on"
+        # Started as the probes are (SIGINT back to its default): pytest itself may run with
+        # SIGINT ignored, in the background of a CI shell.
+        return subprocess.run(
+            [*DEFAULT_SIGINT, "bash", "-c", line], cwd=tmp_path, capture_output=True, text=True, timeout=60
+        )
 
-    fast = run("true")
+    # Finishes whenever the signal lands (it ignores SIGINT): never interrupted, so a RACE.
+    fast = run("bash -c \"trap '' INT; mkdir -p f; touch f/checkpoint.npz\"")
     assert fast.returncode == 75 and fast.stdout.startswith("RACE")
-    slow = run("sleep 30")
-    assert slow.returncode == 0 and "went-on" in slow.stdout and "RACE" not in slow.stdout
+    slow = run(
+        f"{sys.executable} -c \"import os, time; os.makedirs('f', exist_ok=True); "
+        "open('f/checkpoint.npz', 'w').close(); time.sleep(30)\""
+    )
+    assert slow.returncode == 0 and "went-on" in slow.stdout and "RACE" not in slow.stdout, slow.stdout
 
 
 def test_the_interrupt_reaches_the_run_when_the_runner_ignores_sigint(tmp_path: Path) -> None:
