@@ -39,9 +39,10 @@ import scipy.stats
 from benchmarks._common import RESULTS, ROOT, machine, relative, write_result
 from benchmarks.registry import REPEATS
 from jaxabc.surrogate import emulator
-from jaxabc.surrogate._fit import ROLE_DESIGN, ROLE_HOLDOUT, fit_likelihood
+from jaxabc.surrogate._fit import ROLE_DESIGN, ROLE_HOLDOUT
 from jaxabc.surrogate._validation import num_targeted
 from jaxabc.surrogate.diagnostics import holdout_bounds, local_check
+from jaxabc.surrogate.evidence import likelihood_from_state
 
 #: First-minimum position (nm) from which a run counts as broken: between the simulated modes.
 BROKEN_S5_NM = 0.40
@@ -113,16 +114,10 @@ def refit_errors(meta: dict, arrays: dict[str, np.ndarray], observed: np.ndarray
     high = np.asarray(meta["prior"]["high"][:2], np.float64)
     state = _State(theta, summaries, role, ok)
     with jax.enable_x64(True):
-        _, emu, model, z_all = fit_likelihood(
-            state,
-            low,
-            high,
-            observed,
-            int(settings["max_outputs"]),
-            int(settings["max_simulations"]),
-            jnp.log(float(settings["min_feasibility"])),
-            noise_model=str(settings["noise_model"]),
-        )
+        # The library's refit of a finished run from its saved settings (the evidence's too).
+        transform, model = likelihood_from_state(state, low, high, observed, settings)
+        emu = model.emulator
+        z_all = np.asarray(transform.apply(jnp.asarray(np.nan_to_num(summaries))))
         on = np.asarray(model.active, bool)
         chol, alpha, mask = np.asarray(emu.chol), np.asarray(emu.alpha), np.asarray(emu.mask, bool)
         loo = []
@@ -145,7 +140,7 @@ def refit_errors(meta: dict, arrays: dict[str, np.ndarray], observed: np.ndarray
 
 
 class _State:
-    """The fields of a surrogate state that :func:`jaxabc.surrogate._fit.fit_likelihood` reads."""
+    """The fields of a surrogate state that :func:`jaxabc.surrogate.evidence.likelihood_from_state` reads."""
 
     def __init__(self, thetas: np.ndarray, summaries: np.ndarray, role: np.ndarray, ok: np.ndarray) -> None:
         self.thetas, self.summaries, self.role, self.ok = thetas, summaries, role, ok

@@ -5,6 +5,7 @@ Fast: everything runs on small files in a temporary directory; no benchmark runs
 
 from __future__ import annotations
 
+import dataclasses
 import importlib.util
 import json
 import math
@@ -434,15 +435,7 @@ def test_a_missing_quick_input_is_made_by_the_quick_mode_it_runs_after(fake_repo
     calls.clear()
     assert verify.check(entry, fake_repo)["outcome"] == "reproduces" and len(calls) == 1
     # An input no quick mode makes.
-    lonely = registry.Entry(
-        "res",
-        "benchmarks/results/res.json",
-        "python x.py",
-        quick="python x.py --quick",
-        quick_output="benchmarks/results/quick/res.json",
-        quick_inputs=("runs/cache/other",),
-        after=("maker",),
-    )
+    lonely = dataclasses.replace(entry, quick_inputs=("runs/cache/other",))
     failed = verify.check(lonely, fake_repo)
     assert failed["outcome"] == "failed" and "runs/cache/other" in failed["detail"]
 
