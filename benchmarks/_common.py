@@ -31,11 +31,30 @@ from typing import Any
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "benchmarks" / "results"
 QUICK_RESULTS = RESULTS / "quick"
+#: Untracked run caches and checkpoints (``runs/``, gitignored).  ``JAXABC_RUNS_DIR`` moves them:
+#: ``benchmarks.verify`` gives each quick check an empty folder, so a check never replays
+#: simulations or results that earlier code cached.
+RUNS = Path(os.environ.get("JAXABC_RUNS_DIR") or ROOT / "runs")
 #: Top-level folders whose imported modules count as code a result depends on.
 CODE_DIRS = ("jaxabc", "md", "benchmarks")
 PROVENANCE_VERSION = 1
 
 _declared_inputs: set[Path] = set()
+
+
+def recorded_path(path: str | os.PathLike) -> str:
+    """``path`` as a result records it: ``runs/...`` for a path under :data:`RUNS` (wherever
+    ``JAXABC_RUNS_DIR`` put it), else relative to the repository root."""
+    path = Path(path).resolve()
+    if path.is_relative_to(RUNS.resolve()):
+        return (Path("runs") / path.relative_to(RUNS.resolve())).as_posix()
+    return os.path.relpath(path, ROOT)
+
+
+def resolve_recorded(rel: str) -> Path:
+    """The inverse of :func:`recorded_path`: a recorded ``runs/...`` path under :data:`RUNS`."""
+    parts = Path(rel).parts
+    return RUNS.joinpath(*parts[1:]) if parts and parts[0] == "runs" else ROOT / rel
 
 
 def _process_start_time() -> float:

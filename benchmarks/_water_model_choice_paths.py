@@ -12,7 +12,7 @@ import json
 from pathlib import Path
 
 import jaxabc
-from benchmarks._common import RESULTS, ROOT
+from benchmarks._common import RESULTS, resolve_recorded
 from jaxabc.criticism import without_discrepancy
 
 
@@ -29,14 +29,14 @@ def model_choice_folder(data: str, tiny: bool = False, result: str = "water_mode
         When the full model choice is not saved, or was made on other data.
     """
     if tiny:
-        return ROOT / "runs" / "cache" / "water_model_choice" / f"{data}_quick_tiny" / "result"
+        return resolve_recorded(f"runs/cache/water_model_choice/{data}_quick_tiny/result")
     path = RESULTS / f"{result}.json"
     if not path.is_file():
         raise FileNotFoundError(f"{path} not found: run the registry's {result} first")
     saved = json.loads(path.read_text())
     if saved.get("data") != data:
         raise FileNotFoundError(f"{path} is the model choice on {saved.get('data')!r} data, not {data!r}")
-    return ROOT / saved["saved_result"]
+    return resolve_recorded(saved["saved_result"])
 
 
 def physical_marginal(result: jaxabc.ABCResult) -> jaxabc.ABCResult:

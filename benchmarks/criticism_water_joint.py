@@ -40,7 +40,7 @@ from pathlib import Path
 import numpy as np
 
 import jaxabc
-from benchmarks._common import QUICK_RESULTS, RESULTS, command_line, model_selection_record, write_result
+from benchmarks._common import QUICK_RESULTS, RESULTS, RUNS, command_line, model_selection_record, write_result
 from benchmarks._water_model_choice_paths import model_choice_folder, physical_marginal
 from jaxabc.criticism import critique
 from jaxabc.model_choice import load_model_choice
@@ -94,7 +94,7 @@ def parse_args(argv=None) -> argparse.Namespace:
     suffix = f"{args.data}_quick" + ("_tiny" if args.tiny else "")
     # The folder the registry's model choice saved (its JSON records it), or the smoke test's.
     args.model_choice = args.model_choice or model_choice_folder(args.data, args.tiny, args.model_choice_result)
-    args.cache_dir = args.cache_dir or (ROOT / "runs" / "criticism_water_joint" / suffix)
+    args.cache_dir = args.cache_dir or (RUNS / "criticism_water_joint" / suffix)
     if args.tiny:
         args.num_draws, args.num_replicates, args.num_gradient_replicates = 10, 12, 2
         args.num_refit_iterations, args.refit_budget = 1, 80

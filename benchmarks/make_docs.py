@@ -76,7 +76,9 @@ saved quick numbers must therefore be made on the same code as the long run
 (`python -m benchmarks.regenerate --quick --only NAME` right after it); where they were made on
 another CPU family or from other code, `python -m benchmarks.verify --rebaseline` first remakes them
 here at the result's own commit (in a temporary git worktree), so that the check compares two code
-versions on one machine.  Data changes always call for a rerun.  A `retired` result is one the
+versions on one machine.  Every check runs its quick mode in an empty runs folder of its own, never
+replaying the run caches of earlier code; baselines made before that rule are remade with
+`--rebaseline always`.  Data changes always call for a rerun.  A `retired` result is one the
 registry no longer keeps (why, what supersedes it and the commit of its last version are in the
 table); no page shows it.
 

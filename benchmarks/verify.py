@@ -12,6 +12,12 @@ the full result (on the files both imported); otherwise it is recorded as ``not 
 the result stays stale until it is rerun.  The saved quick JSON is restored after each check, so
 the tree stays as it was; only the ledger is written.
 
+Quick modes run with an empty ``runs/`` folder of their own (``JAXABC_RUNS_DIR``, shared by the
+checks of one invocation and removed after it), never the checkout's: a run cache or a finished
+checkpoint there may hold simulations of earlier code, and a check that replays them cannot fail.
+The untracked inputs a quick mode reads (``quick_inputs``, such as the tiny model choice) are made
+afresh, by the quick modes of the entries it runs after, with the code being checked.
+
 When the saved quick JSON cannot serve (made on another CPU family, whose rounding changes chaotic
 runs, or from other code than the full result), ``--rebaseline`` first remakes it here: the quick
 mode runs in a temporary git worktree at the full result's own commit, and its output replaces the
@@ -24,6 +30,7 @@ Usage::
     python -m benchmarks.verify --only coverage --budget 10m
     python -m benchmarks.verify --budget 1h --dry-run    # the plan only
     python -m benchmarks.verify --only surrogate_peers --budget 20m --rebaseline
+    python -m benchmarks.verify --only water_model_choice --budget 1h --rebaseline always
 """
 
 from __future__ import annotations
@@ -34,6 +41,7 @@ import os
 import shutil
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 from typing import Any
@@ -153,12 +161,25 @@ def _run_command(argv: list[str], root: Path, env: dict[str, str]) -> subprocess
     return subprocess.run(argv, cwd=root, env=env, capture_output=True, text=True)
 
 
+def _input_path(rel: str, root: Path, runs: Path) -> Path:
+    """Where a quick input ``rel`` lies: a ``runs/...`` path in the check's ``runs`` folder."""
+    parts = Path(rel).parts
+    return runs.joinpath(*parts[1:]) if parts and parts[0] == "runs" else root / rel
+
+
+def _quick_env(root: Path, runs: Path) -> dict[str, str]:
+    """The environment of a quick command: this checkout first on the path, ``runs`` as its runs folder."""
+    path = os.pathsep.join(filter(None, [str(root), os.environ.get("PYTHONPATH")]))
+    return {**os.environ, "PYTHONPATH": path, "JAXABC_RUNS_DIR": str(runs)}
+
+
 def make_quick_inputs(entry: Entry, root: Path, env: dict[str, str]) -> subprocess.CompletedProcess | None:
     """Make the untracked caches ``entry``'s quick mode reads (``quick_inputs``) where they are
-    missing (a fresh clone: caches are not in git), by the quick modes of the entries it runs
-    ``after``.  None when every input is there afterwards, else the failed run (or a made-up
-    one saying which input is missing)."""
-    missing = [rel for rel in entry.quick_inputs if not (root / rel).exists()]
+    missing from the runs folder ``env["JAXABC_RUNS_DIR"]`` (empty for each verify invocation), by
+    the quick modes of the entries it runs ``after``.  None when every input is there afterwards,
+    else the failed run (or a made-up one saying which input is missing)."""
+    runs = Path(env.get("JAXABC_RUNS_DIR") or root / "runs")
+    missing = [rel for rel in entry.quick_inputs if not _input_path(rel, root, runs).exists()]
     if not missing:
         return None
     for name in entry.after:
@@ -167,7 +188,7 @@ def make_quick_inputs(entry: Entry, root: Path, env: dict[str, str]) -> subproce
             run = _run_command(command_argv(producer.quick), root, env)
             if run.returncode != 0:
                 return run
-    still = [rel for rel in missing if not (root / rel).exists()]
+    still = [rel for rel in missing if not _input_path(rel, root, runs).exists()]
     if still:
         return subprocess.CompletedProcess(
             [], 1, "", f"quick inputs missing and not made by the quick modes of {list(entry.after)}: {still}"
@@ -175,9 +196,16 @@ def make_quick_inputs(entry: Entry, root: Path, env: dict[str, str]) -> subproce
     return None
 
 
-def check(entry: Entry, root: Path = ROOT) -> dict[str, Any]:
-    """Rerun ``entry``'s quick mode on the code as it is now; the ledger record of the outcome."""
+def check(entry: Entry, root: Path = ROOT, runs: Path | None = None) -> dict[str, Any]:
+    """Rerun ``entry``'s quick mode on the code as it is now; the ledger record of the outcome.
+
+    ``runs``: the quick mode's runs folder (what it caches, and the quick inputs made for it);
+    default an empty temporary folder, removed afterwards.
+    """
     assert entry.quick and entry.quick_output, "only entries with a quick mode"
+    if runs is None:
+        with tempfile.TemporaryDirectory(prefix="jaxabc-verify-runs-") as tmp:
+            return check(entry, root, Path(tmp))
     record: dict[str, Any] = {"quick": entry.quick, **git_state(), "date_utc": time.strftime("%Y-%m-%d %H:%M:%S")}
     if _missing_part(entry, root):
         return {
@@ -193,7 +221,7 @@ def check(entry: Entry, root: Path = ROOT) -> dict[str, Any]:
     # A quick command may write other quick results too (criticism_water_joint's writes
     # water_model_choice's): every saved quick JSON is put back as it was.
     snapshot = {p: p.read_text() for p in saved_path.parent.glob("*.json")}
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(root), os.environ.get("PYTHONPATH")]))}
+    env = _quick_env(root, runs)
     t0 = time.perf_counter()
     try:
         made = make_quick_inputs(entry, root, env)
@@ -272,10 +300,10 @@ def rebaseline(entry: Entry, root: Path = ROOT) -> dict[str, Any]:
         raise RuntimeError(f"{entry.name}: cannot check out {commit[:10]}: {made.stderr.strip()[-300:]}")
     t0 = time.perf_counter()
     try:
-        for rel in entry.quick_inputs:  # untracked caches the quick mode reads
-            if (root / rel).is_dir():
-                shutil.copytree(root / rel, tree / rel, dirs_exist_ok=True)
-        env = {**os.environ, "PYTHONPATH": str(tree)}
+        # The quick inputs (untracked caches) are made afresh by the result's own code, in the
+        # worktree's empty runs folder: never copied from this checkout, whose caches may hold
+        # simulations of other code.
+        env = {**os.environ, "PYTHONPATH": str(tree), "JAXABC_RUNS_DIR": str(tree / "runs")}
         made = make_quick_inputs(entry, tree, env)
         run = made if made is not None else _run_command(command_argv(entry.quick), tree, env)
         if run.returncode != 0:
@@ -339,9 +367,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--dry-run", action="store_true", help="list the plan, run nothing")
     parser.add_argument(
         "--rebaseline",
-        action="store_true",
+        nargs="?",
+        const="auto",
+        choices=("auto", "always"),
         help="where the saved quick JSON was made on another CPU or from other code, remake it here at the "
-        "full result's commit first (doubles the cost)",
+        "full result's commit first (doubles the cost); 'always': remake every checked baseline (one made "
+        "before checks ran in their own runs folder may have replayed cached simulations)",
     )
     args = parser.parse_args(argv)
     entries = [e for e in REGISTRY if args.only is None or e.name in args.only or e.name.split(":")[0] in args.only]
@@ -351,12 +382,22 @@ def main(argv: list[str] | None = None) -> int:
     if args.dry_run:
         return 0
     bad = []
+    runs = Path(tempfile.mkdtemp(prefix="jaxabc-verify-runs-"))
+    try:
+        _check_all(rows, args.rebaseline, runs, bad)
+    finally:
+        shutil.rmtree(runs, ignore_errors=True)
+    return 1 if bad else 0
+
+
+def _check_all(rows: list[tuple[Entry, float, str]], rebase: str | None, runs: Path, bad: list[str]) -> None:
+    """The checks of one invocation, in order, sharing the runs folder ``runs``; failures to ``bad``."""
     for e, _, why in rows:
         if why:
             continue
         print(f"[{time.strftime('%H:%M:%S')}] {e.name}: {e.quick}", flush=True)
         rebased = None
-        if args.rebaseline and _needs_rebaseline(e):
+        if rebase == "always" or (rebase == "auto" and _needs_rebaseline(e)):
             try:
                 rebased = rebaseline(e)
             except RuntimeError as err:
@@ -364,7 +405,7 @@ def main(argv: list[str] | None = None) -> int:
                 bad.append(e.name)
                 continue
             print(f"    rebaselined at {rebased['commit'][:10]} in {rebased['seconds']} s", flush=True)
-        record = check(e)
+        record = check(e, runs=runs)
         if rebased is not None:
             record["rebaselined"] = rebased
         _write_ledger(e.name, record)
@@ -373,7 +414,6 @@ def main(argv: list[str] | None = None) -> int:
             bad.append(e.name)
             for line in record.get("differences", [])[:5] or [record.get("detail", "")[-300:]]:
                 print(f"    {line}")
-    return 1 if bad else 0
 
 
 if __name__ == "__main__":

@@ -62,7 +62,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import jaxabc
-from benchmarks._common import command_line, guard_resume, write_result
+from benchmarks._common import RUNS, command_line, guard_resume, recorded_path, write_result
 from jaxabc.model_choice import Model
 from md.water.finite_size import MODEL_VISCOSITY_298K, model_viscosity_mpa_s
 from md.water.joint_data import JOINT_DATA_FILE, joint_observed, joint_record, observation_sd
@@ -148,7 +148,7 @@ def parse_arguments(argv=None) -> argparse.Namespace:
     )
     # Simulations and checkpoints are a cache (runs/ is not tracked); the posteriors a page shows
     # are results.
-    args.cache_dir = args.cache_dir or ROOT / "runs" / "cache" / "water_model_choice" / variant
+    args.cache_dir = args.cache_dir or RUNS / "cache" / "water_model_choice" / variant
     args.result_dir = args.result_dir or (
         args.cache_dir / "result" if args.tiny else ROOT / "benchmarks" / "results" / "water_model_choice" / variant
     )
@@ -584,8 +584,8 @@ def main(argv=None) -> None:
         "prior_edge": result.prior_edge,
         "per_model": model_rows(result),
         "predictive": bands,
-        "cache_dir": os.path.relpath(args.cache_dir, ROOT),
-        "saved_result": os.path.relpath(saved.parent, ROOT),
+        "cache_dir": recorded_path(args.cache_dir),
+        "saved_result": recorded_path(saved.parent),
         "wall_time_s": time.perf_counter() - start,
     }
     path = write_result(args.name, payload, quick=args.tiny, inputs=DATA_FILES[args.data], command=command_line(argv))

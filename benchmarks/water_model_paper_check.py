@@ -30,7 +30,7 @@ import jax
 import numpy as np
 
 import jaxabc
-from benchmarks._common import QUICK_RESULTS, RESULTS, command_line, model_selection_record, write_result
+from benchmarks._common import QUICK_RESULTS, RESULTS, RUNS, command_line, model_selection_record, write_result
 from benchmarks._water_model_choice_paths import model_choice_folder, physical_marginal
 from jaxabc.model_choice import load_model_choice
 from md.water.joint_data import JOINT_DATA_FILE, joint_observed, joint_record
@@ -57,9 +57,7 @@ def parse_args(argv=None) -> argparse.Namespace:
     # The folder the registry's model choice saved (its JSON records it), or the smoke test's.
     args.model_choice = args.model_choice or model_choice_folder(args.data, args.tiny)
     args.cache_dir = args.cache_dir or (
-        ROOT / "runs" / "water_model_paper_check" / suffix
-        if args.tiny
-        else ROOT / "runs" / "cache" / "water_model_paper_check" / suffix
+        RUNS / "water_model_paper_check" / suffix if args.tiny else RUNS / "cache" / "water_model_paper_check" / suffix
     )
     if args.tiny:
         args.runs, args.published_runs = 2, 1

@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from benchmarks._common import command_line, write_result
+from benchmarks._common import RUNS, command_line, write_result
 from benchmarks.water_model_choice import DATA_FILES
 from md.water.joint_data import joint_observed
 from md.water.model_simulator import JOINT_SUMMARY_NAMES, CachedSummaries, WaterModelSimulator
@@ -55,7 +55,7 @@ def main(argv: list[str] | None = None) -> dict:
     args = p.parse_args(argv)
     start = time.perf_counter()
     data = joint_observed(args.data)
-    cache = args.cache_dir or ROOT / "runs" / "cache" / "water_published_predictive" / args.data
+    cache = args.cache_dir or RUNS / "cache" / "water_published_predictive" / args.data
     tasks = [(name, args.data, data.temperature_k, s, str(cache)) for name in MODELS for s in range(args.runs)]
     context = multiprocessing.get_context("spawn")
     with concurrent.futures.ProcessPoolExecutor(args.workers, mp_context=context) as pool:

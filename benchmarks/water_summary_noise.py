@@ -30,7 +30,7 @@ from typing import Any
 import numpy as np
 import scipy.stats
 
-from benchmarks._common import RESULTS, command_line, write_result
+from benchmarks._common import RESULTS, RUNS, command_line, write_result
 from benchmarks.water_model_choice import DATA_FILES
 from md.water.joint_data import joint_observed
 from md.water.model_simulator import JOINT_SUMMARY_NAMES, CachedSummaries, WaterModelSimulator
@@ -117,7 +117,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     if args.quick:
         overrides |= {"num_steps": 2500, "analysis_start_ps": 1.0}
     theta = {name: choice["per_model"][name]["bayes_estimate"][:2] for name in MODELS}
-    cache = args.cache_dir or ROOT / "runs" / "cache" / "water_summary_noise" / ("quick" if args.quick else args.data)
+    cache = args.cache_dir or RUNS / "cache" / "water_summary_noise" / ("quick" if args.quick else args.data)
     tasks = [(name, args.data, theta[name], overrides, s, str(cache)) for name in MODELS for s in range(runs)]
     context = multiprocessing.get_context("spawn")
     with concurrent.futures.ProcessPoolExecutor(args.workers, mp_context=context) as pool:

@@ -387,10 +387,12 @@ def _fake_quick_run(root: Path, value: float, entry: registry.Entry):
     return run
 
 
-def test_a_missing_quick_input_is_made_by_the_quick_mode_it_runs_after(fake_repo: Path, monkeypatch) -> None:
-    """A fresh clone has no untracked caches: the check makes its quick inputs with the quick mode
-    of the entry it runs after, restores that entry's quick JSON, then checks; an input nothing
-    makes is a clear failure."""
+def test_a_missing_quick_input_is_made_by_the_quick_mode_it_runs_after(
+    fake_repo: Path, monkeypatch, tmp_path_factory
+) -> None:
+    """A check never reads the checkout's untracked caches (they may hold earlier code's runs): it
+    makes its quick inputs in its own runs folder with the quick mode of the entry it runs after,
+    restores that entry's quick JSON, then checks; an input nothing makes is a clear failure."""
     from benchmarks import verify
 
     producer = registry.Entry(
@@ -413,15 +415,18 @@ def test_a_missing_quick_input_is_made_by_the_quick_mode_it_runs_after(fake_repo
     _common.write_result(fake_repo / entry.quick_output, {"value": 1.5}, inputs=[fake_repo / "data.txt"])
     maker_quick = fake_repo / producer.quick_output
     maker_quick.write_text('{"saved": true}')
-    calls = []
+    (fake_repo / "runs/cache/tiny").mkdir(parents=True)  # the checkout's cache: earlier code's, never read
+    calls, folders = [], set()
 
     def run(argv, cwd, env):
         calls.append(" ".join(argv))
+        runs = Path(env["JAXABC_RUNS_DIR"])
+        folders.add(runs)
         if "m.py" in argv:
-            (cwd / "runs/cache/tiny").mkdir(parents=True, exist_ok=True)
+            (runs / "cache/tiny").mkdir(parents=True, exist_ok=True)
             maker_quick.write_text('{"overwritten": true}')
             return subprocess.CompletedProcess(argv, 0, "", "")
-        if not (cwd / "runs/cache/tiny").is_dir():
+        if not (runs / "cache/tiny").is_dir():
             return subprocess.CompletedProcess(argv, 1, "", "FileNotFoundError: runs/cache/tiny")
         return _fake_quick_run(fake_repo, 1.5, entry)(argv, cwd, env)
 
@@ -431,9 +436,16 @@ def test_a_missing_quick_input_is_made_by_the_quick_mode_it_runs_after(fake_repo
     assert record["outcome"] == "reproduces", record
     assert [c.split()[-1] for c in calls] == ["--tiny", "--quick"]
     assert maker_quick.read_text() == '{"saved": true}'  # the producer's saved quick JSON is put back
-    # Present now: not made again.
+    (folder,) = folders
+    assert fake_repo not in folder.parents and not folder.exists()  # its own folder, removed afterwards
+    # A second check in its own folder makes the input again; in a folder it shares (one verify
+    # invocation), the input made by today's code is not made again.
     calls.clear()
-    assert verify.check(entry, fake_repo)["outcome"] == "reproduces" and len(calls) == 1
+    assert verify.check(entry, fake_repo)["outcome"] == "reproduces" and len(calls) == 2
+    shared = tmp_path_factory.mktemp("runs")
+    assert verify.check(entry, fake_repo, shared)["outcome"] == "reproduces"
+    calls.clear()
+    assert verify.check(entry, fake_repo, shared)["outcome"] == "reproduces" and len(calls) == 1
     # An input no quick mode makes.
     lonely = dataclasses.replace(entry, quick_inputs=("runs/cache/other",))
     failed = verify.check(lonely, fake_repo)
@@ -715,7 +727,8 @@ def test_the_model_choice_readers_follow_its_saved_folder(tmp_path: Path, monkey
     from benchmarks import _water_model_choice_paths as paths
 
     monkeypatch.setattr(paths, "RESULTS", tmp_path)
-    monkeypatch.setattr(paths, "ROOT", tmp_path)
+    monkeypatch.setattr(_common, "ROOT", tmp_path)
+    monkeypatch.setattr(_common, "RUNS", tmp_path / "elsewhere")  # JAXABC_RUNS_DIR
     with pytest.raises(FileNotFoundError, match=r"run the registry's water_model_choice first"):
         paths.model_choice_folder("xray")
     (tmp_path / "water_model_choice.json").write_text(json.dumps({"data": "xray", "saved_result": "a/b"}))
@@ -727,11 +740,13 @@ def test_the_model_choice_readers_follow_its_saved_folder(tmp_path: Path, monkey
     assert paths.model_choice_folder("xray", result="water_model_choice_no_discrepancy") == tmp_path / "c"
     with pytest.raises(FileNotFoundError, match="not 'neutron'"):
         paths.model_choice_folder("neutron")
-    assert paths.model_choice_folder("xray", tiny=True).parts[-3:] == (
-        "water_model_choice",
-        "xray_quick_tiny",
-        "result",
-    )
+    tiny = tmp_path / "elsewhere/cache/water_model_choice/xray_quick_tiny/result"
+    assert paths.model_choice_folder("xray", tiny=True) == tiny
+    # A folder recorded under runs/ is found where the runs folder is now.
+    (tmp_path / "water_model_choice.json").write_text(json.dumps({"data": "xray", "saved_result": "runs/x/result"}))
+    assert paths.model_choice_folder("xray") == tmp_path / "elsewhere/x/result"
+    assert _common.recorded_path(tmp_path / "elsewhere/x/result") == "runs/x/result"
+    assert _common.recorded_path(tmp_path / "benchmarks/results/y") == "benchmarks/results/y"
 
 
 def test_the_model_choice_page_says_which_box_change_turns_the_verdict() -> None:
@@ -811,24 +826,34 @@ def test_verify_runs_a_check_after_the_checks_it_reads() -> None:
     assert [e.name for e, _ in verify.dependency_order(rows)] == ["model_choice", "criticism", "abc:paper", "samples"]
 
 
-def test_rebaseline_copies_the_untracked_caches_its_quick_mode_reads(fake_repo: Path, monkeypatch) -> None:
+def test_rebaseline_makes_its_quick_inputs_with_the_results_code(fake_repo: Path, monkeypatch) -> None:
+    """The checkout's untracked caches may hold other code's runs: a rebaseline never copies them,
+    it makes the inputs in the worktree with the quick mode the entry runs after."""
     import dataclasses
 
     from benchmarks import verify
 
-    entry = dataclasses.replace(QUICK_ENTRY, quick_inputs=("runs/cache/tiny",))
+    producer = registry.Entry("maker", "m.json", "python m.py", quick="python m.py --tiny", quick_output="mq.json")
+    entry = dataclasses.replace(QUICK_ENTRY, quick_inputs=("runs/cache/tiny",), after=("maker",))
     _git_commit_all(fake_repo)
     write_fake(fake_repo)
     cache = fake_repo / "runs/cache/tiny"
     cache.mkdir(parents=True)
-    (cache / "model_choice.json").write_text("{}")
+    (cache / "model_choice.json").write_text('{"old": true}')
     seen = []
 
     def run(argv, tree, env):
-        seen.append((tree / "runs/cache/tiny/model_choice.json").is_file())
+        runs = Path(env["JAXABC_RUNS_DIR"])
+        assert runs.is_relative_to(tree)
+        if "m.py" in argv:
+            (runs / "cache/tiny").mkdir(parents=True)
+            (runs / "cache/tiny/model_choice.json").write_text('{"new": true}')
+            return subprocess.CompletedProcess(argv, 0, "", "")
+        seen.append(json.loads((runs / "cache/tiny/model_choice.json").read_text()))
         _common.write_result(tree / entry.quick_output, {"value": 1.5}, inputs=[tree / "data.txt"])
         return subprocess.CompletedProcess(argv, 0, "", "")
 
+    monkeypatch.setattr(verify, "by_name", lambda name: {"maker": producer}[name])
     monkeypatch.setattr(verify, "_run_command", run)
     verify.rebaseline(entry, fake_repo)
-    assert seen == [True]
+    assert seen == [{"new": True}]

@@ -8,7 +8,7 @@ from typing import Any
 
 import numpy as np
 
-from benchmarks._common import RESULTS, ROOT
+from benchmarks._common import RESULTS, ROOT, RUNS
 from benchmarks.docpages.common import f, figure, load, retired, source, sourced_table, table
 from benchmarks.status import format_cost
 from jaxabc.surrogate.diagnostics import MISFIT_P_VALUE
@@ -332,7 +332,7 @@ in `benchmarks/registry.py`), resumable across sittings.
             + "\n"
             + _water_misfit_section()
         )
-    runs = sorted((ROOT / "runs" / "cache" / "water_paper_preset" / "run_cache_xray").glob("*.npz"))
+    runs = sorted((RUNS / "cache" / "water_paper_preset" / "run_cache_xray").glob("*.npz"))
     clock = folder / "checkpoint_xray" / "water_xray_paper_surrogate.sittings.json"
     if not runs and not clock.exists():
         return head + "\nNot run yet.\n"
