@@ -296,23 +296,34 @@ def test_cached_summaries_replays_results_and_failures(tmp_path):
         CachedSummaries(inner, np.zeros(11, bool))
 
 
-def test_cached_summaries_replays_a_folder_written_before_it_used_runcache(tmp_path):
-    """Its own cache named files ``<slug>-<sha256(repr((simulate, protocol)), key, theta)[:24]>.npz``
-    with ``summaries`` and ``reason`` (NaN summaries for a failure)."""
+def test_cached_summaries_never_replay_other_simulator_code(tmp_path, monkeypatch):
+    """A simulation cached by other code (an analysis edited between sittings, or a folder written
+    before the code entered the identity) is run again, never replayed: replays of such files made
+    the tiny model choice's quick check give other numbers than a fresh run."""
     import hashlib
 
-    from jaxabc.errors import SimulationFailure
-    from md.water.model_simulator import CachedSummaries
+    from md.water import model_simulator as ms
 
     inner = _CountingSimulator()
-    key = np.array([0, 5], np.uint32)
-    for theta, summaries, reason in (([0.5, 1.0], np.arange(14.0), ""), ([-1.0, 1.0], np.full(14, np.nan), "vapour")):
-        digest = hashlib.sha256(repr((inner, inner.protocol)).encode())
-        digest.update(key.tobytes())
-        digest.update(np.asarray(theta, np.float64).tobytes())
-        np.savez(tmp_path / f"tip4p-{digest.hexdigest()[:24]}.npz", summaries=summaries, reason=np.array(reason))
-    cached = CachedSummaries(inner, np.ones(14, bool), tmp_path)
-    np.testing.assert_array_equal(cached(key, np.array([0.5, 1.0])), np.arange(14.0))
-    with pytest.raises(SimulationFailure, match="vapour"):
-        cached(key, np.array([-1.0, 1.0]))
-    assert inner.calls == 0
+    fitted = np.zeros(11, bool)
+    fitted[[3, 10]] = True
+    key, theta = np.array([0, 5], np.uint32), np.array([0.5, 1.0])
+    # Named as before the code entered the identity: sha256 of repr((simulate, protocol)), key, theta.
+    digest = hashlib.sha256(repr((inner, inner.protocol)).encode())
+    digest.update(key.tobytes())
+    digest.update(theta.tobytes())
+    np.savez(tmp_path / f"tip4p-{digest.hexdigest()[:24]}.npz", summaries=np.full(11, 99.0), reason=np.array(""))
+    cached = ms.CachedSummaries(inner, fitted, tmp_path)
+    np.testing.assert_array_equal(cached(key, theta), [3.5, 10.5])
+    assert inner.calls == 1
+    np.testing.assert_array_equal(cached(key, theta), [3.5, 10.5])  # the same code: replayed
+    assert inner.calls == 1
+    # The digest covers the simulation modules and the runner's own file.
+    module = Path(ms.__file__)
+    assert all((module.parent / name).is_file() for name in ms._SIMULATION_CODE)
+    assert len(ms.simulation_code_digest()) == 16
+    assert ms.simulation_code_digest(__file__) != ms.simulation_code_digest()
+    # The code that makes the summaries changed: simulated again.
+    monkeypatch.setattr(ms, "simulation_code_digest", lambda runner_source=None: "0" * 16)
+    cached(key, theta)
+    assert inner.calls == 2

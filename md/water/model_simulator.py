@@ -29,6 +29,8 @@ value and the shift are in :class:`ModelOutput`.  ``finite_size_correction=False
 
 from __future__ import annotations
 
+import functools
+import inspect
 import os
 import shutil
 import subprocess
@@ -40,7 +42,7 @@ from typing import Protocol as TypingProtocol
 import numpy as np
 
 from jaxabc.errors import SimulationFailure
-from jaxabc.executors.cache import RunCache
+from jaxabc.executors.cache import RunCache, source_digest
 from md.water.analysis import WaterCurves, compute_curves, load_trajectory
 from md.water.finite_size import correct_diffusion, model_viscosity_mpa_s
 
@@ -74,6 +76,7 @@ __all__ = [
     "ModelRunner",
     "WaterModelSimulator",
     "make_model_simulator",
+    "simulation_code_digest",
 ]
 
 #: Names of the joint summaries, in the order a call returns them.
@@ -84,6 +87,34 @@ JOINT_SUMMARY_NAMES: tuple[str, ...] = (
     *SECOND_SHELL_NAMES,
 )
 _LEGACY_NUM_SUMMARIES = 11
+#: The modules of ``md/water`` whose code makes a simulation's summaries: a cached simulation is
+#: replayed only for the same code (:attr:`CachedSummaries.cache`).
+_SIMULATION_CODE = (
+    "analysis.py",
+    "finite_size.py",
+    "gromacs.py",
+    "joint_data.py",
+    "model_simulator.py",
+    "models.py",
+    "protocol.py",
+    "simulator.py",
+    "statistics.py",
+    "topology.py",
+)
+
+
+@functools.cache
+def simulation_code_digest(runner_source: str | None = None) -> str:
+    """16 hex digits of the code that makes a water simulation's summaries: the modules of
+    :data:`_SIMULATION_CODE` and ``runner_source`` (the file of the simulator's own class, such
+    as :mod:`md.water.joint_criticism` for a model with effects).  Read once per process."""
+    here = Path(__file__).resolve().parent
+    files = {here / name for name in _SIMULATION_CODE}
+    if runner_source is not None:
+        files.add(Path(runner_source).resolve())
+    return source_digest(*sorted(files))[:16]
+
+
 #: Molar gas constant (kJ/mol/K).
 GAS_CONSTANT_KJ_MOL_K = 8.314462618e-3
 
@@ -385,13 +416,15 @@ class CachedSummaries:
         """The :class:`~jaxabc.executors.cache.RunCache` of ``simulate`` in ``cache_dir`` (None
         without a cache).
 
-        Its identity is ``repr((simulate, simulate.protocol))`` and its files are named
-        ``<model slug>-<digest>.npz``: as this class's own cache wrote them before it used
-        ``RunCache``, so those folders are still replayed.
+        Its identity is ``repr((simulate, simulate.protocol))`` and the digest of the code that
+        makes the summaries (:func:`simulation_code_digest`): a simulation cached by other code
+        (an edited analysis, an upgrade between sittings) is run again, never replayed.  Files
+        are named ``<model slug>-<digest>.npz``.
         """
         if self.cache_dir is None:
             return None
-        identity = repr((self.simulate, self.simulate.protocol))
+        code = simulation_code_digest(inspect.getsourcefile(type(self.simulate)))
+        identity = repr((self.simulate, self.simulate.protocol)) + f" code {code}"
         return RunCache(self.simulate, self.cache_dir, identity=identity, prefix=f"{self.simulate.model.slug}-")
 
     def cache_path(self, key, theta) -> Path | None:
