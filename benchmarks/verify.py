@@ -15,6 +15,7 @@ the tree stays as it was; only the ledger is written.
 Quick modes run with an empty ``runs/`` folder of their own (``JAXABC_RUNS_DIR``, shared by the
 checks of one invocation and removed after it), never the checkout's: a run cache or a finished
 checkpoint there may hold simulations of earlier code, and a check that replays them cannot fail.
+``--runs-dir`` keeps that folder for later invocations on the same code.
 The untracked inputs a quick mode reads (``quick_inputs``, such as the tiny model choice) are made
 afresh, by the quick modes of the entries it runs after, with the code being checked.
 
@@ -366,6 +367,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--include-current", action="store_true", help="check current results too")
     parser.add_argument("--dry-run", action="store_true", help="list the plan, run nothing")
     parser.add_argument(
+        "--runs-dir",
+        type=Path,
+        help="the quick modes' runs folder, kept afterwards (default: an empty temporary one): pass the same "
+        "folder to later invocations on the same code to reuse the quick inputs made for earlier checks",
+    )
+    parser.add_argument(
         "--rebaseline",
         nargs="?",
         const="auto",
@@ -382,6 +389,10 @@ def main(argv: list[str] | None = None) -> int:
     if args.dry_run:
         return 0
     bad = []
+    if args.runs_dir is not None:
+        args.runs_dir.mkdir(parents=True, exist_ok=True)
+        _check_all(rows, args.rebaseline, args.runs_dir.resolve(), bad)
+        return 1 if bad else 0
     runs = Path(tempfile.mkdtemp(prefix="jaxabc-verify-runs-"))
     try:
         _check_all(rows, args.rebaseline, runs, bad)

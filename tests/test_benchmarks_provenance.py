@@ -857,3 +857,28 @@ def test_rebaseline_makes_its_quick_inputs_with_the_results_code(fake_repo: Path
     monkeypatch.setattr(verify, "_run_command", run)
     verify.rebaseline(entry, fake_repo)
     assert seen == [{"new": True}]
+
+
+def test_verify_invocations_share_a_runs_folder_only_when_asked(monkeypatch, tmp_path: Path) -> None:
+    """One invocation's checks share one empty runs folder, removed afterwards; ``--runs-dir``
+    keeps a folder for later invocations."""
+    from benchmarks import verify
+
+    entries = [registry.Entry(n, f"{n}.json", "python -m x", quick="q", quick_output=f"{n}q.json") for n in "ab"]
+    seen: list[Path] = []
+
+    def fake_check(entry, root=None, runs=None):
+        seen.append(runs)
+        (runs / f"{entry.name}.made").write_text("")
+        return {"outcome": "reproduces", "seconds": 0.0}
+
+    monkeypatch.setattr(verify, "REGISTRY", entries)
+    monkeypatch.setattr(verify, "plan", lambda es, budget, include: [(e, 1.0, "") for e in es])
+    monkeypatch.setattr(verify, "check", fake_check)
+    monkeypatch.setattr(verify, "_write_ledger", lambda name, record: None)
+    assert verify.main(["--budget", "1h"]) == 0
+    assert seen[0] == seen[1] and not seen[0].exists()
+    seen.clear()
+    kept = tmp_path / "runs"
+    assert verify.main(["--budget", "1h", "--only", "a", "--runs-dir", str(kept)]) == 0
+    assert seen == [kept.resolve()] and (kept / "a.made").is_file()
