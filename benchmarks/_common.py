@@ -42,17 +42,8 @@ PROVENANCE_VERSION = 1
 _declared_inputs: set[Path] = set()
 
 
-def recorded_path(path: str | os.PathLike) -> str:
-    """``path`` as a result records it: ``runs/...`` for a path under :data:`RUNS` (wherever
-    ``JAXABC_RUNS_DIR`` put it), else relative to the repository root."""
-    path = Path(path).resolve()
-    if path.is_relative_to(RUNS.resolve()):
-        return (Path("runs") / path.relative_to(RUNS.resolve())).as_posix()
-    return os.path.relpath(path, ROOT)
-
-
 def resolve_recorded(rel: str) -> Path:
-    """The inverse of :func:`recorded_path`: a recorded ``runs/...`` path under :data:`RUNS`."""
+    """The inverse of :func:`relative`: a recorded ``runs/...`` path under :data:`RUNS`."""
     parts = Path(rel).parts
     return RUNS.joinpath(*parts[1:]) if parts and parts[0] == "runs" else ROOT / rel
 
@@ -195,8 +186,12 @@ def data_hash(path: str | Path) -> str:
 
 
 def relative(path: str | Path) -> str:
-    """``path`` relative to the repository root (POSIX), or absolute when it lies outside."""
+    """``path`` as a result records it: ``runs/...`` under :data:`RUNS` (wherever
+    ``JAXABC_RUNS_DIR`` put it), else relative to the repository root (POSIX), or absolute when
+    it lies outside both."""
     p = Path(path).resolve()
+    if p.is_relative_to(RUNS.resolve()):
+        return (Path("runs") / p.relative_to(RUNS.resolve())).as_posix()
     try:
         return p.relative_to(ROOT).as_posix()
     except ValueError:

@@ -62,7 +62,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import jaxabc
-from benchmarks._common import RUNS, command_line, guard_resume, recorded_path, write_result
+from benchmarks._common import RUNS, command_line, guard_resume, relative, write_result
 from jaxabc.model_choice import Model
 from md.water.finite_size import MODEL_VISCOSITY_298K, model_viscosity_mpa_s
 from md.water.joint_data import JOINT_DATA_FILE, joint_observed, joint_record, observation_sd
@@ -584,8 +584,8 @@ def main(argv=None) -> None:
         "prior_edge": result.prior_edge,
         "per_model": model_rows(result),
         "predictive": bands,
-        "cache_dir": recorded_path(args.cache_dir),
-        "saved_result": recorded_path(saved.parent),
+        "cache_dir": relative(args.cache_dir),
+        "saved_result": relative(saved.parent),
         "wall_time_s": time.perf_counter() - start,
     }
     path = write_result(args.name, payload, quick=args.tiny, inputs=DATA_FILES[args.data], command=command_line(argv))

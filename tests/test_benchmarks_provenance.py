@@ -745,8 +745,8 @@ def test_the_model_choice_readers_follow_its_saved_folder(tmp_path: Path, monkey
     # A folder recorded under runs/ is found where the runs folder is now.
     (tmp_path / "water_model_choice.json").write_text(json.dumps({"data": "xray", "saved_result": "runs/x/result"}))
     assert paths.model_choice_folder("xray") == tmp_path / "elsewhere/x/result"
-    assert _common.recorded_path(tmp_path / "elsewhere/x/result") == "runs/x/result"
-    assert _common.recorded_path(tmp_path / "benchmarks/results/y") == "benchmarks/results/y"
+    assert _common.relative(tmp_path / "elsewhere/x/result") == "runs/x/result"
+    assert _common.relative(tmp_path / "benchmarks/results/y") == "benchmarks/results/y"
 
 
 def test_the_model_choice_page_says_which_box_change_turns_the_verdict() -> None:
