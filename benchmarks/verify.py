@@ -60,7 +60,7 @@ from benchmarks.status import (
     status_of,
 )
 
-__all__ = ["baseline_mismatch", "check", "main", "plan", "rebaseline"]
+__all__ = ["baseline_mismatch", "check", "cpu_signature", "main", "plan", "rebaseline"]
 
 #: Seconds assumed for a quick mode whose saved JSON records no cost.
 DEFAULT_QUICK_COST_S = 300.0
@@ -242,8 +242,8 @@ def check(entry: Entry, root: Path = ROOT, runs: Path | None = None) -> dict[str
         deterministic_view(new, entry.ignore_keys),
         entry.compare_tolerance,
     )
-    here_cpu = _common.machine().get("cpu")
-    base_cpu = ((_provenance(json.loads(saved_text), entry.part) or {}).get("machine") or {}).get("cpu")
+    here_cpu = cpu_signature(_common.machine())
+    base_cpu = cpu_signature((_provenance(json.loads(saved_text), entry.part) or {}).get("machine") or {})
     record["cpu"], record["baseline_cpu"] = here_cpu, base_cpu
     if diffs and _other_cpu(json.loads(saved_text), entry.part):
         # Chaotic MD (GROMACS) diverges with the CPU's rounding: other numbers on another CPU say
@@ -344,10 +344,32 @@ def _missing_part(entry: Entry, root: Path = ROOT) -> bool:
     return entry.part is not None and entry.part not in saved.get("provenance_parts", {})
 
 
+def cpu_signature(machine: dict[str, Any]) -> str | None:
+    """A provenance ``machine`` record's CPU and, where recorded, its vector instruction sets
+    (``"AMD EPYC (avx, avx2, fma)"``); None when it names no CPU.
+
+    Hosts that report the same CPU name may differ in their instruction sets (AVX-512 or not),
+    and XLA compiles reductions for the host's: float sums then differ in the last bits, and
+    chaotic runs after them.  Such numbers say nothing about the code."""
+    cpu = machine.get("cpu")
+    if not cpu:
+        return None
+    simd = (machine.get("native_kernel_instruction_set") or {}).get("simd")
+    return f"{cpu} ({', '.join(simd)})" if simd else str(cpu)
+
+
 def _other_cpu(saved: dict[str, Any], part: str | None) -> str | None:
-    """The CPU that made a saved quick JSON when it is not this machine's (None when the same or unknown)."""
-    base = ((_provenance(saved, part) or {}).get("machine") or {}).get("cpu")
-    return base if base and base != _common.machine().get("cpu") else None
+    """The CPU that made a saved quick JSON when it is not this machine's (None when the same or
+    unknown); compared by :func:`cpu_signature`, or by name alone where the saved record has no
+    instruction sets."""
+    base_machine = (_provenance(saved, part) or {}).get("machine") or {}
+    base = cpu_signature(base_machine)
+    if not base:
+        return None
+    here = _common.machine()
+    if (base_machine.get("native_kernel_instruction_set") or {}).get("simd"):
+        return base if base != cpu_signature(here) else None
+    return base if base_machine.get("cpu") != here.get("cpu") else None
 
 
 def _needs_rebaseline(entry: Entry, root: Path = ROOT) -> bool:

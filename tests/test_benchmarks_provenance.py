@@ -722,6 +722,32 @@ def test_other_numbers_on_another_cpu_decide_nothing(fake_repo: Path, monkeypatc
     assert status.status_of(entry, root=fake_repo).state == "stale"
 
 
+def test_a_cpu_of_the_same_name_with_other_instruction_sets_is_another_machine(fake_repo: Path, monkeypatch) -> None:
+    """Hosts that both read "AMD EPYC" may differ in AVX-512: XLA's float sums then differ in the
+    last bits (seen here: S7 2.6440566397969145 against 2.644056639796915)."""
+    from benchmarks import verify
+
+    def host(*simd: str) -> dict:
+        return {"cpu": "AMD EPYC", "native_kernel_instruction_set": {"simd": list(simd)}}
+
+    entry = QUICK_ENTRY
+    write_fake(fake_repo)
+    with monkeypatch.context() as m:
+        m.setattr(_common, "machine", lambda: host("avx2", "avx512f"))
+        _common.write_result(fake_repo / entry.quick_output, {"value": 1.5}, inputs=[fake_repo / "data.txt"])
+    monkeypatch.setattr(_common, "machine", lambda: host("avx2"))
+    monkeypatch.setattr(verify, "_run_command", _fake_quick_run(fake_repo, 1.5000000000000002, entry))
+    record = verify.check(entry, fake_repo)
+    assert record["outcome"] == "other machine", record
+    assert record["baseline_cpu"] == "AMD EPYC (avx2, avx512f)" and record["cpu"] == "AMD EPYC (avx2)"
+    assert verify._needs_rebaseline(entry, fake_repo)
+    # The same instruction sets: the numbers decide.
+    monkeypatch.setattr(_common, "machine", lambda: host("avx2", "avx512f"))
+    assert verify.check(entry, fake_repo)["outcome"] == "numbers changed"
+    assert not verify._needs_rebaseline(entry, fake_repo)
+    assert verify.cpu_signature({}) is None and verify.cpu_signature({"cpu": "x"}) == "x"
+
+
 def test_the_model_choice_readers_follow_its_saved_folder(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """The criticism and the paper check start from the folder the model choice's JSON records."""
     from benchmarks import _water_model_choice_paths as paths
