@@ -908,3 +908,13 @@ def test_verify_invocations_share_a_runs_folder_only_when_asked(monkeypatch, tmp
     kept = tmp_path / "runs"
     assert verify.main(["--budget", "1h", "--only", "a", "--runs-dir", str(kept)]) == 0
     assert seen == [kept.resolve()] and (kept / "a.made").is_file()
+
+
+def test_a_checks_quick_inputs_under_runs_do_not_stale_it(fake_repo: Path) -> None:
+    """The inputs a check made in its own runs folder are gone afterwards: only its code counts."""
+    module = "jaxabc/fake_dependency.py"
+    record = {"fingerprint": {"code": {module: _common.code_hash(fake_repo / module)}, "data": {}}}
+    record["fingerprint"]["data"]["runs/cache/tiny/model_choice.json"] = "0" * 16
+    assert status._check_problem(record, fake_repo) == ""
+    record["fingerprint"]["data"]["data.txt"] = "0" * 16  # a tracked input that changed still counts
+    assert "data.txt" in status._check_problem(record, fake_repo)
