@@ -233,6 +233,12 @@ def _numerical_state(st: Status, entry: Entry, quick: bool, root: Path, prov: di
     if quick:
         st.why = "code changed, not checked"
         return
+    inputs = ((prov or {}).get("fingerprint") or {}).get("data", {})
+    if data_changed := [c for c in st.changed if c.removesuffix(" (removed)") in inputs]:
+        # A quick check reruns the code on the quick mode's own inputs: it cannot vouch for
+        # other data.  Data changes always call for a rerun.
+        st.why = "inputs changed, rerun it: " + ", ".join(data_changed[:3])
+        return
     record = load_verifications(root).get(entry.name)
     if record is None:
         st.why = "code changed, not checked" if entry.quick else "code changed; no quick mode to check it"

@@ -918,3 +918,20 @@ def test_a_checks_quick_inputs_under_runs_do_not_stale_it(fake_repo: Path) -> No
     assert status._check_problem(record, fake_repo) == ""
     record["fingerprint"]["data"]["data.txt"] = "0" * 16  # a tracked input that changed still counts
     assert "data.txt" in status._check_problem(record, fake_repo)
+
+
+def test_a_quick_check_cannot_vouch_for_changed_inputs(fake_repo: Path, monkeypatch) -> None:
+    """A result whose data input changed (a calibration it reads was rerun) needs a rerun, even
+    where its quick mode reproduces: the quick mode reads other inputs."""
+    from benchmarks import verify
+
+    entry = QUICK_ENTRY
+    write_fake(fake_repo)
+    _common.write_result(fake_repo / entry.quick_output, {"value": 1.5}, inputs=[fake_repo / "data.txt"])
+    (fake_repo / "jaxabc/fake_dependency.py").write_text(SOURCE.replace("return SCALE", "y = SCALE\n    return y"))
+    monkeypatch.setattr(verify, "_run_command", _fake_quick_run(fake_repo, 1.5, entry))
+    verify._write_ledger(entry.name, verify.check(entry, fake_repo), fake_repo)
+    assert status.status_of(entry, root=fake_repo).state == "current"
+    (fake_repo / "data.txt").write_text("1 2 4\n")
+    st = status.status_of(entry, root=fake_repo)
+    assert st.state == "stale" and st.why.startswith("inputs changed, rerun it: data.txt")
