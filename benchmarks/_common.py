@@ -42,10 +42,13 @@ PROVENANCE_VERSION = 1
 _declared_inputs: set[Path] = set()
 
 
-def resolve_recorded(rel: str) -> Path:
-    """The inverse of :func:`relative`: a recorded ``runs/...`` path under :data:`RUNS`."""
+def resolve_recorded(rel: str, runs: Path | None = None, root: Path | None = None) -> Path:
+    """The inverse of :func:`relative`: a recorded ``runs/...`` path under ``runs`` (default
+    :data:`RUNS`), any other under ``root`` (default the repository root)."""
     parts = Path(rel).parts
-    return RUNS.joinpath(*parts[1:]) if parts and parts[0] == "runs" else ROOT / rel
+    if parts and parts[0] == "runs":
+        return (RUNS if runs is None else runs).joinpath(*parts[1:])
+    return (ROOT if root is None else root) / rel
 
 
 def _process_start_time() -> float:

@@ -162,12 +162,6 @@ def _run_command(argv: list[str], root: Path, env: dict[str, str]) -> subprocess
     return subprocess.run(argv, cwd=root, env=env, capture_output=True, text=True)
 
 
-def _input_path(rel: str, root: Path, runs: Path) -> Path:
-    """Where a quick input ``rel`` lies: a ``runs/...`` path in the check's ``runs`` folder."""
-    parts = Path(rel).parts
-    return runs.joinpath(*parts[1:]) if parts and parts[0] == "runs" else root / rel
-
-
 def _quick_env(root: Path, runs: Path) -> dict[str, str]:
     """The environment of a quick command: this checkout first on the path, ``runs`` as its runs folder."""
     path = os.pathsep.join(filter(None, [str(root), os.environ.get("PYTHONPATH")]))
@@ -180,7 +174,7 @@ def make_quick_inputs(entry: Entry, root: Path, env: dict[str, str]) -> subproce
     the quick modes of the entries it runs ``after``.  None when every input is there afterwards,
     else the failed run (or a made-up one saying which input is missing)."""
     runs = Path(env.get("JAXABC_RUNS_DIR") or root / "runs")
-    missing = [rel for rel in entry.quick_inputs if not _input_path(rel, root, runs).exists()]
+    missing = [rel for rel in entry.quick_inputs if not _common.resolve_recorded(rel, runs, root).exists()]
     if not missing:
         return None
     for name in entry.after:
@@ -189,7 +183,7 @@ def make_quick_inputs(entry: Entry, root: Path, env: dict[str, str]) -> subproce
             run = _run_command(command_argv(producer.quick), root, env)
             if run.returncode != 0:
                 return run
-    still = [rel for rel in missing if not _input_path(rel, root, runs).exists()]
+    still = [rel for rel in missing if not _common.resolve_recorded(rel, runs, root).exists()]
     if still:
         return subprocess.CompletedProcess(
             [], 1, "", f"quick inputs missing and not made by the quick modes of {list(entry.after)}: {still}"
