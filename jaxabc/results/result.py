@@ -464,6 +464,13 @@ class ABCResult:
             lines.append(f"  at a physical limit: {'; '.join(edge['at_physical_limits'])}")
         for message in self.discrepancy_identification()[1]:
             lines.append(f"  discrepancy: {message}")
+        if "emulator_variance_scale" in self.diagnostics:
+            d = self.diagnostics
+            lines.append(
+                f"  emulator variance: x{d['emulator_variance_scale']:.3g} ({d['emulator_variance']}); "
+                f"held-out runs measure x{d['emulator_variance_scale_estimate']:.3g} "
+                f"from {d['emulator_variance_scale_estimate_errors']} errors"
+            )
         if not np.all(np.isfinite(err)):
             # Say why in words: "+- inf" alone reads like a bug.
             note = self.diagnostics.get("mcse_note") or "collapsed: fewer than 2 distinct particles; MCSE not available"

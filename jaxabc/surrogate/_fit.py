@@ -46,6 +46,7 @@ def fit_likelihood(
     discrepancy: Any = None,
     noise_model: str = "homoscedastic",
     warm_start: np.ndarray | None = None,
+    variance_scale: float = 1.0,
 ) -> tuple[emulator.OutputTransform, emulator.Emulator, sampling.LikelihoodModel, np.ndarray]:
     """Emulator on the successful design rows of ``state`` (a SurrogateState); ``drop`` (bool,
     shape (M,)) leaves rows out.  Returns (transform, emulator, likelihood model, z_all), z_all
@@ -56,6 +57,8 @@ def fit_likelihood(
     outputs' coordinates (:func:`.sampling.output_map`) and carried by the model.
     ``noise_model`` is :func:`noise_profile_choice`'s.  ``warm_start`` (q, d + 2), an earlier
     fit's hyper-parameters, is the optimiser's only start (:func:`.emulator.fit`'s ``init``).
+    ``variance_scale`` multiplies the GP's predictive variance (``Emulator.var_scale``; 1 leaves
+    the emulator as fitted).
 
     Raises
     ------
@@ -98,6 +101,8 @@ def fit_likelihood(
         # Correlation of the residuals in noise-sd units: their scale varies with theta.
         loo = loo / np.asarray(emulator.noise_sd(emu, jnp.asarray(x_all[rows])))
     corr = noise_correlation(loo, active)
+    if float(variance_scale) != 1.0:
+        emu = emu._replace(var_scale=jnp.asarray(float(variance_scale)))
     feas = sampling.fit_feasibility(x_all[used], ok[used], size=padded_rows(int(used.sum()), int(max_simulations)))
     z_obs = transform.apply(jnp.asarray(np.asarray(observed, np.float64).reshape(-1)))
     extra = measured_data_terms(transform, observation_error, discrepancy)
@@ -170,6 +175,7 @@ def fit_surrogate(
         discrepancy=settings.discrepancy,
         noise_model=settings.noise_model,
         warm_start=hyper if warm and np.any(hyper) else None,
+        variance_scale=float(state.variance_scale),
     )
 
 

@@ -9,7 +9,7 @@ from typing import Any, NamedTuple
 import jax
 import numpy as np
 
-from jaxabc.surrogate import diagnostics, evidence
+from jaxabc.surrogate import diagnostics, emulator, evidence
 from jaxabc.surrogate._fit import ROLE_DESIGN, ROLE_FAILED_HOLDOUT, ROLE_HOLDOUT, fit_surrogate
 from jaxabc.surrogate._posterior import IMPORTANCE_POOL_PER_DRAW, posterior_ess
 from jaxabc.surrogate._settings import SurrogateSettings
@@ -230,6 +230,26 @@ def run_diagnostics(settings: SurrogateSettings, state: SurrogateState) -> dict:
         "nuts_split_rhat": state.rhat.tolist(),
         "posterior_sampler": sampler,
         "rounds": int(state.round),
+    } | emulator_variance_entries(settings, state)
+
+
+def emulator_variance_entries(settings: SurrogateSettings, state: SurrogateState) -> dict:
+    """The diagnostics of ``emulator_variance`` (none for ``"gp"``, so that default results
+    keep their fields): the factor the last fit used (``emulator_variance_scale``), and the
+    maximum-likelihood factor from every held-out run judged (``..._estimate``, with the
+    standard error of its log and the number of errors it rests on), which a failed last
+    validation measured but no fresh run checked."""
+    if settings.emulator_variance == "gp":
+        return {}
+    factor, se_log, num = emulator.variance_scale_mle(
+        state.judged_residual, state.judged_emulator_var, state.judged_noise_var
+    )
+    return {
+        "emulator_variance": settings.emulator_variance,
+        "emulator_variance_scale": float(state.variance_scale),
+        "emulator_variance_scale_estimate": factor,
+        "emulator_variance_scale_estimate_se_log": se_log if np.isfinite(se_log) else None,
+        "emulator_variance_scale_estimate_errors": num,
     }
 
 

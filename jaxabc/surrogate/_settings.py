@@ -125,6 +125,9 @@ class SurrogateSettings(NamedTuple):
     on_failure : {"flag", "raise"}
     noise_model : {"auto", "homoscedastic", "heteroscedastic"}
         The simulator noise's dependence on theta (:func:`._fit.noise_profile_choice`).
+    emulator_variance : "gp", "calibrated" or float
+        The factor on the GP's predictive variance: none, estimated from failed validations'
+        held-out runs (:func:`.emulator.variance_scale_mle`), or fixed (at least 1).
     """
 
     box: ParameterBox
@@ -153,6 +156,7 @@ class SurrogateSettings(NamedTuple):
     max_emulator_ratio: float
     on_failure: str
     noise_model: str = "auto"
+    emulator_variance: str | float = "gp"
 
     @property
     def num_summaries(self) -> int:
@@ -328,15 +332,16 @@ def make_settings(
     observation_error: Any,
     discrepancy: Any,
     noise_model: str = "auto",
+    emulator_variance: Any = "gp",
 ) -> SurrogateSettings:
     """:func:`.algorithm.build`'s options, checked, as :class:`SurrogateSettings`.
 
     Raises
     ------
     ValueError
-        Non-finite observed summaries, an unknown ``mode``, ``on_failure`` or ``noise_model``, sample sizes or a
-        budget the run cannot work with, a measurement error or discrepancy that does not fit
-        the observed summaries.
+        Non-finite observed summaries, an unknown ``mode``, ``on_failure``, ``noise_model`` or
+        ``emulator_variance``, sample sizes or a budget the run cannot work with, a measurement
+        error or discrepancy that does not fit the observed summaries.
     """
     obs = np.asarray(observed, np.float64)
     if not np.all(np.isfinite(obs)):
@@ -345,6 +350,7 @@ def make_settings(
         raise ValueError(
             f"surrogate: noise_model must be 'auto', 'homoscedastic' or 'heteroscedastic', got {noise_model!r}"
         )
+    emulator_variance = check_emulator_variance(emulator_variance)
     obs_error = observation_covariance(observation_error, obs.shape)
     disc = resolve_discrepancy(discrepancy, obs.shape)
     box = parameter_box(prior, disc)
@@ -383,7 +389,32 @@ def make_settings(
         max_emulator_ratio=float(max_emulator_ratio),
         on_failure=on_failure,
         noise_model=noise_model,
+        emulator_variance=emulator_variance,
     )
+
+
+EMULATOR_VARIANCE = ("gp", "calibrated")
+
+
+def check_emulator_variance(value: Any) -> str | float:
+    """``emulator_variance`` checked: ``"gp"``, ``"calibrated"`` or a finite factor >= 1 (a
+    float); ValueError otherwise (a factor below 1 would shrink the GP's error bars)."""
+    if isinstance(value, str):
+        if value not in EMULATOR_VARIANCE:
+            raise ValueError(f"surrogate: emulator_variance must be 'gp', 'calibrated' or a factor >= 1, got {value!r}")
+        return value
+    try:
+        factor = float(value)
+    except (TypeError, ValueError):
+        raise ValueError(
+            f"surrogate: emulator_variance must be 'gp', 'calibrated' or a factor >= 1, got {value!r}"
+        ) from None
+    if not np.isfinite(factor) or factor < 1.0:
+        raise ValueError(
+            f"surrogate: an emulator_variance factor must be finite and at least 1 (it widens the GP's "
+            f"error bars, never narrows them), got {factor}"
+        )
+    return factor
 
 
 def settings_record(settings: SurrogateSettings) -> dict:
@@ -409,6 +440,9 @@ def settings_record(settings: SurrogateSettings) -> dict:
         "min_feasibility": settings.min_feasibility,
         "noise_model": settings.noise_model,
     }
+    if settings.emulator_variance != "gp":
+        # Only when used, so that runs without it keep their checkpoint fingerprints.
+        record["emulator_variance"] = settings.emulator_variance
     record |= measured_data_settings(settings.observation_error, settings.discrepancy)
     if settings.discrepancy is not None:
         record["augmented_prior"] = augmented_prior_record(settings)

@@ -91,6 +91,12 @@ class SurrogateState(NamedTuple):
         held-out runs joined the fit (:func:`._validation.posterior_shift`; NaN before).
     stable : array of bool, shape ()
         Whether that move stayed within its bounds (True before).
+    variance_scale : array, shape ()
+        The factor on the GP's predictive variance in use (``emulator_variance``; 1 for "gp").
+    judged_residual, judged_emulator_var, judged_noise_var : array, shape (M, q)
+        For every held-out run already judged: its output minus the emulator's mean, the GP's
+        unscaled variance and the noise variance there, as the emulator then fitted predicted
+        (NaN elsewhere); what a calibrated ``variance_scale`` is estimated from.
     """
 
     thetas: Any
@@ -125,6 +131,10 @@ class SurrogateState(NamedTuple):
     posterior_shift: Any
     log_sd_change: Any
     stable: Any
+    variance_scale: Any
+    judged_residual: Any
+    judged_emulator_var: Any
+    judged_noise_var: Any
 
 
 #: Fields added after the first release: a checkpoint without them restores with their
@@ -143,6 +153,10 @@ LATER_FIELDS = (
     ".posterior_shift",
     ".log_sd_change",
     ".stable",
+    ".variance_scale",
+    ".judged_residual",
+    ".judged_emulator_var",
+    ".judged_noise_var",
 )
 
 
@@ -183,6 +197,10 @@ def empty_state(settings: SurrogateSettings) -> SurrogateState:
         posterior_shift=np.full(settings.box.num_sampled, np.nan),
         log_sd_change=np.full(settings.box.num_sampled, np.nan),
         stable=np.bool_(True),
+        variance_scale=np.float64(1.0 if isinstance(settings.emulator_variance, str) else settings.emulator_variance),
+        judged_residual=np.full((m, q), np.nan),
+        judged_emulator_var=np.full((m, q), np.nan),
+        judged_noise_var=np.full((m, q), np.nan),
     )
 
 

@@ -291,8 +291,10 @@ def start_abc_validation(
 def check_holdout(settings: SurrogateSettings, key: jax.Array, state: SurrogateState) -> tuple[SurrogateState, bool]:
     """Compare the held-out runs with the emulator refitted on the design rows.
 
-    Only the outputs in the likelihood are checked (a constant one would score 0 and dilute
-    the errors of the others).  Returns the state with the check's results (``holdout_errors``,
+    Each held-out run's residual and the GP's unscaled and the noise's variance there are kept
+    (``judged_*``), for a calibrated emulator variance.  Only the outputs in the likelihood are
+    checked (a constant one would score 0 and dilute the errors of the others).  Returns the
+    state with the check's results (``holdout_errors``,
     ``coverage``, ``mean_squared_error``, the joint check, the lack-of-fit test, the targeted
     runs' check, the posterior's shift) and whether validation passed: the marginal check, the
     targeted runs' check, the stability of the posterior (see the module docstring), the
@@ -333,6 +335,11 @@ def check_holdout(settings: SurrogateSettings, key: jax.Array, state: SurrogateS
     shift, log_sd_change, stable = posterior_shift(settings, key, state, model)
     errors = np.full((settings.num_holdout, settings.num_outputs), np.nan)
     errors[: len(rows), on] = check.errors
+    # What a calibrated emulator variance is estimated from: the GP's own variance, unscaled.
+    raw_var = np.asarray(emulator.predict(emu._replace(var_scale=None), x_rows)[1], np.float64)
+    judged = [np.array(a) for a in (state.judged_residual, state.judged_emulator_var, state.judged_noise_var)]
+    for target, values in zip(judged, (z_all[rows] - np.asarray(mean), raw_var, noise_var), strict=True):
+        target[rows] = np.where(on[None, :], values, np.nan)
     resolved = float(state.emulator_ratio) <= settings.max_emulator_ratio
     enough = len(rows) >= diagnostics.MIN_HOLDOUT_RUNS
     state = state._replace(
@@ -347,6 +354,9 @@ def check_holdout(settings: SurrogateSettings, key: jax.Array, state: SurrogateS
         posterior_shift=shift,
         log_sd_change=log_sd_change,
         stable=np.bool_(stable),
+        judged_residual=judged[0],
+        judged_emulator_var=judged[1],
+        judged_noise_var=judged[2],
     )
     passed = check.passed and local.passed and stable and lack_of_fit_ok and resolved and enough
     return state, bool(passed)

@@ -30,7 +30,7 @@ import jax
 import numpy as np
 
 from jaxabc.algorithms.base import ABCAlgorithm, Proposal
-from jaxabc.surrogate import design
+from jaxabc.surrogate import design, emulator
 from jaxabc.surrogate._design_loop import design_step
 from jaxabc.surrogate._fit import ROLE_DESIGN, ROLE_HOLDOUT
 from jaxabc.surrogate._report import SurrogateInfo, failure_text, finalize, step_info, stop_reason
@@ -101,6 +101,7 @@ def build(
     observation_error: Any = None,
     discrepancy: Any = None,
     noise_model: str = "auto",
+    emulator_variance: str | float = "gp",
 ) -> Any:
     """Build the surrogate (GP-emulator synthetic-likelihood) algorithm.
 
@@ -185,6 +186,16 @@ def build(
         used by the emulator fit, the likelihood, validation and ABC mode.  ``"auto"`` takes the
         profile of each output whose F-test rejects a constant variance (level 1e-3 over the
         outputs) at each refit.
+    emulator_variance : "gp", "calibrated" or float
+        The emulator's predictive variance, wherever it is used (likelihood, design, targeted
+        runs, validation, evidence): the GP's own (``"gp"``); the GP's times a factor ``c``
+        estimated by maximum likelihood from the held-out runs of the validations that failed
+        so far (``"calibrated"``: 1 until one fails; each later validation judges the scaled
+        emulator on fresh runs; :func:`.emulator.variance_scale_mle`); or times a fixed
+        factor (a float, at least 1).  A GP fitted by type-II maximum likelihood tends to
+        understate its error away from its design, which fails the targeted check; a
+        calibrated factor widens its error bars by what the failed runs measured.  The factor
+        in use is reported (``emulator_variance_scale`` in the diagnostics).
 
     Returns
     -------
@@ -292,7 +303,9 @@ def advance(settings: SurrogateSettings, key: jax.Array, state: SurrogateState) 
 def validate(settings: SurrogateSettings, key: jax.Array, state: SurrogateState) -> SurrogateState:
     """Check the held-out runs (:func:`._validation.check_holdout`) and decide.
 
-    Pass: done, validated.  Fail: the held-out runs join the design, and design resumes while
+    Pass: done, validated.  Fail: the held-out runs join the design (with
+    ``emulator_variance="calibrated"`` and design resuming, the factor on the emulator's
+    variance is re-estimated from every run judged so far), and design resumes while
     the budget pays another batch and validation and the lack-of-fit test passed (more design
     may cure an under-resolved emulator, not a GP that cannot represent the simulator);
     otherwise the run stops unvalidated with a RuntimeWarning.
@@ -307,6 +320,13 @@ def validate(settings: SurrogateSettings, key: jax.Array, state: SurrogateState)
         return state._replace(validated=np.bool_(True), phase=np.int64(PHASE_DONE), num_pending=np.int64(0))
     state = demote_holdout(state)
     if budget_allows_batch(settings, state) and bool(state.lack_of_fit_ok):
+        if settings.emulator_variance == "calibrated":
+            # From every run judged so far, each against the emulator fitted without it; the
+            # next validation judges the scaled emulator on fresh runs.
+            factor, _, _ = emulator.variance_scale_mle(
+                state.judged_residual, state.judged_emulator_var, state.judged_noise_var
+            )
+            state = state._replace(variance_scale=np.float64(factor))
         return design_step(settings, jax.random.fold_in(key, 3), state)
     message = (
         f"surrogate: the emulator failed validation ({failure_text(state, settings.max_emulator_ratio)}); "

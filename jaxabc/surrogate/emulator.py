@@ -22,6 +22,7 @@ import scipy.optimize
 import tinygp
 
 __all__ = [
+    "VARIANCE_SCALE_BOUNDS",
     "Emulator",
     "OutputTransform",
     "fit",
@@ -32,6 +33,7 @@ __all__ = [
     "noise_profile",
     "noise_sd",
     "predict",
+    "variance_scale_mle",
 ]
 
 _PAD_VARIANCE = 1e8
@@ -84,6 +86,9 @@ class Emulator(NamedTuple):
         Heteroscedastic noise: the log noise variance of output ``j`` at ``x`` is
         ``2 log_noise_j + noise_features(x) @ noise_coef_j`` (:func:`noise_sd`); None (the
         default) for noise that does not depend on ``x``.
+    var_scale : array, shape (), optional
+        A factor on the GP's predictive variance (:func:`predict`), from
+        :func:`variance_scale_mle`; None (the default) for the GP's own variance.
     """
 
     x: jax.Array
@@ -94,6 +99,7 @@ class Emulator(NamedTuple):
     alpha: jax.Array
     chol: jax.Array
     noise_coef: jax.Array | None = None
+    var_scale: jax.Array | None = None
 
 
 def fit_transform(y: np.ndarray, max_outputs: int) -> OutputTransform:
@@ -326,7 +332,8 @@ def fit_noise_profile(x: np.ndarray, residuals: np.ndarray) -> tuple[np.ndarray,
 def predict(emulator: Emulator, x_new: jax.Array) -> tuple[jax.Array, jax.Array]:
     """Latent mean and variance (no simulator noise) at ``x_new (n, d)``: two arrays (n, q).
 
-    Differentiable and jittable (uses the stored Cholesky factors, O(M^2) per point).
+    The variance is the GP's times ``emulator.var_scale`` when set.  Differentiable and
+    jittable (uses the stored Cholesky factors, O(M^2) per point).
     """
 
     def one(log_amp, log_ls, alpha, chol):
@@ -338,7 +345,76 @@ def predict(emulator: Emulator, x_new: jax.Array) -> tuple[jax.Array, jax.Array]
         return mean, jnp.maximum(var, 1e-12)
 
     mean, var = jax.vmap(one)(emulator.log_amp, emulator.log_ls, emulator.alpha, emulator.chol)
+    if emulator.var_scale is not None:
+        var = var * emulator.var_scale
     return mean.T, var.T
+
+
+#: The range of :func:`variance_scale_mle`'s factor: the GP's variance is never shrunk, and a
+#: factor beyond 1000 says the GP's variance carries no information about its error.
+VARIANCE_SCALE_BOUNDS = (1.0, 1000.0)
+
+
+def variance_scale_mle(
+    residuals: np.ndarray, emulator_var: np.ndarray, noise_var: np.ndarray
+) -> tuple[float, float, int]:
+    """The factor ``c`` on the emulator's variance that best explains held-out errors.
+
+    Maximum likelihood of ``r_ij ~ N(0, c v_ij + n_ij)``, independent, with ``r`` a held-out
+    run's output minus the emulator's mean, ``v`` the GP's latent variance there (unscaled) and
+    ``n`` the simulator's noise variance; ``c`` in :data:`VARIANCE_SCALE_BOUNDS`.  A GP with
+    type-II maximum-likelihood hyper-parameters tends to understate its error away from its
+    design (where a validation's targeted runs sit), and this measures by how much.  Estimate
+    it from runs other than those that will judge the scaled emulator.
+
+    Parameters
+    ----------
+    residuals, emulator_var, noise_var : array, shape (n, q)
+        Non-finite entries (failed runs, outputs left out) are skipped.
+
+    Returns
+    -------
+    factor : float
+        1 when no finite entry is left, or when the errors are no larger than the GP says.
+    se_log : float
+        Standard error of ``log c`` from the observed information (inf at the bounds, where
+        the likelihood's maximum is not interior, or with no data).
+    num : int
+        Entries used.
+
+    Raises
+    ------
+    ValueError
+        Arrays of different shapes, or a negative variance.
+    """
+    r, v, n = (np.asarray(a, np.float64) for a in (residuals, emulator_var, noise_var))
+    if not r.shape == v.shape == n.shape:
+        raise ValueError(f"variance_scale_mle: shapes differ: {r.shape}, {v.shape}, {n.shape}")
+    keep = np.isfinite(r) & np.isfinite(v) & np.isfinite(n)
+    r, v, n = r[keep], v[keep], n[keep]
+    if np.any(v < 0) or np.any(n < 0):
+        raise ValueError("variance_scale_mle: variances must be non-negative")
+    if r.size == 0 or not np.any(v > 0):
+        return 1.0, float("inf"), int(r.size)
+    lo, hi = np.log(VARIANCE_SCALE_BOUNDS[0]), np.log(VARIANCE_SCALE_BOUNDS[1])
+
+    def nll(log_c: float) -> float:
+        s = np.exp(log_c) * v + n
+        return 0.5 * float(np.sum(np.log(s) + r * r / s))
+
+    best = scipy.optimize.minimize_scalar(nll, bounds=(lo, hi), method="bounded", options={"xatol": 1e-6})
+    log_c = float(np.clip(best.x, lo, hi))
+    # The bounded search stops within its tolerance of an end: take the end when it is no worse.
+    for end in (lo, hi):
+        if nll(end) <= nll(log_c):
+            log_c = end
+    # Observed information of log c: d2/dl2 of the nll at the optimum (l = log c, a = c v).
+    a = np.exp(log_c) * v
+    s = a + n
+    info = float(np.sum(0.5 * a / s - 0.5 * (a / s) ** 2 - 0.5 * a * r * r / s**2 + a * a * r * r / s**3))
+    interior = lo < log_c < hi
+    se = float(1.0 / np.sqrt(info)) if interior and info > 0 else float("inf")
+    return float(np.exp(log_c)), se, int(r.size)
 
 
 @jax.jit

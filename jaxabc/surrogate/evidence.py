@@ -84,7 +84,8 @@ def likelihood_from_state(
     refit is the run's own last fit (:func:`._fit.fit_likelihood`, a deterministic
     optimisation on the same rows); ``drop`` (bool, shape (M,)) leaves rows out (the jackknife).
     A measurement error and a discrepancy in ``settings`` (``observation_error``,
-    ``discrepancy``) enter the model as in the run.
+    ``discrepancy``) enter the model as in the run, and so does the state's factor on the
+    emulator's variance (``variance_scale``, 1 where the state has none).
     """
     observation_error, discrepancy = measured_data_from_settings(settings)
     transform, _, model, _ = fit_likelihood(
@@ -99,6 +100,7 @@ def likelihood_from_state(
         observation_error=observation_error,
         discrepancy=discrepancy,
         noise_model=str(settings.get("noise_model", "homoscedastic")),
+        variance_scale=float(getattr(state, "variance_scale", 1.0)),
     )
     return transform, model
 
