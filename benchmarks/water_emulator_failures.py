@@ -20,6 +20,11 @@ errors), its design rows' leave-one-out standardised errors as the reference, an
 errors split by how the run was placed (random or targeted, where the emulator is least sure) and
 by the emulator-to-noise variance ratio at the run, in :data:`RATIO_QUANTILES` bins.
 
+Last, the library's calibrated emulator variance (``emulator_variance="calibrated"``): the
+factor each emulator's held-out runs measure, judged on runs it was not estimated from
+(:func:`calibrated_errors`), and each repeat's evidences, probabilities and verdict with the
+GP's variance and with that factor (:func:`calibrated_verdicts`).
+
 Usage::
 
     python -m benchmarks.water_emulator_failures [--quick]
@@ -95,9 +100,11 @@ def refit_errors(meta: dict, arrays: dict[str, np.ndarray], observed: np.ndarray
     """Refit a saved surrogate's emulator as at its last validation: the last ``num_holdout``
     held-out rows held out, every other successful row in the design.
 
-    Returns ``loo`` (design rows x active outputs: leave-one-out errors over their predictive sd,
-    noise included), ``held_out`` (held-out rows x active outputs), ``targeted`` (bool, held-out
-    rows) and ``ratio`` (held-out rows x active outputs: emulator variance over noise variance).
+    Returns ``residual``, ``emulator_var`` and ``noise_var`` (held-out rows x active outputs:
+    output minus the emulator's mean, the GP's and the noise's variance there), ``loo`` (design
+    rows x active outputs: leave-one-out errors over their predictive sd, noise included),
+    ``held_out`` (held-out rows x active outputs), ``targeted`` (bool, held-out rows) and
+    ``ratio`` (held-out rows x active outputs: emulator variance over noise variance).
     """
     import jax
     import jax.numpy as jnp
@@ -131,6 +138,9 @@ def refit_errors(meta: dict, arrays: dict[str, np.ndarray], observed: np.ndarray
         noise_var = np.asarray(emulator.noise_sd(emu, x), np.float64) ** 2
     targeted = np.isin(rows, last[len(last) - num_targeted(len(last)) :])
     return {
+        "residual": (z_all[rows] - mean)[:, on],
+        "emulator_var": var[:, on],
+        "noise_var": noise_var[:, on],
         "loo": np.asarray(loo).T[mask][:, on],
         "held_out": ((z_all[rows] - mean) / np.sqrt(var + noise_var))[:, on],
         "targeted": targeted,
@@ -139,11 +149,127 @@ def refit_errors(meta: dict, arrays: dict[str, np.ndarray], observed: np.ndarray
     }
 
 
+def calibrated_errors(refits: list[dict[str, np.ndarray]]) -> dict[str, Any]:
+    """The library's calibrated emulator variance (:func:`jaxabc.surrogate.emulator.variance_scale_mle`)
+    on the refitted emulators, judged on runs it was not estimated from.
+
+    Each emulator's factor from all its held-out runs (what ``emulator_variance="calibrated"``
+    would take after that failed validation), and leave-one-run-out errors: each held-out run
+    standardised with the factor estimated from the emulator's other held-out runs.  With those
+    errors, the marginal and targeted checks are rerun (the held-out runs of an emulator judged
+    each by a factor it did not inform, as a fresh validation would be).
+    """
+    factors, honest, marginal, targeted, either = [], [], 0, 0, 0
+    honest_targeted = []
+    for r in refits:
+        res, v, n = r["residual"], r["emulator_var"], r["noise_var"]
+        factors.append(emulator.variance_scale_mle(res, v, n)[0])
+        e = np.full(res.shape, np.nan)
+        for i in range(len(res)):
+            others = np.arange(len(res)) != i
+            c = emulator.variance_scale_mle(res[others], v[others], n[others])[0]
+            e[i] = res[i] / np.sqrt(c * v[i] + n[i])
+        honest.append(e.ravel())
+        honest_targeted.append(e[r["targeted"]].ravel())
+        ok = np.isfinite(e)
+        cov_min, msq_max = holdout_bounds(int(ok.sum()))
+        m_fail = not (np.mean(np.abs(e[ok]) <= 1.96) >= cov_min and np.mean(e[ok] ** 2) <= msq_max)
+        t_fail = not local_check(e[r["targeted"]]).passed
+        marginal, targeted, either = marginal + m_fail, targeted + t_fail, either + (m_fail or t_fail)
+    f = np.asarray(factors)
+    return {
+        "factor_quantiles": dict(
+            zip(("0", "0.25", "0.5", "0.75", "1"), np.quantile(f, [0, 0.25, 0.5, 0.75, 1]).tolist(), strict=True)
+        ),
+        "factor_at_one": int(np.sum(f == 1.0)),
+        "factors": f.tolist(),
+        "leave_one_run_out": {
+            "all": _beyond(np.concatenate(honest)),
+            "targeted": _beyond(np.concatenate(honest_targeted)),
+            "marginal_failed": int(marginal),
+            "targeted_failed": int(targeted),
+            "either_failed": int(either),
+            "emulators": len(refits),
+        },
+    }
+
+
+def calibrated_verdicts(cases: list[dict[str, Any]], seed: int = 0) -> list[dict[str, Any]]:
+    """What a calibrated emulator variance does to each repeat's model probabilities.
+
+    Per repeat and model, the emulator refitted on every run (design and held-out, as after a
+    failed validation) twice: with the GP's variance and with the factor its held-out runs
+    measure (:func:`calibrated_errors`).  For each, the library's evidence
+    (:func:`jaxabc.surrogate.evidence.evidence_from_state`, the same importance points and
+    jackknife) and the posterior mean and sd of theta (importance weights on those points).
+    Then the probabilities, their intervals and the verdict rule of the model choice
+    (:func:`jaxabc.model_choice.result.interval_leader`) for both.
+    """
+    import jax
+
+    from jaxabc.model_choice import interval_leader, probabilities_with_errors, probability_bounds
+    from jaxabc.surrogate.evidence import _log_density, _points, evidence_from_state
+
+    out = []
+    for case in cases:
+        rows: dict[str, list] = {"gp": [], "calibrated": []}
+        moments: dict[str, list] = {"gp": [], "calibrated": []}
+        for m in case["models"]:
+            for label, c in (("gp", 1.0), ("calibrated", m["factor"])):
+                state = _State(m["theta"], m["summaries"], m["role"], m["ok"], c)
+                with jax.enable_x64(True):
+                    transform, model = likelihood_from_state(state, m["low"], m["high"], m["observed"], m["settings"])
+                    ev = evidence_from_state(
+                        state,
+                        m["low"],
+                        m["high"],
+                        m["observed"],
+                        m["settings"],
+                        np.random.default_rng(seed),
+                        fitted=(transform, model),
+                    )
+                    pts = _points(model, np.random.default_rng(seed + 1), 1 << 14)
+                    lw = _log_density(model, pts.x) - pts.log_q
+                w = np.exp(lw - np.max(lw))
+                w /= w.sum()
+                x = m["low"] + pts.x[:, :2] * (m["high"] - m["low"])
+                mean = w @ x
+                rows[label].append((ev.log_z, ev.log_z_se))
+                moments[label].append((mean, np.sqrt(w @ (x - mean) ** 2)))
+        prior = np.asarray(case["model_prior"], np.float64)
+        entry: dict[str, Any] = {"result": case["result"], "factors": [m["factor"] for m in case["models"]]}
+        for label in ("gp", "calibrated"):
+            log_z, se = (np.array(a) for a in zip(*rows[label], strict=True))
+            p, _ = probabilities_with_errors(log_z, np.zeros_like(log_z), prior)
+            iv = probability_bounds(log_z, se, prior)
+            leader = interval_leader(p, iv)
+            entry[label] = {
+                "log_evidence": log_z.tolist(),
+                "log_evidence_se": se.tolist(),
+                "probabilities": p.tolist(),
+                "intervals": iv.tolist(),
+                "preferred": None if leader is None else case["names"][leader],
+                "most_probable": case["names"][int(np.argmax(p))],
+                "posterior_mean": [mu.tolist() for mu, _ in moments[label]],
+                "posterior_sd": [sd.tolist() for _, sd in moments[label]],
+            }
+        (m0, s0), (m1, s1) = (
+            (np.array([a for a, _ in moments[k]]), np.array([b for _, b in moments[k]])) for k in ("gp", "calibrated")
+        )
+        entry["mean_shift_in_sd"] = ((m1 - m0) / s0).tolist()
+        entry["sd_ratio"] = (s1 / s0).tolist()
+        out.append(entry)
+    return out
+
+
 class _State:
     """The fields of a surrogate state that :func:`jaxabc.surrogate.evidence.likelihood_from_state` reads."""
 
-    def __init__(self, thetas: np.ndarray, summaries: np.ndarray, role: np.ndarray, ok: np.ndarray) -> None:
+    def __init__(
+        self, thetas: np.ndarray, summaries: np.ndarray, role: np.ndarray, ok: np.ndarray, variance_scale: float = 1.0
+    ) -> None:
         self.thetas, self.summaries, self.role, self.ok = thetas, summaries, role, ok
+        self.variance_scale = variance_scale
 
 
 def _beyond(z: np.ndarray) -> dict[str, Any]:
@@ -276,8 +402,9 @@ def _tails(errors: np.ndarray, fitted: list[str], draws: int = 20000) -> dict[st
     }
 
 
-def analyse(repeats=REPEATS) -> dict[str, Any]:
-    """The payload: per repeat and model, and per model pooled over the repeats."""
+def analyse(repeats=REPEATS, max_verdicts: int | None = None) -> dict[str, Any]:
+    """The payload: per repeat and model, and per model pooled over the repeats; the calibrated
+    verdicts of the first ``max_verdicts`` repeats (all: None)."""
     saved = [(name, what, d) for name, what in repeats if (d := _load_repeat(name)) is not None]
     if not saved:
         raise FileNotFoundError("no saved model-choice repeat: run the registry's water_model_choice first")
@@ -296,9 +423,11 @@ def analyse(repeats=REPEATS) -> dict[str, Any]:
     refits: list[dict[str, np.ndarray]] = []
     saved_held: list[np.ndarray] = []
     inputs = []
+    cases: list[dict[str, Any]] = []
     for name, what, d in saved:
         folder = ROOT / d["saved_result"]
         rows = []
+        case_models = []
         for m in models:
             meta, arr = _posterior(folder, m)
             inputs.append(folder / f"posterior_{m.replace('/', '_')}.npz")
@@ -315,6 +444,21 @@ def analyse(repeats=REPEATS) -> dict[str, Any]:
             targeted = np.isin(checked, holdout[len(holdout) - num_targeted(len(holdout)) :])
             pooled_errors.append(errors[np.all(np.isfinite(errors), axis=1)])
             refits.append(refit_errors(meta, arr, observed))
+            n_rec = len(theta)
+            role_all = np.asarray(diag["design_role"])[:n_rec]
+            case_models.append(
+                {
+                    "theta": theta,
+                    "summaries": z,
+                    "role": np.where(role_all >= ROLE_HOLDOUT, ROLE_DESIGN, role_all),
+                    "ok": ok[:n_rec] & np.all(np.isfinite(z), axis=1),
+                    "low": np.asarray(meta["prior"]["low"][:2], np.float64),
+                    "high": np.asarray(meta["prior"]["high"][:2], np.float64),
+                    "observed": observed,
+                    "settings": meta["settings"],
+                    "refit": len(refits) - 1,
+                }
+            )
             saved_held.append(
                 np.asarray(diag["holdout_errors"], np.float64)[: len(refits[-1]["targeted"])][:, refits[-1]["active"]]
             )
@@ -342,6 +486,8 @@ def analyse(repeats=REPEATS) -> dict[str, Any]:
                 }
             )
         per_run.append({"result": name, "what": what, "models": rows})
+        mc = d["model_choice"]
+        cases.append({"result": name, "names": mc["names"], "model_prior": mc["model_prior"], "models": case_models})
 
     boundary = {}
     for m in models:
@@ -438,6 +584,11 @@ def analyse(repeats=REPEATS) -> dict[str, Any]:
     summary["heldout_tails"] = _tails(np.concatenate(pooled_errors), fitted)
     summary["tails_by_placement"] = placement_tails(refits, saved_held)
     summary["variance_inflation"] = inflation_checks(refits)
+    summary["calibrated_variance"] = calibration = calibrated_errors(refits)
+    for case in cases:
+        for m in case["models"]:
+            m["factor"] = calibration["factors"][m.pop("refit")]
+    summary["calibrated_verdicts"] = calibrated_verdicts(cases[:max_verdicts])
     return {
         "fitted": fitted,
         "stated_sd": sd.tolist(),
