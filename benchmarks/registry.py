@@ -705,7 +705,8 @@ REGISTRY: tuple[Entry, ...] = (
         after=tuple(name for name, _ in REPEATS),
         note="why the model choice's emulators fail validation: checks failed, worst-predicted summaries, the "
         "quick liquid's network break, the held-out errors' tails and where they sit (each emulator refitted "
-        "on its saved design), over the saved repeats (no GROMACS)",
+        "on its saved design), the library's calibrated emulator variance and what it does to each repeat's "
+        "verdict, over the saved repeats (no GROMACS)",
     ),
     Entry(
         "water_box_sensitivity",

@@ -607,9 +607,11 @@ def analyse(repeats=REPEATS, max_verdicts: int | None = None) -> dict[str, Any]:
 
 def main(argv: list[str] | None = None) -> dict[str, Any]:
     parser = argparse.ArgumentParser(description=(__doc__ or "").split("\n\n")[0])
-    parser.add_argument("--quick", action="store_true", help="write the quick JSON (the same analysis)")
+    parser.add_argument(
+        "--quick", action="store_true", help="write the quick JSON (the same analysis, verdicts of 2 repeats)"
+    )
     args = parser.parse_args(argv)
-    payload = analyse()
+    payload = analyse(max_verdicts=2 if args.quick else None)
     inputs = payload.pop("_inputs")
     payload = {"machine": machine(), **payload}
     out = write_result("water_emulator_failures", payload, quick=args.quick, inputs=inputs)
