@@ -166,6 +166,7 @@ REPEATS = (
     ("water_model_choice_seed1_budget120", "seed 1, twice the budget"),
     ("water_model_choice_seed3_budget120", "seed 3, twice the budget"),
     ("water_model_choice_sigma_x2", "seed 0, every sigma box doubled"),
+    ("water_model_choice_seed3_budget120_calibrated", "seed 3, twice the budget, calibrated emulator variance"),
 )
 
 
@@ -685,6 +686,16 @@ REGISTRY: tuple[Entry, ...] = (
         6000.0,
         "the model choice of seed 3 with twice the budget: at 60 runs per model three of five emulators failed "
         "validation in seeds 1, 2 and 3, at 120 every one validated in seed 1",
+    ),
+    _model_choice_variant(
+        "water_model_choice_seed3_budget120_calibrated",
+        "xray_quick_budget120_seed3_calibrated",
+        "--prior-width wide --model-prior TIP3P=0.95,1.08,0.4,2.5 --discrepancy --seed 3 --budget-per-model 120 "
+        "--emulator-variance calibrated",
+        6000.0,
+        "the model choice of seed 3 with twice the budget and the emulator's variance calibrated from its failed "
+        "validations (emulator_variance='calibrated': the design keeps the runs of a second validation, which "
+        "judges the scaled emulator): with the GP's own variance three of five emulators failed validation",
     ),
     _model_choice_variant(
         "water_model_choice_sigma_x2",

@@ -130,6 +130,12 @@ def parse_arguments(argv=None) -> argparse.Namespace:
         action="store_true",
         help="infer a model-discrepancy sd per group of summaries (g_OO heights, g_OO lengths, D, hvap)",
     )
+    parser.add_argument(
+        "--emulator-variance",
+        default="gp",
+        help="surrogate: the emulator's variance, 'gp', 'calibrated' (from failed validations' held-out runs, "
+        "with the budget of a second validation kept) or a factor >= 1 (jaxabc.run(emulator_variance=...))",
+    )
     parser.add_argument("--tiny", action="store_true", help="smoke test: tiny budgets, 2 ps runs, quick JSON")
     parser.add_argument("--no-progress", action="store_true")
     args = parser.parse_args(argv)
@@ -145,7 +151,10 @@ def parse_arguments(argv=None) -> argparse.Namespace:
         + "".join(f"_{slug}{width.replace(',', '-')}" for slug, (width, _) in sorted(args.model_prior.items()))
         + ("_discrepancy" if args.discrepancy else "")
         + ("" if args.seed == 0 else f"_seed{args.seed}")
+        + ("" if args.emulator_variance == "gp" else f"_emulator_variance_{args.emulator_variance}")
     )
+    if args.emulator_variance not in ("gp", "calibrated"):
+        args.emulator_variance = float(args.emulator_variance)
     # Simulations and checkpoints are a cache (runs/ is not tracked); the posteriors a page shows
     # are results.
     args.cache_dir = args.cache_dir or RUNS / "cache" / "water_model_choice" / variant
@@ -331,6 +340,8 @@ def run_surrogate(args, data, models: list[Model], executor):
         simulator_id=simulator_id(args),
         progress=not args.no_progress,
         batch_size=2 * args.workers,
+        # Only when asked for: the default's checkpoints keep their fingerprints.
+        **({} if args.emulator_variance == "gp" else {"emulator_variance": args.emulator_variance}),
         **options,
     )
 
@@ -530,7 +541,8 @@ def main(argv=None) -> None:
                 m.name: args.model_prior[m.slug][0] for m in MODELS.values() if m.slug in args.model_prior
             },
             "discrepancy": None if "discrepancy" not in noise_kwargs else noise_kwargs["discrepancy"].describe(),
-        },
+        }
+        | ({} if args.emulator_variance == "gp" else {"emulator_variance": args.emulator_variance}),
         "summaries": {
             "names": list(data.names),
             "observed": data.observed.tolist(),

@@ -145,18 +145,22 @@ def test_the_factor_is_recorded_only_when_asked_for_and_a_fixed_one_is_used() ->
     assert not np.array_equal(plain.particles, fixed.particles)
 
 
-@pytest.mark.parametrize("budget_left", [True, False])
-def test_a_failed_validation_calibrates_the_factor_only_when_design_goes_on(monkeypatch, budget_left) -> None:
+@pytest.mark.parametrize("left", [60, 15, 14, 0])
+def test_a_failed_validation_calibrates_the_factor_only_when_design_goes_on(monkeypatch, left) -> None:
     from jaxabc.surrogate import algorithm
-    from jaxabc.surrogate._state import PHASE_VALIDATING, empty_state
+    from jaxabc.surrogate._state import PHASE_VALIDATING, budget_allows_batch, empty_state
 
     algo = algorithm.build(PRIOR, 1000, observed=np.zeros(2), max_simulations=100, emulator_variance="calibrated")
     settings = algo.update.args[0]
+    assert settings.num_holdout == 15 and settings.batch_size == 10
+    fresh = empty_state(settings)
+    # Before any validation the design keeps the runs of two: a batch and 2 x 15 held out.
+    assert budget_allows_batch(settings, fresh._replace(count=np.int64(60)))
+    assert not budget_allows_batch(settings, fresh._replace(count=np.int64(61)))
     rng = np.random.default_rng(3)
     r, v, n = held_out(rng, 6.0, (100, 2))
-    state = empty_state(settings)._replace(
-        count=np.int64(40 if budget_left else 100), phase=np.int64(PHASE_VALIDATING), lack_of_fit_ok=np.bool_(True)
-    )
+    state = fresh._replace(count=np.int64(100 - left), phase=np.int64(PHASE_VALIDATING), lack_of_fit_ok=np.bool_(True))
+    budget_left = left >= settings.num_holdout  # a second validation is paid for
 
     def failed_check(settings, key, state):
         return state._replace(judged_residual=r, judged_emulator_var=v, judged_noise_var=n), False
@@ -185,8 +189,7 @@ def test_calibrated_variance_on_a_step() -> None:
             CASES["step"][0],
             prior,
             np.array([3.0]),
-            max_simulations=300,
-            tolerance=0.1,
+            max_simulations=200,
             seed=0,
             num_particles=1000,
             emulator_variance="calibrated",

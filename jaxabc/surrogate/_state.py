@@ -22,6 +22,8 @@ __all__ = [
     "SurrogateState",
     "add_runs",
     "budget_allows_batch",
+    "budget_allows_validation",
+    "calibration_pending",
     "empty_state",
     "numpy_seed",
     "pending_batch",
@@ -253,8 +255,23 @@ def pending_batch(settings: SurrogateSettings, thetas: np.ndarray) -> np.ndarray
 
 
 def budget_allows_batch(settings: SurrogateSettings, state: SurrogateState) -> bool:
-    """Whether the simulations left pay for another design batch and a validation after it."""
-    return settings.max_simulations - int(state.count) >= settings.batch_size + settings.num_holdout
+    """Whether the simulations left pay for another design batch and a validation after it.
+
+    With ``emulator_variance="calibrated"`` and no validation yet, two validations: a first one
+    whose runs measure the emulator's error, and a second that judges the calibrated emulator.
+    """
+    validations = 2 if calibration_pending(settings, state) else 1
+    return settings.max_simulations - int(state.count) >= settings.batch_size + validations * settings.num_holdout
+
+
+def calibration_pending(settings: SurrogateSettings, state: SurrogateState) -> bool:
+    """Whether a calibrated emulator variance has no judged run yet to be estimated from."""
+    return settings.emulator_variance == "calibrated" and not np.any(np.isfinite(state.judged_residual))
+
+
+def budget_allows_validation(settings: SurrogateSettings, state: SurrogateState) -> bool:
+    """Whether the simulations left pay for one more validation."""
+    return settings.max_simulations - int(state.count) >= settings.num_holdout
 
 
 def restore_state(settings: SurrogateSettings, flat: dict[str, np.ndarray]) -> SurrogateState:

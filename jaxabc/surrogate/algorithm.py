@@ -41,6 +41,7 @@ from jaxabc.surrogate._state import (
     SurrogateState,
     add_runs,
     budget_allows_batch,
+    budget_allows_validation,
     empty_state,
     numpy_seed,
     restore_state,
@@ -190,12 +191,13 @@ def build(
         The emulator's predictive variance, wherever it is used (likelihood, design, targeted
         runs, validation, evidence): the GP's own (``"gp"``); the GP's times a factor ``c``
         estimated by maximum likelihood from the held-out runs of the validations that failed
-        so far (``"calibrated"``: 1 until one fails; each later validation judges the scaled
-        emulator on fresh runs; :func:`.emulator.variance_scale_mle`); or times a fixed
-        factor (a float, at least 1).  A GP fitted by type-II maximum likelihood tends to
-        understate its error away from its design, which fails the targeted check; a
-        calibrated factor widens its error bars by what the failed runs measured.  The factor
-        in use is reported (``emulator_variance_scale`` in the diagnostics).
+        so far (``"calibrated"``: 1 until one fails; the design keeps the runs of a second
+        validation, which judges the scaled emulator on fresh runs;
+        :func:`.emulator.variance_scale_mle`); or times a fixed factor (a float, at least 1).
+        A GP fitted by type-II maximum likelihood tends to understate its error away from its
+        design, which fails the targeted check; a calibrated factor widens its error bars by
+        what the failed runs measured.  The factor in use is reported
+        (``emulator_variance_scale`` in the diagnostics).
 
     Returns
     -------
@@ -303,11 +305,11 @@ def advance(settings: SurrogateSettings, key: jax.Array, state: SurrogateState) 
 def validate(settings: SurrogateSettings, key: jax.Array, state: SurrogateState) -> SurrogateState:
     """Check the held-out runs (:func:`._validation.check_holdout`) and decide.
 
-    Pass: done, validated.  Fail: the held-out runs join the design (with
-    ``emulator_variance="calibrated"`` and design resuming, the factor on the emulator's
-    variance is re-estimated from every run judged so far), and design resumes while
-    the budget pays another batch and validation and the lack-of-fit test passed (more design
-    may cure an under-resolved emulator, not a GP that cannot represent the simulator);
+    Pass: done, validated.  Fail: the held-out runs join the design, and design resumes while
+    the budget pays another batch and validation (with ``emulator_variance="calibrated"``:
+    another validation, whose runs the design kept; the factor on the emulator's variance is
+    then re-estimated from every run judged so far) and the lack-of-fit test passed (more
+    design may cure an under-resolved emulator, not a GP that cannot represent the simulator);
     otherwise the run stops unvalidated with a RuntimeWarning.
 
     Raises
@@ -319,8 +321,12 @@ def validate(settings: SurrogateSettings, key: jax.Array, state: SurrogateState)
     if passed:
         return state._replace(validated=np.bool_(True), phase=np.int64(PHASE_DONE), num_pending=np.int64(0))
     state = demote_holdout(state)
-    if budget_allows_batch(settings, state) and bool(state.lack_of_fit_ok):
-        if settings.emulator_variance == "calibrated":
+    calibrated = settings.emulator_variance == "calibrated"
+    # A calibrated run kept the runs of a second validation (budget_allows_batch); design_step
+    # starts it at once when no batch is left to pay for.
+    goes_on = budget_allows_validation(settings, state) if calibrated else budget_allows_batch(settings, state)
+    if goes_on and bool(state.lack_of_fit_ok):
+        if calibrated:
             # From every run judged so far, each against the emulator fitted without it; the
             # next validation judges the scaled emulator on fresh runs.
             factor, _, _ = emulator.variance_scale_mle(
