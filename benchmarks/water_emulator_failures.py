@@ -200,8 +200,9 @@ def calibrated_verdicts(cases: list[dict[str, Any]], seed: int = 0) -> list[dict
     Per repeat and model, the emulator refitted on every run (design and held-out, as after a
     failed validation) twice: with the GP's variance and with the factor its held-out runs
     measure (:func:`calibrated_errors`).  For each, the library's evidence
-    (:func:`jaxabc.surrogate.evidence.evidence_from_state`, the same importance points and
-    jackknife) and the posterior mean and sd of theta (importance weights on those points).
+    (:func:`jaxabc.surrogate.evidence.evidence_from_state`, the same importance points; its
+    standard error the importance part computed here and the design part the run's own
+    jackknife, ``jackknife_se``) and the posterior mean and sd of theta (importance weights).
     Then the probabilities, their intervals and the verdict rule of the model choice
     (:func:`jaxabc.model_choice.result.interval_leader`) for both.
     """
@@ -219,6 +220,8 @@ def calibrated_verdicts(cases: list[dict[str, Any]], seed: int = 0) -> list[dict
                 state = _State(m["theta"], m["summaries"], m["role"], m["ok"], c)
                 with jax.enable_x64(True):
                     transform, model = likelihood_from_state(state, m["low"], m["high"], m["observed"], m["settings"])
+                    # No jackknife here (9 refits per evidence, 80 evidences): the design's part of
+                    # the error is the run's own jackknife, on nearly the same rows.
                     ev = evidence_from_state(
                         state,
                         m["low"],
@@ -226,6 +229,7 @@ def calibrated_verdicts(cases: list[dict[str, Any]], seed: int = 0) -> list[dict
                         m["observed"],
                         m["settings"],
                         np.random.default_rng(seed),
+                        num_groups=0,
                         fitted=(transform, model),
                     )
                     pts = _points(model, np.random.default_rng(seed + 1), 1 << 14)
@@ -234,7 +238,7 @@ def calibrated_verdicts(cases: list[dict[str, Any]], seed: int = 0) -> list[dict
                 w /= w.sum()
                 x = m["low"] + pts.x[:, :2] * (m["high"] - m["low"])
                 mean = w @ x
-                rows[label].append((ev.log_z, ev.log_z_se))
+                rows[label].append((ev.log_z, float(np.hypot(ev.importance_se, m["jackknife_se"]))))
                 moments[label].append((mean, np.sqrt(w @ (x - mean) ** 2)))
         prior = np.asarray(case["model_prior"], np.float64)
         entry: dict[str, Any] = {"result": case["result"], "factors": [m["factor"] for m in case["models"]]}
@@ -456,6 +460,7 @@ def analyse(repeats=REPEATS, max_verdicts: int | None = None) -> dict[str, Any]:
                     "high": np.asarray(meta["prior"]["high"][:2], np.float64),
                     "observed": observed,
                     "settings": meta["settings"],
+                    "jackknife_se": float(d["per_model"][m]["log_evidence_jackknife_se"]),
                     "refit": len(refits) - 1,
                 }
             )

@@ -405,8 +405,8 @@ def _calibrated(
     out += [
         "What the calibrated variance does to the verdict.  Each repeat's emulators refitted on all their "
         "runs (design and held-out, as after a failed validation), once with the GP's variance and once "
-        "with the factor their held-out runs measure; the library's evidence (same importance points and "
-        "jackknife) and the model choice's rule on both.  "
+        "with the factor their held-out runs measure; the library's evidence (same importance points; the "
+        "design's part of its error the run's own jackknife) and the model choice's rule on both.  "
         f"The verdict is the same in {same} of {n} repeats; the most probable model changes in "
         f"{changed_top} of {n}; posterior means of the force-field parameters move by at most "
         f"{max(shifts):.2f} posterior sd.  Not a rerun: the designs are those the GP's variance chose.\n",
