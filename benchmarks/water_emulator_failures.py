@@ -61,6 +61,8 @@ SIGMA_BINS = (0.0, 0.985, 1.0, 1.01, 1.03, np.inf)
 MISS_SD = 3.0
 #: Quantiles of the emulator-to-noise variance ratio that bin the held-out errors.
 RATIO_QUANTILES = (0.0, 0.25, 0.5, 0.75, 0.9, 1.0)
+#: Importance-sampling points per evidence of :func:`calibrated_verdicts`.
+VERDICT_SAMPLES = 1 << 13
 #: Factors on the emulator's variance (not the noise's) for :func:`inflation_checks`.
 INFLATION = (1.0, 1.5, 2.0, 3.0, 4.0, 8.0)
 
@@ -200,16 +202,17 @@ def calibrated_verdicts(cases: list[dict[str, Any]], seed: int = 0) -> list[dict
     Per repeat and model, the emulator refitted on every run (design and held-out, as after a
     failed validation) twice: with the GP's variance and with the factor its held-out runs
     measure (:func:`calibrated_errors`).  For each, the library's evidence
-    (:func:`jaxabc.surrogate.evidence.evidence_from_state`, the same importance points; its
-    standard error the importance part computed here and the design part the run's own
-    jackknife, ``jackknife_se``) and the posterior mean and sd of theta (importance weights).
+    (:mod:`jaxabc.surrogate.evidence`'s importance-sampling estimate on
+    :data:`VERDICT_SAMPLES` points, its standard error that estimate's and the run's own
+    jackknife, ``jackknife_se``, in quadrature) and the posterior mean and sd of theta
+    (importance weights on the same points).
     Then the probabilities, their intervals and the verdict rule of the model choice
     (:func:`jaxabc.model_choice.result.interval_leader`) for both.
     """
     import jax
 
     from jaxabc.model_choice import interval_leader, probabilities_with_errors, probability_bounds
-    from jaxabc.surrogate.evidence import _log_density, _points, evidence_from_state
+    from jaxabc.surrogate.evidence import _estimate, _log_density, _points
 
     out = []
     for case in cases:
@@ -220,25 +223,17 @@ def calibrated_verdicts(cases: list[dict[str, Any]], seed: int = 0) -> list[dict
                 state = _State(m["theta"], m["summaries"], m["role"], m["ok"], c)
                 with jax.enable_x64(True):
                     transform, model = likelihood_from_state(state, m["low"], m["high"], m["observed"], m["settings"])
-                    # No jackknife here (9 refits per evidence, 80 evidences): the design's part of
-                    # the error is the run's own jackknife, on nearly the same rows.
-                    ev = evidence_from_state(
-                        state,
-                        m["low"],
-                        m["high"],
-                        m["observed"],
-                        m["settings"],
-                        np.random.default_rng(seed),
-                        num_groups=0,
-                        fitted=(transform, model),
-                    )
-                    pts = _points(model, np.random.default_rng(seed + 1), 1 << 14)
+                    # The library's evidence estimate without its jackknife (9 refits per evidence,
+                    # 80 evidences): the design's part of the error is the run's own jackknife, on
+                    # nearly the same rows.  The same importance points give the posterior moments.
+                    pts = _points(model, np.random.default_rng(seed), VERDICT_SAMPLES)
+                    log_z, importance_se = _estimate(model, transform, pts)
                     lw = _log_density(model, pts.x) - pts.log_q
                 w = np.exp(lw - np.max(lw))
                 w /= w.sum()
                 x = m["low"] + pts.x[:, :2] * (m["high"] - m["low"])
                 mean = w @ x
-                rows[label].append((ev.log_z, float(np.hypot(ev.importance_se, m["jackknife_se"]))))
+                rows[label].append((log_z, float(np.hypot(importance_se, m["jackknife_se"]))))
                 moments[label].append((mean, np.sqrt(w @ (x - mean) ** 2)))
         prior = np.asarray(case["model_prior"], np.float64)
         entry: dict[str, Any] = {"result": case["result"], "factors": [m["factor"] for m in case["models"]]}
@@ -613,10 +608,10 @@ def analyse(repeats=REPEATS, max_verdicts: int | None = None) -> dict[str, Any]:
 def main(argv: list[str] | None = None) -> dict[str, Any]:
     parser = argparse.ArgumentParser(description=(__doc__ or "").split("\n\n")[0])
     parser.add_argument(
-        "--quick", action="store_true", help="write the quick JSON (the same analysis, verdicts of 2 repeats)"
+        "--quick", action="store_true", help="write the quick JSON (the same analysis, one repeat's verdicts)"
     )
     args = parser.parse_args(argv)
-    payload = analyse(max_verdicts=2 if args.quick else None)
+    payload = analyse(max_verdicts=1 if args.quick else None)
     inputs = payload.pop("_inputs")
     payload = {"machine": machine(), **payload}
     out = write_result("water_emulator_failures", payload, quick=args.quick, inputs=inputs)
