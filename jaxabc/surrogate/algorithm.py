@@ -188,16 +188,10 @@ def build(
         profile of each output whose F-test rejects a constant variance (level 1e-3 over the
         outputs) at each refit.
     emulator_variance : "gp", "calibrated" or float
-        The emulator's predictive variance, wherever it is used (likelihood, design, targeted
-        runs, validation, evidence): the GP's own (``"gp"``); the GP's times a factor ``c``
-        estimated by maximum likelihood from the held-out runs of the validations that failed
-        so far (``"calibrated"``: 1 until one fails; the design keeps the runs of a second
-        validation, which judges the scaled emulator on fresh runs;
-        :func:`.emulator.variance_scale_mle`); or times a fixed factor (a float, at least 1).
-        A GP fitted by type-II maximum likelihood tends to understate its error away from its
-        design, which fails the targeted check; a calibrated factor widens its error bars by
-        what the failed runs measured.  The factor in use is reported
-        (``emulator_variance_scale`` in the diagnostics).
+        The emulator's predictive variance everywhere it is used: the GP's own; times a factor
+        fitted to failed validations' held-out runs (:func:`.emulator.variance_scale_mle`; the
+        design keeps the runs of a second validation, which judges it); or times a fixed factor
+        (at least 1).  Reported as ``emulator_variance_scale`` in the diagnostics.
 
     Returns
     -------
