@@ -96,6 +96,7 @@ _SURROGATE_HEADER = [
     "replicate runs (nugget test)",
     "observed misfit p (largest residual)",
     "truth in 50 % HPD",
+    "posterior mass at a prior bound",
     "wall time",
     "GROMACS time (sum over runs)",
 ]
@@ -126,6 +127,22 @@ def _misfit(entry: dict) -> str:
     most ("-" for results made before the check existed)."""
     m = entry["surrogate"].get("observed_misfit")
     return f"{m['p_value']:.1g} ({_worst_residual(entry, m)})" if m else "-"
+
+
+def _prior_edge(entry: dict) -> str:
+    """Each parameter bound that holds more than the limit of the posterior mass within the
+    edge width (``ABCResult.prior_edge_mass``), e.g. ``epsilon_OW upper 100 %``; "none" below
+    it, "-" for results made before the diagnostic existed."""
+    edge = entry["surrogate"].get("prior_edge")
+    if not edge:
+        return "-"
+    hits = [
+        f"**{('sigma_OW', 'epsilon_OW')[i]} {side} {m:.0%}**"
+        for i, pair in enumerate(edge["mass"])
+        for side, m in zip(("lower", "upper"), pair, strict=True)
+        if m > edge["limit"]
+    ]
+    return ", ".join(hits) or "none"
 
 
 def _feasibility_level(entry: dict) -> str:
@@ -170,6 +187,7 @@ def _water_surrogate_section() -> str:
                     _replicates(sur),
                     _misfit(e),
                     truth or "-",
+                    _prior_edge(e),
                     _wall_time(e),
                     _gromacs_seconds(data, stats),
                 ]
@@ -194,7 +212,9 @@ posterior predictive check of the observed summaries (`observed_misfit`: the chi
 probability, and the summary furthest from the emulated prediction in noise sd; below 1e-3 no
 parameter value reproduces the data within the simulator noise, and the interval is that of the
 best fit of a misspecified model, conditional on it); for simulated data whether TIP4P's own
-parameters lie in the 50 % HPD region.
+parameters lie in the 50 % HPD region; the posterior mass within 2 % of the range from a bound of
+the paper's prior box where it exceeds 5 % (`prior_edge_mass`: the estimate and interval of such
+a parameter are those of the box, not of the data).
 
 {table(_SURROGATE_HEADER, rows)}
 
