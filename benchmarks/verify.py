@@ -305,8 +305,9 @@ def rebaseline(entry: Entry, root: Path = ROOT) -> dict[str, Any]:
             raise RuntimeError(f"{entry.name}: the quick mode at {commit[:10]} failed: {run.stderr.strip()[-600:]}")
         made_json = json.loads((tree / entry.quick_output).read_text())
         saved_path = root / entry.quick_output
-        if entry.part is not None and saved_path.is_file():
-            # A file several commands fill in: only this entry's part is remade.
+        if entry.part is not None and entry.part in made_json and saved_path.is_file():
+            # A file several commands fill in: only this entry's part is remade (a file whose
+            # parts share one body, as helium_lammps_agreement's records, is remade whole).
             merged = json.loads(saved_path.read_text())
             merged[entry.part] = made_json[entry.part]
             merged["provenance"] = made_json["provenance"]
@@ -427,8 +428,8 @@ def _check_all(rows: list[tuple[Entry, float, str]], rebase: str | None, runs: P
         if rebase == "always" or (rebase == "auto" and _needs_rebaseline(e)):
             try:
                 rebased = rebaseline(e)
-            except RuntimeError as err:
-                print(f"    {err}")
+            except (RuntimeError, KeyError, ValueError) as err:  # one bad baseline does not end the pass
+                print(f"    rebaseline failed: {err!r}")
                 bad.append(e.name)
                 continue
             print(f"    rebaselined at {rebased['commit'][:10]} in {rebased['seconds']} s", flush=True)

@@ -608,6 +608,38 @@ def test_rebaseline_remakes_only_its_own_part_of_a_shared_quick_json(fake_repo: 
     assert record["outcome"] == "not applicable" and "no 'other' part" in record["detail"]
 
 
+def test_rebaseline_remakes_a_quick_json_whose_parts_share_one_body(fake_repo: Path, monkeypatch) -> None:
+    """helium_lammps_agreement's parts share one body (``records``) and differ only in their
+    provenance: there is no top-level part to merge, so the remade file replaces the saved one."""
+    from benchmarks import verify
+
+    entry = registry.Entry(
+        "res:cpu",
+        "benchmarks/results/res.json",
+        "python x.py",
+        part="cpu",
+        quick="python x.py --quick",
+        quick_output="benchmarks/results/quick/res.json",
+    )
+    _git_commit_all(fake_repo)
+    _common.write_result(fake_repo / entry.output, {"value": 1.5}, part="cpu")
+    with monkeypatch.context() as m:
+        m.setattr(_common, "machine", lambda: {"cpu": "other"})
+        _common.write_result(fake_repo / entry.quick_output, {"value": 1.7}, part="cpu")
+
+    def run(argv, cwd, env):
+        with monkeypatch.context() as m:
+            m.setattr(_common, "ROOT", Path(cwd))
+            _common.write_result(Path(cwd) / entry.quick_output, {"value": 1.5}, part="cpu", command=entry.quick)
+        return subprocess.CompletedProcess(argv, 0, "", "")
+
+    monkeypatch.setattr(verify, "_run_command", run)
+    verify.rebaseline(entry, fake_repo)
+    saved = json.loads((fake_repo / entry.quick_output).read_text())
+    assert saved["value"] == 1.5 and saved["provenance_parts"]["cpu"]["machine"]["cpu"] == "test"
+    assert verify.check(entry, fake_repo)["outcome"] == "reproduces"
+
+
 def test_rebaseline_refuses_a_result_without_a_commit(fake_repo: Path) -> None:
     from benchmarks import verify
 
