@@ -813,11 +813,15 @@ def main(argv: list[str] | None = None) -> None:
     out["command"] = " ".join([Path(sys.executable).name, *sys.argv])
     # The parts can be rerun one at a time; keep the command that produced each.
     out["commands"] = {**out.get("commands", {}), **{part: out["command"] for part in args.parts}}
-    if args.records is not None:
-        dist = records_distribution(args.records, args.distribution)
-    else:
-        dist = load_distribution(args.imbalance, args.system, args.distribution)
-    out["distribution"] = dist
+    # The duration distribution of the model and rank parts; the real part runs GROMACS itself
+    # and must not replace the one they were made with.
+    uses_distribution = bool({"model", "ranks"} & set(args.parts))
+    if uses_distribution:
+        if args.records is not None:
+            dist = records_distribution(args.records, args.distribution)
+        else:
+            dist = load_distribution(args.imbalance, args.system, args.distribution)
+        out["distribution"] = dist
     settings = {"num_particles": args.num_particles, "alpha": args.alpha, "p0": args.p0, "steps": args.steps}
     algorithms = {
         "apmcabc": apmcabc_batches(args.num_particles, args.alpha, args.steps),
@@ -887,7 +891,7 @@ def main(argv: list[str] | None = None) -> None:
 
     out.pop("machine", None)  # written before provenance existed; the provenance holds the machine now
     source = args.records or args.imbalance
-    inputs = [source] if source.exists() else []
+    inputs = [source] if uses_distribution and source.exists() else []
     if "real" in args.parts and args.real_posterior != "prior":
         inputs.append(ROOT / args.real_posterior)
     write_result(args.output, out, part=args.parts, inputs=inputs)
