@@ -442,6 +442,9 @@ REGISTRY: tuple[Entry, ...] = (
         f"--reps 1 --num-particles 500 --output {Q}/speedup.json --figure {Q}/speedup.png",
         quick_output=f"{Q}/speedup.json",
         legacy_cost_keys=("model/seconds",),
+        compare_tolerance=1e-12,
+        note="the k-NN duration predictions (exp of a log) differ in their last digit between processes "
+        "running the same commit (a verify rebaseline against a plain run): compared to 1e-12",
     ),
     Entry(
         "speedup:ranks",
