@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import re
 from pathlib import Path
 from typing import Any
@@ -209,7 +210,7 @@ def _repeats() -> list[str]:
             f"emulator validated ({', '.join(f'`{n}`' for n in trusted) or 'none'}), the others are UNTRUSTED"
             + (f"; not run yet: {', '.join(missing)}" if missing else "")
             + ".\n",
-            table(["run", "verdict", "flags", "emulators validated (runs per model); ESS < 100", *names], rows) + "\n",
+            table(["run", "verdict", "flags", _VALIDATED_HEADER, *names], rows) + "\n",
         ]
         + _misspecified_sentence(saved)
         + _repeat_edges(saved)
@@ -685,6 +686,9 @@ def _published_bounds(d: dict[str, Any]) -> list[str]:
     ]
 
 
+_VALIDATED_HEADER = "emulators validated (runs per model); emulator variance factor; ESS < 100"
+
+
 def _validated(d: dict[str, Any]) -> str:
     """How many of a model choice's emulators passed validation, its budget per model, and any
     posterior resting on an effective sample size below 100."""
@@ -695,8 +699,26 @@ def _validated(d: dict[str, Any]) -> str:
     return (
         f"{sum(v is True for v in flags)} of {len(flags)}"
         + (f" ({budget})" if budget else "")
+        + "".join(f"; {name} variance x{c:.3g}" for name, c in _variance_factors(d).items())
         + "".join(f"; {name} ESS {e:.0f}" for name, e in low.items())
     )
+
+
+def _variance_factors(d: dict[str, Any]) -> dict[str, float]:
+    """The factor on the emulator's variance each model's last fit used, where it is not 1
+    (runs with ``emulator_variance`` other than the GP's own; read from the saved posteriors)."""
+    if (d.get("settings") or {}).get("emulator_variance") in (None, "gp"):
+        return {}
+    out = {}
+    for name in d["model_choice"]["names"]:
+        path = RESULTS.parents[1] / d["saved_result"] / f"posterior_{name.replace('/', '_')}.npz"
+        if not path.is_file():
+            continue
+        with np.load(path) as z:
+            c = json.loads(str(z["metadata"])).get("diagnostics", {}).get("emulator_variance_scale")
+        if c is not None and c != 1.0:
+            out[name] = float(c)
+    return out
 
 
 def _repeat_edges(saved: list[tuple[str, str, dict[str, Any]]]) -> list[str]:
