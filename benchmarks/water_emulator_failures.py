@@ -403,8 +403,14 @@ def _tails(errors: np.ndarray, fitted: list[str], draws: int = 20000) -> dict[st
 
 def analyse(repeats=REPEATS, max_verdicts: int | None = None) -> dict[str, Any]:
     """The payload: per repeat and model, and per model pooled over the repeats; the calibrated
-    verdicts of the first ``max_verdicts`` repeats (all: None)."""
-    saved = [(name, what, d) for name, what in repeats if (d := _load_repeat(name)) is not None]
+    verdicts of the first ``max_verdicts`` repeats (all: None).  Only the repeats made with the
+    GP's own variance: what is analysed is that variance (a calibrated run's held-out runs were
+    judged by the scaled emulator, over two validations)."""
+    saved = [
+        (name, what, d)
+        for name, what in repeats
+        if (d := _load_repeat(name)) is not None and (d.get("settings") or {}).get("emulator_variance", "gp") == "gp"
+    ]
     if not saved:
         raise FileNotFoundError("no saved model-choice repeat: run the registry's water_model_choice first")
     summaries = saved[0][2]["summaries"]
