@@ -690,8 +690,9 @@ _VALIDATED_HEADER = "emulators validated (runs per model); emulator variance fac
 
 
 def _validated(d: dict[str, Any]) -> str:
-    """How many of a model choice's emulators passed validation, its budget per model, and any
-    posterior resting on an effective sample size below 100."""
+    """How many of a model choice's emulators passed validation, its budget per model, the
+    factor on any emulator's variance (:func:`_variance_factors`), and any posterior resting on
+    an effective sample size below 100."""
     flags = [row.get("validated") for row in d.get("per_model", {}).values()]
     budget = (d.get("settings") or {}).get("budget_per_model")
     ess = {name: post.get("ess") for name, post in (d["model_choice"].get("posteriors") or {}).items()}
