@@ -12,6 +12,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
+from benchmarks._water_repeats import REPEATS
+
 __all__ = ["CACHES", "REGISTRY", "TIMING_KEYS", "VERIFICATIONS", "Entry", "by_name"]
 
 #: Key patterns (fnmatch, on the key alone) that hold wall/CPU times, loads or rates derived from
@@ -153,21 +155,6 @@ def _water_calibration(
         quick=None if quick is None else f"python -m benchmarks.water_calibration {quick} --quick",
         quick_output=None if quick is None else f"{Q}/{Path(output).name}",
     )
-
-
-#: The registry's model-choice results that repeat the verdict, and what each varies (the
-#: results page's repeats table and ``water_emulator_failures`` read them in this order).
-REPEATS = (
-    ("water_model_choice", "seed 0"),
-    ("water_model_choice_seed1", "seed 1"),
-    ("water_model_choice_seed2", "seed 2"),
-    ("water_model_choice_seed3", "seed 3"),
-    ("water_model_choice_no_discrepancy", "seed 0, no discrepancy term"),
-    ("water_model_choice_seed1_budget120", "seed 1, twice the budget"),
-    ("water_model_choice_seed3_budget120", "seed 3, twice the budget"),
-    ("water_model_choice_sigma_x2", "seed 0, every sigma box doubled"),
-    ("water_model_choice_seed3_budget120_calibrated", "seed 3, twice the budget, calibrated emulator variance"),
-)
 
 
 def _model_choice_variant(name: str, folder: str, options: str, cost_s: float, note: str) -> Entry:

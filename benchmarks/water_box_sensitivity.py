@@ -40,7 +40,7 @@ from typing import Any
 import numpy as np
 
 from benchmarks._common import RESULTS, ROOT, machine, relative, write_result
-from benchmarks.registry import REPEATS
+from benchmarks._water_repeats import REPEATS
 from jaxabc.model_choice import (
     STATUS_REUSED,
     ModelChoiceResult,

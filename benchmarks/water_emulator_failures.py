@@ -1,6 +1,6 @@
 """Where the water model choice's emulators fail validation, and why.
 
-Reads every saved repeat of the model choice (:data:`benchmarks._water_model_choice_paths.REPEATS`)
+Reads every saved repeat of the model choice (:data:`benchmarks._water_repeats.REPEATS`)
 and makes no GROMACS run.  For each repeat and model it reports which validation checks failed
 and the summary, the parameters and the side of the network break of the worst-predicted
 held-out run.  Pooling each model's runs over the repeats, it maps where the hydrogen-bond network
@@ -42,7 +42,7 @@ import numpy as np
 import scipy.stats
 
 from benchmarks._common import RESULTS, ROOT, machine, relative, write_result
-from benchmarks.registry import REPEATS
+from benchmarks._water_repeats import REPEATS, made_with_gp_variance
 from jaxabc.surrogate import emulator
 from jaxabc.surrogate._fit import ROLE_DESIGN, ROLE_HOLDOUT
 from jaxabc.surrogate._validation import num_targeted
@@ -407,9 +407,7 @@ def analyse(repeats=REPEATS, max_verdicts: int | None = None) -> dict[str, Any]:
     GP's own variance: what is analysed is that variance (a calibrated run's held-out runs were
     judged by the scaled emulator, over two validations)."""
     saved = [
-        (name, what, d)
-        for name, what in repeats
-        if (d := _load_repeat(name)) is not None and (d.get("settings") or {}).get("emulator_variance", "gp") == "gp"
+        (name, what, d) for name, what in repeats if (d := _load_repeat(name)) is not None and made_with_gp_variance(d)
     ]
     if not saved:
         raise FileNotFoundError("no saved model-choice repeat: run the registry's water_model_choice first")

@@ -10,8 +10,8 @@ from typing import Any
 import numpy as np
 
 from benchmarks._common import RESULTS
+from benchmarks._water_repeats import REPEATS, made_with_gp_variance
 from benchmarks.docpages.common import cause_rows, f, figure, load, misfit_rows, retired, source, table
-from benchmarks.registry import REPEATS
 from jaxabc.model_choice import interval_leader, probabilities_with_errors, probability_bounds
 from md.water.models import PAPER_TIP4P_ESTIMATES
 
@@ -67,6 +67,7 @@ def page_water_model_choice() -> str:
         f"Stopped: {d['model_choice']['stop_reason']}.\n",
         *_verdict(d),
         *_repeats(),
+        *_variance_pairs(),
         *_emulator_failures(),
         *_summary_noise(),
         *_box_sensitivity(),
@@ -223,6 +224,79 @@ def _repeats() -> list[str]:
             else []
         )
     )
+
+
+def _variance_pairs() -> list[str]:
+    """Each repeat made with the calibrated emulator variance beside the repeat with every other
+    setting equal (seed, budget, boxes, discrepancy) made with the GP's own variance: what the
+    calibration changes, like for like."""
+    saved = {name: d for name, _ in REPEATS if (d := load(name)) is not None}
+
+    def same_but_variance(a: dict[str, Any], b: dict[str, Any]) -> bool:
+        drop = ("emulator_variance", "workers")
+        sa, sb = (({k: v for k, v in x["settings"].items() if k not in drop}) for x in (a, b))
+        return sa == sb and a["summaries"]["fitted"] == b["summaries"]["fitted"]
+
+    pairs = [
+        (gp_name, name)
+        for name, d in saved.items()
+        if not made_with_gp_variance(d)
+        for gp_name, g in saved.items()
+        if made_with_gp_variance(g) and same_but_variance(d, g)
+    ]
+    if not pairs:
+        return []
+    rows = []
+    for gp_name, name in pairs:
+        gp, cal = saved[gp_name], saved[name]
+        names = cal["model_choice"]["names"]
+
+        def top(d: dict[str, Any], names: list[str] = names) -> str:
+            p = d["model_choice"]["probabilities"]
+            return f"{names[int(np.argmax(p))]} {max(p):.2f}"
+
+        shift = max(
+            abs(a - b)
+            for a, b in zip(gp["model_choice"]["probabilities"], cal["model_choice"]["probabilities"], strict=True)
+        )
+        for label, d in ((f"`{gp_name}`", gp), (f"`{name}`", cal)):
+            failed = [m for m, row in d["per_model"].items() if row.get("validated") is False]
+            rows.append(
+                [
+                    label,
+                    "calibrated" if d is cal else "GP's own",
+                    _validated(d),
+                    ", ".join(failed) or "-",
+                    f"{(d.get('verdict') or {}).get('status', '?')}",
+                    top(d),
+                    f"{sum(row['num_simulations'] for row in d['per_model'].values())}",
+                    f"{shift:.2f}" if d is cal else "",
+                ]
+            )
+    gp_ok = sum(sum(r.get("validated") is True for r in saved[g]["per_model"].values()) for g, _ in pairs)
+    cal_ok = sum(sum(r.get("validated") is True for r in saved[c]["per_model"].values()) for _, c in pairs)
+    total = sum(len(saved[c]["per_model"]) for _, c in pairs)
+    return [
+        "Calibrated against the GP's own emulator variance, like for like (the same seed, budget, boxes and "
+        'discrepancy term; `jaxabc.run(emulator_variance="calibrated")` scales the emulator\'s variance by the '
+        "factor its held-out runs measure and keeps a second validation's runs to judge the scaled emulator). "
+        f"Emulators validated: {gp_ok} of {total} with the GP's variance, {cal_ok} of {total} calibrated, over "
+        f"{len(pairs)} pair{'s' if len(pairs) != 1 else ''} (one pair per seed: a count over seeds, not a rate).\n",
+        table(
+            [
+                "run",
+                "emulator variance",
+                _VALIDATED_HEADER,
+                "failed",
+                "verdict",
+                "most probable",
+                "GROMACS runs",
+                "largest probability change",
+            ],
+            rows,
+        )
+        + "\n",
+    ]
 
 
 def _emulator_failures() -> list[str]:
@@ -708,7 +782,7 @@ def _validated(d: dict[str, Any]) -> str:
 def _variance_factors(d: dict[str, Any]) -> dict[str, float]:
     """The factor on the emulator's variance each model's last fit used, where it is not 1
     (runs with ``emulator_variance`` other than the GP's own; read from the saved posteriors)."""
-    if (d.get("settings") or {}).get("emulator_variance") in (None, "gp"):
+    if made_with_gp_variance(d):
         return {}
     out = {}
     for name in d["model_choice"]["names"]:
