@@ -46,7 +46,7 @@ from benchmarks._water_repeats import REPEATS, made_with_gp_variance
 from jaxabc.surrogate import emulator
 from jaxabc.surrogate._fit import ROLE_DESIGN, ROLE_HOLDOUT
 from jaxabc.surrogate._validation import num_targeted
-from jaxabc.surrogate.diagnostics import holdout_bounds, local_check
+from jaxabc.surrogate.diagnostics import holdout_bounds, lack_of_fit, local_check, replicate_variance
 from jaxabc.surrogate.evidence import likelihood_from_state
 
 #: First-minimum position (nm) from which a run counts as broken: between the simulated modes.
@@ -57,6 +57,8 @@ NEIGHBOURS = 5
 HIGH_EPSILON = 1.15
 #: ``sigma / published`` bins of the boundary table.
 SIGMA_BINS = (0.0, 0.985, 1.0, 1.01, 1.03, np.inf)
+#: Level of the library's lack-of-fit test (Bonferroni over the outputs), as in its validation.
+LACK_OF_FIT_LEVEL = 1e-3
 #: Held-out standardised errors counted as misses.
 MISS_SD = 3.0
 #: Quantiles of the emulator-to-noise variance ratio that bin the held-out errors.
@@ -307,6 +309,71 @@ def placement_tails(refits: list[dict[str, np.ndarray]], saved: list[np.ndarray]
         "reproduced_max_abs": max(diffs) if diffs else None,
         "reproduced_emulators": len(diffs),
     }
+
+
+def lack_of_fit_by_summary(repeats=REPEATS) -> list[dict[str, Any]]:
+    """Every emulator of every saved repeat (the calibrated ones too: the test does not involve
+    the emulator's variance) that failed the lack-of-fit check, refitted on all its successful
+    runs as after its last validation, with the check per summary: the fitted noise variance at
+    the replicate sites over the replicates' own variance, and its lower-tail chi-square p
+    (:func:`jaxabc.surrogate.diagnostics.lack_of_fit`; failed below ``1e-3`` over the outputs)."""
+    import jax
+    import jax.numpy as jnp
+
+    out = []
+    for name, _ in repeats:
+        d = _load_repeat(name)
+        if d is None:
+            continue
+        summaries = d["summaries"]
+        fitted = list(summaries["fitted"])
+        observed = np.array([summaries["observed"][summaries["names"].index(n)] for n in fitted], np.float64)
+        for m in d["per_model"]:
+            meta, arr = _posterior(ROOT / d["saved_result"], m)
+            diag = meta["diagnostics"]
+            if diag.get("lack_of_fit_ok", True):
+                continue
+            theta, z = arr["record_theta"][:, :2], arr["record_summaries"]
+            n = len(theta)
+            role = np.asarray(diag["design_role"])[:n]
+            role = np.where(role >= ROLE_HOLDOUT, ROLE_DESIGN, role)
+            ok = np.asarray(diag["design_ok"], bool)[:n] & np.all(np.isfinite(z), axis=1)
+            group = np.asarray(diag["design_replicate_group"])[:n]
+            low = np.asarray(meta["prior"]["low"][:2], np.float64)
+            high = np.asarray(meta["prior"]["high"][:2], np.float64)
+            with jax.enable_x64(True):
+                transform, model = likelihood_from_state(
+                    _State(theta, z, role, ok), low, high, observed, meta["settings"]
+                )
+                z_all = np.asarray(transform.apply(jnp.asarray(np.nan_to_num(z))))
+                rep_var, df = replicate_variance(z_all, group, ok & (role == ROLE_DESIGN))
+                x = jnp.asarray((theta[group >= 0] - low) / (high - low))
+                site_var = np.mean(np.asarray(emulator.noise_sd(model.emulator, x), np.float64) ** 2, axis=0)
+            passed, p = lack_of_fit(site_var, rep_var, df, LACK_OF_FIT_LEVEL)
+            raw_rep_var, _ = replicate_variance(np.nan_to_num(z), group, ok & (role == ROLE_DESIGN))
+            failing = [j for j in range(len(fitted)) if p[j] < LACK_OF_FIT_LEVEL / len(fitted)]
+            out.append(
+                {
+                    "result": name,
+                    "model": m,
+                    "replicate_df": int(df),
+                    "passed_on_refit": passed,
+                    "by_summary": {
+                        fitted[j]: {"noise_over_replicate_variance": float(site_var[j] / rep_var[j]), "p": float(p[j])}
+                        for j in range(len(fitted))
+                    },
+                    "failing": [fitted[j] for j in failing],
+                    # In summary units: the replicates' sd against the spread over the runs.
+                    "failing_spread": {
+                        fitted[j]: {
+                            "replicate_sd": float(np.sqrt(raw_rep_var[j])),
+                            "runs_5_95": np.percentile(z[ok, j], [5, 95]).tolist(),
+                        }
+                        for j in failing
+                    },
+                }
+            )
+    return out
 
 
 def _load_repeat(name: str) -> dict[str, Any] | None:
@@ -593,6 +660,7 @@ def analyse(repeats=REPEATS, max_verdicts: int | None = None) -> dict[str, Any]:
         for m in case["models"]:
             m["factor"] = calibration["factors"][m.pop("refit")]
     summary["calibrated_verdicts"] = calibrated_verdicts(cases[:max_verdicts])
+    summary["lack_of_fit"] = lack_of_fit_by_summary(repeats)
     return {
         "fitted": fitted,
         "stated_sd": sd.tolist(),

@@ -383,9 +383,12 @@ def second_shell_statistics(r_nm: jax.Array, g: jax.Array) -> jax.Array:
     jax.Array, shape (3,)
         ``[g at the first minimum, r (nm) of the second maximum, g there]``.  The second
         maximum is the largest smoothed g in :data:`SECOND_SHELL_WINDOW_NM`; when the curve
-        has no turning point there it is reported at the window's edge (continuous in the
-        curve, never NaN for a liquid).  NaN if the curve does not cover [0.2, 0.8] nm or the
-        first peak/minimum is not interior (as for S4..S8).
+        has no turning point there it is reported at the window's edge (never NaN for a
+        liquid).  Not continuous in the parameters where the shell is nearly flat (TIP3P): the
+        largest value then jumps between the window's edges as the curve's slight tilt flips
+        (``water_emulator_failures``: the lack of fit of every TIP3P emulator that failed it).
+        NaN if the curve does not cover [0.2, 0.8] nm or the first peak/minimum is not interior
+        (as for S4..S8).
     """
     r, g = _resample(r_nm, g)
     smooth = _smooth(jnp.nan_to_num(g))
