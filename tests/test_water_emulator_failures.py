@@ -109,3 +109,22 @@ def test_inflating_the_emulator_variance_shrinks_the_errors_by_the_exact_factor(
     assert abs(rows[3.0]["targeted_sd"] - 1.0) < 4 * 0.024
     assert abs(rows[1.0]["targeted_sd"] - np.sqrt(7 / 3)) < 4 * 0.024 * np.sqrt(7 / 3)
     assert rows[1.0]["either_failed"] > 20 and rows[3.0]["either_failed"] <= 3
+
+
+def test_the_lack_of_fit_refit_agrees_with_each_saved_verdict() -> None:
+    """Each saved emulator that failed lack of fit fails it again when refitted on its runs (the
+    library's test, per summary), and names at least one summary; a refit that passed would mean
+    the per-summary table describes another emulator than the one judged."""
+    import pytest
+
+    from benchmarks._common import RESULTS
+    from benchmarks.water_emulator_failures import lack_of_fit_by_summary
+
+    if not (RESULTS / "water_model_choice_seed1.json").is_file():
+        pytest.skip("the saved repeat is not in this checkout")
+    rows = lack_of_fit_by_summary((("water_model_choice_seed1", "seed 1"),))
+    assert rows, "seed 1's TIP3P emulator failed lack of fit in its run"
+    for r in rows:
+        assert r["passed_on_refit"] is False
+        assert r["failing"]
+        assert all(r["by_summary"][name]["p"] < 1e-3 / len(r["by_summary"]) for name in r["failing"])
