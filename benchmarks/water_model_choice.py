@@ -65,7 +65,7 @@ import jaxabc
 from benchmarks._common import RUNS, command_line, guard_resume, relative, write_result
 from jaxabc.model_choice import Model
 from md.water.finite_size import MODEL_VISCOSITY_298K, model_viscosity_mpa_s
-from md.water.joint_data import JOINT_DATA_FILE, joint_observed, joint_record, observation_sd
+from md.water.joint_data import JOINT_DATA_FILE, JointData, joint_observed, joint_record, observation_sd
 from md.water.model_simulator import CachedSummaries, WaterModelSimulator
 from md.water.models import MODELS, WIDE_EPSILON_FACTORS, get_model, model_prior, polarisation_correction_kj_mol
 
@@ -136,6 +136,14 @@ def parse_arguments(argv=None) -> argparse.Namespace:
         help="surrogate: the emulator's variance, 'gp', 'calibrated' (from failed validations' held-out runs, "
         "with the budget of a second validation kept) or a factor >= 1 (jaxabc.run(emulator_variance=...))",
     )
+    parser.add_argument(
+        "--hold-out",
+        action="append",
+        default=[],
+        metavar="SUMMARY",
+        help="move a fitted summary to the held-out ones (repeatable), e.g. r_oo_max2_nm, whose window maximum "
+        "is discontinuous in the parameters where a model's second shell is flat (water_emulator_failures)",
+    )
     parser.add_argument("--tiny", action="store_true", help="smoke test: tiny budgets, 2 ps runs, quick JSON")
     parser.add_argument("--no-progress", action="store_true")
     args = parser.parse_args(argv)
@@ -152,6 +160,7 @@ def parse_arguments(argv=None) -> argparse.Namespace:
         + ("_discrepancy" if args.discrepancy else "")
         + ("" if args.seed == 0 else f"_seed{args.seed}")
         + ("" if args.emulator_variance == "gp" else f"_emulator_variance_{args.emulator_variance}")
+        + "".join(f"_holdout-{name}" for name in sorted(args.hold_out))
     )
     if args.emulator_variance not in ("gp", "calibrated"):
         args.emulator_variance = float(args.emulator_variance)
@@ -270,6 +279,35 @@ def discrepancy_for(fitted_names: list[str]) -> jaxabc.Discrepancy:
     return jaxabc.Discrepancy(max_sd, groups)
 
 
+def model_choice_data(args) -> JointData:
+    """The measured summaries of ``--data`` with the summaries of ``--hold-out`` moved from the
+    fitted to the held-out ones.
+
+    Raises
+    ------
+    ValueError
+        A ``--hold-out`` name that is not a fitted summary of the data.
+    """
+    data = joint_observed(args.data)
+    names = list(data.names)
+    fitted = np.array(data.fitted, bool)
+    held_out = np.array(data.held_out, bool)
+    for name in args.hold_out:
+        if name not in names or not fitted[names.index(name)]:
+            fitted_names = [n for n, f in zip(names, fitted, strict=True) if f]
+            raise ValueError(f"--hold-out {name!r}: not a fitted summary of the {args.data} data ({fitted_names})")
+        fitted[names.index(name)], held_out[names.index(name)] = False, True
+    return data._replace(fitted=fitted, held_out=held_out)
+
+
+def fitted_sd(args, data: JointData) -> np.ndarray:
+    """:func:`md.water.joint_data.observation_sd` of the data's fitted summaries (``--hold-out``
+    ones left out), in the fitted order."""
+    full = joint_observed(args.data)
+    sd = dict(zip(np.array(full.names)[full.fitted], observation_sd(args.data), strict=True))
+    return np.array([sd[n] for n, f in zip(data.names, data.fitted, strict=True) if f], np.float64)
+
+
 #: How the measurement error reaches the likelihood, as the result records it.
 NOISE_VIA = "jaxabc.run(observation_error=sd)"
 
@@ -277,7 +315,7 @@ NOISE_VIA = "jaxabc.run(observation_error=sd)"
 def noise_options(args, data) -> dict:
     """The ``jaxabc.run`` keywords that carry the data's measurement error,
     ``observation_error=sd``, and with ``--discrepancy`` the model discrepancy."""
-    sd = observation_sd(args.data)
+    sd = fitted_sd(args, data)
     fitted_names = [n for n, f in zip(data.names, data.fitted, strict=True) if f]
     options: dict = {"observation_error": sd}
     if args.discrepancy:
@@ -317,7 +355,7 @@ def simulator_id(args) -> str:
     width += "".join(f":{slug}.prior={spec}" for slug, (spec, _) in sorted(args.model_prior.items()))
     return (
         f"water_model_choice:{args.data}:{args.preset}:{args.md_steps}:T={args.temperature_k}"
-        f":summaries=14:yeh_hummer:prior={width}"
+        f":summaries=14:yeh_hummer:prior={width}" + "".join(f":held_out={name}" for name in sorted(args.hold_out))
     )
 
 
@@ -497,7 +535,7 @@ def plot_predictive(bands: dict, data: str, path: Path) -> None:
 def main(argv=None) -> None:
     args = parse_arguments(argv)
     start = time.perf_counter()
-    data = joint_observed(args.data)
+    data = model_choice_data(args)
     models = make_models(args, data.fitted)
     timeout_s = models[0].simulate.simulate.protocol.timeout_s + 60
     executor = jaxabc.ProcessPoolExecutor(max_workers=args.workers, timeout=timeout_s)
@@ -542,7 +580,8 @@ def main(argv=None) -> None:
             },
             "discrepancy": None if "discrepancy" not in noise_kwargs else noise_kwargs["discrepancy"].describe(),
         }
-        | ({} if args.emulator_variance == "gp" else {"emulator_variance": args.emulator_variance}),
+        | ({} if args.emulator_variance == "gp" else {"emulator_variance": args.emulator_variance})
+        | ({"held_out_from_fitted": sorted(args.hold_out)} if args.hold_out else {}),
         "summaries": {
             "names": list(data.names),
             "observed": data.observed.tolist(),
@@ -552,7 +591,7 @@ def main(argv=None) -> None:
             "distance_scales": None
             if scales is None
             else dict(zip(fitted_names, np.asarray(scales).tolist(), strict=True)),
-            "observation_sd": dict(zip(fitted_names, observation_sd(args.data).tolist(), strict=True)),
+            "observation_sd": dict(zip(fitted_names, fitted_sd(args, data).tolist(), strict=True)),
             "observation_error_via": NOISE_VIA,
             "propagated_pointwise_errors": [
                 None if np.isnan(e) else float(e) for e in np.asarray(data.propagated, np.float64)

@@ -274,3 +274,35 @@ def test_benchmark_passes_the_stated_errors_to_jaxabc_run(discrepancy):
     assert ("discrepancy" in options) == discrepancy
     if discrepancy:
         assert isinstance(options["discrepancy"], jaxabc.Discrepancy)
+
+
+def test_benchmark_holds_out_a_fitted_summary():
+    """``--hold-out`` moves a fitted summary to the held-out ones everywhere the run reads them
+    (the observed vector, its errors, the discrepancy groups, the cache and resume identity),
+    refuses a name that is not fitted, and leaves the default run as it was."""
+    bench = _benchmark()
+    default = bench.parse_arguments(["--tiny"])
+    full = joint_observed("xray")
+    plain = bench.model_choice_data(default)
+    np.testing.assert_array_equal(plain.fitted, full.fitted)
+    np.testing.assert_array_equal(bench.fitted_sd(default, plain), observation_sd("xray"))
+
+    args = bench.parse_arguments(["--tiny", "--discrepancy", "--hold-out", "r_oo_max2_nm"])
+    data = bench.model_choice_data(args)
+    names = list(data.names)
+    i = names.index("r_oo_max2_nm")
+    assert not data.fitted[i] and data.held_out[i] and data.held_out[names.index("density_kg_m3")]
+    assert int(data.fitted.sum()) == int(full.fitted.sum()) - 1
+    full_names = [n for n, f in zip(full.names, full.fitted, strict=True) if f]
+    expected = np.delete(observation_sd("xray"), full_names.index("r_oo_max2_nm"))
+    np.testing.assert_array_equal(bench.fitted_sd(args, data), expected)
+    options = bench.noise_options(args, data)
+    fitted_names = [n for n, f in zip(names, data.fitted, strict=True) if f]
+    covered = sorted(j for idx in options["discrepancy"].groups.values() for j in idx)
+    assert covered == list(range(len(fitted_names)))
+    assert "_holdout-r_oo_max2_nm" in str(args.cache_dir)
+    assert ":held_out=r_oo_max2_nm" in bench.simulator_id(args)
+    assert ":held_out=" not in bench.simulator_id(default)
+    for bad in ("density_kg_m3", "nosuch"):
+        with pytest.raises(ValueError, match="not a fitted summary"):
+            bench.model_choice_data(bench.parse_arguments(["--tiny", "--hold-out", bad]))
