@@ -687,15 +687,6 @@ REGISTRY: tuple[Entry, ...] = (
         "validations (emulator_variance='calibrated': the design keeps the runs of a second validation, which "
         "judges the scaled emulator): with the GP's own variance three of five emulators failed validation",
     ),
-    _model_choice_variant(
-        "water_model_choice_seed1_budget120_calibrated",
-        "xray_quick_budget120_seed1_calibrated",
-        "--prior-width wide --model-prior TIP3P=0.95,1.08,0.4,2.5 --discrepancy --seed 1 --budget-per-model 120 "
-        "--emulator-variance calibrated",
-        6000.0,
-        "the model choice of seed 1 with twice the budget and the calibrated emulator variance: with seed 3 it "
-        "pairs the calibrated variance with the GP's own at the same seeds and budget",
-    ),
     *(
         _model_choice_variant(
             f"water_model_choice_calibrated_holdout_seed{seed}",
