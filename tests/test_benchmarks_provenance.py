@@ -967,3 +967,45 @@ def test_a_quick_check_cannot_vouch_for_changed_inputs(fake_repo: Path, monkeypa
     (fake_repo / "data.txt").write_text("1 2 4\n")
     st = status.status_of(entry, root=fake_repo)
     assert st.state == "stale" and st.why.startswith("inputs changed, rerun it: data.txt")
+
+
+def test_the_model_choice_page_trusts_only_seeds_with_every_emulator_validated(monkeypatch) -> None:
+    """The held-out family's sentence counts a seed as trusted only without a flag, and says when
+    the trusted seeds disagree."""
+    from benchmarks.docpages import model_choice as page
+
+    def run(seed: int, status: str, model: str | None, stop: str) -> dict:
+        return {
+            "settings": {"seed": seed, "budget_per_model": 120},
+            "summaries": {"held_out": ["density_kg_m3", "r_oo_max2_nm"]},
+            "verdict": {"status": status, "model": model},
+            "per_model": {
+                "A": {"validated": True, "num_simulations": 100},
+                "B": {"validated": True, "num_simulations": 90},
+            },
+            "model_choice": {
+                "names": ["A", "B"],
+                "probabilities": [0.9, 0.1],
+                "log_evidence": [0.0, -2.2],
+                "log_evidence_errors": [0.1, 0.1],
+                "model_prior": [0.5, 0.5],
+                "stop_reason": stop,
+                "posteriors": {},
+            },
+        }
+
+    saved = {
+        "s0": run(0, "preferred", "A", "every model's emulator validated"),
+        "s1": run(1, "undecided", None, "every model's emulator validated"),
+        "s2": run(2, "undecided", None, "UNTRUSTED: B's emulator failed validation"),
+    }
+    monkeypatch.setattr(page, "HOLDOUT_FAMILY", ("s0", "s1", "s2"))
+    monkeypatch.setattr(page, "load", saved.get)
+    text = "".join(page._holdout_family())
+    assert "3 of 3 seeds run; 2 with every emulator validated and no flag (flagged: `s2`)" in text
+    assert "the trusted seeds disagree (preferred A; undecided)" in text
+    assert "r_oo_max2_nm" in text and "0.9 [" in text
+    saved["s0"] = run(0, "undecided", None, "every model's emulator validated")
+    assert "the 2 trusted seeds agree: undecided (the others: not run or flagged)." in "".join(page._holdout_family())
+    del saved["s1"], saved["s2"]
+    assert "the one trusted seed says undecided: one seed is not yet a verdict" in "".join(page._holdout_family())

@@ -25,7 +25,9 @@ _CRITICISM_START = {
     "criticism_water_joint": "from the model choice with the discrepancy term",
     "criticism_water_joint_no_discrepancy": "from the model choice without the discrepancy term",
 }
-#: The model choice's repeats: (result name, what differs from ``water_model_choice``).
+#: The repeats meant to give the trusted verdict: calibrated emulator variance, 120 runs per
+#: model, ``r_oo_max2_nm`` held out (the one summary no emulator of TIP3P could fit), one per seed.
+HOLDOUT_FAMILY = tuple(f"water_model_choice_calibrated_holdout_seed{seed}" for seed in (0, 1, 2))
 
 
 def _saved_figures(d: dict) -> list[str]:
@@ -68,6 +70,7 @@ def page_water_model_choice() -> str:
         f"Stopped: {d['model_choice']['stop_reason']}.\n",
         *_verdict(d),
         *_repeats(),
+        *_holdout_family(),
         *_variance_pairs(),
         *_emulator_failures(),
         *_summary_noise(),
@@ -225,6 +228,70 @@ def _repeats() -> list[str]:
             else []
         )
     )
+
+
+def _holdout_family() -> list[str]:
+    """The repeats of :data:`HOLDOUT_FAMILY`, each seed with its verdict, its emulators' validation
+    and every model's probability interval, and what they say together: the verdict is trusted
+    only from seeds whose every emulator validated, and only where those seeds agree."""
+    saved = [(name, d) for name in HOLDOUT_FAMILY if (d := load(name)) is not None]
+    missing = [name for name in HOLDOUT_FAMILY if load(name) is None]
+    if not saved:
+        return []
+    names = saved[0][1]["model_choice"]["names"]
+    rows, trusted = [], []
+    for name, d in saved:
+        mc = d["model_choice"]
+        prior = np.asarray(mc["model_prior"], float)
+        intervals = probability_bounds(
+            np.asarray(mc["log_evidence"], float), np.asarray(mc["log_evidence_errors"], float), prior
+        )
+        verdict = d.get("verdict") or {}
+        flags = _flags(mc["stop_reason"])
+        if not flags:
+            trusted.append((name, d))
+        rows.append(
+            [
+                f"`{name}` (seed {d['settings'].get('seed', '?')})",
+                f"{verdict.get('status', '?')} {verdict.get('model') or ''}".strip(),
+                ", ".join(flags) or "-",
+                _validated(d),
+                f"{sum(row['num_simulations'] for row in d['per_model'].values())}",
+                *(f"{p:.3g} [{lo:.3g}, {hi:.3g}]" for p, (lo, hi) in zip(mc["probabilities"], intervals, strict=True)),
+            ]
+        )
+    held = ", ".join(saved[0][1]["summaries"]["held_out"])
+    out = [
+        "The repeats meant to give the trusted verdict: the emulator's variance calibrated, 120 runs per "
+        f"model, and `r_oo_max2_nm` held out (held out in these runs: {held}), because every lack-of-fit "
+        "failure above is that one summary. One run per seed; probability [interval], each log evidence "
+        "+- 2 s.e.:\n",
+        table(["run", "verdict", "flags", _VALIDATED_HEADER, "GROMACS runs", *names], rows) + "\n",
+    ]
+    statuses = sorted(
+        {
+            f"{(d.get('verdict') or {}).get('status')} {(d.get('verdict') or {}).get('model') or ''}".strip()
+            for _, d in trusted
+        }
+    )
+    trusted_names = {n for n, _ in trusted}
+    untrusted = [f"`{n}`" for n, _ in saved if n not in trusted_names]
+    sentence = (
+        f"{len(saved)} of {len(HOLDOUT_FAMILY)} seeds run"
+        + (f" ({', '.join(missing)} not yet)" if missing else "")
+        + f"; {len(trusted)} with every emulator validated and no flag"
+        + (f" (flagged: {', '.join(untrusted)})" if untrusted else "")
+    )
+    if not trusted:
+        sentence += "; no trusted verdict yet."
+    elif len(trusted) == 1:
+        sentence += f"; the one trusted seed says {statuses[0]}: one seed is not yet a verdict."
+    elif len(statuses) == 1:
+        sentence += f"; the {len(trusted)} trusted seeds agree: {statuses[0]}"
+        sentence += "." if len(trusted) == len(HOLDOUT_FAMILY) else " (the others: not run or flagged)."
+    else:
+        sentence += f"; the trusted seeds disagree ({'; '.join(statuses)}): the verdict depends on the seed."
+    return [*out, sentence + "\n"]
 
 
 def _variance_pairs() -> list[str]:
