@@ -1473,6 +1473,10 @@ def outcome(d: dict[str, Any], checks: dict[str, Any], crits: dict[str, Any]) ->
         source("water_model_choice", data=d),
         f"Verdict of the model choice: {d['model_choice']['stop_reason']}.",
         *_verdict(d)[:1],
+        *(
+            f"The repeats meant to be trusted (calibrated emulator variance, `r_oo_max2_nm` held out): {line}"
+            for line in _holdout_family()[-1:]
+        ),
         misfit_table(d),
     ]
     for name, check in checks.items():
