@@ -78,7 +78,12 @@ another CPU family or from other code, `python -m benchmarks.verify --rebaseline
 here at the result's own commit (in a temporary git worktree), so that the check compares two code
 versions on one machine.  Every check runs its quick mode in an empty runs folder of its own, never
 replaying the run caches of earlier code; baselines made before that rule are remade with
-`--rebaseline always`.  Data changes always call for a rerun.  A `retired` result is one the
+`--rebaseline always`.  Every check that gives the saved quick numbers is also kept in the ledger
+as a link between two versions of the code, and status chains the links: several long runs made at
+different commits can then rest on one saved quick JSON, and a result whose files the saved quick
+numbers were not made with needs one quick run at its commit
+(`python -m benchmarks.verify --only CHECK --vouch-for RESULT --budget 1h`), not a rerun.
+Data changes always call for a rerun.  A `retired` result is one the
 registry no longer keeps (why, what supersedes it and the commit of its last version are in the
 table); no page shows it.
 

@@ -47,7 +47,9 @@ __all__ = [
     "compare_numbers",
     "deterministic_view",
     "legacy_cost",
+    "load_equivalences",
     "main",
+    "standing_edge",
     "status_all",
     "status_of",
 ]
@@ -166,6 +168,70 @@ def load_verifications(root: Path = ROOT) -> dict[str, Any]:
     return json.loads(path.read_text()).get("entries", {})
 
 
+def load_equivalences(root: Path = ROOT) -> list[dict[str, Any]]:
+    """The ledger's code equivalences: ``{"check", "date_utc", "cpu", "how", "files": {path:
+    [version a, version b]}}``, each a quick check that gave the same numbers with the files at
+    version a as at version b (:func:`benchmarks.verify.check`, ``verify --vouch-for``)."""
+    path = root / VERIFICATIONS
+    if not path.is_file():
+        return []
+    return json.loads(path.read_text()).get("equivalences", [])
+
+
+def standing_edge(name: str, root: Path = ROOT) -> dict[str, list[str]] | None:
+    """The files whose version differs between registry entry ``name``'s saved quick JSON and its
+    last check, ``{path: [saved version, checked version]}``, when that check reproduced the saved
+    numbers and they still stand (None otherwise: no check, other numbers, or a remade baseline)."""
+    record = load_verifications(root).get(name)
+    if record is None or not (record.get("outcome") == "reproduces" or record.get("quick_reproduces")):
+        return None
+    baseline = _quick_baseline(name, root)
+    if baseline is None or record.get("baseline_date_utc", baseline.get("date_utc")) != baseline.get("date_utc"):
+        return None
+    base = baseline.get("fingerprint", {}).get("code", {})
+    ran = record.get("fingerprint", {}).get("code", {})
+    return {rel: [base[rel], ran[rel]] for rel in ran if rel in base and base[rel] != ran[rel]}
+
+
+def _chain_vouch(names: list[str], prov: dict[str, Any], items: list[str], root: Path) -> set[str]:
+    """The changed files (of ``items``) whose version in the result is linked to today's by a chain
+    of quick checks of ``names`` that gave equal numbers (each link one check: the saved quick
+    numbers against a rerun, or ``verify --vouch-for``'s run at another commit).
+
+    Like :func:`_vouch`, this judges file by file: a link says that the two versions of a file,
+    with the other files as they were in that check, give the same quick numbers.
+    """
+    links: dict[str, dict[str, set[str]]] = {}
+
+    def add(files: dict[str, list[str]]) -> None:
+        for rel, (a, b) in files.items():
+            graph = links.setdefault(rel, {})
+            graph.setdefault(a, set()).add(b)
+            graph.setdefault(b, set()).add(a)
+
+    for eq in load_equivalences(root):
+        if eq.get("check") in names:
+            add(eq.get("files", {}))
+    for name in names:
+        add(standing_edge(name, root) or {})
+    mine = prov.get("fingerprint", {}).get("code", {})
+    out = set()
+    for item in items:
+        path = root / item
+        if item.endswith(" (removed)") or item not in mine or item not in links or not path.is_file():
+            continue
+        today = {code_hash(path), legacy_code_hash(path)}
+        seen, todo = {mine[item]}, [mine[item]]
+        while todo:
+            for nxt in links[item].get(todo.pop(), ()):
+                if nxt not in seen:
+                    seen.add(nxt)
+                    todo.append(nxt)
+        if seen & today:
+            out.add(item)
+    return out
+
+
 def _quick_baseline(name: str, root: Path) -> dict[str, Any] | None:
     """The provenance of registry entry ``name``'s saved quick JSON (None: no quick mode or file)."""
     entry = next((e for e in REGISTRY if e.name == name), None)
@@ -263,11 +329,17 @@ def _numerical_state(st: Status, entry: Entry, quick: bool, root: Path, prov: di
         if got - vouched:
             by.append(name)
         vouched |= got
-    if vouched >= set(st.changed):
+    chained = _chain_vouch(names, prov, [c for c in st.changed if c not in vouched], root)
+    if vouched | chained >= set(st.changed):
         st.state = "current"
-        st.why = "code changed, quick mode of " + ", ".join(by) + " reproduces"
+        st.why = (
+            "code changed, quick mode of "
+            + ", ".join(by or names)
+            + " reproduces"
+            + (f" (through earlier checks: {', '.join(sorted(chained)[:3])})" if chained else "")
+        )
     elif entry.checked_by:
-        rest = [c for c in st.changed if c not in vouched]
+        rest = [c for c in st.changed if c not in vouched | chained]
         st.why += "; not vouched for by " + ", ".join(entry.checked_by) + ": " + ", ".join(rest[:3])
 
 

@@ -32,6 +32,13 @@ Usage::
     python -m benchmarks.verify --budget 1h --dry-run    # the plan only
     python -m benchmarks.verify --only surrogate_peers --budget 20m --rebaseline
     python -m benchmarks.verify --only water_model_choice --budget 1h --rebaseline always
+    python -m benchmarks.verify --only water_model_choice --budget 1h --vouch-for water_model_choice_seed1
+
+Every check that gives the saved quick numbers is also kept as a link between two versions of the
+code (``equivalences`` in the ledger): status chains links, so a result made at a commit whose
+files differ from the saved quick JSON's is current when a chain of equal quick runs joins its
+versions to today's.  ``--vouch-for`` adds the link such a result lacks with one quick run at its
+commit, instead of a rerun of the result.
 """
 
 from __future__ import annotations
@@ -57,6 +64,7 @@ from benchmarks.status import (
     deterministic_view,
     format_cost,
     load_verifications,
+    standing_edge,
     status_of,
 )
 
@@ -239,6 +247,10 @@ def check(entry: Entry, root: Path = ROOT, runs: Path | None = None) -> dict[str
     here_cpu = cpu_signature(_common.machine())
     base_cpu = cpu_signature((_provenance(json.loads(saved_text), entry.part) or {}).get("machine") or {})
     record["cpu"], record["baseline_cpu"] = here_cpu, base_cpu
+    if not diffs:
+        # Equal numbers from two versions of the code: a link the ledger keeps after this record
+        # and the saved quick JSON are replaced (benchmarks.status chains them).
+        record["equivalence"] = _differing_files(_provenance(json.loads(saved_text), entry.part), new, entry.part)
     if diffs and _other_cpu(json.loads(saved_text), entry.part):
         # Chaotic MD (GROMACS) diverges with the CPU's rounding: other numbers on another CPU say
         # nothing about the code.  The check must run on the CPU family that made the baseline.
@@ -263,6 +275,88 @@ def check(entry: Entry, root: Path = ROOT, runs: Path | None = None) -> dict[str
     return {**record, "outcome": "reproduces"}
 
 
+def quick_json_at(entry: Entry, commit: str, root: Path = ROOT) -> dict[str, Any]:
+    """``entry``'s quick JSON as the code of ``commit`` makes it, here.
+
+    The quick command runs in a temporary git worktree at ``commit`` beside ``root`` (so relative
+    data paths such as ``../shared`` resolve as they do for ``root``), removed afterwards.
+
+    Raises
+    ------
+    RuntimeError
+        The worktree cannot be made or the quick command fails.
+    """
+    assert entry.quick and entry.quick_output, "only entries with a quick mode"
+    tree = root.parent / f".verify-at-{entry.name.replace(':', '-')}"
+    if tree.exists():
+        subprocess.run(["git", "worktree", "remove", "--force", str(tree)], cwd=root, capture_output=True)
+    made = subprocess.run(
+        ["git", "worktree", "add", "--detach", "--force", str(tree), commit], cwd=root, capture_output=True, text=True
+    )
+    if made.returncode != 0:
+        raise RuntimeError(f"{entry.name}: cannot check out {commit[:10]}: {made.stderr.strip()[-300:]}")
+    try:
+        # The quick inputs (untracked caches) are made afresh by that commit's code, in the
+        # worktree's empty runs folder: never copied from this checkout, whose caches may hold
+        # simulations of other code.
+        env = {**os.environ, "PYTHONPATH": str(tree), "JAXABC_RUNS_DIR": str(tree / "runs")}
+        made = make_quick_inputs(entry, tree, env)
+        run = made if made is not None else _run_command(command_argv(entry.quick), tree, env)
+        if run.returncode != 0:
+            raise RuntimeError(f"{entry.name}: the quick mode at {commit[:10]} failed: {run.stderr.strip()[-600:]}")
+        return json.loads((tree / entry.quick_output).read_text())
+    finally:
+        subprocess.run(["git", "worktree", "remove", "--force", str(tree)], cwd=root, capture_output=True)
+
+
+def vouch_for(check_entry: Entry, result: Entry, root: Path = ROOT) -> dict[str, Any]:
+    """Link ``result``'s own code to the saved quick numbers of ``check_entry``: run its quick mode
+    at the result's commit and compare with its saved quick JSON.  Equal numbers are kept in the
+    ledger as an equivalence (status then chains the result's files, through the saved quick
+    JSON's versions, to today's code when today's check reproduced that JSON too).
+
+    For a result that its sibling's check cannot vouch for because the saved quick JSON was made
+    with other versions of the files than the result (one baseline, several results made at
+    different commits): one quick run instead of a rerun of the result.
+
+    Returns ``{"commit", "seconds", "outcome", "differences"?, "linked"?}``, outcome
+    ``"reproduces"``, ``"numbers changed"`` or ``"other machine"``.
+
+    Raises
+    ------
+    RuntimeError
+        No saved quick JSON or result commit, or the quick mode fails at that commit.
+    """
+    assert check_entry.quick and check_entry.quick_output, "only entries with a quick mode"
+    saved_path = root / check_entry.quick_output
+    if not saved_path.is_file() or not (root / result.output).is_file():
+        raise RuntimeError(f"{check_entry.name}: no saved quick JSON, or {result.name} has no result")
+    prov = _provenance(json.loads((root / result.output).read_text()), result.part) or {}
+    commit = prov.get("commit")
+    if not commit:
+        raise RuntimeError(f"{result.name}: the result records no commit")
+    saved = json.loads(saved_path.read_text())
+    t0 = time.perf_counter()
+    made = quick_json_at(check_entry, commit, root)
+    out: dict[str, Any] = {"commit": commit, "seconds": round(time.perf_counter() - t0, 1)}
+    diffs = compare_numbers(
+        deterministic_view(saved, check_entry.ignore_keys),
+        deterministic_view(made, check_entry.ignore_keys),
+        check_entry.compare_tolerance,
+    )
+    if diffs:
+        other = _other_cpu(saved, check_entry.part)
+        return {**out, "outcome": "other machine" if other else "numbers changed", "differences": diffs[:20]}
+    files = _differing_files(_provenance(saved, check_entry.part), made, check_entry.part)
+    _write_ledger(
+        check_entry.name,
+        {"equivalence": files},
+        root,
+        how=f"quick mode at {commit[:10]} ({result.name}'s commit) against its saved quick JSON",
+    )
+    return {**out, "outcome": "reproduces", "linked": sorted(files)}
+
+
 def rebaseline(entry: Entry, root: Path = ROOT) -> dict[str, Any]:
     """Remake ``entry``'s saved quick JSON here, with the code of the full result's own commit.
 
@@ -285,42 +379,25 @@ def rebaseline(entry: Entry, root: Path = ROOT) -> dict[str, Any]:
     commit = full.get("commit")
     if not commit:
         raise RuntimeError(f"{entry.name}: the full result records no commit to rebaseline from")
-    tree = root.parent / f".verify-rebaseline-{entry.name.replace(':', '-')}"
-    if tree.exists():
-        subprocess.run(["git", "worktree", "remove", "--force", str(tree)], cwd=root, capture_output=True)
-    made = subprocess.run(
-        ["git", "worktree", "add", "--detach", "--force", str(tree), commit], cwd=root, capture_output=True, text=True
-    )
-    if made.returncode != 0:
-        raise RuntimeError(f"{entry.name}: cannot check out {commit[:10]}: {made.stderr.strip()[-300:]}")
     t0 = time.perf_counter()
-    try:
-        # The quick inputs (untracked caches) are made afresh by the result's own code, in the
-        # worktree's empty runs folder: never copied from this checkout, whose caches may hold
-        # simulations of other code.
-        env = {**os.environ, "PYTHONPATH": str(tree), "JAXABC_RUNS_DIR": str(tree / "runs")}
-        made = make_quick_inputs(entry, tree, env)
-        run = made if made is not None else _run_command(command_argv(entry.quick), tree, env)
-        if run.returncode != 0:
-            raise RuntimeError(f"{entry.name}: the quick mode at {commit[:10]} failed: {run.stderr.strip()[-600:]}")
-        made_json = json.loads((tree / entry.quick_output).read_text())
-        saved_path = root / entry.quick_output
-        if entry.part is not None and entry.part in made_json and saved_path.is_file():
-            # A file several commands fill in: only this entry's part is remade (a file whose
-            # parts share one body, as helium_lammps_agreement's records, is remade whole).
-            merged = json.loads(saved_path.read_text())
-            merged[entry.part] = made_json[entry.part]
-            merged["provenance"] = made_json["provenance"]
-            merged.setdefault("provenance_parts", {})[entry.part] = made_json["provenance_parts"][entry.part]
-            made_json = merged
-        saved_path.parent.mkdir(parents=True, exist_ok=True)
-        saved_path.write_text(json.dumps(made_json, indent=1) + "\n")
-    finally:
-        subprocess.run(["git", "worktree", "remove", "--force", str(tree)], cwd=root, capture_output=True)
+    made_json = quick_json_at(entry, commit, root)
+    saved_path = root / entry.quick_output
+    if entry.part is not None and entry.part in made_json and saved_path.is_file():
+        # A file several commands fill in: only this entry's part is remade (a file whose
+        # parts share one body, as helium_lammps_agreement's records, is remade whole).
+        merged = json.loads(saved_path.read_text())
+        merged[entry.part] = made_json[entry.part]
+        merged["provenance"] = made_json["provenance"]
+        merged.setdefault("provenance_parts", {})[entry.part] = made_json["provenance_parts"][entry.part]
+        made_json = merged
+    saved_path.parent.mkdir(parents=True, exist_ok=True)
+    saved_path.write_text(json.dumps(made_json, indent=1) + "\n")
     return {"commit": commit, "seconds": round(time.perf_counter() - t0, 1), "mismatch": baseline_mismatch(entry, root)}
 
 
-def _write_ledger(name: str, record: dict[str, Any], root: Path = ROOT) -> None:
+def _write_ledger(name: str, record: dict[str, Any], root: Path = ROOT, how: str | None = None) -> None:
+    """Write ``record`` as ``name``'s last check (unless it carries only an ``equivalence``) and
+    its ``equivalence``, if any, as a link (``how`` it was made)."""
     path = root / VERIFICATIONS
     ledger = json.loads(path.read_text()) if path.is_file() else {}
     ledger.setdefault(
@@ -328,9 +405,53 @@ def _write_ledger(name: str, record: dict[str, Any], root: Path = ROOT) -> None:
         "Quick-mode checks of results whose code changed (benchmarks/verify.py): outcome 'reproduces' "
         "makes a result current for the code in 'fingerprint'.",
     )
-    ledger.setdefault("entries", {})[name] = record
-    ledger["entries"] = dict(sorted(ledger["entries"].items()))
+    record = dict(record)
+    files = record.pop("equivalence", None)
+    if record:
+        ledger.setdefault("entries", {})[name] = record
+        ledger["entries"] = dict(sorted(ledger["entries"].items()))
+    if files:
+        _add_equivalence(
+            ledger,
+            name,
+            files,
+            how or f"quick mode against its saved quick JSON ({record.get('date_utc')})",
+            record.get("cpu"),
+        )
     path.write_text(json.dumps(ledger, indent=1) + "\n")
+
+
+def _add_equivalence(ledger: dict[str, Any], name: str, files: dict[str, list[str]], how: str, cpu: str | None) -> None:
+    """Append a link to ``ledger["equivalences"]`` unless the same check already links the same
+    versions."""
+    links = ledger.setdefault("equivalences", [])
+    if any(eq.get("check") == name and eq.get("files") == files for eq in links):
+        return
+    links.append(
+        {"check": name, "date_utc": time.strftime("%Y-%m-%d %H:%M:%S"), "cpu": cpu, "how": how, "files": files}
+    )
+
+
+def _differing_files(a: dict[str, Any] | None, b_json: dict[str, Any], part: str | None) -> dict[str, list[str]]:
+    """``{path: [version in a, version in b]}`` over the code files both provenances record and
+    that differ: ``a`` a provenance record, ``b_json`` a quick JSON."""
+    base = ((a or {}).get("fingerprint") or {}).get("code", {})
+    ran = ((_provenance(b_json, part) or {}).get("fingerprint") or {}).get("code", {})
+    return {rel: [base[rel], ran[rel]] for rel in ran if rel in base and base[rel] != ran[rel]}
+
+
+def preserve_standing_edge(name: str, root: Path = ROOT) -> None:
+    """Keep the link that ``name``'s last check made (saved quick numbers reproduced) before a
+    rebaseline replaces the saved quick JSON it refers to."""
+    files = standing_edge(name, root)
+    if files:
+        record = load_verifications(root).get(name, {})
+        _write_ledger(
+            name,
+            {"equivalence": files},
+            root,
+            how=f"quick mode against its saved quick JSON ({record.get('date_utc')})",
+        )
 
 
 def _missing_part(entry: Entry, root: Path = ROOT) -> bool:
@@ -398,7 +519,16 @@ def main(argv: list[str] | None = None) -> int:
         "full result's commit first (doubles the cost); 'always': remake every checked baseline (one made "
         "before checks ran in their own runs folder may have replayed cached simulations)",
     )
+    parser.add_argument(
+        "--vouch-for",
+        metavar="RESULT",
+        help="run the quick mode of each --only entry at RESULT's commit and compare it with its saved quick "
+        "JSON: equal numbers link RESULT's code to the saved quick numbers (one quick run instead of rerunning "
+        "RESULT, when the saved quick JSON was made with other versions of its files)",
+    )
     args = parser.parse_args(argv)
+    if args.vouch_for is not None:
+        return _vouch_all(args.only or [], args.vouch_for, args.dry_run)
     entries = [e for e in REGISTRY if args.only is None or e.name in args.only or e.name.split(":")[0] in args.only]
     rows = plan(entries, args.budget, args.include_current or bool(args.only))
     for e, cost, why in rows:
@@ -418,6 +548,39 @@ def main(argv: list[str] | None = None) -> int:
     return 1 if bad else 0
 
 
+def _vouch_all(checks: list[str], result_name: str, dry_run: bool) -> int:
+    """``--vouch-for``: link ``result_name``'s code through each of ``checks``; 1 on any failure."""
+    if not checks:
+        print("--vouch-for needs --only with the quick checks to run at the result's commit")
+        return 2
+    try:
+        result, entries = by_name(result_name), [by_name(n) for n in checks]
+    except KeyError as err:
+        print(f"unknown registry name: {err}")
+        return 2
+    bad = 0
+    for e in entries:
+        if not (e.quick and e.quick_output):
+            print(f"  {e.name}: has no quick mode")
+            bad += 1
+            continue
+        print(f"  vouch {e.name:40s} {format_cost(_quick_cost(e)):>9s}  at {result.name}'s commit: {e.quick}")
+        if dry_run:
+            continue
+        try:
+            out = vouch_for(e, result)
+        except RuntimeError as err:
+            print(f"    failed: {err}")
+            bad += 1
+            continue
+        print(f"[{time.strftime('%H:%M:%S')}] {e.name}: {out['outcome']} ({out['seconds']} s) {out.get('linked', '')}")
+        if out["outcome"] != "reproduces":
+            bad += 1
+            for line in out.get("differences", [])[:5]:
+                print(f"    {line}")
+    return 1 if bad else 0
+
+
 def _check_all(rows: list[tuple[Entry, float, str]], rebase: str | None, runs: Path, bad: list[str]) -> None:
     """The checks of one invocation, in order, sharing the runs folder ``runs``; failures to ``bad``."""
     for e, _, why in rows:
@@ -426,6 +589,7 @@ def _check_all(rows: list[tuple[Entry, float, str]], rebase: str | None, runs: P
         print(f"[{time.strftime('%H:%M:%S')}] {e.name}: {e.quick}", flush=True)
         rebased = None
         if rebase == "always" or (rebase == "auto" and _needs_rebaseline(e)):
+            preserve_standing_edge(e.name)  # the saved quick JSON it rests on is about to go
             try:
                 rebased = rebaseline(e)
             except (RuntimeError, KeyError, ValueError) as err:  # one bad baseline does not end the pass

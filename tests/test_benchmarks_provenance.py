@@ -11,6 +11,7 @@ import json
 import math
 import subprocess
 import sys
+import tempfile
 import textwrap
 from pathlib import Path
 
@@ -560,7 +561,7 @@ def test_rebaseline_compares_the_results_code_with_todays_on_this_machine(
     full = json.loads((fake_repo / entry.output).read_text())
     assert done["mismatch"] == [] and done["commit"] == full["provenance"]["commit"]
     assert not verify._needs_rebaseline(entry, fake_repo)
-    assert not any(p.name.startswith(".verify-rebaseline") for p in fake_repo.parent.iterdir())  # worktree removed
+    assert not any(p.name.startswith(".verify-") for p in fake_repo.parent.iterdir())  # worktree removed
     saved = json.loads((fake_repo / entry.quick_output).read_text())
     assert saved["value"] == 1.5 and saved["provenance"]["machine"]["cpu"] == "test"
     code = "jaxabc/fake_dependency.py"  # made with the result's version of the module, not today's
@@ -1009,3 +1010,68 @@ def test_the_model_choice_page_trusts_only_seeds_with_every_emulator_validated(m
     assert "the 2 trusted seeds agree: undecided (the others: not run or flagged)." in "".join(page._holdout_family())
     del saved["s1"], saved["s2"]
     assert "the one trusted seed says undecided: one seed is not yet a verdict" in "".join(page._holdout_family())
+
+
+_VERSIONS = {
+    "v0": ("return SCALE", "y = SCALE\n    return y"),
+    "v1": ("return SCALE * math.sqrt(x)", "return math.sqrt(x) * SCALE"),
+    "v2": ("SCALE = 2.0", "SCALE = 2.0 * 1"),
+}
+
+
+def _hash_of(source: str, version: str) -> str:
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "m.py"
+        path.write_text(source.replace(*_VERSIONS[version]))
+        return _common.code_hash(path)
+
+
+@pytest.mark.parametrize(("at_result", "outcome"), [(1.5, "reproduces"), (2.25, "numbers changed")])
+def test_vouch_for_links_a_result_made_with_other_versions_than_the_saved_quick_json(
+    fake_repo: Path, monkeypatch, at_result: float, outcome: str
+) -> None:
+    """One saved quick JSON, results made at several commits: a quick run at the result's commit
+    that gives the saved numbers links the result's version to them, and through today's check
+    that reproduced them, to today's code. A link survives a rebaseline of the saved quick JSON."""
+    from benchmarks import verify
+
+    sibling = QUICK_ENTRY
+    long = registry.Entry("long", "benchmarks/results/long.json", "python x.py --long", checked_by=("res",))
+    monkeypatch.setattr(status, "REGISTRY", (sibling, long))
+    module_file = fake_repo / "jaxabc/fake_dependency.py"
+    module_file.write_text(SOURCE.replace(*_VERSIONS["v1"]))
+    _git_commit_all(fake_repo)
+    write_fake(fake_repo, name="long")  # the result, made at this commit with v1
+    write_fake(fake_repo)
+    module_file.write_text(SOURCE.replace(*_VERSIONS["v0"]))  # the saved quick JSON's version
+    _common.write_result(fake_repo / sibling.quick_output, {"value": 1.5}, inputs=[fake_repo / "data.txt"])
+    module_file.write_text(SOURCE.replace(*_VERSIONS["v2"]))  # today's
+    runs = {"root": 1.5, "worktree": at_result}
+    monkeypatch.setattr(verify, "_run_command", _fake_quick_run_by_tree(fake_repo, runs, sibling, monkeypatch))
+    record = verify.check(sibling, fake_repo)
+    assert record.pop("equivalence") == {"jaxabc/fake_dependency.py": [_hash_of(SOURCE, "v0"), _hash_of(SOURCE, "v2")]}
+    verify._write_ledger("res", record, fake_repo)  # as a check recorded before links were kept
+    st = status.status_of(long, root=fake_repo)
+    assert st.state == "stale" and "not vouched for by res" in st.why  # the saved numbers are v0's, not v1's
+
+    out = verify.vouch_for(sibling, long, fake_repo)
+    assert out["outcome"] == outcome
+    assert not any(p.name.startswith(".verify-") for p in fake_repo.parent.iterdir())  # worktree removed
+    assert json.loads((fake_repo / sibling.quick_output).read_text())["value"] == 1.5  # saved JSON untouched
+    st = status.status_of(long, root=fake_repo)
+    if outcome != "reproduces":
+        assert st.state == "stale" and status.load_equivalences(fake_repo) == [
+            eq for eq in status.load_equivalences(fake_repo) if "commit" not in eq["how"]
+        ]
+        return
+    assert out["linked"] == ["jaxabc/fake_dependency.py"]
+    assert st.state == "current" and "through earlier checks" in st.why
+
+    # A rebaseline replaces the saved quick JSON (and so the standing v0-v2 link): the ledger kept it.
+    verify.preserve_standing_edge("res", fake_repo)
+    _common.write_result(fake_repo / sibling.quick_output, {"value": 1.5}, inputs=[fake_repo / "data.txt"])
+    assert not status.standing_edge("res", fake_repo)  # the new saved JSON is v2's own
+    assert status.status_of(long, root=fake_repo).state == "current"
+    # A change of meaning today breaks the chain: no link reaches today's version.
+    module_file.write_text(SOURCE.replace("SCALE = 2.0", "SCALE = 3.0"))
+    assert status.status_of(long, root=fake_repo).state == "stale"
