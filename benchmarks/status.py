@@ -193,42 +193,50 @@ def standing_edge(name: str, root: Path = ROOT) -> dict[str, list[str]] | None:
     return {rel: [base[rel], ran[rel]] for rel in ran if rel in base and base[rel] != ran[rel]}
 
 
-def _chain_vouch(names: list[str], prov: dict[str, Any], items: list[str], root: Path) -> set[str]:
+def _chain_vouch(names: list[str], prov: dict[str, Any], items: list[str], root: Path) -> dict[str, set[str]]:
     """The changed files (of ``items``) whose version in the result is linked to today's by a chain
     of quick checks of ``names`` that gave equal numbers (each link one check: the saved quick
-    numbers against a rerun, or ``verify --vouch-for``'s run at another commit).
+    numbers against a rerun, or ``verify --vouch-for``'s run at another commit), each with the
+    checks whose links it took.
 
     Like :func:`_vouch`, this judges file by file: a link says that the two versions of a file,
     with the other files as they were in that check, give the same quick numbers.
     """
-    links: dict[str, dict[str, set[str]]] = {}
+    links: dict[str, dict[str, dict[str, str]]] = {}  # file -> version -> linked version -> check
 
-    def add(files: dict[str, list[str]]) -> None:
+    def add(name: str, files: dict[str, list[str]]) -> None:
         for rel, (a, b) in files.items():
             graph = links.setdefault(rel, {})
-            graph.setdefault(a, set()).add(b)
-            graph.setdefault(b, set()).add(a)
+            graph.setdefault(a, {})[b] = name
+            graph.setdefault(b, {})[a] = name
 
     for eq in load_equivalences(root):
         if eq.get("check") in names:
-            add(eq.get("files", {}))
+            add(eq["check"], eq.get("files", {}))
     for name in names:
-        add(standing_edge(name, root) or {})
+        add(name, standing_edge(name, root) or {})
     mine = prov.get("fingerprint", {}).get("code", {})
-    out = set()
+    out: dict[str, set[str]] = {}
     for item in items:
         path = root / item
         if item.endswith(" (removed)") or item not in mine or item not in links or not path.is_file():
             continue
         today = {code_hash(path), legacy_code_hash(path)}
-        seen, todo = {mine[item]}, [mine[item]]
+        came: dict[str, tuple[str, str] | None] = {mine[item]: None}  # version -> (previous, check)
+        todo = [mine[item]]
         while todo:
-            for nxt in links[item].get(todo.pop(), ()):
-                if nxt not in seen:
-                    seen.add(nxt)
+            here = todo.pop()
+            for nxt, name in links[item].get(here, {}).items():
+                if nxt not in came:
+                    came[nxt] = (here, name)
                     todo.append(nxt)
-        if seen & today:
-            out.add(item)
+        reached = next((v for v in today if v in came), None)
+        if reached is not None:
+            used, step = set(), came[reached]
+            while step is not None:
+                used.add(step[1])
+                step = came[step[0]]
+            out[item] = used
     return out
 
 
@@ -330,16 +338,17 @@ def _numerical_state(st: Status, entry: Entry, quick: bool, root: Path, prov: di
             by.append(name)
         vouched |= got
     chained = _chain_vouch(names, prov, [c for c in st.changed if c not in vouched], root)
-    if vouched | chained >= set(st.changed):
+    by += sorted({name for used in chained.values() for name in used} - set(by))
+    if vouched | set(chained) >= set(st.changed):
         st.state = "current"
         st.why = (
             "code changed, quick mode of "
-            + ", ".join(by or names)
+            + ", ".join(by)
             + " reproduces"
             + (f" (through earlier checks: {', '.join(sorted(chained)[:3])})" if chained else "")
         )
     elif entry.checked_by:
-        rest = [c for c in st.changed if c not in vouched | chained]
+        rest = [c for c in st.changed if c not in vouched | set(chained)]
         st.why += "; not vouched for by " + ", ".join(entry.checked_by) + ": " + ", ".join(rest[:3])
 
 

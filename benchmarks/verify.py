@@ -353,6 +353,7 @@ def vouch_for(check_entry: Entry, result: Entry, root: Path = ROOT) -> dict[str,
         {"equivalence": files},
         root,
         how=f"quick mode at {commit[:10]} ({result.name}'s commit) against its saved quick JSON",
+        cpu=cpu_signature(_common.machine()),
     )
     return {**out, "outcome": "reproduces", "linked": sorted(files)}
 
@@ -395,7 +396,9 @@ def rebaseline(entry: Entry, root: Path = ROOT) -> dict[str, Any]:
     return {"commit": commit, "seconds": round(time.perf_counter() - t0, 1), "mismatch": baseline_mismatch(entry, root)}
 
 
-def _write_ledger(name: str, record: dict[str, Any], root: Path = ROOT, how: str | None = None) -> None:
+def _write_ledger(
+    name: str, record: dict[str, Any], root: Path = ROOT, how: str | None = None, cpu: str | None = None
+) -> None:
     """Write ``record`` as ``name``'s last check (unless it carries only an ``equivalence``) and
     its ``equivalence``, if any, as a link (``how`` it was made)."""
     path = root / VERIFICATIONS
@@ -416,7 +419,7 @@ def _write_ledger(name: str, record: dict[str, Any], root: Path = ROOT, how: str
             name,
             files,
             how or f"quick mode against its saved quick JSON ({record.get('date_utc')})",
-            record.get("cpu"),
+            cpu or record.get("cpu"),
         )
     path.write_text(json.dumps(ledger, indent=1) + "\n")
 
@@ -451,6 +454,7 @@ def preserve_standing_edge(name: str, root: Path = ROOT) -> None:
             {"equivalence": files},
             root,
             how=f"quick mode against its saved quick JSON ({record.get('date_utc')})",
+            cpu=record.get("cpu"),
         )
 
 

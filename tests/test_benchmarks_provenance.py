@@ -1065,7 +1065,8 @@ def test_vouch_for_links_a_result_made_with_other_versions_than_the_saved_quick_
         ]
         return
     assert out["linked"] == ["jaxabc/fake_dependency.py"]
-    assert st.state == "current" and "through earlier checks" in st.why
+    assert st.state == "current" and "quick mode of res reproduces (through earlier checks" in st.why
+    assert all(eq["cpu"] == "test" for eq in status.load_equivalences(fake_repo))
 
     # A rebaseline replaces the saved quick JSON (and so the standing v0-v2 link): the ledger kept it.
     verify.preserve_standing_edge("res", fake_repo)
