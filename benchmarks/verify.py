@@ -444,8 +444,8 @@ def _differing_files(a: dict[str, Any] | None, b_json: dict[str, Any], part: str
 
 
 def preserve_standing_edge(name: str, root: Path = ROOT) -> None:
-    """Keep the link that ``name``'s last check made (saved quick numbers reproduced) before a
-    rebaseline replaces the saved quick JSON it refers to."""
+    """Keep the link that ``name``'s last check made (saved quick numbers reproduced) before a new
+    check replaces its record, or a rebaseline the saved quick JSON it refers to."""
     files = standing_edge(name, root)
     if files:
         record = load_verifications(root).get(name, {})
@@ -585,26 +585,30 @@ def _vouch_all(checks: list[str], result_name: str, dry_run: bool) -> int:
     return 1 if bad else 0
 
 
-def _check_all(rows: list[tuple[Entry, float, str]], rebase: str | None, runs: Path, bad: list[str]) -> None:
+def _check_all(
+    rows: list[tuple[Entry, float, str]], rebase: str | None, runs: Path, bad: list[str], root: Path | None = None
+) -> None:
     """The checks of one invocation, in order, sharing the runs folder ``runs``; failures to ``bad``."""
+    root = ROOT if root is None else root
     for e, _, why in rows:
         if why:
             continue
         print(f"[{time.strftime('%H:%M:%S')}] {e.name}: {e.quick}", flush=True)
+        # This check's record, or a rebaseline, replaces the link the last check made: keep it.
+        preserve_standing_edge(e.name, root)
         rebased = None
-        if rebase == "always" or (rebase == "auto" and _needs_rebaseline(e)):
-            preserve_standing_edge(e.name)  # the saved quick JSON it rests on is about to go
+        if rebase == "always" or (rebase == "auto" and _needs_rebaseline(e, root)):
             try:
-                rebased = rebaseline(e)
+                rebased = rebaseline(e, root)
             except (RuntimeError, KeyError, ValueError) as err:  # one bad baseline does not end the pass
                 print(f"    rebaseline failed: {err!r}")
                 bad.append(e.name)
                 continue
             print(f"    rebaselined at {rebased['commit'][:10]} in {rebased['seconds']} s", flush=True)
-        record = check(e, runs=runs)
+        record = check(e, root, runs=runs)
         if rebased is not None:
             record["rebaselined"] = rebased
-        _write_ledger(e.name, record)
+        _write_ledger(e.name, record, root)
         print(f"[{time.strftime('%H:%M:%S')}] {e.name}: {record['outcome']} ({record['seconds']} s)", flush=True)
         if record["outcome"] in ("numbers changed", "failed"):
             bad.append(e.name)

@@ -934,7 +934,7 @@ def test_verify_invocations_share_a_runs_folder_only_when_asked(monkeypatch, tmp
     monkeypatch.setattr(verify, "REGISTRY", entries)
     monkeypatch.setattr(verify, "plan", lambda es, budget, include: [(e, 1.0, "") for e in es])
     monkeypatch.setattr(verify, "check", fake_check)
-    monkeypatch.setattr(verify, "_write_ledger", lambda name, record: None)
+    monkeypatch.setattr(verify, "_write_ledger", lambda name, record, root=None: None)
     assert verify.main(["--budget", "1h"]) == 0
     assert seen[0] == seen[1] and not seen[0].exists()
     seen.clear()
@@ -1075,4 +1075,41 @@ def test_vouch_for_links_a_result_made_with_other_versions_than_the_saved_quick_
     assert status.status_of(long, root=fake_repo).state == "current"
     # A change of meaning today breaks the chain: no link reaches today's version.
     module_file.write_text(SOURCE.replace("SCALE = 2.0", "SCALE = 3.0"))
+    assert status.status_of(long, root=fake_repo).state == "stale"
+
+
+def test_a_new_check_keeps_the_link_the_last_one_made(fake_repo: Path, monkeypatch, tmp_path: Path) -> None:
+    """A result made at v2 rests on the last check's link (saved v0 = v2); the next check, at v3,
+    replaces that record but not the link, so the result stays current through v0."""
+    from benchmarks import verify
+
+    sibling = QUICK_ENTRY
+    long = registry.Entry("long", "benchmarks/results/long.json", "python x.py --long", checked_by=("res",))
+    monkeypatch.setattr(status, "REGISTRY", (sibling, long))
+    monkeypatch.setattr(verify, "REGISTRY", (sibling, long))
+    module_file = fake_repo / "jaxabc/fake_dependency.py"
+    module_file.write_text(SOURCE.replace(*_VERSIONS["v0"]))
+    write_fake(fake_repo)
+    _common.write_result(fake_repo / sibling.quick_output, {"value": 1.5}, inputs=[fake_repo / "data.txt"])
+    module_file.write_text(SOURCE.replace(*_VERSIONS["v2"]))
+    write_fake(fake_repo, name="long")
+    monkeypatch.setattr(verify, "_run_command", _fake_quick_run(fake_repo, 1.5, sibling))
+    record = verify.check(sibling, fake_repo)
+    record.pop("equivalence")  # as a check recorded before links were kept
+    verify._write_ledger("res", record, fake_repo)
+    assert status.status_of(long, root=fake_repo).state == "current"  # code unchanged
+
+    module_file.write_text(SOURCE.replace(*_VERSIONS["v1"]))  # v3, also a refactor
+    st = status.status_of(long, root=fake_repo)
+    assert st.state == "stale"
+    bad: list[str] = []
+    probe = json.loads((fake_repo / registry.VERIFICATIONS).read_text())
+    verify._check_all([(sibling, 1.0, "")], None, tmp_path, bad, fake_repo)
+    assert bad == [] and status.load_verifications(fake_repo)["res"]["outcome"] == "reproduces"
+    st = status.status_of(long, root=fake_repo)
+    assert st.state == "current" and "through earlier checks" in st.why
+    # Without the kept link, v2 would not be joined to today's v3.
+    (fake_repo / registry.VERIFICATIONS).write_text(json.dumps(probe))
+    monkeypatch.setattr(verify, "preserve_standing_edge", lambda name, root: None)
+    verify._check_all([(sibling, 1.0, "")], None, tmp_path, bad, fake_repo)
     assert status.status_of(long, root=fake_repo).state == "stale"
