@@ -282,6 +282,16 @@ def _holdout_family() -> list[str]:
         + f"; {len(trusted)} with every emulator validated and no flag"
         + (f" (flagged: {', '.join(untrusted)})" if untrusted else "")
     )
+    low_ess = [
+        f"seed {d['settings'].get('seed', '?')} {m} ({e:.0f})"
+        for _, d in saved
+        for m, post in (d["model_choice"].get("posteriors") or {}).items()
+        if (e := post.get("ess")) is not None and e < 100
+    ]
+    if low_ess:
+        # The evidence does not rest on these draws (importance sampling over the box), the
+        # posterior summaries do.
+        sentence += "; posterior ESS below 100 (its posterior summaries, not its evidence): " + ", ".join(low_ess)
     if not trusted:
         sentence += "; no trusted verdict yet."
     elif len(trusted) == 1:
