@@ -46,6 +46,7 @@ __all__ = [
     "check_provenance",
     "compare_numbers",
     "deterministic_view",
+    "differing_versions",
     "legacy_cost",
     "load_equivalences",
     "main",
@@ -188,8 +189,14 @@ def standing_edge(name: str, root: Path = ROOT) -> dict[str, list[str]] | None:
     baseline = _quick_baseline(name, root)
     if baseline is None or record.get("baseline_date_utc", baseline.get("date_utc")) != baseline.get("date_utc"):
         return None
-    base = baseline.get("fingerprint", {}).get("code", {})
-    ran = record.get("fingerprint", {}).get("code", {})
+    return differing_versions(
+        baseline.get("fingerprint", {}).get("code", {}), record.get("fingerprint", {}).get("code", {})
+    )
+
+
+def differing_versions(base: dict[str, str], ran: dict[str, str]) -> dict[str, list[str]]:
+    """``{path: [version in base, version in ran]}`` over the code files both fingerprints record
+    whose versions differ: the link that equal quick numbers of the two make."""
     return {rel: [base[rel], ran[rel]] for rel in ran if rel in base and base[rel] != ran[rel]}
 
 

@@ -62,6 +62,7 @@ from benchmarks.status import (
     check_provenance,
     compare_numbers,
     deterministic_view,
+    differing_versions,
     format_cost,
     load_verifications,
     standing_edge,
@@ -438,9 +439,10 @@ def _add_equivalence(ledger: dict[str, Any], name: str, files: dict[str, list[st
 def _differing_files(a: dict[str, Any] | None, b_json: dict[str, Any], part: str | None) -> dict[str, list[str]]:
     """``{path: [version in a, version in b]}`` over the code files both provenances record and
     that differ: ``a`` a provenance record, ``b_json`` a quick JSON."""
-    base = ((a or {}).get("fingerprint") or {}).get("code", {})
-    ran = ((_provenance(b_json, part) or {}).get("fingerprint") or {}).get("code", {})
-    return {rel: [base[rel], ran[rel]] for rel in ran if rel in base and base[rel] != ran[rel]}
+    return differing_versions(
+        ((a or {}).get("fingerprint") or {}).get("code", {}),
+        ((_provenance(b_json, part) or {}).get("fingerprint") or {}).get("code", {}),
+    )
 
 
 def preserve_standing_edge(name: str, root: Path = ROOT) -> None:
