@@ -702,6 +702,16 @@ REGISTRY: tuple[Entry, ...] = (
         for seed in (0, 1, 2)
     ),
     _model_choice_variant(
+        "water_model_choice_calibrated_holdout_no_discrepancy",
+        "xray_quick_budget120_seed0_calibrated_holdout_r_oo_max2_no_discrepancy",
+        "--prior-width wide --model-prior TIP3P=0.95,1.08,0.4,2.5 "
+        "--seed 0 --budget-per-model 120 --emulator-variance calibrated --hold-out r_oo_max2_nm",
+        7200.0,
+        "seed 0 of the held-out family without the discrepancy term, every other setting equal: the "
+        "with-and-without comparison on emulators that validate (water_model_choice_no_discrepancy "
+        "was made at 60 runs per model with the GP's own variance, and 3 of its 5 emulators failed)",
+    ),
+    _model_choice_variant(
         "water_model_choice_sigma_x2",
         "xray_quick_sigma_x2",
         "--prior-width 0.9,1.1,0.6,2.5 --model-prior TIP3P=0.885,1.145,0.4,2.5 --discrepancy --budget-per-model 60",
