@@ -1001,6 +1001,7 @@ def test_the_model_choice_page_trusts_only_seeds_with_every_emulator_validated(m
         "s2": run(2, "undecided", None, "UNTRUSTED: B's emulator failed validation"),
     }
     monkeypatch.setattr(page, "HOLDOUT_FAMILY", ("s0", "s1", "s2"))
+    monkeypatch.setattr(page, "HOLDOUT_NO_DISCREPANCY", "nd")
     monkeypatch.setattr(page, "load", saved.get)
     text = "".join(page._holdout_family())
     assert "3 of 3 seeds run; 2 with every emulator validated and no flag (flagged: `s2`)" in text
@@ -1010,6 +1011,18 @@ def test_the_model_choice_page_trusts_only_seeds_with_every_emulator_validated(m
     assert "the 2 trusted seeds agree: undecided (the others: not run or flagged)." in "".join(page._holdout_family())
     del saved["s1"], saved["s2"]
     assert "the one trusted seed says undecided: one seed is not yet a verdict" in "".join(page._holdout_family())
+    assert "`nd` not run yet" in "".join(page._without_discrepancy(None))
+    # Without the discrepancy term: every model rejected by its misfit check, on validated emulators.
+    saved["nd"] = run(0, "undecided", None, "MISSPECIFIED: no model reproduces the data")
+    for name, p in (("A", 1e-4), ("B", 3e-3)):
+        saved["nd"]["per_model"][name]["observed_misfit"] = {"p_value": p}
+    text = "".join(page._holdout_family() + page._without_discrepancy(saved["nd"]))
+    assert "`nd` (seed 0, no discrepancy term) | undecided | MISSPECIFIED |" in text
+    assert "every emulator validated; the misfit check" in text and "A 0.0001, B 0.003" in text
+    assert "no model reproduces the measured summaries within their stated errors" in text
+    saved["nd"]["per_model"]["B"].update(validated=False, observed_misfit={"p_value": 0.4})
+    text = "".join(page._without_discrepancy(saved["nd"]))
+    assert "the emulators of B failed validation" in text and "rejected at p < 0.01: A" in text
 
 
 _VERSIONS = {

@@ -28,6 +28,8 @@ _CRITICISM_START = {
 #: The repeats meant to give the trusted verdict: calibrated emulator variance, 120 runs per
 #: model, ``r_oo_max2_nm`` held out (the one summary no emulator of TIP3P could fit), one per seed.
 HOLDOUT_FAMILY = tuple(f"water_model_choice_calibrated_holdout_seed{seed}" for seed in (0, 1, 2))
+#: Seed 0 of the family without the discrepancy term, every other setting equal.
+HOLDOUT_NO_DISCREPANCY = "water_model_choice_calibrated_holdout_no_discrepancy"
 
 
 def _saved_figures(d: dict) -> list[str]:
@@ -71,6 +73,7 @@ def page_water_model_choice() -> str:
         *_verdict(d),
         *_repeats(),
         *_holdout_family(),
+        *(_without_discrepancy(load(HOLDOUT_NO_DISCREPANCY)) if load(HOLDOUT_FAMILY[0]) is not None else []),
         *_variance_pairs(),
         *_emulator_failures(),
         *_summary_noise(),
@@ -239,27 +242,28 @@ def _holdout_family() -> list[str]:
     if not saved:
         return []
     names = saved[0][1]["model_choice"]["names"]
-    rows, trusted = [], []
-    for name, d in saved:
+    without = load(HOLDOUT_NO_DISCREPANCY)
+
+    def row(name: str, d: dict[str, Any], what: str) -> list[str]:
         mc = d["model_choice"]
         prior = np.asarray(mc["model_prior"], float)
         intervals = probability_bounds(
             np.asarray(mc["log_evidence"], float), np.asarray(mc["log_evidence_errors"], float), prior
         )
         verdict = d.get("verdict") or {}
-        flags = _flags(mc["stop_reason"])
-        if not flags:
-            trusted.append((name, d))
-        rows.append(
-            [
-                f"`{name}` (seed {d['settings'].get('seed', '?')})",
-                f"{verdict.get('status', '?')} {verdict.get('model') or ''}".strip(),
-                ", ".join(flags) or "-",
-                _validated(d),
-                f"{sum(row['num_simulations'] for row in d['per_model'].values())}",
-                *(f"{p:.3g} [{lo:.3g}, {hi:.3g}]" for p, (lo, hi) in zip(mc["probabilities"], intervals, strict=True)),
-            ]
-        )
+        return [
+            f"`{name}` ({what})",
+            f"{verdict.get('status', '?')} {verdict.get('model') or ''}".strip(),
+            ", ".join(_flags(mc["stop_reason"])) or "-",
+            _validated(d),
+            f"{sum(row['num_simulations'] for row in d['per_model'].values())}",
+            *(f"{p:.3g} [{lo:.3g}, {hi:.3g}]" for p, (lo, hi) in zip(mc["probabilities"], intervals, strict=True)),
+        ]
+
+    rows = [row(name, d, f"seed {d['settings'].get('seed', '?')}") for name, d in saved]
+    trusted = [(name, d) for name, d in saved if not _flags(d["model_choice"]["stop_reason"])]
+    if without is not None:
+        rows.append(row(HOLDOUT_NO_DISCREPANCY, without, "seed 0, no discrepancy term"))
     held = ", ".join(saved[0][1]["summaries"]["held_out"])
     out = [
         "The repeats meant to give the trusted verdict: the emulator's variance calibrated, 120 runs per "
@@ -302,6 +306,44 @@ def _holdout_family() -> list[str]:
     else:
         sentence += f"; the trusted seeds disagree ({'; '.join(statuses)}): the verdict depends on the seed."
     return [*out, sentence + "\n"]
+
+
+def _without_discrepancy(d: dict[str, Any] | None) -> list[str]:
+    """What seed 0 of the family says without the discrepancy term: whether its emulators
+    validated (so its misfits can be believed) and whether any model reproduces the data."""
+    if d is None:
+        return [f"Without the discrepancy term: `{HOLDOUT_NO_DISCREPANCY}` not run yet.\n"]
+    mc = d["model_choice"]
+    flags = _flags(mc["stop_reason"])
+    misfit = {name: (row.get("observed_misfit") or {}).get("p_value") for name, row in d["per_model"].items()}
+    failed = [name for name, row in d["per_model"].items() if row.get("validated") is False]
+    rejected = [name for name, p in misfit.items() if p is not None and p < 0.01]
+    text = (
+        "Without the discrepancy term (seed 0, every other setting equal): "
+        + (
+            f"the emulators of {', '.join(failed)} failed validation (their misfits are not trustworthy);"
+            if failed
+            else "every emulator validated;"
+        )
+        + " the misfit check (chi-square of the observed summaries against each model's emulated posterior "
+        "predictive) gives p = " + ", ".join(f"{name} {'-' if p is None else f'{p:.2g}'}" for name, p in misfit.items())
+    )
+    if len(rejected) == len(misfit):
+        text += (
+            ": no model reproduces the measured summaries within their stated errors, so without the "
+            "discrepancy term the probabilities rank misfits of rejected models"
+        )
+    elif rejected:
+        text += f": rejected at p < 0.01: {', '.join(rejected)}"
+    else:
+        text += ": no model is rejected at p < 0.01"
+    verdict = d.get("verdict") or {}
+    text += (
+        f". Its verdict: {verdict.get('status', '?')} {verdict.get('model') or ''}".rstrip()
+        + (f" ({', '.join(flags)})" if flags else "")
+        + ".\n"
+    )
+    return [text]
 
 
 def _variance_pairs() -> list[str]:
@@ -1487,6 +1529,7 @@ def outcome(d: dict[str, Any], checks: dict[str, Any], crits: dict[str, Any]) ->
             f"The repeats meant to be trusted (calibrated emulator variance, `r_oo_max2_nm` held out): {line}"
             for line in _holdout_family()[-1:]
         ),
+        *(_without_discrepancy(load(HOLDOUT_NO_DISCREPANCY)) if load(HOLDOUT_FAMILY[0]) is not None else []),
         misfit_table(d),
     ]
     for name, check in checks.items():
