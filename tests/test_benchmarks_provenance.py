@@ -1020,6 +1020,22 @@ def test_the_model_choice_page_trusts_only_seeds_with_every_emulator_validated(m
     assert "`nd` (seed 0, no discrepancy term) | undecided | MISSPECIFIED |" in text
     assert "every emulator validated; the misfit check" in text and "A 0.0001, B 0.003" in text
     assert "no model reproduces the measured summaries within their stated errors" in text
+    # The headline: two trusted seeds agree; a halved box of A turns it, one of B does not.
+    saved.update(s1=run(1, "undecided", None, "every model's emulator validated"))
+    halved = [
+        {"label": "A box x0.5", "probabilities": [0.8, 0.2], "intervals": [[0.7, 0.9], [0.1, 0.3]]},
+        {"label": "B box x0.5", "probabilities": [0.5, 0.5], "intervals": [[0.3, 0.7], [0.3, 0.7]]},
+        {"label": "A box x2", "probabilities": [float("nan")] * 2, "intervals": [[0.0, 1.0]] * 2},
+    ]
+    for name in ("s0", "s1"):
+        saved[name]["sensitivity"] = halved
+    head = "".join(page._family_headline())
+    assert head.startswith("**Verdict: undecided.** From the 2 trusted seeds of the held-out family (2 of 3 run")
+    assert "seed 0 A 0.90, seed 1 A 0.90" in head
+    assert "makes that model preferred in 2 of 4 (seed, model) cases: the differences" in head
+    assert "every model's misfit check rejects it (p < 0.01) on validated emulators" in head
+    saved["s1"]["verdict"] = {"status": "preferred", "model": "A"}
+    assert "**Verdict: depends on the seed.**" in "".join(page._family_headline())
     saved["nd"]["per_model"]["B"].update(validated=False, observed_misfit={"p_value": 0.4})
     text = "".join(page._without_discrepancy(saved["nd"]))
     assert "the emulators of B failed validation" in text and "rejected at p < 0.01: A" in text
