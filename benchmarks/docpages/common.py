@@ -97,6 +97,16 @@ def span(values: Sequence[float], digits: int = 2) -> str:
     return lo if lo == hi else f"{lo}-{hi}"
 
 
+#: What the misfit table's band and z each measure (they answer different questions).
+MISFIT_NOTE = (
+    "The band is the posterior predictive's central 90 % over posterior draws (it includes the "
+    "parameters' uncertainty); z is the residual left after the best linearised refit of the base "
+    "parameters to the fitted summaries, in units of the simulator's noise (and the prior's spread) "
+    "at the posterior point (`jaxabc.criticism`): an observed value can lie inside the band and still "
+    "have a large |z| when no single parameter value fits it together with the fitted summaries."
+)
+
+
 def misfit_rows(d: dict[str, Any], limit: int) -> list[list[str]]:
     """Rows of a criticism report's first ``limit`` misfits."""
     return [

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from benchmarks._common import RESULTS
-from benchmarks.docpages.common import cause_rows, f, figure, g, load, misfit_rows, source, table
+from benchmarks.docpages.common import MISFIT_NOTE, cause_rows, f, figure, g, load, misfit_rows, source, table
 from benchmarks.status import format_cost
 
 _FIGURES = (
@@ -213,6 +213,7 @@ def page_criticism_fluids() -> str:
             f"{format_cost(d['wall_time_s'])}.  Expected cause: `{expected}`.\n",
             f"Verdict: {d['verdict']}\n",
             table(["misfit", "observed", "predictive 90 % band", "z", "adjusted p", ""], misfits) + "\n",
+            MISFIT_NOTE + "\n",
             table(["cause", "score", "explains", "adjusted p", "ambiguous", "could these data see it", "note"], causes)
             + "\n",
             _figures(name),

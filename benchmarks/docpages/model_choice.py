@@ -11,7 +11,7 @@ import numpy as np
 
 from benchmarks._common import RESULTS
 from benchmarks._water_repeats import REPEATS, made_with_gp_variance
-from benchmarks.docpages.common import cause_rows, f, figure, load, misfit_rows, retired, source, table
+from benchmarks.docpages.common import MISFIT_NOTE, cause_rows, f, figure, load, misfit_rows, retired, source, table
 from jaxabc.model_choice import interval_leader, probabilities_with_errors, probability_bounds
 from md.water.models import PAPER_TIP4P_ESTIMATES
 from md.water.statistics import SECOND_SHELL_WINDOW_NM
@@ -53,8 +53,8 @@ def page_water_model_choice() -> str:
         "# Which rigid water model do the measured data prefer?\n",
         "Five published rigid water models, each with its O-O Lennard-Jones pair calibrated by the GP "
         "surrogate on the joint measured summaries, compared by their synthetic-likelihood evidence "
-        "(`benchmarks/water_model_choice.py`); then the criticism of the most probable one "
-        "(`benchmarks/criticism_water_joint.py`).  GROMACS quick preset.\n",
+        "(`benchmarks/water_model_choice.py`); then the criticism of the most probable one, or of TIP4P when "
+        "the choice is undecided (`benchmarks/criticism_water_joint.py`).  GROMACS quick preset.\n",
         *_family_headline(),
     ]
     if parts[-1].startswith("**Verdict"):
@@ -67,7 +67,8 @@ def page_water_model_choice() -> str:
         source("water_model_choice", data=d) + "\n",
         f"Data: {d['data']} at {settings.get('temperature_k', 298.15)} K; fitted summaries "
         f"{', '.join(summaries['fitted'])}; held out {', '.join(summaries['held_out'])}; measurement errors "
-        f"(each source's stated error, {summaries.get('observation_error_via', 'added to every simulation')}): "
+        "(stated by each source, or a documented estimate where it states none: `md/water/data/PROVENANCE.md`; "
+        f"{summaries.get('observation_error_via', 'added to every simulation')}): "
         + ", ".join(f"{k} {f(v, 3)}" for k, v in added.items() if v)
         + f"; prior width: {settings.get('prior_width', 'default')}"
         + _own_boxes(d)
@@ -155,7 +156,8 @@ def _criticisms_compared(crits: dict[str, dict[str, Any] | None]) -> list[str]:
                 f"{worst.get('name', '-')} (z {worst.get('residual', float('nan')):+.1f})",
                 f"{top.get('name', '-')} ({top.get('score', float('nan')):.1f})",
                 ", ".join(c.get("needed") or []) or "-",
-                f"{g.get('delta_lpd', float('nan')):.1f} +- {g.get('delta_lpd_se', float('nan')):.1f}",
+                f"{g.get('delta_lpd', float('nan')):.1f} +- {g.get('delta_lpd_se', float('nan')):.1f}"
+                + (" (extension not validated)" if _extension_failed(name, c) else ""),
             ]
         )
         causes.add(top.get("name"))
@@ -174,8 +176,22 @@ def _criticisms_compared(crits: dict[str, dict[str, Any] | None]) -> list[str]:
             else "."
         )
     common = set.intersection(*(set(c.get("needed") or []) for c in saved.values()))
+    # A cause counts only where it explains part of the residual in that run.
+    explains = {
+        name: {k["name"] for k in c.get("causes") or [] if k.get("fraction_explained", 0.0) >= 0.05}
+        for name, c in saved.items()
+    }
+    common = {cause for cause in common if all(cause in e for e in explains.values())}
     if common:
-        sentence += f"  Needed jointly in every run: {', '.join(sorted(common))}."
+        sentence += (
+            f"  Needed jointly, and explaining at least 5 % of the residual, in every run: {', '.join(sorted(common))}."
+        )
+    unvalidated = [_CRITICISM_START.get(n, n) for n, c in saved.items() if _extension_failed(n, c)]
+    if unvalidated:
+        sentence += (
+            f"  The extension's emulator failed validation in the run {'; '.join(unvalidated)}: its gain is not "
+            "trustworthy."
+        )
     return [
         "## With and without the discrepancy term\n",
         table(["criticism", "largest misfit", "top cause (score)", "needed jointly", "held-out delta lpd"], rows)
@@ -271,7 +287,7 @@ def _family_headline() -> list[str]:
     text = (
         f"**Verdict: {head}.** From the {len(trusted)} trusted seeds of the held-out family "
         f"({len(saved)} of {len(HOLDOUT_FAMILY)} run; trusted: every emulator validated on held-out runs, no "
-        "flag; calibrated emulator variance, 120 GROMACS runs per model, table below): "
+        "flag; calibrated emulator variance, a budget of 120 GROMACS runs per model, table below): "
         + (
             f"every one says {statuses[0]}"
             if len(statuses) == 1
@@ -281,14 +297,38 @@ def _family_headline() -> list[str]:
     )
     if halved:
         text += (
-            f" Halving one model's prior box about its centre makes that model preferred in {turned} of {halved} "
-            "(seed, model) cases"
+            f" Halving one model's prior box (its force-field box about its centre and its discrepancy bounds) "
+            f"makes that model preferred in {turned} of {halved} (seed, model) cases"
             + (
                 ": the differences the data make between these models are smaller than what a factor-2 choice "
-                "of prior width makes (each model's Occam factor), so no ranking among them is a finding."
+                "of prior makes, so no ranking among them is a finding"
                 if turned
-                else "."
+                else ""
             )
+        )
+        split = load("water_box_sensitivity")
+        if turned and split is not None:
+            moves = split["log_evidence_change_abs"]
+            text += (
+                f"; split apart over the earlier repeats, halving the discrepancy bounds moves a model's log "
+                f"evidence by a median {moves['discrepancy']['median']:.2f}, halving the force-field box by "
+                f"{moves['parameters']['median']:.2f}, so the discrepancy priors weigh most"
+            )
+        text += "."
+    edges: dict[str, list[str]] = {}
+    for _, d in trusted:
+        for model, e in (d.get("prior_edge") or {}).items():
+            for message in e.get("messages") or []:
+                share, rest = message.split(" of the posterior mass of ", 1)
+                edges.setdefault(f"{model}'s {rest.split(' lies within')[0]}", []).append(
+                    f"{share} in seed {d['settings'].get('seed', '?')}"
+                )
+    if edges:
+        text += (
+            " Piled on a bound of its box (more than 5 % of the posterior within 2 % of it): "
+            + "; ".join(f"{what} ({', '.join(where)})" for what, where in edges.items())
+            + _edge_limit(list(edges))
+            + "."
         )
     without = load(HOLDOUT_NO_DISCREPANCY)
     if without is not None:
@@ -305,6 +345,26 @@ def _family_headline() -> list[str]:
         "these data; bounds on the discrepancy sds from outside the fit (tables below)."
     )
     return [text + "\n"]
+
+
+def _edge_limit(piled: list[str]) -> str:
+    """Why a piled-up TIP3P or TIP4P epsilon cannot go lower: the quick box is not liquid there
+    (``water_prior_range_low``), when that result is saved."""
+    low = load("water_prior_range_low")
+    if low is None or not any("epsilon" in p for p in piled):
+        return ""
+    scan = low.get("scan") or []
+    liquid = sum(bool(r.get("liquid")) for r in scan)
+    factors = sorted({r["epsilon_factor"] for r in scan if "epsilon_factor" in r})
+    lo, hi = low["liquid_density_kg_m3"]
+    return (
+        f"; at the published sigma the quick box is not a liquid there ({liquid} of {len(scan)} runs at epsilon "
+        f"x{factors[0]:g}-x{factors[-1]:g} with density in [{lo:g}, {hi:g}] kg/m3 and D >= "
+        f"{low['min_diffusion_1e5_cm2_s']:g}: the box densifies, then collapses; `water_prior_range_low`): a "
+        "physical limit of the model in this protocol, not a box to widen"
+        if scan and factors
+        else ""
+    )
 
 
 def _holdout_family() -> list[str]:
@@ -340,8 +400,8 @@ def _holdout_family() -> list[str]:
         rows.append(row(HOLDOUT_NO_DISCREPANCY, without, "seed 0, no discrepancy term"))
     held = ", ".join(saved[0][1]["summaries"]["held_out"])
     out = [
-        "The repeats meant to give the trusted verdict: the emulator's variance calibrated, 120 runs per "
-        f"model, and `r_oo_max2_nm` held out (held out in these runs: {held}), because every lack-of-fit "
+        "The repeats meant to give the trusted verdict: the emulator's variance calibrated, a budget of 120 "
+        f"runs per model, and `r_oo_max2_nm` held out (held out in these runs: {held}), because every lack-of-fit "
         "failure above is that one summary. One run per seed; probability [interval], each log evidence "
         "+- 2 s.e.:\n",
         table(["run", "verdict", "flags", _VALIDATED_HEADER, "GROMACS runs", *names], rows) + "\n",
@@ -832,8 +892,9 @@ def _summary_noise() -> list[str]:
         f"above the normal's {null[1]:+.2f}); for the others it is consistent with normal noise, so their "
         "held-out tails are the emulator's error."
         if heavy
-        else "For every summary the noise is consistent with normal noise, so the held-out errors' heavy "
-        "tails are the emulator's error, not the simulator's."
+        else "No summary's noise is heavier-tailed than normal (every interval's lower end is below the "
+        f"upper end of normal noise's, {null[1]:+.2f}), so the held-out errors' heavy tails are the emulator's "
+        "error, not the simulator's."
     ) + (
         "  (The noise was measured at one point per model, its posterior estimate; near the network break "
         "a run can land on either structure, which no Gaussian noise model describes.)"
@@ -1104,7 +1165,8 @@ def _published() -> list[str]:
         rows.append([name, *cells, f"{m['num_runs']} ({len(m['failures'])} failed)"])
     return [
         f"Each model at its published parameters, same protocol ({p['temperature_k']} K), mean over "
-        f"{p['runs_per_model']} runs (z: standardised misfit with the stated error):\n",
+        f"{p['runs_per_model']} runs (z: (mean - measured) / sqrt(stated error^2 + the mean's squared standard "
+        "error over the runs)):\n",
         table(["model", *names, "runs"], rows) + "\n",
         source("water_published_predictive", data=p) + "\n",
     ]
@@ -1249,7 +1311,8 @@ def _verdict(d: dict[str, Any]) -> list[str]:
     v = d.get("verdict")
     if v:
         who = f" {v['model']}" if v.get("model") else ""
-        out.append(f"**Verdict: {v['status']}{who}.** {v['reason']}.\n")
+        reason = v["reason"][:1].upper() + v["reason"][1:]
+        out.append(f"**Verdict: {v['status']}{who}.** {reason}.\n")
     rows = d.get("sensitivity") or []
     if rows:
         names = list(d["per_model"])
@@ -1285,11 +1348,12 @@ def _verdict(d: dict[str, Any]) -> list[str]:
                 "In this run no model reproduces "
                 + ", ".join(everyone)
                 + " within the measurement error (every model's discrepancy "
-                "sd there is above 0 at 95 %)" + _over_repeats(everyone) + ". "
+                "sd's 2.5 % point lies above 2 % of its bound)" + _over_repeats(everyone) + ". "
                 if everyone
                 else "Every group is reproduced by at least one model. "
             )
             + "; ".join(f"{g}: missed by {', '.join(n)}" for g, n in missed.items() if n and g not in everyone)
+            + (". " if any(n and g not in everyone for g, n in missed.items()) else "")
             + "\n"
         )
         out += [
@@ -1473,8 +1537,14 @@ def _paper_check(name: str, c: dict[str, Any]) -> list[str]:
         f"## Does {c['model']}'s calibration hold in the paper preset?\n",
         source(name, data=c) + "\n",
         f"Model: {c['model']}, {c.get('model_selected_as', 'the most probable model')}.\n",
-        f"{sets['calibrated_paper']['num_runs']} posterior draws run in both presets with the same keys "
-        f"(mean +- sd over runs; the shift is paired, +- its SE), and "
+        f"{sets['calibrated_quick']['num_runs']} posterior draws run in the quick preset and again in the paper "
+        f"preset with the same keys, {sets['calibrated_paper']['num_runs']} of them completed there"
+        + (
+            f" ({'; '.join(c['failures']['calibrated_paper'])})"
+            if (c.get("failures") or {}).get("calibrated_paper")
+            else ""
+        )
+        + " (mean +- sd over runs; the shift is paired over the draws run in both, +- its SE), and "
         f"{sets['published_paper']['num_runs']} runs at the published parameters in the paper preset "
         f"({c['check_preset']}).\n",
         table(header, rows) + "\n",
@@ -1498,7 +1568,8 @@ def _criticism(name: str, c: dict[str, Any]) -> list[str]:
     ]
     misfits, causes = misfit_rows(c, 8), cause_rows(c)
     if misfits:
-        lines.append(table(["misfit", "observed", "predictive 90 % band", "z", "adjusted p", ""], misfits) + "\n")
+        lines += [table(["misfit", "observed", "predictive 90 % band", "z", "adjusted p", ""], misfits) + "\n"]
+        lines += [MISFIT_NOTE + "\n"]
     if causes:
         lines.append(table(["cause", "score", "explains", "adjusted p", "ambiguous", "note"], causes) + "\n")
     gain = c.get("gain")
@@ -1553,6 +1624,12 @@ def _extension_box(result: Any) -> tuple[list[float], list[float]] | None:
     return [float(v) for v in result.prior.low], [float(v) for v in result.prior.high]
 
 
+def _extension_failed(name: str, c: dict[str, Any]) -> bool:
+    """Whether a criticism's saved extension refit failed its emulator's validation."""
+    saved = _extension(RESULTS / f"{name}_{c['data']}" / "extension.npz")
+    return saved is not None and saved.diagnostics.get("validated") is False
+
+
 def _extension_validation(result: Any) -> str:
     """Whether an extension refit has a validated emulator ("" when not saved)."""
     if result is None:
@@ -1598,8 +1675,8 @@ def outcome(d: dict[str, Any], checks: dict[str, Any], crits: dict[str, Any]) ->
     parts = [
         *_family_headline(),
         source("water_model_choice", data=d),
-        f"Verdict of the model choice: {d['model_choice']['stop_reason']}.",
-        *_verdict(d)[:1],
+        f"The first run in detail (seed 0, 60 runs per model) stopped: {d['model_choice']['stop_reason']}.",
+        *(line.replace("**Verdict:", "**The first run's verdict:", 1) for line in _verdict(d)[:1]),
         *(
             f"The repeats meant to be trusted (calibrated emulator variance, `r_oo_max2_nm` held out): {line}"
             for line in _holdout_family()[-1:]
