@@ -1034,6 +1034,25 @@ def test_the_model_choice_page_trusts_only_seeds_with_every_emulator_validated(m
     assert "seed 0 A 0.90, seed 1 A 0.90" in head
     assert "makes that model preferred in 2 of 4 (seed, model) cases: the differences" in head
     assert "every model's misfit check rejects it (p < 0.01) on validated emulators" in head
+    # Calibrated predictive medians against the published parameters' means.
+    saved["water_published_predictive"] = {
+        "summary_names": ["S9", "density_kg_m3", "hvap_kj_mol"],
+        "observed": [2.0, 1000.0, 44.0],
+        "models": {"A": {"mean": [3.0, 990.0, 43.0]}, "B": {"mean": [2.5, 1001.0, 40.0]}},
+    }
+    quantiles = {"A": [4.0, 995.0, 43.5], "B": [2.2, 1010.0, 41.0]}
+    for name in ("s0", "s1"):
+        saved[name]["predictive"] = {
+            "models": {m: {"scalars": [[0.0] * 3, [0.0] * 3, q, [0.0] * 3, [0.0] * 3]} for m, q in quantiles.items()}
+        }
+    assert page._worse_pairs(saved["s0"]) == (
+        ["A S9 3 -> 4 (measured 2)", "B density_kg_m3 1001 -> 1010 (measured 1000)"],
+        6,
+    )
+    assert (
+        "farther from the measured values than the published parameters in 2 of 6 (model, property) pairs in "
+        "seed 0 and 2 of 6 in seed 1" in "".join(page._family_headline())
+    )
     saved["s1"]["verdict"] = {"status": "preferred", "model": "A"}
     assert "**Verdict: depends on the seed.**" in "".join(page._family_headline())
     saved["nd"]["per_model"]["B"].update(validated=False, observed_misfit={"p_value": 0.4})
