@@ -12,6 +12,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
+from benchmarks._water_family import HOLDOUT_FAMILY
 from benchmarks._water_repeats import REPEATS
 
 __all__ = ["CACHES", "REGISTRY", "TIMING_KEYS", "VERIFICATIONS", "Entry", "by_name"]
@@ -740,10 +741,10 @@ REGISTRY: tuple[Entry, ...] = (
         quick="python -m benchmarks.water_box_sensitivity --quick",
         quick_output=f"{Q}/water_box_sensitivity.json",
         estimated_cost_s=30.0,
-        after=(*(name for name, _ in REPEATS), "water_published_predictive"),
+        after=(*(name for name, _ in (*REPEATS, *HOLDOUT_FAMILY)), "water_published_predictive"),
         note="which prior moves the water model probabilities: each model's force-field box and its "
         "discrepancy bounds halved apart, and the bounds set from the published models' misfits, from "
-        "the saved repeats (no GROMACS)",
+        "the saved repeats and the held-out family (no GROMACS)",
     ),
     Entry(
         "water_summary_noise",

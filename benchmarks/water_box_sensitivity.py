@@ -2,7 +2,8 @@
 
 The model choice's sensitivity rows scale a model's whole box, force-field parameters and
 discrepancy sds together (``jaxabc.ModelChoiceResult.sensitivity``).  This splits them, from each
-saved repeat with the discrepancy term (no new simulations: every box here is inside the run's, so
+saved repeat with the discrepancy term, the earlier repeats and the held-out family
+(:mod:`benchmarks._water_family`) (no new simulations: every box here is inside the run's, so
 :meth:`~jaxabc.model_choice.ModelChoiceResult.sensitivity` reuses the run):
 
 - ``parameters x s``: the model's (sigma, epsilon) box scaled by ``s`` about its centre, its
@@ -40,6 +41,7 @@ from typing import Any
 import numpy as np
 
 from benchmarks._common import RESULTS, ROOT, machine, relative, write_result
+from benchmarks._water_family import HOLDOUT_FAMILY
 from benchmarks._water_repeats import REPEATS
 from jaxabc.model_choice import (
     STATUS_REUSED,
@@ -207,6 +209,18 @@ def analyse_repeat(
     }
 
 
+def _moves(repeats: list[dict[str, Any]]) -> dict[str, dict[str, float]] | None:
+    """Median and largest ``|log evidence change|`` of the halved force-field boxes and of the
+    halved discrepancy bounds over ``repeats`` (None when there are none)."""
+    if not repeats:
+        return None
+    moves: dict[str, list[float]] = {"parameters": [], "discrepancy": []}
+    for r in repeats:
+        for row in r["rows"]:
+            moves[row["kind"]].append(abs(row["log_evidence_change"]))
+    return {k: {"median": float(np.median(v)), "max": float(np.max(v)), "n": len(v)} for k, v in moves.items()}
+
+
 def main(argv: list[str] | None = None) -> dict[str, Any]:
     parser = argparse.ArgumentParser(description=(__doc__ or "").split("\n\n")[0])
     parser.add_argument("--quick", action="store_true", help="write the quick JSON (the same analysis)")
@@ -216,30 +230,26 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     published = json.loads(published_path.read_text()) if published_path.is_file() else None
     if published is not None:
         inputs.append(published_path)
-    for name, what in REPEATS:
+    family = {name for name, _ in HOLDOUT_FAMILY}
+    for name, what in (*REPEATS, *HOLDOUT_FAMILY):
         path = RESULTS / f"{name}.json"
         if not path.is_file():
             continue
         d = json.loads(path.read_text())
         out = analyse_repeat(name, what, d, published)
         if out is not None:
-            repeats.append(out)
+            repeats.append(out | {"family": name in family})
             inputs.append(ROOT / d["saved_result"] / "model_choice.json")
     if not repeats:
         raise SystemExit("no saved model-choice repeat with the discrepancy term")
-    moves: dict[str, list[float]] = {"parameters": [], "discrepancy": []}
-    for r in repeats:
-        for row in r["rows"]:
-            moves[row["kind"]].append(abs(row["log_evidence_change"]))
     payload = {
         "machine": machine(),
         "scales": list(SCALES),
         "family_factors": list(FAMILY_FACTORS),
         "published_result": PUBLISHED if published is not None else None,
         "repeats": repeats,
-        "log_evidence_change_abs": {
-            k: {"median": float(np.median(v)), "max": float(np.max(v)), "n": len(v)} for k, v in moves.items()
-        },
+        "log_evidence_change_abs": _moves(repeats),
+        "family_log_evidence_change_abs": _moves([r for r in repeats if r["family"]]),
     }
     out = write_result("water_box_sensitivity", payload, quick=args.quick, inputs=inputs)
     print(json.dumps(payload["log_evidence_change_abs"], indent=1))
