@@ -481,7 +481,7 @@ def _holdout_family() -> list[str]:
     out = [
         "The repeats meant to give the trusted verdict: the emulator's variance calibrated, a budget of 120 "
         f"runs per model, and `r_oo_max2_nm` held out (held out in these runs: {held}), because every lack-of-fit "
-        "failure above is that one summary. One run per seed; probability [interval], each log evidence "
+        "failure of the earlier repeats is that one summary (below). One run per seed; probability [interval], each log evidence "
         "+- 2 s.e.:\n",
         table(["run", "verdict", "flags", _VALIDATED_HEADER, "GROMACS runs", *names], rows) + "\n",
     ]
@@ -698,9 +698,9 @@ def _emulator_failures() -> list[str]:
         f"would fail the marginal or the targeted check {chance['either']:.0%} of the time by chance "
         f"(checks built for 0.1 % under a normal), against {s['failed'] / s['emulators']:.0%} observed: chance "
         f"under such tails accounts for {chance['either'] / (s['failed'] / s['emulators']):.0%} of the failure "
-        "rate.  Whether the tails are the simulator's noise or the emulator's error, the replicates below say "
-        "(the designs hold 5 replicates at each of 2 sites per emulator, too few).  The Gaussian synthetic "
-        "likelihood assumes what the checks assume.\n",
+        "rate.  The designs hold too few replicates (5 at each of 2 sites per emulator) to tell the simulator's "
+        "noise from the emulator's error; the noise runs below do.  The Gaussian synthetic likelihood assumes "
+        "what the checks assume.\n",
         *(
             [
                 f"Run by run, {by_run['with_a_miss']} of {by_run['runs']} held-out runs miss a summary by more than "
@@ -758,8 +758,9 @@ def _lack_of_fit(rows: list[dict[str, Any]] | None) -> list[str]:
             f"curve's slight tilt: in {len(edges)} of {len(rows)} of these emulators the runs span the window from "
             "edge to edge (5-95 %).  The summary is then discontinuous in the parameters, whatever the number of "
             "runs.  "
-            "Not done: a continuous locator (the window's g-weighted centroid, say) would remove this failure; it "
-            "changes every water summary and so every model choice here.\n"
+            "A continuous locator (the window's g-weighted centroid, say) would remove this failure but change "
+            "every water summary and so every model choice here; the held-out family holds the summary out "
+            "instead.\n"
         ]
         if edges
         else []
