@@ -481,8 +481,8 @@ def _holdout_family() -> list[str]:
     out = [
         "The repeats meant to give the trusted verdict: the emulator's variance calibrated, a budget of 120 "
         f"runs per model, and `r_oo_max2_nm` held out (held out in these runs: {held}), because every lack-of-fit "
-        "failure of the earlier repeats is that one summary (below). One run per seed; probability [interval], each log evidence "
-        "+- 2 s.e.:\n",
+        "failure of the earlier repeats is that one summary (below). One run per seed; probability "
+        "[interval], each log evidence +- 2 s.e.:\n",
         table(["run", "verdict", "flags", _VALIDATED_HEADER, "GROMACS runs", *names], rows) + "\n",
     ]
     statuses = sorted(
