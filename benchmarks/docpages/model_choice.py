@@ -56,7 +56,7 @@ def page_water_model_choice() -> str:
         "the choice is undecided (`benchmarks/criticism_water_joint.py`).  GROMACS quick preset.\n",
         *_family_headline(),
     ]
-    if parts[-1].startswith("**Verdict"):
+    if len(parts) > 2:  # the family's headline is there: what follows is the first run
         parts.append("The first run in detail (seed 0, 60 runs per model; its own verdict below):\n")
     d = load("water_model_choice")
     summaries = d["summaries"]
@@ -296,9 +296,11 @@ def _repeats() -> list[str]:
 
 
 def _family_headline() -> list[str]:
-    """The verdict the page stands on: the trusted seeds of :data:`HOLDOUT_FAMILY` (every emulator
-    validated, no flag), whether they agree, how far one halved box moves them, and what the
-    run without the discrepancy term says.  Empty until a seed of the family is saved."""
+    """The verdict the page stands on, from the trusted seeds of :data:`HOLDOUT_FAMILY` (every
+    emulator validated, no flag): whether they agree, then one bullet each for the prior boxes,
+    piled-up bounds, the calibrated predictions against the published parameters, the run
+    without the discrepancy term, and what would change the verdict.  Empty until a seed of the
+    family is saved."""
     saved = [(name, d) for name in HOLDOUT_FAMILY if (d := load(name)) is not None]
     trusted = [(name, d) for name, d in saved if not _flags(d["model_choice"]["stop_reason"])]
     if not saved:
@@ -338,10 +340,11 @@ def _family_headline() -> list[str]:
         )
         + f"; the most probable model in each: {', '.join(leaders)}."
     )
+    bullets = []
     if halved:
-        text += (
-            f" Halving one model's prior box (its force-field box about its centre and its discrepancy bounds) "
-            f"makes that model preferred in {turned} of {halved} (seed, model) cases"
+        line = (
+            f"Prior boxes: halving one model's prior box (its force-field box about its centre and its discrepancy "
+            f"bounds) makes that model preferred in {turned} of {halved} (seed, model) cases"
             + (
                 ": the differences the data make between these models are smaller than what a factor-2 choice "
                 "of prior makes, so no ranking among them is a finding"
@@ -356,10 +359,10 @@ def _family_headline() -> list[str]:
             if not moves:
                 moves, where = split["log_evidence_change_abs"], "over the earlier repeats"
             weigh = moves["discrepancy"]["median"] > moves["parameters"]["median"]
-            text += (
-                f"; split apart {where}, halving the discrepancy bounds moves a model's log evidence by a median "
+            line += (
+                f". Split apart {where}, halving the discrepancy bounds moves a model's log evidence by a median "
                 f"{moves['discrepancy']['median']:.2f}, halving the force-field box by "
-                f"{moves['parameters']['median']:.2f}" + (", so the discrepancy priors weigh most" if weigh else "")
+                f"{moves['parameters']['median']:.2f}" + (": the discrepancy priors weigh most" if weigh else "")
             )
             bounded = [
                 v
@@ -370,16 +373,15 @@ def _family_headline() -> list[str]:
             ]
             if bounded:
                 verdicts = sorted({v["verdict"] for v in bounded})
-                text += (
-                    "; with every discrepancy bound set from the published models' misfits instead (a bound "
-                    f"from the published models' own runs, not from this fit), {len(bounded)} of {len(bounded)} "
-                    "trusted seeds say "
-                    f"{verdicts[0]}, least probable {', '.join(v['least'] for v in bounded)}"
+                line += (
+                    ". With every discrepancy bound set from the published models' misfits instead (from the "
+                    f"published models' own runs, not from this fit), {len(bounded)} of {len(bounded)} trusted "
+                    f"seeds say {verdicts[0]}, least probable {', '.join(v['least'] for v in bounded)}"
                     if len(verdicts) == 1
-                    else f"; with every discrepancy bound set from the published models' misfits instead, the "
+                    else ". With every discrepancy bound set from the published models' misfits instead, the "
                     f"trusted seeds say {'; '.join(v['verdict'] for v in bounded)}"
                 )
-        text += "."
+        bullets.append(line + ".")
     edges: dict[str, list[str]] = {}
     for _, d in trusted:
         for model, e in (d.get("prior_edge") or {}).items():
@@ -389,8 +391,8 @@ def _family_headline() -> list[str]:
                     f"{share} in seed {d['settings'].get('seed', '?')}"
                 )
     if edges:
-        text += (
-            " Piled on a bound of its box (more than 5 % of the posterior within 2 % of it): "
+        bullets.append(
+            "Prior edges: piled on a bound of its box (more than 5 % of the posterior within 2 % of it): "
             + "; ".join(f"{what} ({', '.join(where)})" for what, where in edges.items())
             + _edge_limit(list(edges))
             + "."
@@ -398,9 +400,9 @@ def _family_headline() -> list[str]:
     worse = [(d["settings"].get("seed", "?"), *_worse_pairs(d)) for _, d in trusted]
     worse = [(seed, len(w), n) for seed, w, n in worse if n]
     if worse:
-        text += (
-            " The calibrated parameters leave D (S9), the held-out density and hvap farther from the measured "
-            "values than the published parameters in "
+        bullets.append(
+            "Predictions: the calibrated parameters leave D (S9), the held-out density and hvap farther from the "
+            "measured values than the published parameters in "
             + " and ".join(
                 f"{k} of {n}" + (" (model, property) pairs" if i == 0 else "") + f" in seed {seed}"
                 for i, (seed, k, n) in enumerate(worse)
@@ -413,17 +415,25 @@ def _family_headline() -> list[str]:
     if without is not None:
         p = [(row.get("observed_misfit") or {}).get("p_value") for row in without["per_model"].values()]
         ok = all(row.get("validated") is True for row in without["per_model"].values())
-        if all(v is not None and v < 0.01 for v in p):
-            text += (
-                " Without the discrepancy term (seed 0) every model's misfit check rejects it (p < 0.01)"
-                + (" on validated emulators" if ok else ", though not every emulator validated")
-                + ": no rigid model here reproduces the measured summaries within their stated errors."
+        line = "Without the discrepancy term (seed 0): " + (
+            "every model's misfit check rejects it (p < 0.01)"
+            + (" on validated emulators" if ok else ", though not every emulator validated")
+            + ": no rigid model here reproduces the measured summaries within their stated errors"
+            if all(v is not None and v < 0.01 for v in p)
+            else f"verdict {status(without)}" + ("" if ok else ", not every emulator validated")
+        )
+        w, n = _worse_pairs(without)
+        if n:
+            line += (
+                "; its calibrated predictions of D, density and hvap are farther from the measured values than "
+                f"the published parameters' in {len(w)} of {n} pairs"
             )
-    text += (
-        " What would change it: a seed that prefers one model; a prior box narrowed on grounds outside "
+        bullets.append(line + ".")
+    bullets.append(
+        "What would change it: a seed that prefers one model; a prior box narrowed on grounds outside "
         "these data; bounds on the discrepancy sds from outside the fit (tables below)."
     )
-    return [text + "\n"]
+    return [text + "\n", "\n".join(f"- {b}" for b in bullets) + "\n"]
 
 
 def _edge_limit(piled: list[str]) -> str:
