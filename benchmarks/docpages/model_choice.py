@@ -1571,7 +1571,7 @@ def side_by_side(d: dict[str, Any]) -> str:
 _HEADER = [
     "model",
     "probability",
-    "95 % interval",
+    "2.5-97.5 % (log evidences drawn)",
     "sigma_OO nm: estimate [95 %] / published",
     "epsilon_OO kJ/mol: estimate [95 %] / published",
     "runs (failed)",
