@@ -334,12 +334,23 @@ def _family_headline() -> list[str]:
         f"({len(saved)} of {len(HOLDOUT_FAMILY)} run; trusted: every emulator validated on held-out runs, no "
         "flag; calibrated emulator variance, a budget of 120 GROMACS runs per model, table below): "
         + (
-            f"every one says {statuses[0]}"
+            f"each says {statuses[0]}"
             if len(statuses) == 1
             else "they disagree (" + "; ".join(status(d) for _, d in trusted) + ")"
         )
         + f"; the most probable model in each: {', '.join(leaders)}."
     )
+    flagged = [(n, d) for n, d in saved if (n, d) not in trusted]
+    if flagged:
+        text += (
+            " Not counted: "
+            + "; ".join(
+                f"seed {d['settings'].get('seed', '?')} ({', '.join(_flags(d['model_choice']['stop_reason']))}: "
+                f"{_failed_models(d) or 'flagged'}), which says {status(d)}"
+                for _, d in flagged
+            )
+            + "."
+        )
     bullets = []
     if halved:
         line = (
@@ -434,6 +445,16 @@ def _family_headline() -> list[str]:
         "these data; bounds on the discrepancy sds from outside the fit (tables below)."
     )
     return [text + "\n", "\n".join(f"- {b}" for b in bullets) + "\n"]
+
+
+def _failed_models(d: dict[str, Any]) -> str:
+    """ "X's emulator failed validation" for each model of a run whose emulator failed ("" if none)."""
+    failed = [m for m, row in d["per_model"].items() if row.get("validated") is False]
+    return (
+        ", ".join(failed) + ("'s emulator" if len(failed) == 1 else "'s emulators") + " failed validation"
+        if failed
+        else ""
+    )
 
 
 def _edge_limit(piled: list[str]) -> str:
