@@ -448,7 +448,7 @@ def _family_headline() -> list[str]:
 
 
 def _failed_models(d: dict[str, Any]) -> str:
-    """ "X's emulator failed validation" for each model of a run whose emulator failed ("" if none)."""
+    """Which models' emulators failed validation in a run, as a phrase ("" if none)."""
     failed = [m for m, row in d["per_model"].items() if row.get("validated") is False]
     return (
         ", ".join(failed) + ("'s emulator" if len(failed) == 1 else "'s emulators") + " failed validation"
