@@ -393,20 +393,24 @@ def _family_headline() -> list[str]:
                     f"trusted seeds say {'; '.join(v['verdict'] for v in bounded)}"
                 )
         bullets.append(line + ".")
-    edges: dict[str, list[str]] = {}
+    edges: list[str] = []
     for _, d in trusted:
         for model, e in (d.get("prior_edge") or {}).items():
             for message in e.get("messages") or []:
                 share, rest = message.split(" of the posterior mass of ", 1)
-                edges.setdefault(f"{model}'s {rest.split(' lies within')[0]}", []).append(
-                    f"{share} in seed {d['settings'].get('seed', '?')}"
+                parameter = rest.split(" lies within")[0]
+                bound = "lower" if "from its lower bound" in rest else "upper"
+                corner = _edge_corner(d, model, parameter)
+                edges.append(
+                    f"{model}'s {parameter} in seed {d['settings'].get('seed', '?')}, {share} at its {bound} bound"
+                    + (f"; {corner}" if corner else "")
                 )
     if edges:
         bullets.append(
-            "Prior edges: piled on a bound of its box (more than 5 % of the posterior within 2 % of it): "
-            + "; ".join(f"{what} ({', '.join(where)})" for what, where in edges.items())
-            + _edge_limit(list(edges))
-            + "."
+            "Prior edges (more than 5 % of a posterior within 2 % of a bound): "
+            + "; ".join(edges)
+            + ".  What the calibrated predictions there miss, the discrepancy term absorbs: the piled-up mass "
+            "marks a corner where the model fits g_OO as a different liquid, not a better water."
         )
     worse = [(d["settings"].get("seed", "?"), *_worse_pairs(d)) for _, d in trusted]
     worse = [(seed, len(w), n) for seed, w, n in worse if n]
@@ -457,24 +461,48 @@ def _failed_models(d: dict[str, Any]) -> str:
     )
 
 
-def _edge_limit(piled: list[str]) -> str:
-    """Why a piled-up TIP3P or TIP4P epsilon cannot go lower: the quick box is not liquid there
-    (``water_prior_range_low``), when that result is saved."""
-    low = load("water_prior_range_low")
-    if low is None or not any("epsilon" in p for p in piled):
-        return ""
-    scan = low.get("scan") or []
-    liquid = sum(bool(r.get("liquid")) for r in scan)
-    factors = sorted({r["epsilon_factor"] for r in scan if "epsilon_factor" in r})
-    lo, hi = low["liquid_density_kg_m3"]
-    return (
-        f"; at the published sigma the quick box is not a liquid there ({liquid} of {len(scan)} runs at epsilon "
-        f"x{factors[0]:g}-x{factors[-1]:g} with density in [{lo:g}, {hi:g}] kg/m3 and D >= "
-        f"{low['min_diffusion_1e5_cm2_s']:g}: the box densifies, then collapses; `water_prior_range_low`): a "
-        "physical limit of the model in this protocol, not a box to widen"
-        if scan and factors
-        else ""
+#: Force-field parameters of a model's box, in the order of its posterior's columns.
+_FORCE_FIELD = ("sigma_OO", "epsilon_OO")
+
+
+def _edge_corner(d: dict[str, Any], model: str, parameter: str) -> str | None:
+    """Where a model's posterior mass piled on a force-field bound sits: the other force-field
+    parameter's weighted mean there and its box, as factors of the published values, and the
+    model's calibrated predictions (posterior predictive medians) beside the measured values."""
+    path = RESULTS.parents[1] / d["saved_result"] / f"posterior_{model.replace('/', '_')}.npz"
+    if parameter not in _FORCE_FIELD or not path.is_file():
+        return None
+    import warnings
+
+    import jaxabc
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        post = jaxabc.load(path)
+    x, w = np.asarray(post.particles, np.float64), np.asarray(post.weights, np.float64)
+    low, high = np.asarray(post.prior.low, np.float64), np.asarray(post.prior.high, np.float64)
+    j = list(post.names).index(parameter)
+    k = 1 - j
+    near_low = x[:, j] < low[j] + 0.02 * (high[j] - low[j])
+    near = near_low if w[near_low].sum() > 0 else x[:, j] > high[j] - 0.02 * (high[j] - low[j])
+    if w[near].sum() <= 0:
+        return None
+    pub = d["models"][model]["published_lj"]
+    other = float(w[near] @ x[near, k] / w[near].sum()) / pub[k]
+    text = (
+        f"there {post.names[k]} is x{other:.3f} of the published (its box x{low[k] / pub[k]:.3f}-"
+        f"x{high[k] / pub[k]:.3f})"
     )
+    q = ((d.get("predictive") or {}).get("models") or {}).get(model, {}).get("scalars")
+    if q:
+        names, observed = d["summaries"]["names"], d["summaries"]["observed"]
+        cells = [
+            f"{key} {q[2][i]:.4g} (measured {observed[names.index(key)]:.4g})"
+            for i, key in enumerate(_PREDICTIVE_SCALARS)
+            if key in names
+        ]
+        text += f", and its calibrated predictions are {', '.join(cells)}"
+    return text
 
 
 def _holdout_family() -> list[str]:
