@@ -18,7 +18,8 @@ evidence follows ``max_sd``.  The posterior share of each discrepancy sd in the 
 bound (``ABCResult.discrepancy_identification``; 0.5 for a flat posterior) says how much of it is
 prior.
 
-Then a bound on the discrepancy sds from outside the fit (:func:`family_bounds`): each group's
+Then a bound on the discrepancy sds from outside the fit
+(:func:`benchmarks._published_bounds.published_model_bounds`): each group's
 ``max_sd`` set to the largest misfit a *published* rigid model makes in that group at its own
 parameters, in the same protocol and against the same data (``water_published_predictive``),
 times :data:`FAMILY_FACTORS`.  That is a reference-class prior ("this model's systematic error
@@ -41,6 +42,8 @@ from typing import Any
 import numpy as np
 
 from benchmarks._common import RESULTS, ROOT, machine, relative, write_result
+from benchmarks._published_bounds import PUBLISHED
+from benchmarks._published_bounds import published_model_bounds as family_bounds
 from benchmarks._water_family import HOLDOUT_FAMILY
 from benchmarks._water_repeats import REPEATS
 from jaxabc.model_choice import (
@@ -57,46 +60,6 @@ from jaxabc.noise import DISCREPANCY_PREFIX
 SCALES = (0.5,)
 #: The published-model bounds times these (capped at the run's own bounds: no extrapolation).
 FAMILY_FACTORS = (1.0, 2.0)
-#: The result holding each published model's summaries at its published parameters.
-PUBLISHED = "water_published_predictive"
-
-
-def family_bounds(
-    published: dict[str, Any], fitted: list[str], groups: dict[str, list[int]], data: str, temperature_k: float
-) -> dict[str, float]:
-    """Per discrepancy group, the largest ``|mean - observed|`` over the published models and the
-    group's summaries (its units), from a ``water_published_predictive`` payload.
-
-    ``groups`` index into ``fitted`` (summary names), as a model choice's settings record them.
-
-    Raises
-    ------
-    ValueError
-        The published runs used other data or another temperature, or lack a group's summary,
-        or a model has no mean for it.
-    """
-    if published.get("data") != data or not np.isclose(float(published.get("temperature_k", np.nan)), temperature_k):
-        raise ValueError(
-            f"published-model runs are for data {published.get('data')!r} at {published.get('temperature_k')} K; "
-            f"the model choice is for {data!r} at {temperature_k} K"
-        )
-    names = list(published["summary_names"])
-    observed = published["observed"]
-    out = {}
-    for group, idx in groups.items():
-        wanted = [fitted[i] for i in idx]
-        missing = [n for n in wanted if n not in names]
-        if missing:
-            raise ValueError(f"group {group!r}: the published-model runs lack {missing}")
-        devs = []
-        for model, m in published["models"].items():
-            for n in wanted:
-                k = names.index(n)
-                if m["mean"][k] is None or observed[k] is None:
-                    raise ValueError(f"group {group!r}: no value of {n} for {model} or the data")
-                devs.append(abs(float(m["mean"][k]) - float(observed[k])))
-        out[group] = float(max(devs))
-    return out
 
 
 def _group(column: str) -> str:

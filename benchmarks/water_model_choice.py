@@ -21,7 +21,10 @@ observation_error=sd)``: added analytically to the surrogate's likelihood, as no
 (Wilkinson 2013) for ABC-SMC, so a summary is fitted within its measurement error, not within
 the simulation's much smaller noise.  ``--discrepancy`` adds a model-discrepancy sd per group
 of summaries (:class:`jaxabc.Discrepancy`, :func:`discrepancy_for`), inferred with the
-parameters.  Each model checkpoints to ``--checkpoint-dir/<model>``;
+parameters under a uniform prior on ``[0, max_sd]``: ``--discrepancy-bounds fixed`` (the default)
+takes :data:`DISCREPANCY_GROUPS`' bounds, ``published`` the largest misfit a published rigid model
+makes in each group at its own parameters (:mod:`benchmarks._published_bounds`, from
+``water_published_predictive.json``).  Each model checkpoints to ``--checkpoint-dir/<model>``;
 ``--resume`` continues model by model.
 
 Method ``--method abc_smc``: :func:`jaxabc.run` over the five ``(name, simulate, prior)`` models
@@ -34,7 +37,8 @@ sets its own scale).
 Resumable: every simulation's output (or failure) is stored under ``--cache-dir`` keyed by the
 model, protocol, particle key and theta.  A run is a deterministic function of its seed, so
 rerunning the same command after an interruption replays the finished simulations from the
-cache and continues where it stopped.
+cache and continues where it stopped; its ``wall_time_s`` adds up every sitting
+(:class:`jaxabc.executors.progress.SittingClock`, ``<cache-dir>/sittings.json``).
 
 Usage (from the repository root)::
 
@@ -53,8 +57,8 @@ from __future__ import annotations
 
 import argparse
 import hashlib
+import json
 import os
-import time
 from pathlib import Path
 
 import jax
@@ -62,7 +66,9 @@ import jax.numpy as jnp
 import numpy as np
 
 import jaxabc
-from benchmarks._common import RUNS, command_line, guard_resume, relative, write_result
+from benchmarks._common import RESULTS, RUNS, command_line, guard_resume, relative, write_result
+from benchmarks._published_bounds import PUBLISHED, published_model_bounds
+from jaxabc.executors.progress import SittingClock
 from jaxabc.model_choice import Model
 from md.water.finite_size import MODEL_VISCOSITY_298K, model_viscosity_mpa_s
 from md.water.joint_data import JOINT_DATA_FILE, JointData, joint_observed, joint_record, observation_sd
@@ -131,6 +137,13 @@ def parse_arguments(argv=None) -> argparse.Namespace:
         help="infer a model-discrepancy sd per group of summaries (g_OO heights, g_OO lengths, D, hvap)",
     )
     parser.add_argument(
+        "--discrepancy-bounds",
+        choices=("fixed", "published"),
+        default="fixed",
+        help="with --discrepancy, each group's max_sd: 'fixed' (DISCREPANCY_GROUPS) or 'published' (the largest "
+        "misfit a published rigid model makes in the group, from water_published_predictive.json)",
+    )
+    parser.add_argument(
         "--emulator-variance",
         default="gp",
         help="surrogate: the emulator's variance, 'gp', 'calibrated' (from failed validations' held-out runs, "
@@ -158,6 +171,7 @@ def parse_arguments(argv=None) -> argparse.Namespace:
         + ("" if args.prior_width == "default" else f"_{args.prior_width}")
         + "".join(f"_{slug}{width.replace(',', '-')}" for slug, (width, _) in sorted(args.model_prior.items()))
         + ("_discrepancy" if args.discrepancy else "")
+        + ("_dbounds-published" if args.discrepancy and args.discrepancy_bounds == "published" else "")
         + ("" if args.seed == 0 else f"_seed{args.seed}")
         + ("" if args.emulator_variance == "gp" else f"_emulator_variance_{args.emulator_variance}")
         + "".join(f"_holdout-{name}" for name in sorted(args.hold_out))
@@ -268,15 +282,53 @@ DISCREPANCY_GROUPS = {
 }
 
 
-def discrepancy_for(fitted_names: list[str]) -> jaxabc.Discrepancy:
-    """A :class:`jaxabc.Discrepancy` over the fitted summaries (indices into the fitted vector)."""
-    groups, max_sd = {}, []
-    for group, (names, bound) in DISCREPANCY_GROUPS.items():
+def discrepancy_groups(fitted_names: list[str]) -> dict[str, list[int]]:
+    """Each group of :data:`DISCREPANCY_GROUPS` with a fitted summary, as indices into the fitted vector."""
+    groups = {}
+    for group, (names, _) in DISCREPANCY_GROUPS.items():
         idx = [fitted_names.index(n) for n in names if n in fitted_names]
         if idx:
             groups[group] = idx
-            max_sd.append(bound)
+    return groups
+
+
+def discrepancy_for(fitted_names: list[str], bounds: dict[str, float] | None = None) -> jaxabc.Discrepancy:
+    """A :class:`jaxabc.Discrepancy` over the fitted summaries (indices into the fitted vector);
+    ``bounds`` replaces the fixed ``max_sd`` of the groups it names.
+
+    Raises
+    ------
+    ValueError
+        ``bounds`` names a group that is not one of :data:`DISCREPANCY_GROUPS` with a fitted summary.
+    """
+    groups = discrepancy_groups(fitted_names)
+    unknown = sorted(set(bounds or {}) - set(groups))
+    if unknown:
+        raise ValueError(f"discrepancy bounds for {unknown}: not a group with a fitted summary ({list(groups)})")
+    max_sd = [(bounds or {}).get(group, DISCREPANCY_GROUPS[group][1]) for group in groups]
     return jaxabc.Discrepancy(max_sd, groups)
+
+
+def discrepancy_bounds(args, fitted_names: list[str]) -> dict[str, float] | None:
+    """``--discrepancy-bounds published``: each group's bound from the published models' runs
+    (None for the fixed bounds).
+
+    Raises
+    ------
+    FileNotFoundError
+        ``water_published_predictive.json`` is not saved.
+    ValueError
+        Those runs are for other data or another temperature, or lack a group's summary.
+    """
+    if getattr(args, "discrepancy_bounds", "fixed") != "published":
+        return None
+    path = RESULTS / f"{PUBLISHED}.json"
+    if not path.is_file():
+        raise FileNotFoundError(f"--discrepancy-bounds published needs {path}: run python -m benchmarks.{PUBLISHED}")
+    published = json.loads(path.read_text())
+    return published_model_bounds(
+        published, fitted_names, discrepancy_groups(fitted_names), args.data, float(args.temperature_k)
+    )
 
 
 def model_choice_data(args) -> JointData:
@@ -319,7 +371,7 @@ def noise_options(args, data) -> dict:
     fitted_names = [n for n, f in zip(data.names, data.fitted, strict=True) if f]
     options: dict = {"observation_error": sd}
     if args.discrepancy:
-        options["discrepancy"] = discrepancy_for(fitted_names)
+        options["discrepancy"] = discrepancy_for(fitted_names, discrepancy_bounds(args, fitted_names))
     return options
 
 
@@ -534,7 +586,21 @@ def plot_predictive(bands: dict, data: str, path: Path) -> None:
 
 def main(argv=None) -> None:
     args = parse_arguments(argv)
-    start = time.perf_counter()
+    # Wall time over every sitting of a resumed run; a run started over forgets earlier sittings.
+    clock = SittingClock(args.cache_dir / "sittings.json", fresh=not args.resume)
+    with clock:
+        payload = run(args)
+        payload["wall_time_s"] = clock.total_seconds()
+        payload["wall_time_sittings"] = clock.num_sittings
+    inputs = DATA_FILES[args.data]
+    if args.discrepancy and args.discrepancy_bounds == "published":
+        inputs = [*inputs, RESULTS / f"{PUBLISHED}.json"]
+    path = write_result(args.name, payload, quick=args.tiny, inputs=inputs, command=command_line(argv))
+    print(f"wrote {path}")
+
+
+def run(args) -> dict:
+    """The model choice of ``args``, its posteriors saved; the result's payload (no wall time)."""
     data = model_choice_data(args)
     models = make_models(args, data.fitted)
     timeout_s = models[0].simulate.simulate.protocol.timeout_s + 60
@@ -637,10 +703,8 @@ def main(argv=None) -> None:
         "predictive": bands,
         "cache_dir": relative(args.cache_dir),
         "saved_result": relative(saved.parent),
-        "wall_time_s": time.perf_counter() - start,
     }
-    path = write_result(args.name, payload, quick=args.tiny, inputs=DATA_FILES[args.data], command=command_line(argv))
-    print(f"wrote {path}")
+    return payload
 
 
 if __name__ == "__main__":

@@ -306,3 +306,36 @@ def test_benchmark_holds_out_a_fitted_summary():
     for bad in ("density_kg_m3", "nosuch"):
         with pytest.raises(ValueError, match="not a fitted summary"):
             bench.model_choice_data(bench.parse_arguments(["--tiny", "--hold-out", bad]))
+
+
+def test_published_discrepancy_bounds_set_each_groups_prior(tmp_path, monkeypatch):
+    """``--discrepancy-bounds published``: each group's ``max_sd`` is the largest misfit a published
+    model makes in it (the saved ``water_published_predictive``), reaches ``jaxabc.run``'s
+    discrepancy and the cache folder's name; the default keeps the fixed bounds; a bound for a
+    group that does not exist and a missing published result are refused."""
+    import json
+
+    bench = _benchmark()
+    args = bench.parse_arguments(
+        ["--tiny", "--discrepancy", "--discrepancy-bounds", "published", "--hold-out", "r_oo_max2_nm"]
+    )
+    data = bench.model_choice_data(args)
+    names = [n for n, f in zip(data.names, data.fitted, strict=True) if f]
+    published = json.loads((bench.RESULTS / "water_published_predictive.json").read_text())
+    k = published["summary_names"].index("S9")
+    expected = max(abs(m["mean"][k] - published["observed"][k]) for m in published["models"].values())
+    bounds = bench.discrepancy_bounds(args, names)
+    assert math.isclose(bounds["D"], expected, rel_tol=1e-12)
+    assert set(bounds) == set(bench.discrepancy_groups(names))
+    disc = bench.noise_options(args, data)["discrepancy"]
+    assert math.isclose(disc.max_sd[list(disc.groups).index("D")], expected, rel_tol=1e-12)
+    assert "_dbounds-published" in str(args.cache_dir)
+    default = bench.parse_arguments(["--tiny", "--discrepancy"])
+    assert bench.discrepancy_bounds(default, names) is None and "_dbounds" not in str(default.cache_dir)
+    fixed = bench.discrepancy_for(names)
+    assert math.isclose(fixed.max_sd[list(fixed.groups).index("D")], bench.DISCREPANCY_GROUPS["D"][1])
+    with pytest.raises(ValueError, match="not a group with a fitted summary"):
+        bench.discrepancy_for(names, {"nosuch": 1.0})
+    monkeypatch.setattr(bench, "RESULTS", tmp_path)
+    with pytest.raises(FileNotFoundError, match="water_published_predictive"):
+        bench.discrepancy_bounds(args, names)
