@@ -767,7 +767,7 @@ REGISTRY: tuple[Entry, ...] = (
         estimated_cost_s=300.0,
         note="each water model at its published parameters on the model choice's protocol and summaries "
         "(295 K for the X-ray data), beside the measured values: the calibrated predictive's reference",
-        checked_by=("water_model_paper_check", "water_simulated:robust", "water_prior_range"),
+        checked_by=("water_model_paper_check", "water_simulated:robust", "water_prior_range", "water_model_choice"),
     ),
     Entry(
         "water_paper_samples",
