@@ -1057,7 +1057,10 @@ def test_the_model_choice_page_trusts_only_seeds_with_every_emulator_validated(m
     assert "**Verdict: depends on the seed.**" in "".join(page._family_headline())
     saved["nd"]["per_model"]["B"].update(validated=False, observed_misfit={"p_value": 0.4})
     text = "".join(page._without_discrepancy(saved["nd"]))
-    assert "the emulators of B failed validation" in text and "rejected at p < 0.01: A" in text
+    assert (
+        "the emulator of B failed validation (its misfit is not trustworthy)" in text
+        and "rejected at p < 0.01: A" in text
+    )
 
 
 _VERSIONS = {

@@ -595,17 +595,25 @@ def _without_discrepancy(d: dict[str, Any] | None) -> list[str]:
     text = (
         "Without the discrepancy term (seed 0, every other setting equal): "
         + (
-            f"the emulators of {', '.join(failed)} failed validation (their misfits are not trustworthy);"
+            f"the emulator{'s' if len(failed) > 1 else ''} of {', '.join(failed)} failed validation "
+            f"({'their misfits are' if len(failed) > 1 else 'its misfit is'} not trustworthy);"
             if failed
             else "every emulator validated;"
         )
         + " the misfit check (chi-square of the observed summaries against each model's emulated posterior "
         "predictive) gives p = " + ", ".join(f"{name} {'-' if p is None else f'{p:.2g}'}" for name, p in misfit.items())
     )
-    if len(rejected) == len(misfit):
+    trusted_rejected = [name for name in rejected if name not in failed]
+    if len(rejected) == len(misfit) and not failed:
         text += (
             ": no model reproduces the measured summaries within their stated errors, so without the "
             "discrepancy term the probabilities rank misfits of rejected models"
+        )
+    elif len(rejected) == len(misfit):
+        text += (
+            f": every model is rejected at p < 0.01, {len(trusted_rejected)} of them on validated emulators "
+            f"({', '.join(trusted_rejected)}), so without the discrepancy term the probabilities rank misfits of "
+            "rejected models"
         )
     elif rejected:
         text += f": rejected at p < 0.01: {', '.join(rejected)}"
