@@ -434,7 +434,12 @@ def _family_headline() -> list[str]:
         ok = all(row.get("validated") is True for row in without["per_model"].values())
         line = "Without the discrepancy term (seed 0): " + (
             "every model's misfit check rejects it (p < 0.01)"
-            + (" on validated emulators" if ok else ", though not every emulator validated")
+            + (
+                " on validated emulators"
+                if ok
+                else f" ({sum(row.get('validated') is True for row in without['per_model'].values())} of "
+                f"{len(without['per_model'])} on validated emulators)"
+            )
             + ": no rigid model here reproduces the measured summaries within their stated errors"
             if all(v is not None and v < 0.01 for v in p)
             else f"verdict {status(without)}" + ("" if ok else ", not every emulator validated")
