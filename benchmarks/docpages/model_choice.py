@@ -433,11 +433,11 @@ def _family_headline() -> list[str]:
         p = [(row.get("observed_misfit") or {}).get("p_value") for row in without["per_model"].values()]
         ok = all(row.get("validated") is True for row in without["per_model"].values())
         line = "Without the discrepancy term (seed 0): " + (
-            "every model's misfit check rejects it (p < 0.01)"
+            "every model's misfit check rejects it (p < 0.01"
             + (
-                " on validated emulators"
+                ") on validated emulators"
                 if ok
-                else f" ({sum(row.get('validated') is True for row in without['per_model'].values())} of "
+                else f"; {sum(row.get('validated') is True for row in without['per_model'].values())} of "
                 f"{len(without['per_model'])} on validated emulators)"
             )
             + ": no rigid model here reproduces the measured summaries within their stated errors"
