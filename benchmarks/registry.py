@@ -12,7 +12,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-from benchmarks._water_family import HOLDOUT_FAMILY
+from benchmarks._water_family import HOLDOUT_FAMILY, HOLDOUT_NO_DISCREPANCY
 from benchmarks._water_repeats import REPEATS
 
 __all__ = ["CACHES", "REGISTRY", "TIMING_KEYS", "VERIFICATIONS", "Entry", "by_name"]
@@ -716,7 +716,7 @@ REGISTRY: tuple[Entry, ...] = (
         for seed in (0, 1, 2)
     ),
     _model_choice_variant(
-        "water_model_choice_calibrated_holdout_no_discrepancy",
+        HOLDOUT_NO_DISCREPANCY,
         "xray_quick_budget120_seed0_calibrated_holdout_r_oo_max2_no_discrepancy",
         "--prior-width wide --model-prior TIP3P=0.95,1.08,0.4,2.5 "
         "--seed 0 --budget-per-model 120 --emulator-variance calibrated --hold-out r_oo_max2_nm",
