@@ -12,7 +12,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-from benchmarks._water_family import HOLDOUT_FAMILY, HOLDOUT_NO_DISCREPANCY
+from benchmarks._water_family import FAMILY_SEEDS, HOLDOUT_FAMILY, HOLDOUT_NO_DISCREPANCY, PUBLISHED_BOUNDS_FAMILY
 from benchmarks._water_repeats import REPEATS
 
 __all__ = ["CACHES", "REGISTRY", "TIMING_KEYS", "VERIFICATIONS", "Entry", "by_name"]
@@ -700,11 +700,11 @@ REGISTRY: tuple[Entry, ...] = (
             "jumps between the window's edges where the second shell is flat (water_emulator_failures); the "
             "calibrated variance removes most of the other failures",
         )
-        for seed in (0, 1, 2)
+        for seed in FAMILY_SEEDS
     ),
     *(
         _model_choice_variant(
-            f"water_model_choice_published_bounds_seed{seed}",
+            name,
             f"xray_quick_budget120_seed{seed}_calibrated_holdout_r_oo_max2_published_bounds",
             "--prior-width wide --model-prior TIP3P=0.95,1.08,0.4,2.5 --discrepancy --discrepancy-bounds published "
             f"--seed {seed} --budget-per-model 120 --emulator-variance calibrated --hold-out r_oo_max2_nm",
@@ -713,7 +713,7 @@ REGISTRY: tuple[Entry, ...] = (
             "rigid model makes in its group (water_published_predictive): with the fixed bounds (D 10, hvap 20) the "
             "fit gives D, density and hvap up, and TIP3P's epsilon piles on its bound at sigma x1.07",
         )
-        for seed in (0, 1, 2)
+        for seed, (name, _) in zip(FAMILY_SEEDS, PUBLISHED_BOUNDS_FAMILY, strict=True)
     ),
     _model_choice_variant(
         HOLDOUT_NO_DISCREPANCY,

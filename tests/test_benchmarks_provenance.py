@@ -1063,6 +1063,39 @@ def test_the_model_choice_page_trusts_only_seeds_with_every_emulator_validated(m
     )
 
 
+def test_the_model_choice_page_reports_the_published_bounds_reruns(monkeypatch) -> None:
+    """The bullet of the family rerun with the published-model bounds: its bounds, each seed's
+    verdict, the force-field mass piled on a bound (TIP3P's epsilon named even when below 5 %)."""
+    from benchmarks.docpages import model_choice as page
+
+    def run(seed: int, tip3p_low: float, stop: str) -> dict:
+        edge = {
+            "parameters": ["sigma_OO", "epsilon_OO", "discrepancy_sd[D]"],
+            "mass": [[0.01, 0.0], [tip3p_low, 0.0], [0.5, 0.0]],
+        }
+        return {
+            "settings": {"seed": seed, "discrepancy": {"max_sd": [0.25, 3.5], "groups": {"g": [0], "D": [1]}}},
+            "verdict": {"status": "undecided", "model": None},
+            "per_model": {"TIP3P": {"validated": "TIP3P" not in stop}, "A": {"validated": True}},
+            "model_choice": {"names": ["TIP3P", "A"], "probabilities": [0.3, 0.7], "stop_reason": stop},
+            "prior_edge": {"TIP3P": edge},
+        }
+
+    saved = {"b0": run(0, 0.02, "every model's emulator validated")}
+    monkeypatch.setattr(page, "PUBLISHED_BOUNDS_FAMILY", ("b0", "b1"))
+    monkeypatch.setattr(page, "load", saved.get)
+    line = page._bounded_family()
+    assert line.startswith("With the published-model discrepancy bounds as the prior (g 0.25, D 3.5; rerun")
+    assert "1 of 2 seeds run): seed 0 undecided (most probable A 0.70)" in line
+    assert "bound above 5 %: none (TIP3P's epsilon: 2%)" in line
+    saved["b1"] = run(1, 0.09, "UNTRUSTED: TIP3P's emulator failed validation")
+    line = page._bounded_family()
+    assert "seed 1 undecided (most probable A 0.70; UNTRUSTED: TIP3P's emulator failed validation)" in line
+    assert "above 5 %: TIP3P's epsilon_OO 9% in seed 1." in line
+    saved.clear()
+    assert page._bounded_family() is None
+
+
 _VERSIONS = {
     "v0": ("return SCALE", "y = SCALE\n    return y"),
     "v1": ("return SCALE * math.sqrt(x)", "return math.sqrt(x) * SCALE"),

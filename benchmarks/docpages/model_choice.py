@@ -12,6 +12,7 @@ import numpy as np
 from benchmarks._common import RESULTS
 from benchmarks._water_family import HOLDOUT_FAMILY as _FAMILY
 from benchmarks._water_family import HOLDOUT_NO_DISCREPANCY
+from benchmarks._water_family import PUBLISHED_BOUNDS_FAMILY as _BOUNDED
 from benchmarks._water_repeats import REPEATS, made_with_gp_variance
 from benchmarks.docpages.common import MISFIT_NOTE, cause_rows, f, figure, load, misfit_rows, retired, source, table
 from jaxabc.model_choice import interval_leader, probabilities_with_errors, probability_bounds
@@ -29,6 +30,8 @@ _CRITICISM_START = {
 }
 #: The repeats meant to give the trusted verdict (:mod:`benchmarks._water_family`).
 HOLDOUT_FAMILY = tuple(name for name, _ in _FAMILY)
+#: The family rerun with the published-model discrepancy bounds as its prior.
+PUBLISHED_BOUNDS_FAMILY = tuple(name for name, _ in _BOUNDED)
 
 
 def _saved_figures(d: dict) -> list[str]:
@@ -393,6 +396,9 @@ def _family_headline() -> list[str]:
                     f"trusted seeds say {'; '.join(v['verdict'] for v in bounded)}"
                 )
         bullets.append(line + ".")
+    bounded_runs = _bounded_family()
+    if bounded_runs:
+        bullets.append(bounded_runs)
     edges: list[str] = []
     for _, d in trusted:
         for model, e in (d.get("prior_edge") or {}).items():
@@ -456,6 +462,67 @@ def _family_headline() -> list[str]:
         "these data; bounds on the discrepancy sds from outside the fit (tables below)."
     )
     return [text + "\n", "\n".join(f"- {b}" for b in bullets) + "\n"]
+
+
+def _edge_share(d: dict[str, Any], model: str, parameter: str) -> float | None:
+    """The largest posterior mass of a model's ``parameter`` within 2 % of either bound."""
+    e = (d.get("prior_edge") or {}).get(model)
+    if not e or parameter not in e["parameters"]:
+        return None
+    return float(max(e["mass"][e["parameters"].index(parameter)]))
+
+
+def _bounded_family() -> str | None:
+    """The bullet of :data:`PUBLISHED_BOUNDS_FAMILY`: the family rerun with every discrepancy sd
+    bounded by the published models' largest misfit in its group (the prior of the run, not a
+    reweighting): each seed's verdict, the bounds, where the posteriors still pile on a
+    force-field bound, and the calibrated predictions against the published parameters."""
+    saved = [(name, d) for name in PUBLISHED_BOUNDS_FAMILY if (d := load(name)) is not None]
+    if not saved:
+        return None
+    first = saved[0][1]["settings"]["discrepancy"]
+    groups = list(first["groups"])
+    bounds = ", ".join(f"{g} {b:.3g}" for g, b in zip(groups, first["max_sd"], strict=True))
+    seeds = []
+    for _, d in saved:
+        v = d.get("verdict") or {}
+        mc = d["model_choice"]
+        k = int(np.argmax(mc["probabilities"]))
+        flags = _flags(mc["stop_reason"])
+        seeds.append(
+            f"seed {d['settings'].get('seed', '?')} {v.get('status', '?')} {v.get('model') or ''}".rstrip()
+            + f" (most probable {mc['names'][k]} {mc['probabilities'][k]:.2f}"
+            + (f"; {', '.join(flags)}: {_failed_models(d) or 'flagged'}" if flags else "")
+            + ")"
+        )
+    line = (
+        f"With the published-model discrepancy bounds as the prior ({bounds}; rerun, not reweighted; "
+        f"{len(saved)} of {len(PUBLISHED_BOUNDS_FAMILY)} seeds run): " + "; ".join(seeds)
+    )
+    piled = [
+        f"{model}'s {parameter} {share:.0%} in seed {d['settings'].get('seed', '?')}"
+        for _, d in saved
+        for model in d["per_model"]
+        for parameter in _FORCE_FIELD
+        if (share := _edge_share(d, model, parameter)) is not None and share > 0.05
+    ]
+    tip3p = [f"{share:.0%}" for _, d in saved if (share := _edge_share(d, "TIP3P", "epsilon_OO")) is not None]
+    line += (
+        ". Force-field mass within 2 % of a bound above 5 %: "
+        + ("; ".join(piled) if piled else "none")
+        + (
+            f" (TIP3P's epsilon: {', '.join(tip3p)})"
+            if tip3p and not any(p.startswith("TIP3P's epsilon") for p in piled)
+            else ""
+        )
+    )
+    worse = [(d["settings"].get("seed", "?"), *_worse_pairs(d)) for _, d in saved]
+    worse = [(seed, len(w), n) for seed, w, n in worse if n]
+    if worse:
+        line += ". Predictions farther from the measured values than the published parameters' in " + ", ".join(
+            f"{k} of {n} pairs in seed {seed}" for seed, k, n in worse
+        )
+    return line + "."
 
 
 def _failed_models(d: dict[str, Any]) -> str:
@@ -543,6 +610,9 @@ def _holdout_family() -> list[str]:
     trusted = [(name, d) for name, d in saved if not _flags(d["model_choice"]["stop_reason"])]
     if without is not None:
         rows.append(row(HOLDOUT_NO_DISCREPANCY, without, "seed 0, no discrepancy term"))
+    for name in PUBLISHED_BOUNDS_FAMILY:
+        if (bounded := load(name)) is not None:
+            rows.append(row(name, bounded, f"seed {bounded['settings'].get('seed', '?')}, published-model bounds"))
     held = ", ".join(saved[0][1]["summaries"]["held_out"])
     out = [
         "The repeats meant to give the trusted verdict: the emulator's variance calibrated, a budget of 120 "
