@@ -42,8 +42,7 @@ from typing import Any
 import numpy as np
 
 from benchmarks._common import RESULTS, ROOT, machine, relative, write_result
-from benchmarks._published_bounds import PUBLISHED
-from benchmarks._published_bounds import published_model_bounds as family_bounds
+from benchmarks._published_bounds import PUBLISHED, published_model_bounds
 from benchmarks._water_family import HOLDOUT_FAMILY
 from benchmarks._water_repeats import REPEATS
 from jaxabc.model_choice import (
@@ -155,7 +154,7 @@ def analyse_repeat(
     family = None
     if published is not None:
         groups = d["settings"]["discrepancy"]["groups"]
-        bounds = family_bounds(
+        bounds = published_model_bounds(
             published, d["summaries"]["fitted"], groups, d["data"], float(d["settings"]["temperature_k"])
         )
         variants = [family_variant(choice, bounds, 1.0, g) for g in groups]

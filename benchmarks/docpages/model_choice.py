@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import json
 import re
 from pathlib import Path
@@ -314,23 +315,12 @@ def _family_headline() -> list[str]:
             "run, none with every emulator validated and no flag (table below).\n"
         ]
 
-    def status(d: dict[str, Any]) -> str:
-        v = d.get("verdict") or {}
-        return f"{v.get('status', '?')} {v.get('model') or ''}".strip()
-
-    statuses = sorted({status(d) for _, d in trusted})
+    statuses = sorted({_status(d) for _, d in trusted})
     leaders = []
-    turned, halved = 0, 0
     for _, d in trusted:
         mc = d["model_choice"]
-        names = list(mc["names"])
         k = int(np.argmax(mc["probabilities"]))
-        leaders.append(f"seed {d['settings'].get('seed', '?')} {names[k]} {mc['probabilities'][k]:.2f}")
-        for r in d.get("sensitivity") or []:
-            model = r["label"].removesuffix(" box x0.5")
-            if model in names and np.all(np.isfinite(np.asarray(r["probabilities"], float))):
-                halved += 1
-                turned += _decided(r, names) == model
+        leaders.append(f"seed {d['settings'].get('seed', '?')} {mc['names'][k]} {mc['probabilities'][k]:.2f}")
     head = statuses[0] if len(statuses) == 1 else "depends on the seed"
     text = (
         f"**Verdict: {head}.** From the {len(trusted)} trusted seeds of the held-out family "
@@ -339,7 +329,7 @@ def _family_headline() -> list[str]:
         + (
             f"each says {statuses[0]}"
             if len(statuses) == 1
-            else "they disagree (" + "; ".join(status(d) for _, d in trusted) + ")"
+            else "they disagree (" + "; ".join(_status(d) for _, d in trusted) + ")"
         )
         + f"; the most probable model in each: {', '.join(leaders)}."
     )
@@ -349,56 +339,93 @@ def _family_headline() -> list[str]:
             " Not counted: "
             + "; ".join(
                 f"seed {d['settings'].get('seed', '?')} ({', '.join(_flags(d['model_choice']['stop_reason']))}: "
-                f"{_failed_models(d) or 'flagged'}), which says {status(d)}"
+                f"{_failed_models(d) or 'flagged'}), which says {_status(d)}"
                 for _, d in flagged
             )
             + "."
         )
-    bullets = []
-    if halved:
-        line = (
-            f"Prior boxes: halving one model's prior box (its force-field box about its centre and its discrepancy "
-            f"bounds) makes that model preferred in {turned} of {halved} (seed, model) cases"
-            + (
-                ": the differences the data make between these models are smaller than what a factor-2 choice "
-                "of prior makes, so no ranking among them is a finding"
-                if turned
-                else ""
-            )
+    bullets = [
+        b
+        for b in (
+            _boxes_bullet(trusted),
+            _bounded_family(),
+            _edges_bullet(trusted),
+            _predictions_bullet(trusted),
+            _without_bullet(),
         )
-        split = load("water_box_sensitivity")
-        if turned and split is not None:
-            moves = split.get("family_log_evidence_change_abs")
-            where = "in these seeds"
-            if not moves:
-                moves, where = split["log_evidence_change_abs"], "over the earlier repeats"
-            weigh = moves["discrepancy"]["median"] > moves["parameters"]["median"]
+        if b
+    ]
+    bullets.append(
+        "What would change it: a seed that prefers one model; a prior box narrowed on grounds outside "
+        "these data; bounds on the discrepancy sds from outside the fit (tables below)."
+    )
+    return [text + "\n", "\n".join(f"- {b}" for b in bullets) + "\n"]
+
+
+def _status(d: dict[str, Any]) -> str:
+    """A run's verdict as a phrase ("undecided", "preferred TIP4P")."""
+    v = d.get("verdict") or {}
+    return f"{v.get('status', '?')} {v.get('model') or ''}".strip()
+
+
+def _boxes_bullet(trusted: list[tuple[str, dict[str, Any]]]) -> str | None:
+    """The headline's bullet on the prior boxes: in how many (seed, model) cases halving one model's
+    box makes it preferred, how much each half of the box moves the evidence, and the verdicts
+    with the published-model bounds applied to the saved runs."""
+    turned, halved = 0, 0
+    for _, d in trusted:
+        names = list(d["model_choice"]["names"])
+        for r in d.get("sensitivity") or []:
+            model = r["label"].removesuffix(" box x0.5")
+            if model in names and np.all(np.isfinite(np.asarray(r["probabilities"], float))):
+                halved += 1
+                turned += _decided(r, names) == model
+    if not halved:
+        return None
+    line = (
+        f"Prior boxes: halving one model's prior box (its force-field box about its centre and its discrepancy "
+        f"bounds) makes that model preferred in {turned} of {halved} (seed, model) cases"
+        + (
+            ": the differences the data make between these models are smaller than what a factor-2 choice "
+            "of prior makes, so no ranking among them is a finding"
+            if turned
+            else ""
+        )
+    )
+    split = load("water_box_sensitivity")
+    if turned and split is not None:
+        moves = split.get("family_log_evidence_change_abs")
+        where = "in these seeds"
+        if not moves:
+            moves, where = split["log_evidence_change_abs"], "over the earlier repeats"
+        weigh = moves["discrepancy"]["median"] > moves["parameters"]["median"]
+        line += (
+            f". Split apart {where}, halving the discrepancy bounds moves a model's log evidence by a median "
+            f"{moves['discrepancy']['median']:.2f}, halving the force-field box by "
+            f"{moves['parameters']['median']:.2f}" + (": the discrepancy priors weigh most" if weigh else "")
+        )
+        bounded = [
+            v
+            for r in split["repeats"]
+            if r.get("family") and r["result"] in {n for n, _ in trusted}
+            for v in (r.get("published_model_bounds") or {}).get("variants", [])
+            if v["groups"] == "all" and v["factor"] == 1.0
+        ]
+        if bounded:
+            verdicts = sorted({v["verdict"] for v in bounded})
             line += (
-                f". Split apart {where}, halving the discrepancy bounds moves a model's log evidence by a median "
-                f"{moves['discrepancy']['median']:.2f}, halving the force-field box by "
-                f"{moves['parameters']['median']:.2f}" + (": the discrepancy priors weigh most" if weigh else "")
+                ". With every discrepancy bound set from the published models' misfits instead (from the "
+                f"published models' own runs, not from this fit), {len(bounded)} of {len(bounded)} trusted "
+                f"seeds say {verdicts[0]}, least probable {', '.join(v['least'] for v in bounded)}"
+                if len(verdicts) == 1
+                else ". With every discrepancy bound set from the published models' misfits instead, the "
+                f"trusted seeds say {'; '.join(v['verdict'] for v in bounded)}"
             )
-            bounded = [
-                v
-                for r in split["repeats"]
-                if r.get("family") and r["result"] in {n for n, _ in trusted}
-                for v in (r.get("published_model_bounds") or {}).get("variants", [])
-                if v["groups"] == "all" and v["factor"] == 1.0
-            ]
-            if bounded:
-                verdicts = sorted({v["verdict"] for v in bounded})
-                line += (
-                    ". With every discrepancy bound set from the published models' misfits instead (from the "
-                    f"published models' own runs, not from this fit), {len(bounded)} of {len(bounded)} trusted "
-                    f"seeds say {verdicts[0]}, least probable {', '.join(v['least'] for v in bounded)}"
-                    if len(verdicts) == 1
-                    else ". With every discrepancy bound set from the published models' misfits instead, the "
-                    f"trusted seeds say {'; '.join(v['verdict'] for v in bounded)}"
-                )
-        bullets.append(line + ".")
-    bounded_runs = _bounded_family()
-    if bounded_runs:
-        bullets.append(bounded_runs)
+    return line + "."
+
+
+def _edges_bullet(trusted: list[tuple[str, dict[str, Any]]]) -> str | None:
+    """The headline's bullet on force-field posteriors piled on a bound, and where they sit."""
     edges: list[str] = []
     for _, d in trusted:
         for model, e in (d.get("prior_edge") or {}).items():
@@ -411,57 +438,72 @@ def _family_headline() -> list[str]:
                     f"{model}'s {parameter} in seed {d['settings'].get('seed', '?')}, {share} at its {bound} bound"
                     + (f"; {corner}" if corner else "")
                 )
-    if edges:
-        bullets.append(
-            "Prior edges (more than 5 % of a posterior within 2 % of a bound): "
-            + "; ".join(edges)
-            + ".  What the calibrated predictions there miss, the discrepancy term absorbs: the piled-up mass "
-            "marks a corner where the model fits g_OO as a different liquid, not a better water."
-        )
+    if not edges:
+        return None
+    return (
+        "Prior edges (more than 5 % of a posterior within 2 % of a bound): "
+        + "; ".join(edges)
+        + ".  What the calibrated predictions there miss, the discrepancy term absorbs: the piled-up mass "
+        "marks a corner where the model fits g_OO as a different liquid, not a better water."
+    )
+
+
+def _predictions_bullet(trusted: list[tuple[str, dict[str, Any]]]) -> str | None:
+    """The headline's bullet on the calibrated predictions against the published parameters."""
     worse = [(d["settings"].get("seed", "?"), *_worse_pairs(d)) for _, d in trusted]
     worse = [(seed, len(w), n) for seed, w, n in worse if n]
+    if not worse:
+        return None
     fitted = trusted[0][1]["summaries"].get("fitted", [])
     n_goo = sum(name not in ("S9", "hvap_kj_mol") for name in fitted)
-    if worse:
-        bullets.append(
-            "Predictions: the calibrated parameters leave D (S9), the held-out density and hvap farther from the "
-            "measured values than the published parameters in "
-            + " and ".join(
-                f"{k} of {n}" + (" (model, property) pairs" if i == 0 else "") + f" in seed {seed}"
-                for i, (seed, k, n) in enumerate(worse)
-            )
-            + f": the fit weighs {n_goo} g_OO summaries against one D and one hvap, and the discrepancy sds "
-            "absorb what it leaves, so for these properties the calibrated parameters are no better force fields "
-            "than the published ones (the first run's pairs under its predictive below)."
+    return (
+        "Predictions: the calibrated parameters leave D (S9), the held-out density and hvap farther from the "
+        "measured values than the published parameters in "
+        + " and ".join(
+            f"{k} of {n}" + (" (model, property) pairs" if i == 0 else "") + f" in seed {seed}"
+            for i, (seed, k, n) in enumerate(worse)
         )
-    without = load(HOLDOUT_NO_DISCREPANCY)
-    if without is not None:
-        p = [(row.get("observed_misfit") or {}).get("p_value") for row in without["per_model"].values()]
-        ok = all(row.get("validated") is True for row in without["per_model"].values())
-        line = "Without the discrepancy term (seed 0): " + (
-            "every model's misfit check rejects it (p < 0.01"
-            + (
-                ") on validated emulators"
-                if ok
-                else f"; {sum(row.get('validated') is True for row in without['per_model'].values())} of "
-                f"{len(without['per_model'])} on validated emulators)"
-            )
-            + ": no rigid model here reproduces the measured summaries within their stated errors"
-            if all(v is not None and v < 0.01 for v in p)
-            else f"verdict {status(without)}" + ("" if ok else ", not every emulator validated")
-        )
-        w, n = _worse_pairs(without)
-        if n:
-            line += (
-                "; its calibrated predictions of D, density and hvap are farther from the measured values than "
-                f"the published parameters' in {len(w)} of {n} pairs"
-            )
-        bullets.append(line + ".")
-    bullets.append(
-        "What would change it: a seed that prefers one model; a prior box narrowed on grounds outside "
-        "these data; bounds on the discrepancy sds from outside the fit (tables below)."
+        + f": the fit weighs {n_goo} g_OO summaries against one D and one hvap, and the discrepancy sds "
+        "absorb what it leaves, so for these properties the calibrated parameters are no better force fields "
+        "than the published ones (the first run's pairs under its predictive below)."
     )
-    return [text + "\n", "\n".join(f"- {b}" for b in bullets) + "\n"]
+
+
+def _rejections(d: dict[str, Any]) -> tuple[dict[str, float | None], list[str], list[str]]:
+    """A run's misfit p per model, the models whose emulator failed validation, and the models
+    rejected at p < 0.01."""
+    misfit = {name: (row.get("observed_misfit") or {}).get("p_value") for name, row in d["per_model"].items()}
+    failed = [name for name, row in d["per_model"].items() if row.get("validated") is False]
+    rejected = [name for name, p in misfit.items() if p is not None and p < 0.01]
+    return misfit, failed, rejected
+
+
+def _without_bullet() -> str | None:
+    """The headline's bullet on the run without the discrepancy term."""
+    without = load(HOLDOUT_NO_DISCREPANCY)
+    if without is None:
+        return None
+    misfit, _, rejected = _rejections(without)
+    validated = sum(row.get("validated") is True for row in without["per_model"].values())
+    ok = validated == len(without["per_model"])
+    line = "Without the discrepancy term (seed 0): " + (
+        "every model's misfit check rejects it (p < 0.01"
+        + (
+            ") on validated emulators"
+            if ok
+            else f"; {validated} of {len(without['per_model'])} on validated emulators)"
+        )
+        + ": no rigid model here reproduces the measured summaries within their stated errors"
+        if len(rejected) == len(misfit)
+        else f"verdict {_status(without)}" + ("" if ok else ", not every emulator validated")
+    )
+    w, n = _worse_pairs(without)
+    if n:
+        line += (
+            "; its calibrated predictions of D, density and hvap are farther from the measured values than "
+            f"the published parameters' in {len(w)} of {n} pairs"
+        )
+    return line + "."
 
 
 def _edge_share(d: dict[str, Any], model: str, parameter: str) -> float | None:
@@ -621,12 +663,7 @@ def _holdout_family() -> list[str]:
         "[interval], each log evidence +- 2 s.e.:\n",
         table(["run", "verdict", "flags", _VALIDATED_HEADER, "GROMACS runs", *names], rows) + "\n",
     ]
-    statuses = sorted(
-        {
-            f"{(d.get('verdict') or {}).get('status')} {(d.get('verdict') or {}).get('model') or ''}".strip()
-            for _, d in trusted
-        }
-    )
+    statuses = sorted({_status(d) for _, d in trusted})
     trusted_names = {n for n, _ in trusted}
     untrusted = [f"`{n}`" for n, _ in saved if n not in trusted_names]
     sentence = (
@@ -664,9 +701,7 @@ def _without_discrepancy(d: dict[str, Any] | None) -> list[str]:
         return [f"Without the discrepancy term: `{HOLDOUT_NO_DISCREPANCY}` not run yet.\n"]
     mc = d["model_choice"]
     flags = _flags(mc["stop_reason"])
-    misfit = {name: (row.get("observed_misfit") or {}).get("p_value") for name, row in d["per_model"].items()}
-    failed = [name for name, row in d["per_model"].items() if row.get("validated") is False]
-    rejected = [name for name, p in misfit.items() if p is not None and p < 0.01]
+    misfit, failed, rejected = _rejections(d)
     text = (
         "Without the discrepancy term (seed 0, every other setting equal): "
         + (
@@ -1829,8 +1864,10 @@ def _criticism(name: str, c: dict[str, Any]) -> list[str]:
     return lines
 
 
+@functools.cache
 def _extension(path: Path) -> Any:
-    """A criticism's saved extension refit (a :class:`jaxabc.ABCResult`), or None when not saved."""
+    """A criticism's saved extension refit (a :class:`jaxabc.ABCResult`), or None when not saved;
+    read once per page build (the criticism's section and its comparison both ask)."""
     if not path.is_file():
         return None
     import warnings
