@@ -55,6 +55,7 @@ import numpy as np
 # in this result's fingerprint, so an edit to the fused path marks the result stale.
 import jaxabc.driver.fused  # noqa: F401
 from benchmarks._common import write_result
+from benchmarks._venv import make_venv
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -296,34 +297,6 @@ for name, kw in (("apmcabc", dict(num_steps=7, acceptance_cutoff=0.0)),
 out["pmc_over_apmc"] = out["pmcabc"]["us_per_simulation"] / out["apmcabc"]["us_per_simulation"]
 print(json.dumps(out))
 """
-
-
-def make_venv(cache: Path, name: str, requirement: str, module: str, install: list | None = None) -> dict:
-    """A virtual environment with ``requirement`` installed (made once, then reused); ``install``,
-    when given, lists the ``pip install`` argument lists to run instead."""
-    venv = cache / f"venv-{name}"
-    python = venv / "bin" / "python"
-    check = [str(python), "-c", f"import {module}, numpy, importlib.metadata as m; print(m.version({module!r}))"]
-    if python.exists() and subprocess.run(check, capture_output=True).returncode == 0:
-        return {"python": str(python), "created": False}
-    shutil.rmtree(venv, ignore_errors=True)
-    subprocess.run([sys.executable, "-m", "venv", str(venv)], check=True)
-    # The host's pip installs into the venv: the venv's own bundled pip may be too old for
-    # some packages' metadata.
-    for arguments in install or [[requirement]]:
-        pip = subprocess.run(
-            [sys.executable, "-m", "pip", "--python", str(python), "install", "-q", *arguments],
-            capture_output=True,
-            text=True,
-        )
-        if pip.returncode != 0:
-            return {"error": f"pip install {' '.join(arguments)} failed: {pip.stderr.strip()[-500:]}"}
-    # The first import byte-compiles the package; do it here so that timed runs are cold
-    # processes, not first-ever imports.
-    done = subprocess.run(check, capture_output=True, text=True)
-    if done.returncode != 0:
-        return {"error": f"import {module} failed: {done.stderr.strip()[-500:]}"}
-    return {"python": str(python), "created": True}
 
 
 def run_process(argv: list[str], timeout: float, env: dict | None = None) -> dict:

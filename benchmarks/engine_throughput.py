@@ -56,10 +56,10 @@ if SINGLE_CORE:
         os.sched_setaffinity(0, {0})
 
 import jax  # noqa: E402
-import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
 from benchmarks._common import write_result  # noqa: E402
+from benchmarks._engine_timing import time_jax_md  # noqa: E402
 from md import helium, lammps_reference  # noqa: E402
 
 RESULTS = (
@@ -110,53 +110,6 @@ def neighbour_strategy(preset: helium.HeliumPreset) -> dict:
             cell_capacity=spec.cell_capacity,
         )
     return out
-
-
-def time_jax_md(preset: helium.HeliumPreset, batch: int, num_blocks: int) -> dict:
-    """Seconds for ``num_blocks * rebuild_every`` NPT steps of ``batch`` systems (compiled)."""
-    engine = helium.make_engine(preset)
-    thetas = jnp.tile(jnp.asarray(helium.TRUE_THETA, jnp.float32), (batch, 1))
-    keys = jax.random.split(jax.random.PRNGKey(0), batch)
-    width = preset.vmap_width  # the preset's batching: one vmap, or a map over vmapped groups
-    init = jax.jit(helium.batched(lambda k, t: engine.init(k, helium._params(t)), width))
-
-    @jax.jit
-    def segment(carry, thetas):
-        return helium.batched(lambda c, t: engine.run(c, helium._params(t), num_blocks, 1)[0], width)(carry, thetas)
-
-    carry = init(keys, thetas)
-    t0 = time.perf_counter()
-    carry = segment(carry, thetas)
-    jax.block_until_ready(carry)
-    compile_s = time.perf_counter() - t0
-    rebuilds0 = np.asarray(carry.diagnostics.rebuilds)
-    t0, c0 = time.perf_counter(), time.process_time()
-    carry = segment(carry, thetas)
-    jax.block_until_ready(carry)
-    wall, cpu = time.perf_counter() - t0, time.process_time() - c0
-    seconds = cpu if SINGLE_CORE else wall
-    d = carry.diagnostics
-    steps = num_blocks * preset.rebuild_every
-    cores = 1 if SINGLE_CORE else os.cpu_count() or 1
-    return {
-        "engine": "jax-md",
-        "batch": batch,
-        "steps": steps,
-        "seconds": seconds,
-        "measure": "cpu" if SINGLE_CORE else "wall",
-        "wall_seconds": wall,
-        "cpu_seconds": cpu,
-        "steps_per_rebuild": float(steps / max(np.mean(np.asarray(d.rebuilds) - rebuilds0), 1e-9)),
-        "compile_and_first_run_seconds": compile_s,
-        "system_steps_per_second": batch * steps / seconds,
-        "atom_steps_per_second": batch * steps * preset.num_atoms / seconds,
-        "atom_steps_per_second_per_core": batch * steps * preset.num_atoms / seconds / cores,
-        "cores": cores,
-        "vmap_width": width,
-        # The all-pairs kernel (md.lj.native or XLA's); trees before it had only XLA's.
-        "force_kernel": getattr(engine, "force_kernel", "xla"),
-        "any_overflow_or_failure": bool(np.any(np.asarray(d.overflow | d.failed()))),
-    }
 
 
 def time_lammps(preset: helium.HeliumPreset, steps: int) -> dict:
@@ -222,7 +175,7 @@ def per_simulation(preset: helium.HeliumPreset, batch: int = 64, repeats: int = 
 def small_system_rates(batches: tuple[int, ...], num_blocks: int) -> list[dict]:
     """jax-md system-steps per CPU-second of the ``cpu`` preset at each batch size."""
     preset = helium.get_preset("cpu")
-    return [time_jax_md(preset, b, num_blocks) for b in batches]
+    return [time_jax_md(preset, b, num_blocks, single_core=SINGLE_CORE) for b in batches]
 
 
 def _in_tree(tree: Path, args: list[str], timeout: float = 3600) -> str:
@@ -394,7 +347,7 @@ def main() -> None:
                 blocks_b = max(2, blocks // 4)
             else:
                 blocks_b = blocks
-            r = time_jax_md(preset, b, blocks_b)
+            r = time_jax_md(preset, b, blocks_b, single_core=SINGLE_CORE)
             r["setup"] = name
             r["num_atoms"] = preset.num_atoms
             r["neighbours"] = neighbour_strategy(preset)

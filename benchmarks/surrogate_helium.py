@@ -35,30 +35,14 @@ from pathlib import Path
 from typing import Any
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 
 import jaxabc
 from benchmarks._common import write_result
+from benchmarks._helium_quantiles import LEVELS, quantile_problem
 from md import helium
-from md.helium_calibration import make_model
 
 ROOT = Path(__file__).resolve().parents[1]
-
-LEVELS = np.linspace(0.03, 0.97, 16)
-
-
-def quantile_problem(preset: str, seed: int):
-    """The surrogate's helium problem: ``(simulate_quantiles, prior, observed series, observed
-    quantiles, simulate)``, the Table 1 data of ``seed`` summarised by the 16 quantiles of f_B."""
-    simulate, prior = make_model(preset)
-    observed = helium.observed_series(jax.random.key(10_000 + seed), preset)
-    levels = jnp.asarray(LEVELS, jnp.float32)
-
-    def simulate_quantiles(key, theta):
-        return jnp.quantile(simulate(key, theta), levels)
-
-    return simulate_quantiles, prior, observed, np.quantile(np.asarray(observed), LEVELS), simulate
 
 
 def energy_distance(a: np.ndarray, b: np.ndarray, scale: np.ndarray, num: int, rng: np.random.Generator) -> float:

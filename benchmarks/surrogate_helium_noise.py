@@ -38,7 +38,7 @@ import numpy as np
 
 import jaxabc
 from benchmarks._common import write_result
-from benchmarks.surrogate_helium import quantile_problem
+from benchmarks._helium_quantiles import quantile_problem
 from jaxabc import checkpoint
 from jaxabc.surrogate import build, emulator, sampling
 from jaxabc.surrogate._fit import fit_likelihood

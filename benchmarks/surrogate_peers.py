@@ -39,7 +39,7 @@ exact draws (the grid's weights for the grid problem); the metrics use 2000 furt
 Methods, each with at most ``B`` simulations (``--budgets``), 1000 posterior draws, seed ``s``,
 in its own process with one thread (``OMP/MKL/OPENBLAS_NUM_THREADS=1``, XLA's single-thread
 flags, ``torch.set_num_threads(1)``); the peers in their own virtual environments, made by this
-script with ``benchmarks/abc_overhead.py``'s ``make_venv`` under ``--venv-dir`` (``venv-<peer>-<version>``;
+script with ``benchmarks/_venv.py``'s ``make_venv`` under ``--venv-dir`` (``venv-<peer>-<version>``;
 sbi's installs ``torch==2.13.0`` first, so that pip takes the CPU wheel, then ``sbi==0.27.0``):
 
 - ``jaxabc_surrogate``: ``jaxabc.run("surrogate", ...)`` (synthetic-likelihood mode, NUTS);
@@ -929,7 +929,7 @@ def run_method(
 
 def make_envs(methods: Sequence[str], venv_dir: Path) -> dict[str, dict[str, Any]]:
     """The peers' virtual environments (made once, then reused), by method."""
-    from benchmarks.abc_overhead import make_venv
+    from benchmarks._venv import make_venv
 
     made: dict[str, dict[str, Any]] = {}
     envs = {}

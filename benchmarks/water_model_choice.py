@@ -68,19 +68,15 @@ import numpy as np
 import jaxabc
 from benchmarks._common import RESULTS, RUNS, command_line, guard_resume, relative, write_result
 from benchmarks._published_bounds import PUBLISHED, published_model_bounds
+from benchmarks._water_data import DATA_FILES
 from jaxabc.executors.progress import SittingClock
 from jaxabc.model_choice import Model
 from md.water.finite_size import MODEL_VISCOSITY_298K, model_viscosity_mpa_s
-from md.water.joint_data import JOINT_DATA_FILE, JointData, joint_observed, joint_record, observation_sd
+from md.water.joint_data import JointData, joint_observed, joint_record, observation_sd
 from md.water.model_simulator import CachedSummaries, WaterModelSimulator
 from md.water.models import MODELS, WIDE_EPSILON_FACTORS, get_model, model_prior, polarisation_correction_kj_mol
 
 ROOT = Path(__file__).resolve().parents[1]
-
-DATA_FILES = {
-    "xray": [JOINT_DATA_FILE, ROOT / "md/water/data/skinner2013_gOO_295K_nm.csv"],
-    "neutron": [JOINT_DATA_FILE, ROOT / "md/water/data/soper2013_gOO_gOH_gHH_nm.csv"],
-}
 
 
 def parse_arguments(argv=None) -> argparse.Namespace:

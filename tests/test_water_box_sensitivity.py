@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from benchmarks._common import RESULTS, ROOT
-from benchmarks.water_box_sensitivity import bounded_box, family_bounds, family_variant
+from benchmarks._published_bounds import published_model_bounds
+from benchmarks.water_box_sensitivity import bounded_box, family_variant
 from jaxabc.model_choice import load_model_choice
 
 PUBLISHED = {
@@ -22,7 +23,7 @@ PUBLISHED = {
 
 
 def test_family_bound_is_the_largest_published_misfit_per_group() -> None:
-    bounds = family_bounds(PUBLISHED, ["c", "a", "b"], {"g": [0, 1], "h": [2]}, "xray", 295.15)
+    bounds = published_model_bounds(PUBLISHED, ["c", "a", "b"], {"g": [0, 1], "h": [2]}, "xray", 295.15)
     assert bounds == pytest.approx({"g": 0.3, "h": 3.0})
 
 
@@ -34,9 +35,9 @@ def test_family_bound_is_the_largest_published_misfit_per_group() -> None:
         (["a", "b"], "xray", 298.15, "published-model runs are for data"),
     ],
 )
-def test_family_bounds_refuse_other_data_or_missing_summaries(fitted, data, temperature, match) -> None:
+def test_published_model_bounds_refuse_other_data_or_missing_summaries(fitted, data, temperature, match) -> None:
     with pytest.raises(ValueError, match=match):
-        family_bounds(PUBLISHED, fitted, {"g": [0, 1]}, data, temperature)
+        published_model_bounds(PUBLISHED, fitted, {"g": [0, 1]}, data, temperature)
 
 
 def _saved(name: str = "water_model_choice"):
