@@ -1114,6 +1114,18 @@ def test_the_model_choice_page_reports_the_published_bounds_reruns(monkeypatch) 
     line = page._bounded_family()
     assert "seed 1 undecided (most probable A 0.70; UNTRUSTED: TIP3P's emulator failed validation)" in line
     assert "above 5 %: TIP3P's epsilon_OO 9% in seed 1." in line
+    # Two trusted seeds of the family say undecided; so must every trusted bounded seed, all run.
+    saved.update(b2=run(2, 0.01, "every model's emulator validated"))
+    family = {"s0": 0, "s1": 1}
+    for name, seed in family.items():
+        saved[name] = run(seed, 0.09, "every model's emulator validated") | {"summaries": {"fitted": []}}
+    monkeypatch.setattr(page, "HOLDOUT_FAMILY", tuple(family))
+    monkeypatch.setattr(page, "HOLDOUT_NO_DISCREPANCY", "nd")
+    monkeypatch.setattr(page, "PUBLISHED_BOUNDS_FAMILY", ("b0", "b1", "b2"))
+    head = "".join(page._family_headline())
+    assert "outside the fit, leave it undecided in each of their 2 trusted seeds) (tables below)" in head
+    saved["b2"]["verdict"] = {"status": "preferred", "model": "A"}
+    assert "; bounds on the discrepancy sds from outside the fit (tables below)" in "".join(page._family_headline())
     saved.clear()
     assert page._bounded_family() is None
 

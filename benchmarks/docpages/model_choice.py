@@ -355,9 +355,18 @@ def _family_headline() -> list[str]:
         )
         if b
     ]
+    bounded = [d for name in PUBLISHED_BOUNDS_FAMILY if (d := load(name)) is not None]
+    agree = [_status(d) for d in bounded if not _flags(d["model_choice"]["stop_reason"])]
+    robust = len(bounded) == len(PUBLISHED_BOUNDS_FAMILY) and len(agree) > 1 and set(agree) == set(statuses) == {head}
     bullets.append(
-        "What would change it: a seed that prefers one model; a prior box narrowed on grounds outside "
-        "these data; bounds on the discrepancy sds from outside the fit (tables below)."
+        "What would change it: a seed that prefers one model; a prior box narrowed on grounds outside these data"
+        + (
+            f" (the discrepancy bounds set from the published models, outside the fit, leave it {head} in each of "
+            f"their {len(agree)} trusted seeds)"
+            if robust
+            else "; bounds on the discrepancy sds from outside the fit"
+        )
+        + " (tables below)."
     )
     return [text + "\n", "\n".join(f"- {b}" for b in bullets) + "\n"]
 
