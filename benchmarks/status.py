@@ -151,7 +151,8 @@ def status_of(entry: Entry, quick: bool = False, root: Path = ROOT) -> Status:
     _numerical_state(st, entry, quick, root, prov)
     st.cost_s, st.cost_source = prov.get("cost_s"), "recorded"
     body = data.get(entry.part, {}) if entry.part and not quick else data
-    sittings = body.get("sittings") if isinstance(body, dict) else None
+    # The model choice records the count as "wall_time_sittings".
+    sittings = body.get("sittings", body.get("wall_time_sittings")) if isinstance(body, dict) else None
     if isinstance(sittings, int) and sittings > 1 and isinstance(body.get("wall_time_s"), (int, float)):
         # A run resumed over several sittings: the process that wrote the JSON paid only the
         # last one; its own wall time over every sitting is the cost of a rerun.

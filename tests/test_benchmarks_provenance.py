@@ -179,6 +179,7 @@ def test_a_run_over_several_sittings_costs_its_whole_wall_time(fake_repo: Path) 
     for part, body in (
         ("one", {"wall_time_s": 5000.0, "sittings": 1}),
         ("two", {"wall_time_s": 5000.0, "sittings": 2}),
+        ("three", {"wall_time_s": 5000.0, "wall_time_sittings": 3}),
     ):
         payload = json.loads(path.read_text()) if path.exists() else {}
         _common.write_result(path, {**payload, part: body}, inputs=[fake_repo / "data.txt"], part=part)
@@ -186,6 +187,10 @@ def test_a_run_over_several_sittings_costs_its_whole_wall_time(fake_repo: Path) 
     two = status.status_of(registry.Entry("res:two", "benchmarks/results/res.json", "x", part="two"), root=fake_repo)
     assert one.cost_source == "recorded" and one.cost_s is not None and one.cost_s < 5000.0
     assert (two.cost_s, two.cost_source) == (5000.0, "recorded over 2 sittings")
+    three = status.status_of(
+        registry.Entry("res:three", "benchmarks/results/res.json", "x", part="three"), root=fake_repo
+    )
+    assert (three.cost_s, three.cost_source) == (5000.0, "recorded over 3 sittings")
 
 
 def test_status_of_entries(fake_repo: Path) -> None:
