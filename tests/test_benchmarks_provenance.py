@@ -1104,7 +1104,14 @@ def test_the_model_choice_page_reports_the_published_bounds_reruns(monkeypatch) 
             "settings": {"seed": seed, "discrepancy": {"max_sd": [0.25, 3.5], "groups": {"g": [0], "D": [1]}}},
             "verdict": {"status": "undecided", "model": None},
             "per_model": {"TIP3P": {"validated": "TIP3P" not in stop}, "A": {"validated": True}},
-            "model_choice": {"names": ["TIP3P", "A"], "probabilities": [0.3, 0.7], "stop_reason": stop},
+            "model_choice": {
+                "names": ["TIP3P", "A"],
+                "probabilities": [0.3, 0.7],
+                "stop_reason": stop,
+                "log_evidence": [0.0, 0.3],
+                "log_evidence_errors": [0.1, 0.1],
+                "model_prior": [0.5, 0.5],
+            },
             "prior_edge": {"TIP3P": edge},
         }
 
@@ -1115,6 +1122,12 @@ def test_the_model_choice_page_reports_the_published_bounds_reruns(monkeypatch) 
     assert line.startswith("With the published-model discrepancy bounds as the prior (g 0.25, D 3.5; rerun")
     assert "1 of 2 seeds run): seed 0 undecided (most probable A 0.70)" in line
     assert "bound above 5 %: none (TIP3P's epsilon: 2%)" in line
+    assert "in every halved box: no model." in line  # log evidences 0.3 apart, +- 0.2: intervals overlap
+    saved["b0"]["model_choice"]["log_evidence"] = [0.0, 2.0]
+    saved["b0"]["sensitivity"] = [{"label": "A box x0.5", "intervals": [[0.1, 0.2], [0.8, 0.9]]}]
+    assert "in every halved box: TIP3P in seed 0." in page._bounded_family()
+    saved["b0"]["sensitivity"].append({"label": "TIP3P box x0.5", "intervals": [[0.3, 0.6], [0.4, 0.7]]})
+    assert "in every halved box: no model." in page._bounded_family()
     saved["b1"] = run(1, 0.09, "UNTRUSTED: TIP3P's emulator failed validation")
     line = page._bounded_family()
     assert "seed 1 undecided (most probable A 0.70; UNTRUSTED: TIP3P's emulator failed validation)" in line

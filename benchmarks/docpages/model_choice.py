@@ -523,6 +523,31 @@ def _edge_share(d: dict[str, Any], model: str, parameter: str) -> float | None:
     return float(max(e["mass"][e["parameters"].index(parameter)]))
 
 
+def _disfavoured(d: dict[str, Any]) -> list[str]:
+    """The models whose probability interval lies wholly below another model's, in the run and in
+    every halved-box variant of its sensitivity table (a narrower box reuses the run): a ranking
+    at the bottom that a factor-2 prior box does not turn."""
+    mc = d["model_choice"]
+    names = list(mc["names"])
+    runs = [
+        probability_bounds(
+            np.asarray(mc["log_evidence"], float),
+            np.asarray(mc["log_evidence_errors"], float),
+            np.asarray(mc["model_prior"], float),
+        )
+    ]
+    runs += [
+        np.asarray(r["intervals"], float)
+        for r in d.get("sensitivity") or []
+        if "x0.5" in r["label"] and np.all(np.isfinite(np.asarray(r["intervals"], float)))
+    ]
+    return [
+        name
+        for k, name in enumerate(names)
+        if all(any(b[k, 1] < b[j, 0] for j in range(len(names)) if j != k) for b in runs)
+    ]
+
+
 def _bounded_family() -> str | None:
     """The bullet of :data:`PUBLISHED_BOUNDS_FAMILY`: the family rerun with every discrepancy sd
     bounded by the published models' largest misfit in its group (the prior of the run, not a
@@ -566,6 +591,12 @@ def _bounded_family() -> str | None:
             if tip3p and not any(p.startswith("TIP3P's epsilon") for p in piled)
             else ""
         )
+    )
+    below = [
+        f"{', '.join(models)} in seed {d['settings'].get('seed', '?')}" for _, d in saved if (models := _disfavoured(d))
+    ]
+    line += ". Below another model's probability interval in the run and in every halved box: " + (
+        "; ".join(below) if below else "no model"
     )
     worse = [(d["settings"].get("seed", "?"), *_worse_pairs(d)) for _, d in saved]
     worse = [(seed, len(w), n) for seed, w, n in worse if n]
