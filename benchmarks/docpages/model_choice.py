@@ -523,19 +523,22 @@ def _edge_share(d: dict[str, Any], model: str, parameter: str) -> float | None:
     return float(max(e["mass"][e["parameters"].index(parameter)]))
 
 
+def _intervals(mc: dict[str, Any]) -> np.ndarray:
+    """A saved model choice's probability intervals ``(K, 2)``, each log evidence +- 2 s.e."""
+    return probability_bounds(
+        np.asarray(mc["log_evidence"], float),
+        np.asarray(mc["log_evidence_errors"], float),
+        np.asarray(mc["model_prior"], float),
+    )
+
+
 def _disfavoured(d: dict[str, Any]) -> list[str]:
     """The models whose probability interval lies wholly below another model's, in the run and in
     every halved-box variant of its sensitivity table (a narrower box reuses the run): a ranking
     at the bottom that a factor-2 prior box does not turn."""
     mc = d["model_choice"]
     names = list(mc["names"])
-    runs = [
-        probability_bounds(
-            np.asarray(mc["log_evidence"], float),
-            np.asarray(mc["log_evidence_errors"], float),
-            np.asarray(mc["model_prior"], float),
-        )
-    ]
+    runs = [_intervals(mc)]
     runs += [
         np.asarray(r["intervals"], float)
         for r in d.get("sensitivity") or []
@@ -561,12 +564,11 @@ def _bounded_family() -> str | None:
     bounds = ", ".join(f"{g} {b:.3g}" for g, b in zip(groups, first["max_sd"], strict=True))
     seeds = []
     for _, d in saved:
-        v = d.get("verdict") or {}
         mc = d["model_choice"]
         k = int(np.argmax(mc["probabilities"]))
         flags = _flags(mc["stop_reason"])
         seeds.append(
-            f"seed {d['settings'].get('seed', '?')} {v.get('status', '?')} {v.get('model') or ''}".rstrip()
+            f"seed {d['settings'].get('seed', '?')} {_status(d)}"
             + f" (most probable {mc['names'][k]} {mc['probabilities'][k]:.2f}"
             + (f"; {', '.join(flags)}: {_failed_models(d) or 'flagged'}" if flags else "")
             + ")"
@@ -674,10 +676,7 @@ def _holdout_family() -> list[str]:
 
     def row(name: str, d: dict[str, Any], what: str) -> list[str]:
         mc = d["model_choice"]
-        prior = np.asarray(mc["model_prior"], float)
-        intervals = probability_bounds(
-            np.asarray(mc["log_evidence"], float), np.asarray(mc["log_evidence_errors"], float), prior
-        )
+        intervals = _intervals(mc)
         verdict = d.get("verdict") or {}
         return [
             f"`{name}` ({what})",
