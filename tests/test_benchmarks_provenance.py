@@ -1104,7 +1104,14 @@ def test_the_model_choice_page_reports_the_published_bounds_reruns(monkeypatch) 
         return {
             "settings": {"seed": seed, "discrepancy": {"max_sd": [0.25, 3.5], "groups": {"g": [0], "D": [1]}}},
             "verdict": {"status": "undecided", "model": None},
-            "per_model": {"TIP3P": {"validated": "TIP3P" not in stop}, "A": {"validated": True}},
+            "per_model": {
+                name: {
+                    "validated": name not in stop,
+                    "bayes_estimate": [1.0] * 4,
+                    "credible_interval_95": [[0, 1], [0, 1], [0.0, 0.3], [0.0, 1.0]],
+                }
+                for name in ("TIP3P", "A")
+            },
             "model_choice": {
                 "names": ["TIP3P", "A"],
                 "probabilities": [0.3, 0.7],
@@ -1114,6 +1121,7 @@ def test_the_model_choice_page_reports_the_published_bounds_reruns(monkeypatch) 
                 "model_prior": [0.5, 0.5],
             },
             "prior_edge": {"TIP3P": edge},
+            "saved_result": "benchmarks/results/not_saved",
         }
 
     saved = {"b0": run(0, 0.02, "every model's emulator validated")}
@@ -1133,8 +1141,13 @@ def test_the_model_choice_page_reports_the_published_bounds_reruns(monkeypatch) 
     line = page._bounded_family()
     assert "seed 1 undecided (most probable A 0.70; UNTRUSTED: TIP3P's emulator failed validation)" in line
     assert "above 5 %: TIP3P's epsilon_OO 9% in seed 1." in line
-    # Two trusted seeds of the family say undecided; so must every trusted bounded seed, all run.
+    # All three bounded seeds run, two trusted: the headline stands on them; the fixed-bounds
+    # family becomes a bullet, and its trusted seeds say whether the round-number bounds change it.
     saved.update(b2=run(2, 0.01, "every model's emulator validated"))
+    halved = [{"label": "A box x0.5", "probabilities": [0.1, 0.9], "intervals": [[0.05, 0.2], [0.8, 0.95]]}]
+    for name in ("b0", "b2"):
+        saved[name]["model_choice"]["log_evidence"] = [0.0, 2.0]
+        saved[name].update(sensitivity=halved, summaries={"fitted": []})
     family = {"s0": 0, "s1": 1}
     for name, seed in family.items():
         saved[name] = run(seed, 0.09, "every model's emulator validated") | {"summaries": {"fitted": []}}
@@ -1142,9 +1155,38 @@ def test_the_model_choice_page_reports_the_published_bounds_reruns(monkeypatch) 
     monkeypatch.setattr(page, "HOLDOUT_NO_DISCREPANCY", "nd")
     monkeypatch.setattr(page, "PUBLISHED_BOUNDS_FAMILY", ("b0", "b1", "b2"))
     head = "".join(page._family_headline())
-    assert "outside the fit, leave it undecided in each of their 2 trusted seeds) (tables below)" in head
-    saved["b2"]["verdict"] = {"status": "preferred", "model": "A"}
-    assert "; bounds on the discrepancy sds from outside the fit (tables below)" in "".join(page._family_headline())
+    assert head.startswith("**Verdict: undecided.** From the 2 trusted seeds of the published-bounds family (3 of 3")
+    assert "Not counted: seed 1 (UNTRUSTED: TIP3P's emulator failed validation), which says undecided." in head
+    assert "- Bottom: TIP3P lies below another model's probability interval in each trusted seed" in head
+    assert "seed 2 TIP3P 0.00 +- 0.10 against A 2.00 +- 0.10, a Bayes factor of 7.4)." in head
+    assert "- With the fixed round-number discrepancy bounds of the held-out family instead (g 0.25, D 3.5" in head
+    assert "above 5 %: TIP3P's epsilon_OO 9% in seed 0; TIP3P's epsilon_OO 9% in seed 1." in head
+    assert "- Prior edges: no posterior has more than 5 % of its mass within 2 % of a bound of its box (the " in head
+    assert "largest force-field share: TIP3P's epsilon_OO 2% in seed 0)." in head
+    assert "the fixed round-number bounds leave it undecided in each of their 2 trusted seeds)." in head
+    # What no model reproduces: a discrepancy sd's 2.5 % point above 2 % of its bound.
+    for name in ("b0", "b2"):
+        for model, low in (("TIP3P", 0.1), ("A", 0.05)):
+            saved[name]["per_model"][model]["credible_interval_95"][2][0] = low
+    assert (
+        "- Not reproduced within the measurement error by any model, in each trusted seed"
+        in (head := "".join(page._family_headline()))
+        and "of its bound): g." in head
+    )
+    saved["b2"]["per_model"]["A"]["credible_interval_95"][2][0] = 0.001
+    assert "of its bound): no group; by some models: g (A, TIP3P)." in "".join(page._family_headline())
+    saved["s1"]["verdict"] = {"status": "preferred", "model": "A"}
+    head = "".join(page._family_headline())
+    assert "with the fixed round-number bounds the trusted seeds say undecided; preferred A)." in head
+    # A bounded seed missing: the headline stands on the held-out family, the bounds a bullet.
+    del saved["b2"]
+    head = "".join(page._family_headline())
+    assert head.startswith("**Verdict: depends on the seed.** From the 2 trusted seeds of the held-out family")
+    assert "; bounds on the discrepancy sds from outside the fit (tables below)" in head
+    assert "- With the published-model discrepancy bounds as the prior (g 0.25, D 3.5; rerun" in head
+    assert (
+        "- Prior edges (more than 5 % of a posterior within 2 % of a bound): TIP3P's epsilon_OO in seed 0, 9%" in head
+    )
     saved.clear()
     assert page._bounded_family() is None
 

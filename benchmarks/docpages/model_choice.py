@@ -299,19 +299,36 @@ def _repeats() -> list[str]:
     )
 
 
+def _headline_families() -> tuple[tuple[tuple[str, ...], str], tuple[tuple[str, ...], str]]:
+    """The family the headline stands on and the other one, each ``(run names, label)``.
+
+    The published-bounds family once every seed of it is saved and one is trusted: its
+    discrepancy bounds come from the published models' own runs rather than a round number, and
+    they are what stops TIP3P's epsilon piling on its bound.  Until then the held-out family with
+    the fixed bounds."""
+    held = (HOLDOUT_FAMILY, "held-out family")
+    bounded = (PUBLISHED_BOUNDS_FAMILY, "published-bounds family")
+    runs = [load(name) for name in PUBLISHED_BOUNDS_FAMILY]
+    if all(d is not None for d in runs) and any(not _flags(d["model_choice"]["stop_reason"]) for d in runs):
+        return bounded, held
+    return held, bounded
+
+
 def _family_headline() -> list[str]:
-    """The verdict the page stands on, from the trusted seeds of :data:`HOLDOUT_FAMILY` (every
-    emulator validated, no flag): whether they agree, then one bullet each for the prior boxes,
-    piled-up bounds, the calibrated predictions against the published parameters, the run
-    without the discrepancy term, and what would change the verdict.  Empty until a seed of the
-    family is saved."""
-    saved = [(name, d) for name in HOLDOUT_FAMILY if (d := load(name)) is not None]
+    """The verdict the page stands on, from the trusted seeds of the family
+    :func:`_headline_families` picks (every emulator validated, no flag): whether they agree, then
+    one bullet each for the prior boxes, the other family, piled-up bounds, the calibrated
+    predictions against the published parameters, the run without the discrepancy term, and what
+    would change the verdict.  Empty until a seed of the family is saved."""
+    (family, label), (other, _) = _headline_families()
+    bounds_first = family == PUBLISHED_BOUNDS_FAMILY
+    saved = [(name, d) for name in family if (d := load(name)) is not None]
     trusted = [(name, d) for name, d in saved if not _flags(d["model_choice"]["stop_reason"])]
     if not saved:
         return []
     if not trusted:
         return [
-            f"**Verdict: none trusted yet.** {len(saved)} of {len(HOLDOUT_FAMILY)} seeds of the held-out family "
+            f"**Verdict: none trusted yet.** {len(saved)} of {len(family)} seeds of the {label} "
             "run, none with every emulator validated and no flag (table below).\n"
         ]
 
@@ -323,15 +340,23 @@ def _family_headline() -> list[str]:
         leaders.append(f"seed {d['settings'].get('seed', '?')} {mc['names'][k]} {mc['probabilities'][k]:.2f}")
     head = statuses[0] if len(statuses) == 1 else "depends on the seed"
     text = (
-        f"**Verdict: {head}.** From the {len(trusted)} trusted seeds of the held-out family "
-        f"({len(saved)} of {len(HOLDOUT_FAMILY)} run; trusted: every emulator validated on held-out runs, no "
-        "flag; calibrated emulator variance, a budget of 120 GROMACS runs per model, table below): "
+        f"**Verdict: {head}.** From the "
+        + (f"{len(trusted)} trusted seeds" if len(trusted) > 1 else "one trusted seed")
+        + f" of the {label} ({len(saved)} of {len(family)} run; trusted: every emulator validated on held-out "
+        "runs, no flag; calibrated emulator variance, a budget of 120 GROMACS runs per model"
+        + (
+            ", each discrepancy sd bounded by the largest misfit a published model makes in its group"
+            if bounds_first
+            else ""
+        )
+        + ", table below): "
         + (
             f"each says {statuses[0]}"
             if len(statuses) == 1
             else "they disagree (" + "; ".join(_status(d) for _, d in trusted) + ")"
         )
-        + f"; the most probable model in each: {', '.join(leaders)}."
+        + ("; the most probable model in each: " if len(trusted) > 1 else "; the most probable model: ")
+        + f"{', '.join(leaders)}."
     )
     flagged = [(n, d) for n, d in saved if (n, d) not in trusted]
     if flagged:
@@ -347,28 +372,96 @@ def _family_headline() -> list[str]:
     bullets = [
         b
         for b in (
-            _boxes_bullet(trusted),
-            _bounded_family(),
+            _boxes_bullet(trusted, "in the fixed-bounds seeds" if bounds_first else "in these seeds"),
+            _bottom_bullet(trusted) if bounds_first else None,
+            _bounded_family(other),
             _edges_bullet(trusted),
+            _missed_bullet(trusted),
             _predictions_bullet(trusted),
             _without_bullet(),
         )
         if b
     ]
-    bounded = [d for name in PUBLISHED_BOUNDS_FAMILY if (d := load(name)) is not None]
-    agree = [_status(d) for d in bounded if not _flags(d["model_choice"]["stop_reason"])]
-    robust = len(bounded) == len(PUBLISHED_BOUNDS_FAMILY) and len(agree) > 1 and set(agree) == set(statuses) == {head}
-    bullets.append(
-        "What would change it: a seed that prefers one model; a prior box narrowed on grounds outside these data"
-        + (
-            f" (the discrepancy bounds set from the published models, outside the fit, leave it {head} in each of "
-            f"their {len(agree)} trusted seeds)"
-            if robust
-            else "; bounds on the discrepancy sds from outside the fit"
+    others = [d for name in other if (d := load(name)) is not None]
+    agree = [_status(d) for d in others if not _flags(d["model_choice"]["stop_reason"])]
+    robust = len(others) == len(other) and len(agree) > 1 and set(agree) == set(statuses) == {head}
+    if bounds_first:
+        bullets.append(
+            "What would change it: a seed that prefers one model; a prior box narrowed on grounds outside these "
+            "data; discrepancy bounds other than the published models' largest misfits, which are set from the "
+            "same measured data the fit uses"
+            + " (tables below; "
+            + (
+                f"the fixed round-number bounds leave it {head} in each of their {len(agree)} trusted seeds)."
+                if robust
+                else f"with the fixed round-number bounds the trusted seeds say {'; '.join(agree) or 'nothing'})."
+            )
         )
-        + " (tables below)."
-    )
+    else:
+        bullets.append(
+            "What would change it: a seed that prefers one model; a prior box narrowed on grounds outside these data"
+            + (
+                f" (the discrepancy bounds set from the published models, outside the fit, leave it {head} in each "
+                f"of their {len(agree)} trusted seeds)"
+                if robust
+                else "; bounds on the discrepancy sds from outside the fit"
+            )
+            + " (tables below)."
+        )
     return [text + "\n", "\n".join(f"- {b}" for b in bullets) + "\n"]
+
+
+def _bottom_bullet(trusted: list[tuple[str, dict[str, Any]]]) -> str | None:
+    """The headline's bullet on the models whose probability interval lies below another's in the
+    run and in every halved box of each trusted seed (:func:`_disfavoured`), with their log
+    evidence against the most probable model's."""
+    below = [set(_disfavoured(d)) for _, d in trusted]
+    common = sorted(set.intersection(*below)) if below else []
+    if not common:
+        return None
+    pairs = []
+    for _, d in trusted:
+        mc = d["model_choice"]
+        z, e = np.asarray(mc["log_evidence"], float), np.asarray(mc["log_evidence_errors"], float)
+        top = int(np.argmax(mc["probabilities"]))
+        for model in common:
+            k = list(mc["names"]).index(model)
+            pairs.append(
+                f"seed {d['settings'].get('seed', '?')} {model} {z[k]:.2f} +- {e[k]:.2f} against "
+                f"{mc['names'][top]} {z[top]:.2f} +- {e[top]:.2f}, a Bayes factor of {np.exp(z[top] - z[k]):.1f}"
+            )
+    return (
+        f"Bottom: {', '.join(common)} lies below another model's probability interval in "
+        + ("each trusted seed" if len(trusted) > 1 else "the trusted seed")
+        + ", in the run and in every halved box, the one ranking a factor-2 prior box does not turn "
+        "(log evidence: " + "; ".join(pairs) + ")."
+    )
+
+
+def _missed_bullet(trusted: list[tuple[str, dict[str, Any]]]) -> str | None:
+    """The headline's bullet on what no model reproduces within the measurement error: the
+    discrepancy groups :func:`_missed_groups` finds for every model in every trusted seed, and
+    those some models miss in some seed."""
+    missed = [_missed_groups(d) for _, d in trusted]
+    if not missed or not all(missed):
+        return None
+    groups = list(missed[0])
+    everyone = [
+        g
+        for g in groups
+        if all(len(m.get(g, [])) == len(d["per_model"]) for m, (_, d) in zip(missed, trusted, strict=True))
+    ]
+    some = {g: sorted({name for m in missed for name in m.get(g, [])}) for g in groups if g not in everyone}
+    some = {g: who for g, who in some.items() if who}
+    line = (
+        "Not reproduced within the measurement error by any model, in "
+        + ("each trusted seed" if len(trusted) > 1 else "the trusted seed")
+        + " (the discrepancy sd's 2.5 % point above 2 % of its bound): "
+        + (", ".join(everyone) if everyone else "no group")
+    )
+    if some:
+        line += "; by some models: " + "; ".join(f"{g} ({', '.join(who)})" for g, who in some.items())
+    return line + "."
 
 
 def _status(d: dict[str, Any]) -> str:
@@ -377,10 +470,11 @@ def _status(d: dict[str, Any]) -> str:
     return f"{v.get('status', '?')} {v.get('model') or ''}".strip()
 
 
-def _boxes_bullet(trusted: list[tuple[str, dict[str, Any]]]) -> str | None:
+def _boxes_bullet(trusted: list[tuple[str, dict[str, Any]]], where: str = "in these seeds") -> str | None:
     """The headline's bullet on the prior boxes: in how many (seed, model) cases halving one model's
-    box makes it preferred, how much each half of the box moves the evidence, and the verdicts
-    with the published-model bounds applied to the saved runs."""
+    box makes it preferred, how much each half of the box moves the evidence (``where`` says which
+    seeds :mod:`benchmarks.water_box_sensitivity` split), and the verdicts with the published-model
+    bounds applied to the saved runs."""
     turned, halved = 0, 0
     for _, d in trusted:
         names = list(d["model_choice"]["names"])
@@ -404,7 +498,6 @@ def _boxes_bullet(trusted: list[tuple[str, dict[str, Any]]]) -> str | None:
     split = load("water_box_sensitivity")
     if turned and split is not None:
         moves = split.get("family_log_evidence_change_abs")
-        where = "in these seeds"
         if not moves:
             moves, where = split["log_evidence_change_abs"], "over the earlier repeats"
         weigh = moves["discrepancy"]["median"] > moves["parameters"]["median"]
@@ -434,27 +527,54 @@ def _boxes_bullet(trusted: list[tuple[str, dict[str, Any]]]) -> str | None:
 
 
 def _edges_bullet(trusted: list[tuple[str, dict[str, Any]]]) -> str | None:
-    """The headline's bullet on force-field posteriors piled on a bound, and where they sit."""
+    """The headline's bullet on posteriors piled on a bound of their box, and, for a force-field
+    parameter, where they sit."""
     edges: list[str] = []
+    corners = False
     for _, d in trusted:
-        for model, e in (d.get("prior_edge") or {}).items():
-            for message in e.get("messages") or []:
-                share, rest = message.split(" of the posterior mass of ", 1)
-                parameter = rest.split(" lies within")[0]
-                bound = "lower" if "from its lower bound" in rest else "upper"
-                corner = _edge_corner(d, model, parameter)
-                edges.append(
-                    f"{model}'s {parameter} in seed {d['settings'].get('seed', '?')}, {share} at its {bound} bound"
-                    + (f"; {corner}" if corner else "")
-                )
+        for model, parameter, side, share in _piled_bounds(d):
+            corner = _edge_corner(d, model, parameter)
+            corners |= parameter in _FORCE_FIELD
+            edges.append(
+                f"{model}'s {parameter} in seed {d['settings'].get('seed', '?')}, {share:.0%} at its "
+                f"{('lower', 'upper')[side]} bound" + (f"; {corner}" if corner else "")
+            )
     if not edges:
-        return None
+        largest = [
+            (share, f"{model}'s {parameter} {share:.0%} in seed {d['settings'].get('seed', '?')}")
+            for _, d in trusted
+            for model in d.get("prior_edge") or {}
+            for parameter in _FORCE_FIELD
+            if (share := _edge_share(d, model, parameter)) is not None
+        ]
+        return (
+            "Prior edges: no posterior has more than 5 % of its mass within 2 % of a bound of its box"
+            + (f" (the largest force-field share: {max(largest)[1]})" if largest else "")
+            + "."
+        )
     return (
         "Prior edges (more than 5 % of a posterior within 2 % of a bound): "
         + "; ".join(edges)
-        + ".  What the calibrated predictions there miss, the discrepancy term absorbs: the piled-up mass "
-        "marks a corner where the model fits g_OO as a different liquid, not a better water."
+        + (
+            ".  What the calibrated predictions there miss, the discrepancy term absorbs: the piled-up mass "
+            "marks a corner where the model fits g_OO as a different liquid, not a better water."
+            if corners
+            else "."
+        )
     )
+
+
+def _piled_bounds(d: dict[str, Any]) -> list[tuple[str, str, int, float]]:
+    """``(model, parameter, side, mass)`` for every bound of a run's boxes with more than 5 % of the
+    posterior within 2 % of it (side 0 lower, 1 upper).  A discrepancy sd's lower bound, 0, is a
+    physical limit (the run's prior marks it so) and is left out, as the run's warnings leave it."""
+    out = []
+    for model, e in (d.get("prior_edge") or {}).items():
+        for parameter, mass in zip(e["parameters"], e["mass"], strict=True):
+            for side, share in enumerate(mass):
+                if share > 0.05 and not (side == 0 and parameter.startswith("discrepancy_sd[")):
+                    out.append((model, parameter, side, float(share)))
+    return out
 
 
 def _predictions_bullet(trusted: list[tuple[str, dict[str, Any]]]) -> str | None:
@@ -551,12 +671,15 @@ def _disfavoured(d: dict[str, Any]) -> list[str]:
     ]
 
 
-def _bounded_family() -> str | None:
-    """The bullet of :data:`PUBLISHED_BOUNDS_FAMILY`: the family rerun with every discrepancy sd
-    bounded by the published models' largest misfit in its group (the prior of the run, not a
-    reweighting): each seed's verdict, the bounds, where the posteriors still pile on a
-    force-field bound, and the calibrated predictions against the published parameters."""
-    saved = [(name, d) for name in PUBLISHED_BOUNDS_FAMILY if (d := load(name)) is not None]
+def _bounded_family(family: tuple[str, ...] | None = None) -> str | None:
+    """The bullet of the family the headline does not stand on: by default
+    :data:`PUBLISHED_BOUNDS_FAMILY`, the family rerun with every discrepancy sd bounded by the
+    published models' largest misfit in its group (the prior of the run, not a reweighting), or
+    :data:`HOLDOUT_FAMILY` with its fixed bounds: each seed's verdict, the bounds, where the
+    posteriors still pile on a force-field bound, and the calibrated predictions against the
+    published parameters."""
+    family = PUBLISHED_BOUNDS_FAMILY if family is None else family
+    saved = [(name, d) for name in family if (d := load(name)) is not None]
     if not saved:
         return None
     first = saved[0][1]["settings"]["discrepancy"]
@@ -574,8 +697,13 @@ def _bounded_family() -> str | None:
             + ")"
         )
     line = (
-        f"With the published-model discrepancy bounds as the prior ({bounds}; rerun, not reweighted; "
-        f"{len(saved)} of {len(PUBLISHED_BOUNDS_FAMILY)} seeds run): " + "; ".join(seeds)
+        (
+            f"With the published-model discrepancy bounds as the prior ({bounds}; rerun, not reweighted; "
+            if family == PUBLISHED_BOUNDS_FAMILY
+            else f"With the fixed round-number discrepancy bounds of the held-out family instead ({bounds}; "
+        )
+        + f"{len(saved)} of {len(family)} seeds run): "
+        + "; ".join(seeds)
     )
     piled = [
         f"{model}'s {parameter} {share:.0%} in seed {d['settings'].get('seed', '?')}"
