@@ -754,10 +754,13 @@ REGISTRY: tuple[Entry, ...] = (
         quick="python -m benchmarks.water_box_sensitivity --quick",
         quick_output=f"{Q}/water_box_sensitivity.json",
         estimated_cost_s=30.0,
-        after=(*(name for name, _ in (*REPEATS, *HOLDOUT_FAMILY)), "water_published_predictive"),
+        after=(
+            *(name for name, _ in (*REPEATS, *HOLDOUT_FAMILY, *PUBLISHED_BOUNDS_FAMILY)),
+            "water_published_predictive",
+        ),
         note="which prior moves the water model probabilities: each model's force-field box and its "
         "discrepancy bounds halved apart, and the bounds set from the published models' misfits, from "
-        "the saved repeats and the held-out family (no GROMACS)",
+        "the saved repeats, the held-out family and its rerun with those bounds (no GROMACS)",
     ),
     Entry(
         "water_summary_noise",

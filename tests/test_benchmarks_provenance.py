@@ -1191,6 +1191,31 @@ def test_the_model_choice_page_reports_the_published_bounds_reruns(monkeypatch) 
     assert page._bounded_family() is None
 
 
+def test_the_model_choice_page_splits_the_published_bounds_family_apart() -> None:
+    """The box split of the published-bounds family is its own sentence, not pooled with the runs
+    made under the fixed bounds, and the headline's box bullet uses it when it stands on them."""
+    from benchmarks.docpages import model_choice as page
+
+    moves = {"parameters": {"median": 0.5, "max": 1.0}, "discrepancy": {"median": 1.5, "max": 2.0}}
+    runs = [
+        {
+            "names": ["A", "B"],
+            "published_bounds_family": True,
+            "discrepancy_upper_half_share": {
+                "A": {"discrepancy_sd[D]": 0.4, "discrepancy_sd[g]": 0.1},
+                "B": {"discrepancy_sd[D]": 0.3, "discrepancy_sd[g]": 0.3 * seed},
+            },
+        }
+        for seed in (0, 1)
+    ]
+    split = {"repeats": runs, "published_bounds_family_log_evidence_change_abs": moves}
+    text = page._bounded_moves(split)
+    assert "In the 2 runs made with the published-model bounds as the prior (not in the table)" in text
+    assert "median 1.50 (at most 2.00), halving the force-field box by 0.50 (at most 1.00)" in text
+    assert text.endswith("(in any run): D (2 of 2 models), g (1 of 2 models: B).")
+    assert page._bounded_moves({"repeats": runs[:0], "published_bounds_family_log_evidence_change_abs": moves}) == ""
+
+
 _VERSIONS = {
     "v0": ("return SCALE", "y = SCALE\n    return y"),
     "v1": ("return SCALE * math.sqrt(x)", "return math.sqrt(x) * SCALE"),

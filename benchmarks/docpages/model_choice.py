@@ -372,7 +372,7 @@ def _family_headline() -> list[str]:
     bullets = [
         b
         for b in (
-            _boxes_bullet(trusted, "in the fixed-bounds seeds" if bounds_first else "in these seeds"),
+            _boxes_bullet(trusted, bounds_first),
             _bottom_bullet(trusted) if bounds_first else None,
             _bounded_family(other),
             _edges_bullet(trusted),
@@ -470,11 +470,13 @@ def _status(d: dict[str, Any]) -> str:
     return f"{v.get('status', '?')} {v.get('model') or ''}".strip()
 
 
-def _boxes_bullet(trusted: list[tuple[str, dict[str, Any]]], where: str = "in these seeds") -> str | None:
+def _boxes_bullet(trusted: list[tuple[str, dict[str, Any]]], bounded: bool = False) -> str | None:
     """The headline's bullet on the prior boxes: in how many (seed, model) cases halving one model's
-    box makes it preferred, how much each half of the box moves the evidence (``where`` says which
-    seeds :mod:`benchmarks.water_box_sensitivity` split), and the verdicts with the published-model
+    box makes it preferred, how much each half of the box moves the evidence (split by
+    :mod:`benchmarks.water_box_sensitivity` over the headline's family, ``bounded`` for the
+    published-bounds one, else over the nearest it has), and the verdicts with the published-model
     bounds applied to the saved runs."""
+    where = "in the fixed-bounds seeds" if bounded else "in these seeds"
     turned, halved = 0, 0
     for _, d in trusted:
         names = list(d["model_choice"]["names"])
@@ -497,7 +499,11 @@ def _boxes_bullet(trusted: list[tuple[str, dict[str, Any]]], where: str = "in th
     )
     split = load("water_box_sensitivity")
     if turned and split is not None:
-        moves = split.get("family_log_evidence_change_abs")
+        moves = split.get("published_bounds_family_log_evidence_change_abs") if bounded else None
+        if moves:
+            where = "in these seeds"
+        else:
+            moves = split.get("family_log_evidence_change_abs")
         if not moves:
             moves, where = split["log_evidence_change_abs"], "over the earlier repeats"
         weigh = moves["discrepancy"]["median"] > moves["parameters"]["median"]
@@ -1354,7 +1360,8 @@ def _box_sensitivity() -> list[str]:
     d = load("water_box_sensitivity")
     if d is None:
         return []
-    repeats = d["repeats"]
+    # The published-bounds family has its own sentence below: its bounds are a different prior.
+    repeats = [r for r in d["repeats"] if not r.get("published_bounds_family")]
     names = repeats[0]["names"]
     moves = d["log_evidence_change_abs"]
     rows = []
@@ -1410,7 +1417,7 @@ def _box_sensitivity() -> list[str]:
         f"{', '.join(named) or 'none'}.  A "
         "verdict between these models rests on the bounds chosen for those sds more than on the "
         "force-field boxes; a bound on them from outside the fit (or a model choice without them) is what "
-        "could change it.\n",
+        "could change it." + _bounded_moves(d) + "\n",
         table(
             [
                 "model",
@@ -1424,6 +1431,32 @@ def _box_sensitivity() -> list[str]:
         + "\n",
         *_published_bounds(d),
     ]
+
+
+def _bounded_moves(d: dict[str, Any]) -> str:
+    """The same split over the published-bounds family (its runs' own prior), or ""."""
+    moves = d.get("published_bounds_family_log_evidence_change_abs")
+    runs = [r for r in d["repeats"] if r.get("published_bounds_family")]
+    if not moves or not runs:
+        return ""
+    loose: dict[str, set[str]] = {}
+    for r in runs:
+        for model, model_shares in r["discrepancy_upper_half_share"].items():
+            for col, v in model_shares.items():
+                if v >= 0.25:
+                    loose.setdefault(col.removeprefix("discrepancy_sd[").rstrip("]"), set()).add(model)
+    models = len(runs[0]["names"])
+    groups = [
+        f"{g} ({len(who)} of {models} models" + (f": {', '.join(sorted(who))})" if len(who) < models else ")")
+        for g, who in sorted(loose.items(), key=lambda item: -len(item[1]))
+    ]
+    return (
+        f"  In the {len(runs)} runs made with the published-model bounds as the prior (not in the table), "
+        f"halving the discrepancy bounds moves a log evidence by a median {moves['discrepancy']['median']:.2f} "
+        f"(at most {moves['discrepancy']['max']:.2f}), halving the force-field box by "
+        f"{moves['parameters']['median']:.2f} (at most {moves['parameters']['max']:.2f}); discrepancy sds the "
+        f"data bound from below only there (in any run): {', '.join(groups) or 'none'}."
+    )
 
 
 def _published_bounds_sentence(d: dict[str, Any]) -> str:
