@@ -893,6 +893,20 @@ REGISTRY: tuple[Entry, ...] = (
         checked_by=("criticism_water_joint",),
     ),
     Entry(
+        "criticism_water_joint_published_bounds",
+        f"{R}/criticism_water_joint_published_bounds.json",
+        "python -m benchmarks.criticism_water_joint --data xray --model TIP4P --model-choice-result "
+        f"{PUBLISHED_BOUNDS_FAMILY[1][0]} --name criticism_water_joint_published_bounds --workers 2 "
+        f"--cache-dir {CACHE}/criticism_water_joint/xray_quick",
+        long=True,
+        requires=("gmx",),
+        estimated_cost_s=7200.0,
+        note="the criticism of TIP4P (the model choice is undecided) started from the published-bounds family's "
+        "seed 1, its first seed with every emulator validated; its simulations share the criticism's cache folder",
+        after=(PUBLISHED_BOUNDS_FAMILY[1][0],),
+        checked_by=("criticism_water_joint",),
+    ),
+    Entry(
         "water_density_relaxation",
         f"{R}/water_density_relaxation.json",
         "python -m benchmarks.water_density_relaxation --workers 2",

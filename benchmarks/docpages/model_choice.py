@@ -23,11 +23,16 @@ from md.water.statistics import SECOND_SHELL_WINDOW_NM
 #: Saved paper-preset checks of models of the model choice, one result each.
 PAPER_CHECKS = ("water_model_paper_check",)
 #: Saved criticisms of models of the model choice, one result each.
-CRITICISMS = ("criticism_water_joint", "criticism_water_joint_no_discrepancy")
+CRITICISMS = (
+    "criticism_water_joint",
+    "criticism_water_joint_no_discrepancy",
+    "criticism_water_joint_published_bounds",
+)
 #: Which model choice each criticism starts from.
 _CRITICISM_START = {
     "criticism_water_joint": "from the model choice with the discrepancy term",
     "criticism_water_joint_no_discrepancy": "from the model choice without the discrepancy term",
+    "criticism_water_joint_published_bounds": "from seed 1 of the model choice with the published-model bounds",
 }
 #: The repeats meant to give the trusted verdict (:mod:`benchmarks._water_family`).
 HOLDOUT_FAMILY = tuple(name for name, _ in _FAMILY)
