@@ -251,7 +251,7 @@ REGISTRY: tuple[Entry, ...] = (
         quick_output=f"{Q}/helium_table1.json",
         legacy_cost_keys=("total_wall_time_s",),
         long=True,
-        note="3.3 min on a lent H200 GPU (1.27 M simulations of 64 atoms); about 6 h on 2 CPU cores",
+        note="made on a lent GPU (its JSON has the machine and the wall time); hours on 2 CPU cores",
     ),
     Entry(
         "helium_identifiability",
@@ -711,7 +711,7 @@ REGISTRY: tuple[Entry, ...] = (
             7200.0,
             f"the held-out family's seed {seed} with each discrepancy sd bounded by the largest misfit a published "
             "rigid model makes in its group (water_published_predictive): with the fixed bounds (D 10, hvap 20) the "
-            "fit gives D, density and hvap up, and TIP3P's epsilon piles on its bound at sigma x1.07",
+            "fit gives D, density and hvap up, and TIP3P's epsilon piles on its lower bound",
         )
         for seed, (name, _) in zip(FAMILY_SEEDS, PUBLISHED_BOUNDS_FAMILY, strict=True)
     ),
