@@ -1178,6 +1178,12 @@ def test_the_model_choice_page_reports_the_published_bounds_reruns(monkeypatch) 
     saved["s1"]["verdict"] = {"status": "preferred", "model": "A"}
     head = "".join(page._family_headline())
     assert "with the fixed round-number bounds the trusted seeds say undecided; preferred A)." in head
+    # One trusted bounded seed: the headline says one seed is not a verdict, and what the others say.
+    saved["b2"]["model_choice"]["stop_reason"] = "UNTRUSTED: A's emulator failed validation"
+    head = "".join(page._family_headline())
+    assert "From the one trusted seed of the published-bounds family (3 of 3 run" in head
+    assert "One trusted seed alone is not a verdict: every flagged seed says undecided too." in head
+    saved["b2"]["model_choice"]["stop_reason"] = "every model's emulator validated"
     # A bounded seed missing: the headline stands on the held-out family, the bounds a bullet.
     del saved["b2"]
     head = "".join(page._family_headline())

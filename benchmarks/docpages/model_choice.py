@@ -374,6 +374,11 @@ def _family_headline() -> list[str]:
             )
             + "."
         )
+    if len(trusted) == 1:
+        same = all(_status(d) == head for _, d in flagged)
+        text += " One trusted seed alone is not a verdict" + (
+            f": every flagged seed says {head} too." if flagged and same else "."
+        )
     bullets = [
         b
         for b in (
