@@ -1161,9 +1161,24 @@ def test_the_model_choice_page_reports_the_published_bounds_reruns(monkeypatch) 
     assert "seed 2 TIP3P 0.00 +- 0.10 against A 2.00 +- 0.10, a Bayes factor of 7.4)." in head
     assert "- With the fixed round-number discrepancy bounds of the held-out family instead (g 0.25, D 3.5" in head
     assert "above 5 %: TIP3P's epsilon_OO 9% in seed 0; TIP3P's epsilon_OO 9% in seed 1." in head
-    assert "- Prior edges: no posterior has more than 5 % of its mass within 2 % of a bound of its box (the " in head
-    assert "largest force-field share: TIP3P's epsilon_OO 2% in seed 0)." in head
-    assert "the fixed round-number bounds leave it undecided in each of their 2 trusted seeds)." in head
+    assert "- Prior edges: no posterior has more than 5 % of its mass within 2 % of a bound of its box (a " in head
+    assert (
+        "bound at 0 is a physical limit, not counted); the largest force-field share: TIP3P's epsilon_OO 2% in " in head
+    )
+    assert "(tables below; with the fixed round-number bounds the trusted seeds say undecided)." in head
+    # The box split of the headline's own family, over its saved runs.
+    moves = {"parameters": {"median": 0.5}, "discrepancy": {"median": 1.5}}
+    saved["water_box_sensitivity"] = {
+        "repeats": [{"result": n, "published_bounds_family": True} for n in ("b0", "b1", "b2")]
+        + [{"result": n, "family": True} for n in family],
+        "published_bounds_family_log_evidence_change_abs": moves,
+        "family_log_evidence_change_abs": {k: {"median": 2 * v["median"]} for k, v in moves.items()},
+    }
+    assert (
+        "Split apart over the 3 saved runs of this family, halving the discrepancy bounds moves a model's log "
+        "evidence by a median 1.50, halving the force-field box by 0.50: the discrepancy priors weigh most"
+        in "".join(page._family_headline())
+    )
     # What no model reproduces: a discrepancy sd's 2.5 % point above 2 % of its bound.
     for name in ("b0", "b2"):
         for model, low in (("TIP3P", 0.1), ("A", 0.05)):
@@ -1174,21 +1189,35 @@ def test_the_model_choice_page_reports_the_published_bounds_reruns(monkeypatch) 
         and "of its bound): g." in head
     )
     saved["b2"]["per_model"]["A"]["credible_interval_95"][2][0] = 0.001
-    assert "of its bound): no group; by some models: g (A, TIP3P)." in "".join(page._family_headline())
+    assert "of its bound): no group; by some models in some seeds: g (A in seed 0; TIP3P in seeds 0, 2)." in "".join(
+        page._family_headline()
+    )
     saved["s1"]["verdict"] = {"status": "preferred", "model": "A"}
     head = "".join(page._family_headline())
-    assert "with the fixed round-number bounds the trusted seeds say undecided; preferred A)." in head
-    # One trusted bounded seed: the headline says one seed is not a verdict, and what the others say.
+    assert "with the fixed round-number bounds the trusted seeds say preferred A; undecided)." in head
+    # One trusted bounded seed: the headline stays on the held-out family; with one trusted seed
+    # there, it says one seed is not a verdict, and what the flagged ones say.
     saved["b2"]["model_choice"]["stop_reason"] = "UNTRUSTED: A's emulator failed validation"
+    assert "From the 2 trusted seeds of the held-out family (2 of 2 run" in "".join(page._family_headline())
+    saved["s1"]["model_choice"]["stop_reason"] = "UNTRUSTED: A's emulator failed validation"
     head = "".join(page._family_headline())
-    assert "From the one trusted seed of the published-bounds family (3 of 3 run" in head
-    assert "One trusted seed alone is not a verdict: every flagged seed says undecided too." in head
+    assert "From the one trusted seed of the held-out family (2 of 2 run" in head and "it says undecided" in head
+    assert "One trusted seed alone is not a verdict." in head
+    saved["s1"]["verdict"] = {"status": "undecided", "model": None}
+    assert "One trusted seed alone is not a verdict: every flagged seed says undecided too." in "".join(
+        page._family_headline()
+    )
+    saved["s1"]["verdict"] = {"status": "preferred", "model": "A"}
+    saved["s1"]["model_choice"]["stop_reason"] = "every model's emulator validated"
     saved["b2"]["model_choice"]["stop_reason"] = "every model's emulator validated"
     # A bounded seed missing: the headline stands on the held-out family, the bounds a bullet.
     del saved["b2"]
+    for name in family:
+        saved[name]["sensitivity"] = halved
     head = "".join(page._family_headline())
     assert head.startswith("**Verdict: depends on the seed.** From the 2 trusted seeds of the held-out family")
     assert "; bounds on the discrepancy sds from outside the fit (tables below)" in head
+    assert "Split apart over the 2 saved runs of this family, halving the discrepancy bounds moves a model's " in head
     assert "- With the published-model discrepancy bounds as the prior (g 0.25, D 3.5; rerun" in head
     assert (
         "- Prior edges (more than 5 % of a posterior within 2 % of a bound): TIP3P's epsilon_OO in seed 0, 9%" in head

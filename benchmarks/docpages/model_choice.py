@@ -16,7 +16,9 @@ from benchmarks._water_family import HOLDOUT_NO_DISCREPANCY
 from benchmarks._water_family import PUBLISHED_BOUNDS_FAMILY as _BOUNDED
 from benchmarks._water_repeats import REPEATS, made_with_gp_variance
 from benchmarks.docpages.common import MISFIT_NOTE, cause_rows, f, figure, load, misfit_rows, retired, source, table
+from jaxabc.diagnostics import PRIOR_EDGE_LIMIT
 from jaxabc.model_choice import interval_leader, probabilities_with_errors, probability_bounds
+from jaxabc.noise import DISCREPANCY_PREFIX
 from md.water.models import PAPER_TIP4P_ESTIMATES
 from md.water.statistics import SECOND_SHELL_WINDOW_NM
 
@@ -307,14 +309,14 @@ def _repeats() -> list[str]:
 def _headline_families() -> tuple[tuple[tuple[str, ...], str], tuple[tuple[str, ...], str]]:
     """The family the headline stands on and the other one, each ``(run names, label)``.
 
-    The published-bounds family once every seed of it is saved and one is trusted: its
-    discrepancy bounds come from the published models' own runs rather than a round number, and
-    they are what stops TIP3P's epsilon piling on its bound.  Until then the held-out family with
-    the fixed bounds."""
+    The published-bounds family once every seed of it is saved and two are trusted: its
+    discrepancy bounds come from the published models' misfits to the same measured data (no
+    fit) rather than a round number, and in its seeds no force-field posterior piles on a bound.
+    Until then the held-out family with the fixed bounds."""
     held = (HOLDOUT_FAMILY, "held-out family")
     bounded = (PUBLISHED_BOUNDS_FAMILY, "published-bounds family")
     runs = [load(name) for name in PUBLISHED_BOUNDS_FAMILY]
-    if all(d is not None for d in runs) and any(not _flags(d["model_choice"]["stop_reason"]) for d in runs):
+    if all(d is not None for d in runs) and sum(not _flags(d["model_choice"]["stop_reason"]) for d in runs) > 1:
         return bounded, held
     return held, bounded
 
@@ -356,7 +358,7 @@ def _family_headline() -> list[str]:
         )
         + ", table below): "
         + (
-            f"each says {statuses[0]}"
+            (f"each says {statuses[0]}" if len(trusted) > 1 else f"it says {statuses[0]}")
             if len(statuses) == 1
             else "they disagree (" + "; ".join(_status(d) for _, d in trusted) + ")"
         )
@@ -392,31 +394,19 @@ def _family_headline() -> list[str]:
         )
         if b
     ]
-    others = [d for name in other if (d := load(name)) is not None]
-    agree = [_status(d) for d in others if not _flags(d["model_choice"]["stop_reason"])]
-    robust = len(others) == len(other) and len(agree) > 1 and set(agree) == set(statuses) == {head}
     if bounds_first:
+        others = [d for name in other if (d := load(name)) is not None]
+        agree = sorted({_status(d) for d in others if not _flags(d["model_choice"]["stop_reason"])})
         bullets.append(
             "What would change it: a seed that prefers one model; a prior box narrowed on grounds outside these "
-            "data; discrepancy bounds other than the published models' largest misfits, which are set from the "
-            "same measured data the fit uses"
-            + " (tables below; "
-            + (
-                f"the fixed round-number bounds leave it {head} in each of their {len(agree)} trusted seeds)."
-                if robust
-                else f"with the fixed round-number bounds the trusted seeds say {'; '.join(agree) or 'nothing'})."
-            )
+            "data; discrepancy bounds other than the published models' largest misfits (misfits to the same "
+            "measured data, no fit) (tables below; with the fixed round-number bounds "
+            + (f"the trusted seeds say {'; '.join(agree)})." if agree else "no seed is trusted).")
         )
     else:
         bullets.append(
-            "What would change it: a seed that prefers one model; a prior box narrowed on grounds outside these data"
-            + (
-                f" (the discrepancy bounds set from the published models, outside the fit, leave it {head} in each "
-                f"of their {len(agree)} trusted seeds)"
-                if robust
-                else "; bounds on the discrepancy sds from outside the fit"
-            )
-            + " (tables below)."
+            "What would change it: a seed that prefers one model; a prior box narrowed on grounds outside these "
+            "data; bounds on the discrepancy sds from outside the fit (tables below)."
         )
     return [text + "\n", "\n".join(f"- {b}" for b in bullets) + "\n"]
 
@@ -461,8 +451,22 @@ def _missed_bullet(trusted: list[tuple[str, dict[str, Any]]]) -> str | None:
         for g in groups
         if all(len(m.get(g, [])) == len(d["per_model"]) for m, (_, d) in zip(missed, trusted, strict=True))
     ]
-    some = {g: sorted({name for m in missed for name in m.get(g, [])}) for g in groups if g not in everyone}
-    some = {g: who for g, who in some.items() if who}
+    some = []
+    for g in groups:
+        if g in everyone:
+            continue
+        seeds: dict[str, list[str]] = {}
+        for m, (_, d) in zip(missed, trusted, strict=True):
+            for name in m.get(g, []):
+                seeds.setdefault(name, []).append(str(d["settings"].get("seed", "?")))
+        if seeds:
+            some.append(
+                f"{g} ("
+                + "; ".join(
+                    f"{name} in seed{'s' if len(k) > 1 else ''} {', '.join(k)}" for name, k in sorted(seeds.items())
+                )
+                + ")"
+            )
     line = (
         "Not reproduced within the measurement error by any model, in "
         + ("each trusted seed" if len(trusted) > 1 else "the trusted seed")
@@ -470,7 +474,7 @@ def _missed_bullet(trusted: list[tuple[str, dict[str, Any]]]) -> str | None:
         + (", ".join(everyone) if everyone else "no group")
     )
     if some:
-        line += "; by some models: " + "; ".join(f"{g} ({', '.join(who)})" for g, who in some.items())
+        line += "; by some models in some seeds: " + ", ".join(some)
     return line + "."
 
 
@@ -486,7 +490,6 @@ def _boxes_bullet(trusted: list[tuple[str, dict[str, Any]]], bounded: bool = Fal
     :mod:`benchmarks.water_box_sensitivity` over the headline's family, ``bounded`` for the
     published-bounds one, else over the nearest it has), and the verdicts with the published-model
     bounds applied to the saved runs."""
-    where = "in the fixed-bounds seeds" if bounded else "in these seeds"
     turned, halved = 0, 0
     for _, d in trusted:
         names = list(d["model_choice"]["names"])
@@ -502,18 +505,25 @@ def _boxes_bullet(trusted: list[tuple[str, dict[str, Any]]], bounded: bool = Fal
         f"bounds) makes that model preferred in {turned} of {halved} (seed, model) cases"
         + (
             ": the differences the data make between these models are smaller than what a factor-2 choice "
-            "of prior makes, so no ranking among them is a finding"
+            "of prior makes, so no model's lead is a finding"
             if turned
             else ""
         )
     )
     split = load("water_box_sensitivity")
     if turned and split is not None:
-        moves = split.get("published_bounds_family_log_evidence_change_abs") if bounded else None
-        if moves:
-            where = "in these seeds"
-        else:
+        key, flag = (
+            ("published_bounds_family_log_evidence_change_abs", "published_bounds_family")
+            if bounded
+            else ("family_log_evidence_change_abs", "family")
+        )
+        moves = split.get(key)
+        runs = sum(bool(r.get(flag)) for r in split["repeats"])
+        where = f"over the {runs} saved runs of this family"
+        if not moves and bounded:
             moves = split.get("family_log_evidence_change_abs")
+            runs = sum(bool(r.get("family")) for r in split["repeats"])
+            where = f"over the {runs} saved runs of the fixed-bounds family"
         if not moves:
             moves, where = split["log_evidence_change_abs"], "over the earlier repeats"
         weigh = moves["discrepancy"]["median"] > moves["parameters"]["median"]
@@ -532,8 +542,8 @@ def _boxes_bullet(trusted: list[tuple[str, dict[str, Any]]], bounded: bool = Fal
         if bounded:
             verdicts = sorted({v["verdict"] for v in bounded})
             line += (
-                ". With every discrepancy bound set from the published models' misfits instead (from the "
-                f"published models' own runs, not from this fit), {len(bounded)} of {len(bounded)} trusted "
+                ". With every discrepancy bound set from the published models' misfits instead (misfits to "
+                f"the same measured data, no fit), {len(bounded)} of {len(bounded)} trusted "
                 f"seeds say {verdicts[0]}, least probable {', '.join(v['least'] for v in bounded)}"
                 if len(verdicts) == 1
                 else ". With every discrepancy bound set from the published models' misfits instead, the "
@@ -564,8 +574,9 @@ def _edges_bullet(trusted: list[tuple[str, dict[str, Any]]]) -> str | None:
             if (share := _edge_share(d, model, parameter)) is not None
         ]
         return (
-            "Prior edges: no posterior has more than 5 % of its mass within 2 % of a bound of its box"
-            + (f" (the largest force-field share: {max(largest)[1]})" if largest else "")
+            "Prior edges: no posterior has more than 5 % of its mass within 2 % of a bound of its box (a "
+            "discrepancy sd's bound at 0 is a physical limit, not counted)"
+            + (f"; the largest force-field share: {max(largest)[1]}" if largest else "")
             + "."
         )
     return (
@@ -588,7 +599,7 @@ def _piled_bounds(d: dict[str, Any]) -> list[tuple[str, str, int, float]]:
     for model, e in (d.get("prior_edge") or {}).items():
         for parameter, mass in zip(e["parameters"], e["mass"], strict=True):
             for side, share in enumerate(mass):
-                if share > 0.05 and not (side == 0 and parameter.startswith("discrepancy_sd[")):
+                if share > PRIOR_EDGE_LIMIT and not (side == 0 and parameter.startswith(DISCREPANCY_PREFIX)):
                     out.append((model, parameter, side, float(share)))
     return out
 
@@ -671,7 +682,7 @@ def _intervals(mc: dict[str, Any]) -> np.ndarray:
 def _disfavoured(d: dict[str, Any]) -> list[str]:
     """The models whose probability interval lies wholly below another model's, in the run and in
     every halved-box variant of its sensitivity table (a narrower box reuses the run): a ranking
-    at the bottom that a factor-2 prior box does not turn."""
+    at the bottom that a factor-2 prior box does not turn.  None without a halved variant."""
     mc = d["model_choice"]
     names = list(mc["names"])
     runs = [_intervals(mc)]
@@ -680,6 +691,8 @@ def _disfavoured(d: dict[str, Any]) -> list[str]:
         for r in d.get("sensitivity") or []
         if "x0.5" in r["label"] and np.all(np.isfinite(np.asarray(r["intervals"], float)))
     ]
+    if len(runs) < 2:  # no halved box to check it against
+        return []
     return [
         name
         for k, name in enumerate(names)
