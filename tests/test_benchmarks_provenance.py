@@ -1165,7 +1165,7 @@ def test_the_model_choice_page_reports_the_published_bounds_reruns(monkeypatch) 
     assert (
         "bound at 0 is a physical limit, not counted); the largest force-field share: TIP3P's epsilon_OO 2% in " in head
     )
-    assert "(tables below; with the fixed round-number bounds the trusted seeds say undecided)." in head
+    assert "(with the fixed round-number bounds the trusted seeds say undecided; tables below)." in head
     # The box split of the headline's own family, over its saved runs.
     moves = {"parameters": {"median": 0.5}, "discrepancy": {"median": 1.5}}
     saved["water_box_sensitivity"] = {
@@ -1194,7 +1194,7 @@ def test_the_model_choice_page_reports_the_published_bounds_reruns(monkeypatch) 
     )
     saved["s1"]["verdict"] = {"status": "preferred", "model": "A"}
     head = "".join(page._family_headline())
-    assert "with the fixed round-number bounds the trusted seeds say preferred A; undecided)." in head
+    assert "with the fixed round-number bounds the trusted seeds say preferred A; undecided; tables below)." in head
     # One trusted bounded seed: the headline stays on the held-out family; with one trusted seed
     # there, it says one seed is not a verdict, and what the flagged ones say.
     saved["b2"]["model_choice"]["stop_reason"] = "UNTRUSTED: A's emulator failed validation"

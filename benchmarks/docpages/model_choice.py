@@ -399,9 +399,10 @@ def _family_headline() -> list[str]:
         agree = sorted({_status(d) for d in others if not _flags(d["model_choice"]["stop_reason"])})
         bullets.append(
             "What would change it: a seed that prefers one model; a prior box narrowed on grounds outside these "
-            "data; discrepancy bounds other than the published models' largest misfits (misfits to the same "
-            "measured data, no fit) (tables below; with the fixed round-number bounds "
-            + (f"the trusted seeds say {'; '.join(agree)})." if agree else "no seed is trusted).")
+            "data; discrepancy bounds other than the published models' largest misfits, which come from the same "
+            "measured data though from no fit (with the fixed round-number bounds "
+            + (f"the trusted seeds say {'; '.join(agree)}" if agree else "no seed is trusted")
+            + "; tables below)."
         )
     else:
         bullets.append(
