@@ -1217,6 +1217,11 @@ def test_the_model_choice_page_reports_the_published_bounds_reruns(monkeypatch) 
     head = "".join(page._family_headline())
     assert head.startswith("**Verdict: depends on the seed.** From the 2 trusted seeds of the held-out family")
     assert "; bounds on the discrepancy sds from outside the fit (tables below)" in head
+    # The held-out family agrees again: the one trusted bounded seed says the same.
+    saved["s1"]["verdict"] = {"status": "undecided", "model": None}
+    assert "from no fit, leave it undecided in their one trusted seed) (tables below)." in "".join(
+        page._family_headline()
+    )
     assert "Split apart over the 2 saved runs of this family, halving the discrepancy bounds moves a model's " in head
     assert "- With the published-model discrepancy bounds as the prior (g 0.25, D 3.5; rerun" in head
     assert (
