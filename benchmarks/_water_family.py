@@ -19,6 +19,10 @@ HOLDOUT_FAMILY = tuple(
 HOLDOUT_NO_DISCREPANCY = "water_model_choice_calibrated_holdout_no_discrepancy"
 #: The family rerun with each discrepancy sd bounded by the largest misfit a published rigid model
 #: makes in its group (:mod:`benchmarks._published_bounds`) as the run's prior, every other setting equal.
+#: Its seeds: the family's, and a fourth, because two of the first three had an emulator fail
+#: validation and the results page stands on this family only with two trusted seeds.
+PUBLISHED_BOUNDS_SEEDS = (*FAMILY_SEEDS, 3)
 PUBLISHED_BOUNDS_FAMILY = tuple(
-    (f"water_model_choice_published_bounds_seed{seed}", f"seed {seed}, published-model bounds") for seed in FAMILY_SEEDS
+    (f"water_model_choice_published_bounds_seed{seed}", f"seed {seed}, published-model bounds")
+    for seed in PUBLISHED_BOUNDS_SEEDS
 )
