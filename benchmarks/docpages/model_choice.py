@@ -394,9 +394,10 @@ def _family_headline() -> list[str]:
         )
         if b
     ]
+    others = [d for name in other if (d := load(name)) is not None]
+    other_trusted = [d for d in others if not _flags(d["model_choice"]["stop_reason"])]
+    agree = sorted({_status(d) for d in other_trusted})
     if bounds_first:
-        others = [d for name in other if (d := load(name)) is not None]
-        agree = sorted({_status(d) for d in others if not _flags(d["model_choice"]["stop_reason"])})
         bullets.append(
             "What would change it: a seed that prefers one model; a prior box narrowed on grounds outside these "
             "data; discrepancy bounds other than the published models' largest misfits, which come from the same "
@@ -405,9 +406,7 @@ def _family_headline() -> list[str]:
             + "; tables below)."
         )
     else:
-        others = [d for name in other if (d := load(name)) is not None]
-        agree = sorted({_status(d) for d in others if not _flags(d["model_choice"]["stop_reason"])})
-        n = sum(not _flags(d["model_choice"]["stop_reason"]) for d in others)
+        n = len(other_trusted)
         bullets.append(
             "What would change it: a seed that prefers one model; a prior box narrowed on grounds outside these "
             "data; bounds on the discrepancy sds from outside the fit"
