@@ -1256,6 +1256,73 @@ def test_the_model_choice_page_splits_the_published_bounds_family_apart() -> Non
     assert page._bounded_moves({"repeats": runs[:0], "published_bounds_family_log_evidence_change_abs": moves}) == ""
 
 
+def test_the_model_choice_page_compares_every_saved_criticism(monkeypatch) -> None:
+    """Three criticisms side by side: the causes each names, which gains count (beyond 2 s.e., on a
+    validated extension) and what every run needs."""
+    from benchmarks.docpages import model_choice as page
+
+    def crit(top: str, gain: float, se: float, needed: list[str]) -> dict:
+        causes = [{"name": top, "score": 5.0, "fraction_explained": 0.5}, {"name": "b", "score": 1.0}]
+        causes += [{"name": n, "score": 0.5, "fraction_explained": 0.1} for n in needed if n not in (top, "b")]
+        misfits = [{"name": "S7", "residual": -3.0}]
+        return {"causes": causes, "needed": needed, "gain": {"delta_lpd": gain, "delta_lpd_se": se}, "misfits": misfits}
+
+    crits = {"one": crit("oh", 1.4, 0.1, ["oh", "t"]), "two": crit("m", 0.4, 0.3, ["m", "oh"]), "three": None}
+    failed = {"two"}
+    monkeypatch.setattr(page, "_extension_failed", lambda name, c: name in failed)
+    text = "\n".join(page._criticisms_compared(crits))
+    assert "Both runs" not in text and "The runs name different causes (oh one; m two)" in text
+    assert "beyond twice its standard error, on a validated extension: one (1 of 2)." in text
+    assert "in every run: oh." in text and "failed validation in the run two" in text
+    crits["three"] = crit("oh", 3.0, 0.5, ["oh"])
+    failed.clear()
+    text = "\n".join(page._criticisms_compared(crits))
+    assert "(oh one, three; m two)" in text and "extension: one; three (2 of 3)." in text
+    crits["two"] = crit("oh", 0.1, 0.3, ["oh"])
+    text = "\n".join(page._criticisms_compared(crits))
+    assert "All 3 runs name the same cause, oh." in text and "failed validation" not in text
+    assert page._criticisms_compared({"one": crits["one"], "two": None}) == []
+
+
+def test_the_model_choice_page_compares_the_validated_models_of_a_flagged_seed() -> None:
+    """A failed emulator leaves the comparisons among the other models intact: the verdict and the
+    bottom of the run restricted to the validated models, in the run and every halved box."""
+    from benchmarks.docpages import model_choice as page
+
+    def run(seed: int, log_z: list[float], failed: str | None, halved: list[float], flag: str = "") -> dict:
+        names = ["A", "B", "C"]
+        stop = f"UNTRUSTED: the emulator of ['{failed}'] failed validation" if failed else "every model validated"
+        rows = [{"label": "A box x0.5", "log_evidence": halved, "log_evidence_errors": [0.1] * 3}]
+        rows.append({"label": "A box x2", "log_evidence": [float("nan")] * 3, "log_evidence_errors": [0.1] * 3})
+        mc = {
+            "names": names,
+            "stop_reason": stop + flag,
+            "log_evidence": log_z,
+            "log_evidence_errors": [0.1] * 3,
+            "model_prior": [1 / 3] * 3,
+            "sensitivity": rows,
+        }
+        return {
+            "settings": {"seed": seed},
+            "model_choice": mc,
+            "per_model": {n: {"validated": n != failed} for n in names},
+        }
+
+    # C fails: among A and B, B leads by far in the run and in the halved box.
+    assert page._among_validated(run(0, [0.0, 3.0, 9.0], "C", [0.5, 3.0, 9.0])) == (["C"], "preferred B", ["A"])
+    # A halved box that brings A level with B: undecided, and A is no longer below in every box.
+    assert page._among_validated(run(0, [0.0, 3.0, 9.0], "C", [3.0, 3.0, 9.0])) == (["C"], "undecided", [])
+    # Trusted: nobody left out; the full comparison.
+    assert page._among_validated(run(0, [0.0, 0.1, 3.0], None, [0.0, 0.1, 3.0])) == ([], "preferred C", ["A", "B"])
+    assert page._among_validated(run(0, [0.0, 3.0, 9.0], "C", [0.5, 3.0, 9.0], "; MISSPECIFIED: no model")) is None
+    saved = [("r0", run(0, [0.0, 3.0, 9.0], "C", [0.5, 3.0, 9.0])), ("r1", run(1, [0.0, 3.0, 3.1], "B", [0, 3, 3.1]))]
+    text = page._among_validated_sentence(saved)
+    assert "seed 0 preferred B (without C); seed 1 preferred C (without B)" in text
+    assert text.endswith("A in 2 of 2 seeds (0, 1)")
+    assert page._among_validated_sentence(saved[:0]) == ""
+    assert page._among_validated_sentence([("r", run(0, [0.0, 0.1, 3.0], None, [0.0, 0.1, 3.0]))]) == ""
+
+
 _VERSIONS = {
     "v0": ("return SCALE", "y = SCALE\n    return y"),
     "v1": ("return SCALE * math.sqrt(x)", "return math.sqrt(x) * SCALE"),

@@ -195,15 +195,17 @@ def _own_boxes(d: dict[str, Any]) -> str:
 
 
 def _criticisms_compared(crits: dict[str, dict[str, Any] | None]) -> list[str]:
-    """Whether the criticism's answer survives the discrepancy term: both runs side by side."""
+    """Whether the criticism's answer survives the discrepancy term and its prior: the saved runs
+    side by side, and what they agree on."""
     saved = {n: c for n, c in crits.items() if c is not None}
     if len(saved) < 2:
         return []
-    rows, causes, significant = [], set(), []
+    rows, tops, gains = [], {}, []
     for name, c in saved.items():
         top = c["causes"][0] if c.get("causes") else {}
         g = c.get("gain") or {}
         worst = max(c.get("misfits") or [{}], key=lambda m: abs(m.get("residual", 0.0)))
+        failed = _extension_failed(name, c)
         rows.append(
             [
                 _CRITICISM_START.get(name, name),
@@ -211,24 +213,27 @@ def _criticisms_compared(crits: dict[str, dict[str, Any] | None]) -> list[str]:
                 f"{top.get('name', '-')} ({top.get('score', float('nan')):.1f})",
                 ", ".join(c.get("needed") or []) or "-",
                 f"{g.get('delta_lpd', float('nan')):.1f} +- {g.get('delta_lpd_se', float('nan')):.1f}"
-                + (" (extension not validated)" if _extension_failed(name, c) else ""),
+                + (" (extension not validated)" if failed else ""),
             ]
         )
-        causes.add(top.get("name"))
-        significant.append(g.get("delta_lpd", 0.0) > 2 * g.get("delta_lpd_se", np.inf))
-    same = len(causes) == 1
-    sentence = (
-        "Both runs name the same cause."
-        if same
-        else "The two runs name different causes: which effect the criticism names depends on whether the "
-        "model discrepancy absorbs part of the misfit, so neither is a finding on its own"
-    )
-    if not same:
-        sentence += (
-            "; only the run with the discrepancy term shows a held-out gain beyond its uncertainty."
-            if significant[0] and not any(significant[1:])
-            else "."
+        tops.setdefault(top.get("name", "-"), []).append(_CRITICISM_START.get(name, name))
+        if not failed and g.get("delta_lpd", 0.0) > 2 * g.get("delta_lpd_se", np.inf):
+            gains.append(_CRITICISM_START.get(name, name))
+    n = len(saved)
+    runs = "Both runs" if n == 2 else f"All {n} runs"
+    if len(tops) == 1:
+        sentence = f"{runs} name the same cause, {next(iter(tops))}."
+    else:
+        named = "; ".join(f"{cause} {', '.join(starts)}" for cause, starts in tops.items())
+        sentence = (
+            f"The runs name different causes ({named}): which effect the criticism names depends on the "
+            "discrepancy term and its prior, so no one cause is a finding on its own."
         )
+    sentence += (
+        "  A held-out gain beyond twice its standard error, on a validated extension: "
+        + ("; ".join(gains) if gains else "none")
+        + f" ({len(gains)} of {n})."
+    )
     common = set.intersection(*(set(c.get("needed") or []) for c in saved.values()))
     # A cause counts only where it explains part of the residual in that run.
     explains = {
@@ -247,7 +252,7 @@ def _criticisms_compared(crits: dict[str, dict[str, Any] | None]) -> list[str]:
             "trustworthy."
         )
     return [
-        "## With and without the discrepancy term\n",
+        "## The criticisms side by side\n",
         table(["criticism", "largest misfit", "top cause (score)", "needed jointly", "held-out delta lpd"], rows)
         + "\n",
         sentence + "\n",
@@ -761,10 +766,11 @@ def _bounded_family(family: tuple[str, ...] | None = None) -> str | None:
             else ""
         )
     )
+    among = _among_validated_sentence(saved)
     below = [
         f"{', '.join(models)} in seed {d['settings'].get('seed', '?')}" for _, d in saved if (models := _disfavoured(d))
     ]
-    line += ". Below another model's probability interval in the run and in every halved box: " + (
+    line += among or ". Below another model's probability interval in the run and in every halved box: " + (
         "; ".join(below) if below else "no model"
     )
     worse = [(d["settings"].get("seed", "?"), *_worse_pairs(d)) for _, d in saved]
@@ -774,6 +780,87 @@ def _bounded_family(family: tuple[str, ...] | None = None) -> str | None:
             f"{k} of {n} pairs in seed {seed}" for seed, k, n in worse
         )
     return line + "."
+
+
+def _among_validated(d: dict[str, Any]) -> tuple[list[str], str, list[str]] | None:
+    """A run's model choice restricted to the models whose emulators validated: ``(models left
+    out, verdict, models below another's interval in the run and in every halved box)``.
+
+    A Bayes factor between two models needs only their own evidences, so a failed emulator
+    leaves the comparisons among the others intact; whether the left-out model would lead stays
+    unknown.  None for a run flagged for anything else (MISSPECIFIED), or with fewer than two
+    validated models."""
+    mc = d["model_choice"]
+    if set(_flags(mc["stop_reason"])) - {"UNTRUSTED"}:
+        return None
+    names = list(mc["names"])
+    keep = [k for k, name in enumerate(names) if (d["per_model"].get(name) or {}).get("validated") is not False]
+    if len(keep) < 2:
+        return None
+    prior = np.asarray(mc["model_prior"], float)[keep]
+    prior = prior / prior.sum()
+    rows = [(mc["log_evidence"], mc["log_evidence_errors"])]
+    rows += [
+        (r["log_evidence"], r["log_evidence_errors"])
+        for r in mc.get("sensitivity") or []
+        if "x0.5" in r["label"] and np.all(np.isfinite(np.asarray(r.get("log_evidence", np.nan), float)))
+    ]
+    leaders, below = [], []
+    for z, e in rows:
+        z, e = np.asarray(z, float)[keep], np.asarray(e, float)[keep]
+        iv = probability_bounds(z, e, prior)
+        p = np.exp(z - z.max()) * prior
+        leaders.append(interval_leader(p / p.sum(), iv))
+        below.append(
+            {keep[k] for k in range(len(keep)) if any(iv[k, 1] < iv[j, 0] for j in range(len(keep)) if j != k)}
+        )
+    lead = leaders[0]
+    verdict = f"preferred {names[keep[lead]]}" if lead is not None and all(x == lead for x in leaders) else "undecided"
+    bottom = sorted(set.intersection(*below)) if len(rows) > 1 else []
+    return [n for k, n in enumerate(names) if k not in keep], verdict, [names[k] for k in bottom]
+
+
+def _among_validated_sentence(saved: list[tuple[str, dict[str, Any]]]) -> str:
+    """The sentence of :func:`_among_validated` over a family's seeds ("" when no seed failed an
+    emulator)."""
+    runs = [(d["settings"].get("seed", "?"), r) for _, d in saved if (r := _among_validated(d)) is not None]
+    if not any(out for _, (out, _, _) in runs):
+        return ""
+    said = {verdict for _, (_, verdict, _) in runs}
+    verdicts = (
+        f"each of the {len(runs)} seeds says {said.pop()}"
+        if len(said) == 1
+        else "; ".join(
+            f"seed {seed} {verdict}" + (f" (without {', '.join(out)})" if out else "")
+            for seed, (out, verdict, _) in runs
+        )
+    )
+    below: dict[str, list[str]] = {}
+    for seed, (_, _, bottom) in runs:
+        for name in bottom:
+            below.setdefault(name, []).append(str(seed))
+    missing: dict[str, list[str]] = {}
+    for seed, (out, _, _) in runs:
+        for name in out:
+            missing.setdefault(name, []).append(str(seed))
+    return (
+        ". Among the models whose emulators validated (a Bayes factor needs only its two models' evidences, so a "
+        f"failed emulator leaves the other comparisons intact): {verdicts}; below another validated model's "
+        "interval in the run and in every halved box: "
+        + (
+            "; ".join(
+                f"{name} in {len(k)} of {len(runs)} seeds ({', '.join(k)})"
+                + (
+                    f"; its emulator failed in seed{'s' if len(missing[name]) > 1 else ''} {', '.join(missing[name])}"
+                    if name in missing
+                    else ""
+                )
+                for name, k in sorted(below.items())
+            )
+            if below
+            else "no model"
+        )
+    )
 
 
 def _failed_models(d: dict[str, Any]) -> str:
