@@ -18,6 +18,7 @@ from benchmarks._water_family import (
     HOLDOUT_NO_DISCREPANCY,
     PUBLISHED_BOUNDS_FAMILY,
     PUBLISHED_BOUNDS_SEEDS,
+    PUBLISHED_BOUNDS_WIDER,
 )
 from benchmarks._water_repeats import REPEATS
 
@@ -720,6 +721,17 @@ REGISTRY: tuple[Entry, ...] = (
             "hvap 20) the fit gives D, density and hvap up, and TIP3P's epsilon piles on its lower bound",
         )
         for seed, (name, _) in zip(PUBLISHED_BOUNDS_SEEDS, PUBLISHED_BOUNDS_FAMILY, strict=True)
+    ),
+    _model_choice_variant(
+        PUBLISHED_BOUNDS_WIDER[0],
+        f"xray_quick_budget120_seed{PUBLISHED_BOUNDS_WIDER[1]}_calibrated_holdout_r_oo_max2_published_bounds_sigma_x2",
+        "--prior-width 0.9,1.1,0.6,2.5 --model-prior TIP3P=0.885,1.145,0.4,2.5 --discrepancy --discrepancy-bounds "
+        f"published --seed {PUBLISHED_BOUNDS_WIDER[1]} --budget-per-model 120 --emulator-variance calibrated "
+        "--hold-out r_oo_max2_nm",
+        7200.0,
+        "the published-bounds family's trusted seed with every sigma box doubled about its centre (the wider "
+        "rows of its sensitivity table need simulations there); epsilon keeps its box, as in "
+        "water_model_choice_sigma_x2",
     ),
     _model_choice_variant(
         HOLDOUT_NO_DISCREPANCY,
