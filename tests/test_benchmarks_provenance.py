@@ -886,6 +886,21 @@ def test_the_model_choice_page_computes_wider_boxes_from_a_second_run(monkeypatc
     assert "| A sigma box x2 | undecided | 0.333 [0.0634, 0.787] | 0.667 [0.213, 0.937] |" in text
     assert "A doubled sigma box turns the verdict: B sigma box x2 (B); all sigma boxes x2 (B)." in text
     assert page._wider_boxes(base, "missing") == ["Wider sigma boxes: `missing` not run yet.\n"]
+    # The sentence: the rows' verdicts and who lies below another's interval in every row.
+    assert page._doubled_sentence(base, "wide") == (
+        ". With every sigma box doubled (seed ? again, `wide`): A sigma box x2 undecided; B sigma box x2 B preferred; "
+        "all sigma boxes x2 B preferred, below another model's interval in every row: no model (B's emulator failed "
+        "in the wider run)"
+    )
+    base["settings"] = {"seed": 1}
+    base["model_choice"]["log_evidence"] = [0.0, 5.0]
+    wide["model_choice"]["log_evidence"] = [0.0, 5.0]
+    wide["per_model"]["B"]["validated"] = True
+    assert page._doubled_sentence(base, "wide") == (
+        ". With every sigma box doubled (seed 1 again, `wide`; one model's box or all): 3 of 3 rows say B preferred, "
+        "below another model's interval in every row: A"
+    )
+    assert page._doubled_sentence(base, "missing") == ""
 
 
 def test_a_retired_checker_without_its_full_result_is_still_checked(fake_repo: Path, monkeypatch) -> None:

@@ -12,7 +12,7 @@ import numpy as np
 
 from benchmarks._common import RESULTS
 from benchmarks._water_family import HOLDOUT_FAMILY as _FAMILY
-from benchmarks._water_family import HOLDOUT_NO_DISCREPANCY
+from benchmarks._water_family import HOLDOUT_NO_DISCREPANCY, PUBLISHED_BOUNDS_SEEDS, PUBLISHED_BOUNDS_WIDER
 from benchmarks._water_family import PUBLISHED_BOUNDS_FAMILY as _BOUNDED
 from benchmarks._water_repeats import REPEATS, made_with_gp_variance
 from benchmarks.docpages.common import MISFIT_NOTE, cause_rows, f, figure, load, misfit_rows, retired, source, table
@@ -40,6 +40,10 @@ _CRITICISM_START = {
 HOLDOUT_FAMILY = tuple(name for name, _ in _FAMILY)
 #: The family rerun with the published-model discrepancy bounds as its prior.
 PUBLISHED_BOUNDS_FAMILY = tuple(name for name, _ in _BOUNDED)
+#: The published-bounds run the doubled sigma boxes are computed for, and the run that doubles them.
+PUBLISHED_WIDER_BASE = dict(zip(PUBLISHED_BOUNDS_SEEDS, PUBLISHED_BOUNDS_FAMILY, strict=True)).get(
+    PUBLISHED_BOUNDS_WIDER[1], ""
+)
 
 
 def _saved_figures(d: dict) -> list[str]:
@@ -92,6 +96,7 @@ def page_water_model_choice() -> str:
         *_emulator_failures(),
         *_summary_noise(),
         *_box_sensitivity(),
+        *_published_wider(),
         table(_HEADER, [_row(name, row, d["models"][name]) for name, row in d["per_model"].items()]) + "\n",
         "Side by side with the published parameters and the paper's TIP4P calibration:\n",
         side_by_side(d) + "\n",
@@ -547,23 +552,25 @@ def _boxes_bullet(trusted: list[tuple[str, dict[str, Any]]], bounded: bool = Fal
             f"{moves['discrepancy']['median']:.2f}, halving the force-field box by "
             f"{moves['parameters']['median']:.2f}" + (": the discrepancy priors weigh most" if weigh else "")
         )
-        bounded = [
+        reweighted = [
             v
             for r in split["repeats"]
             if r.get("family") and r["result"] in {n for n, _ in trusted}
             for v in (r.get("published_model_bounds") or {}).get("variants", [])
             if v["groups"] == "all" and v["factor"] == 1.0
         ]
-        if bounded:
-            verdicts = sorted({v["verdict"] for v in bounded})
+        if reweighted:
+            verdicts = sorted({v["verdict"] for v in reweighted})
             line += (
                 ". With every discrepancy bound set from the published models' misfits instead (misfits to "
-                f"the same measured data, no fit), {len(bounded)} of {len(bounded)} trusted "
-                f"seeds say {verdicts[0]}, least probable {', '.join(v['least'] for v in bounded)}"
+                f"the same measured data, no fit), {len(reweighted)} of {len(reweighted)} trusted "
+                f"seeds say {verdicts[0]}, least probable {', '.join(v['least'] for v in reweighted)}"
                 if len(verdicts) == 1
                 else ". With every discrepancy bound set from the published models' misfits instead, the "
-                f"trusted seeds say {'; '.join(v['verdict'] for v in bounded)}"
+                f"trusted seeds say {'; '.join(v['verdict'] for v in reweighted)}"
             )
+    if bounded:
+        line += _published_doubled()
     return line + "."
 
 
@@ -767,6 +774,8 @@ def _bounded_family(family: tuple[str, ...] | None = None) -> str | None:
         )
     )
     among = _among_validated_sentence(saved)
+    if family == PUBLISHED_BOUNDS_FAMILY:
+        among += _published_doubled()
     below = [
         f"{', '.join(models)} in seed {d['settings'].get('seed', '?')}" for _, d in saved if (models := _disfavoured(d))
     ]
@@ -1802,23 +1811,19 @@ def _what_would_change(d: dict[str, Any], names: list[str], rows: list[dict[str,
 WIDER_RUN = "water_model_choice_sigma_x2"
 
 
-def _wider_boxes(d: dict[str, Any], name: str) -> list[str]:
-    """The wider-box rows the run cannot give, from a second run with every sigma box doubled
-    (same seed, data and budget): one model's doubled box takes that model's evidence from the
-    second run and the others' from this one (each evidence is a separate calibration); all
-    doubled is the second run itself."""
-    wide = load(name)
-    if wide is None:
-        return [f"Wider sigma boxes: `{name}` not run yet.\n"]
+def _wider_rows(d: dict[str, Any], wide: dict[str, Any]) -> list[tuple[str, int | None, Any, Any, list[str]]]:
+    """The doubled-sigma-box rows of run ``d`` from a second run ``wide`` with every sigma box
+    doubled (same seed, data and budget): ``(label, preferred index or None, probabilities,
+    intervals, doubled models whose emulator failed)``.  One model's doubled box takes that
+    model's evidence from the second run and the others' from ``d`` (each evidence is a
+    separate calibration); all doubled is the second run itself."""
     names = list(d["model_choice"]["names"])
-    if list(wide["model_choice"]["names"]) != names:
-        return [f"Wider sigma boxes: `{name}` compares other models ({wide['model_choice']['names']}).\n"]
     base, other = d["model_choice"], wide["model_choice"]
     prior = np.asarray(base["model_prior"], float)
     cases = [(f"{n} sigma box x2", [k]) for k, n in enumerate(names)] + [
         ("all sigma boxes x2", list(range(len(names))))
     ]
-    body, turned = [], []
+    rows = []
     for label, changed in cases:
         log_z = np.asarray(base["log_evidence"], float).copy()
         se = np.asarray(base["log_evidence_errors"], float).copy()
@@ -1826,8 +1831,22 @@ def _wider_boxes(d: dict[str, Any], name: str) -> list[str]:
         se[changed] = np.asarray(other["log_evidence_errors"], float)[changed]
         probs, _ = probabilities_with_errors(log_z, se, prior)
         intervals = probability_bounds(log_z, se, prior)
-        k = interval_leader(probs, intervals)
         unvalidated = [names[j] for j in changed if wide["per_model"][names[j]].get("validated") is False]
+        rows.append((label, interval_leader(probs, intervals), probs, intervals, unvalidated))
+    return rows
+
+
+def _wider_boxes(d: dict[str, Any], name: str) -> list[str]:
+    """The wider-box rows the run cannot give, from a second run with every sigma box doubled
+    (:func:`_wider_rows`), as a table and whether one turns the verdict."""
+    wide = load(name)
+    if wide is None:
+        return [f"Wider sigma boxes: `{name}` not run yet.\n"]
+    names = list(d["model_choice"]["names"])
+    if list(wide["model_choice"]["names"]) != names:
+        return [f"Wider sigma boxes: `{name}` compares other models ({wide['model_choice']['names']}).\n"]
+    body, turned = [], []
+    for label, k, probs, intervals, unvalidated in _wider_rows(d, wide):
         status = ("undecided" if k is None else f"{names[k]} preferred") + (
             f" ({', '.join(unvalidated)} not validated)" if unvalidated else ""
         )
@@ -1837,8 +1856,9 @@ def _wider_boxes(d: dict[str, Any], name: str) -> list[str]:
         if k is not None:
             turned.append(f"{label} ({names[k]})")
     sigma = ", ".join(f"{n} x[{b[0][0]:.3g}, {b[1][0]:.3g}]" for n in names if (b := _box_factors(wide, n)) is not None)
+    seed = (d.get("settings") or {}).get("seed", "?")
     return [
-        f"Wider boxes, computed (`{name}`: seed 0 again with every sigma box doubled about its centre"
+        f"Wider boxes, computed (`{name}`: seed {seed} again with every sigma box doubled about its centre"
         + (f", {sigma} of the published sigma" if sigma else "")
         + "; epsilon keeps its box: doubled about its centre its low end would be negative, and below x0.45 of "
         "the published epsilon the quick box is no longer liquid at the published sigma, `water_prior_range_low`). "
@@ -1850,6 +1870,63 @@ def _wider_boxes(d: dict[str, Any], name: str) -> list[str]:
             else "No doubled sigma box turns the verdict.\n"
         ),
     ]
+
+
+def _published_doubled() -> str:
+    """:func:`_doubled_sentence` for the published-bounds family's run with doubled sigma boxes, or
+    that it is not run yet."""
+    base = load(PUBLISHED_WIDER_BASE) if PUBLISHED_WIDER_BASE else None
+    if base is None:
+        return ""
+    return _doubled_sentence(base, PUBLISHED_BOUNDS_WIDER[0]) or (
+        f". Doubled sigma boxes: `{PUBLISHED_BOUNDS_WIDER[0]}` not run yet"
+    )
+
+
+def _published_wider() -> list[str]:
+    """The page's section on the published-bounds family's trusted seed in doubled sigma boxes."""
+    base = load(PUBLISHED_WIDER_BASE) if PUBLISHED_WIDER_BASE else None
+    if base is None:
+        return []
+    return [
+        "### The published-bounds family in wider boxes\n",
+        f"`{PUBLISHED_WIDER_BASE}` (probabilities "
+        + ", ".join(
+            f"{n} {p:.3g}"
+            for n, p in zip(base["model_choice"]["names"], base["model_choice"]["probabilities"], strict=True)
+        )
+        + "; its halved boxes are in its sensitivity table).\n",
+        *_wider_boxes(base, PUBLISHED_BOUNDS_WIDER[0]),
+    ]
+
+
+def _doubled_sentence(d: dict[str, Any], name: str) -> str:
+    """One sentence on a run's doubled sigma boxes (:func:`_wider_rows`): the verdicts, and the
+    models below another model's interval in every doubled row ("" when ``name`` is not saved)."""
+    wide = load(name)
+    if wide is None or list(wide["model_choice"]["names"]) != list(d["model_choice"]["names"]):
+        return ""
+    names = list(d["model_choice"]["names"])
+    rows = _wider_rows(d, wide)
+    said = [("undecided" if k is None else f"{names[k]} preferred") for _, k, *_ in rows]
+    below = [
+        n
+        for j, n in enumerate(names)
+        if all(any(iv[j, 1] < iv[i, 0] for i in range(len(names)) if i != j) for _, _, _, iv, _ in rows)
+    ]
+    failed = sorted({m for *_, unvalidated in rows for m in unvalidated})
+    verdicts = sorted(set(said))
+    seed = (d.get("settings") or {}).get("seed", "?")
+    return (
+        f". With every sigma box doubled (seed {seed} again, `{name}`; one model's box or all): "
+        f"{len(rows)} of {len(rows)} rows say {verdicts[0]}"
+        if len(verdicts) == 1
+        else f". With every sigma box doubled (seed {seed} again, `{name}`): "
+        + "; ".join(f"{label} {v}" for (label, *_), v in zip(rows, said, strict=True))
+    ) + (
+        f", below another model's interval in every row: {', '.join(below) if below else 'no model'}"
+        + (f" ({', '.join(failed)}'s emulator failed in the wider run)" if failed else "")
+    )
 
 
 def _missed_groups(d: dict[str, Any]) -> dict[str, list[str]]:
