@@ -888,17 +888,18 @@ def test_the_model_choice_page_computes_wider_boxes_from_a_second_run(monkeypatc
     assert page._wider_boxes(base, "missing") == ["Wider sigma boxes: `missing` not run yet.\n"]
     # The sentence: the rows' verdicts and who lies below another's interval in every row.
     assert page._doubled_sentence(base, "wide") == (
-        ". With every sigma box doubled (seed ? again, `wide`): A sigma box x2 undecided; B sigma box x2 B preferred; "
-        "all sigma boxes x2 B preferred, below another model's interval in every row: no model (B's emulator failed "
-        "in the wider run)"
+        ". With the sigma boxes doubled (seed ? again, `wide`; each model's box alone, then all): A sigma box x2 "
+        "undecided; B sigma box x2 B preferred (from a failed emulator); all sigma boxes x2 B preferred (from a failed "
+        "emulator), below another model's interval in every doubled row: no model (the emulator of B failed in the "
+        "wider run)"
     )
     base["settings"] = {"seed": 1}
     base["model_choice"]["log_evidence"] = [0.0, 5.0]
     wide["model_choice"]["log_evidence"] = [0.0, 5.0]
     wide["per_model"]["B"]["validated"] = True
     assert page._doubled_sentence(base, "wide") == (
-        ". With every sigma box doubled (seed 1 again, `wide`; one model's box or all): 3 of 3 rows say B preferred, "
-        "below another model's interval in every row: A"
+        ". With the sigma boxes doubled (seed 1 again, `wide`; each model's box alone, then all): 3 of 3 rows say B "
+        "preferred, below another model's interval in every doubled row: A"
     )
     assert page._doubled_sentence(base, "missing") == ""
 
@@ -1139,6 +1140,7 @@ def test_the_model_choice_page_reports_the_published_bounds_reruns(monkeypatch) 
             "saved_result": "benchmarks/results/not_saved",
         }
 
+    assert page.PUBLISHED_WIDER_BASE in page.PUBLISHED_BOUNDS_FAMILY  # the doubled run's base is one of its seeds
     saved = {"b0": run(0, 0.02, "every model's emulator validated")}
     monkeypatch.setattr(page, "PUBLISHED_BOUNDS_FAMILY", ("b0", "b1"))
     monkeypatch.setattr(page, "load", saved.get)
@@ -1147,6 +1149,22 @@ def test_the_model_choice_page_reports_the_published_bounds_reruns(monkeypatch) 
     assert "1 of 2 seeds run): seed 0 undecided (most probable A 0.70)" in line
     assert "bound above 5 %: none (TIP3P's epsilon: 2%)" in line
     assert "in every halved box: no model." in line  # log evidences 0.3 apart, +- 0.2: intervals overlap
+    # The doubled sigma boxes of one seed follow, whether or not a seed failed an emulator.
+    monkeypatch.setattr(page, "PUBLISHED_WIDER_BASE", "b0")
+    monkeypatch.setattr(page, "PUBLISHED_BOUNDS_WIDER", ("w", 0))
+    assert "in every halved box: no model. Doubled sigma boxes: `w` not run yet." in page._bounded_family()
+    saved["w"] = {**saved["b0"], "model_choice": {**saved["b0"]["model_choice"], "names": ["A", "B"]}}
+    assert "Doubled sigma boxes: `w` compares other models." in page._bounded_family()
+    saved["w"] = saved["b0"]
+    assert (
+        "in every halved box: no model. With the sigma boxes doubled (seed 0 again, `w`; each model's box alone, "
+        "then all): 3 of 3 rows say undecided, below another model's interval in every doubled row: no model."
+        in page._bounded_family()
+    )
+    section = "".join(page._published_wider())
+    assert section.startswith("### The published-bounds family in wider boxes\n`b0` (probabilities TIP3P 0.3, A 0.7;")
+    assert "| all sigma boxes x2 | undecided |" in section and "No doubled sigma box turns the verdict." in section
+    del saved["w"]
     saved["b0"]["model_choice"]["log_evidence"] = [0.0, 2.0]
     saved["b0"]["sensitivity"] = [{"label": "A box x0.5", "intervals": [[0.1, 0.2], [0.8, 0.9]]}]
     assert "in every halved box: TIP3P in seed 0." in page._bounded_family()
@@ -1288,7 +1306,7 @@ def test_the_model_choice_page_compares_every_saved_criticism(monkeypatch) -> No
     text = "\n".join(page._criticisms_compared(crits))
     assert "Both runs" not in text and "The runs name different causes (oh one; m two)" in text
     assert "beyond twice its standard error, on a validated extension: one (1 of 2)." in text
-    assert "in every run: oh." in text and "failed validation in the run two" in text
+    assert "in every run: oh." in text and "failed validation in the criticism two" in text
     crits["three"] = crit("oh", 3.0, 0.5, ["oh"])
     failed.clear()
     text = "\n".join(page._criticisms_compared(crits))
@@ -1307,8 +1325,9 @@ def test_the_model_choice_page_compares_the_validated_models_of_a_flagged_seed()
     def run(seed: int, log_z: list[float], failed: str | None, halved: list[float], flag: str = "") -> dict:
         names = ["A", "B", "C"]
         stop = f"UNTRUSTED: the emulator of ['{failed}'] failed validation" if failed else "every model validated"
-        rows = [{"label": "A box x0.5", "log_evidence": halved, "log_evidence_errors": [0.1] * 3}]
-        rows.append({"label": "A box x2", "log_evidence": [float("nan")] * 3, "log_evidence_errors": [0.1] * 3})
+        rows = [{"label": "A box x0.5", "status": "reused", "log_evidence": halved, "log_evidence_errors": [0.1] * 3}]
+        # A wider box needs simulations: not in the verdict, whatever its numbers.
+        rows.append({"label": "A box x2", "status": "needs simulations", "log_evidence": [9.0, 0.0, 0.0]})
         mc = {
             "names": names,
             "stop_reason": stop + flag,
@@ -1333,8 +1352,16 @@ def test_the_model_choice_page_compares_the_validated_models_of_a_flagged_seed()
     saved = [("r0", run(0, [0.0, 3.0, 9.0], "C", [0.5, 3.0, 9.0])), ("r1", run(1, [0.0, 3.0, 3.1], "B", [0, 3, 3.1]))]
     text = page._among_validated_sentence(saved)
     assert "seed 0 preferred B (without C); seed 1 preferred C (without B)" in text
-    assert text.endswith("A in 2 of 2 seeds (0, 1)")
-    assert page._among_validated_sentence(saved[:0]) == ""
+    assert text.endswith("computed from it: A in every seed where its emulator validated (0, 1)")
+    # A flagged seed is named, not silently dropped; a model compared in fewer seeds is counted there.
+    saved.append(("r2", run(2, [0.0, 3.0, 9.0], "C", [0.5, 3.0, 9.0], "; MISSPECIFIED: no model")))
+    saved.append(("r3", run(3, [5.0, 3.0, 9.0], "C", [5.0, 3.0, 9.0])))
+    text = page._among_validated_sentence(saved)
+    assert "A in 2 of the 3 seeds where its emulator validated (0, 1); B in 1 of the 2 seeds where its" in text
+    assert text.endswith("(not counted: seed 2, flagged otherwise)")
+    # A validated model without an accepted simulation (-inf) still takes part, from its upper bound.
+    none = run(0, [0.0, float("-inf"), 9.0], "C", [0.0, float("-inf"), 9.0])
+    assert page._among_validated(none) == (["C"], "undecided", [])
     assert page._among_validated_sentence([("r", run(0, [0.0, 0.1, 3.0], None, [0.0, 0.1, 3.0]))]) == ""
 
 

@@ -97,6 +97,7 @@ def page_water_model_choice() -> str:
         *_summary_noise(),
         *_box_sensitivity(),
         *_published_wider(),
+        "### The first run's models\n",
         table(_HEADER, [_row(name, row, d["models"][name]) for name, row in d["per_model"].items()]) + "\n",
         "Side by side with the published parameters and the paper's TIP4P calibration:\n",
         side_by_side(d) + "\n",
@@ -231,8 +232,8 @@ def _criticisms_compared(crits: dict[str, dict[str, Any] | None]) -> list[str]:
     else:
         named = "; ".join(f"{cause} {', '.join(starts)}" for cause, starts in tops.items())
         sentence = (
-            f"The runs name different causes ({named}): which effect the criticism names depends on the "
-            "discrepancy term and its prior, so no one cause is a finding on its own."
+            f"The runs name different causes ({named}): which effect the criticism names depends on how the "
+            "model choice it starts from treats the discrepancy, so no one cause is a finding on its own."
         )
     sentence += (
         "  A held-out gain beyond twice its standard error, on a validated extension: "
@@ -253,8 +254,8 @@ def _criticisms_compared(crits: dict[str, dict[str, Any] | None]) -> list[str]:
     unvalidated = [_CRITICISM_START.get(n, n) for n, c in saved.items() if _extension_failed(n, c)]
     if unvalidated:
         sentence += (
-            f"  The extension's emulator failed validation in the run {'; '.join(unvalidated)}: its gain is not "
-            "trustworthy."
+            f"  The extension's emulator failed validation in the criticism {'; '.join(unvalidated)}: its gain is "
+            "not trustworthy."
         )
     return [
         "## The criticisms side by side\n",
@@ -773,15 +774,15 @@ def _bounded_family(family: tuple[str, ...] | None = None) -> str | None:
             else ""
         )
     )
-    among = _among_validated_sentence(saved)
-    if family == PUBLISHED_BOUNDS_FAMILY:
-        among += _published_doubled()
     below = [
         f"{', '.join(models)} in seed {d['settings'].get('seed', '?')}" for _, d in saved if (models := _disfavoured(d))
     ]
-    line += among or ". Below another model's probability interval in the run and in every halved box: " + (
-        "; ".join(below) if below else "no model"
+    line += _among_validated_sentence(saved) or (
+        ". Below another model's probability interval in the run and in every halved box: "
+        + ("; ".join(below) if below else "no model")
     )
+    if family == PUBLISHED_BOUNDS_FAMILY:
+        line += _published_doubled()
     worse = [(d["settings"].get("seed", "?"), *_worse_pairs(d)) for _, d in saved]
     worse = [(seed, len(w), n) for seed, w, n in worse if n]
     if worse:
@@ -793,12 +794,15 @@ def _bounded_family(family: tuple[str, ...] | None = None) -> str | None:
 
 def _among_validated(d: dict[str, Any]) -> tuple[list[str], str, list[str]] | None:
     """A run's model choice restricted to the models whose emulators validated: ``(models left
-    out, verdict, models below another's interval in the run and in every halved box)``.
+    out, verdict, models below another's interval in the run and in every narrower box computed
+    from it)``.
 
-    A Bayes factor between two models needs only their own evidences, so a failed emulator
-    leaves the comparisons among the others intact; whether the left-out model would lead stays
-    unknown.  None for a run flagged for anything else (MISSPECIFIED), or with fewer than two
-    validated models."""
+    The model prior is renormalised over the validated models: the comparison conditional on the
+    true model being one of them (a failed emulator makes only its own evidence untrustworthy).
+    The verdict follows :meth:`jaxabc.model_choice.ModelChoiceResult.verdict`: the most probable
+    model's interval above every other's in the run and in every row computed from it ("reused").
+    Whether a left-out model would lead stays unknown.  None for a run flagged for anything else
+    (MISSPECIFIED), or with fewer than two validated models."""
     mc = d["model_choice"]
     if set(_flags(mc["stop_reason"])) - {"UNTRUSTED"}:
         return None
@@ -808,18 +812,31 @@ def _among_validated(d: dict[str, Any]) -> tuple[list[str], str, list[str]] | No
         return None
     prior = np.asarray(mc["model_prior"], float)[keep]
     prior = prior / prior.sum()
-    rows = [(mc["log_evidence"], mc["log_evidence_errors"])]
-    rows += [
-        (r["log_evidence"], r["log_evidence_errors"])
-        for r in mc.get("sensitivity") or []
-        if "x0.5" in r["label"] and np.all(np.isfinite(np.asarray(r.get("log_evidence", np.nan), float)))
-    ]
+
+    def kept(row: dict[str, Any], key: str) -> np.ndarray:
+        values = row.get(key)
+        return (
+            np.full(len(keep), np.inf if key.endswith("upper_bounds") else np.nan)
+            if values is None
+            else (np.asarray(values, float)[keep])
+        )
+
+    rows = [mc] + [r for r in mc.get("sensitivity") or [] if str(r.get("status", "")).startswith("reused")]
     leaders, below = [], []
-    for z, e in rows:
-        z, e = np.asarray(z, float)[keep], np.asarray(e, float)[keep]
-        iv = probability_bounds(z, e, prior)
-        p = np.exp(z - z.max()) * prior
-        leaders.append(interval_leader(p / p.sum(), iv))
+    for r in rows:
+        z, e = kept(r, "log_evidence"), kept(r, "log_evidence_errors")
+        if np.isnan(z).any():  # not comparable (the library's verdict says undecided there too)
+            leaders.append(None)
+            below.append(set())
+            continue
+        iv = probability_bounds(z, e, prior, kept(r, "log_evidence_upper_bounds"))
+        finite = np.isfinite(z)
+        p = (
+            np.where(finite, np.exp(np.where(finite, z, 0.0) - np.max(z[finite])), 0.0) * prior
+            if finite.any()
+            else prior
+        )
+        leaders.append(interval_leader(p / p.sum(), iv) if finite.any() else None)
         below.append(
             {keep[k] for k in range(len(keep)) if any(iv[k, 1] < iv[j, 0] for j in range(len(keep)) if j != k)}
         )
@@ -832,42 +849,53 @@ def _among_validated(d: dict[str, Any]) -> tuple[list[str], str, list[str]] | No
 def _among_validated_sentence(saved: list[tuple[str, dict[str, Any]]]) -> str:
     """The sentence of :func:`_among_validated` over a family's seeds ("" when no seed failed an
     emulator)."""
-    runs = [(d["settings"].get("seed", "?"), r) for _, d in saved if (r := _among_validated(d)) is not None]
+    runs, dropped = [], []
+    compared: dict[str, list[str]] = {}
+    for _, d in saved:
+        seed = (d.get("settings") or {}).get("seed", "?")
+        r = _among_validated(d)
+        if r is None:
+            dropped.append(str(seed))
+            continue
+        runs.append((seed, r))
+        for name in d["model_choice"]["names"]:
+            if name not in r[0]:
+                compared.setdefault(name, []).append(str(seed))
     if not any(out for _, (out, _, _) in runs):
         return ""
     said = {verdict for _, (_, verdict, _) in runs}
-    verdicts = (
-        f"each of the {len(runs)} seeds says {said.pop()}"
-        if len(said) == 1
-        else "; ".join(
+    if len(said) == 1:
+        verdicts = f"each of the {len(runs)} seeds says {said.pop()}" if len(runs) > 1 else f"it says {said.pop()}"
+    else:
+        verdicts = "; ".join(
             f"seed {seed} {verdict}" + (f" (without {', '.join(out)})" if out else "")
             for seed, (out, verdict, _) in runs
         )
-    )
     below: dict[str, list[str]] = {}
     for seed, (_, _, bottom) in runs:
         for name in bottom:
             below.setdefault(name, []).append(str(seed))
-    missing: dict[str, list[str]] = {}
-    for seed, (out, _, _) in runs:
-        for name in out:
-            missing.setdefault(name, []).append(str(seed))
     return (
-        ". Among the models whose emulators validated (a Bayes factor needs only its two models' evidences, so a "
-        f"failed emulator leaves the other comparisons intact): {verdicts}; below another validated model's "
-        "interval in the run and in every halved box: "
+        ". Restricted in each seed to the models whose emulators validated (the model prior renormalised over "
+        f"them; whether a left-out model would lead is unknown): {verdicts}; below another validated model's "
+        "interval in the run and in every narrower box computed from it: "
         + (
             "; ".join(
-                f"{name} in {len(k)} of {len(runs)} seeds ({', '.join(k)})"
-                + (
-                    f"; its emulator failed in seed{'s' if len(missing[name]) > 1 else ''} {', '.join(missing[name])}"
-                    if name in missing
-                    else ""
+                (
+                    f"{name} in every seed where its emulator validated ({', '.join(k)})"
+                    if len(k) == len(compared.get(name, []))
+                    else f"{name} in {len(k)} of the {len(compared.get(name, []))} seeds where its emulator "
+                    f"validated ({', '.join(k)})"
                 )
                 for name, k in sorted(below.items())
             )
             if below
             else "no model"
+        )
+        + (
+            f" (not counted: seed{'s' if len(dropped) > 1 else ''} {', '.join(dropped)}, flagged otherwise)"
+            if dropped
+            else ""
         )
     )
 
@@ -1878,8 +1906,11 @@ def _published_doubled() -> str:
     base = load(PUBLISHED_WIDER_BASE) if PUBLISHED_WIDER_BASE else None
     if base is None:
         return ""
+    wide = load(PUBLISHED_BOUNDS_WIDER[0])
+    if wide is None:
+        return f". Doubled sigma boxes: `{PUBLISHED_BOUNDS_WIDER[0]}` not run yet"
     return _doubled_sentence(base, PUBLISHED_BOUNDS_WIDER[0]) or (
-        f". Doubled sigma boxes: `{PUBLISHED_BOUNDS_WIDER[0]}` not run yet"
+        f". Doubled sigma boxes: `{PUBLISHED_BOUNDS_WIDER[0]}` compares other models"
     )
 
 
@@ -1902,13 +1933,18 @@ def _published_wider() -> list[str]:
 
 def _doubled_sentence(d: dict[str, Any], name: str) -> str:
     """One sentence on a run's doubled sigma boxes (:func:`_wider_rows`): the verdicts, and the
-    models below another model's interval in every doubled row ("" when ``name`` is not saved)."""
+    models below another model's interval in every doubled row ("" when ``name`` is not saved or
+    compares other models)."""
     wide = load(name)
     if wide is None or list(wide["model_choice"]["names"]) != list(d["model_choice"]["names"]):
         return ""
     names = list(d["model_choice"]["names"])
     rows = _wider_rows(d, wide)
-    said = [("undecided" if k is None else f"{names[k]} preferred") for _, k, *_ in rows]
+    said = [
+        ("undecided" if k is None else f"{names[k]} preferred")
+        + (" (from a failed emulator)" if k is not None and names[k] in unvalidated else "")
+        for _, k, _, _, unvalidated in rows
+    ]
     below = [
         n
         for j, n in enumerate(names)
@@ -1917,15 +1953,18 @@ def _doubled_sentence(d: dict[str, Any], name: str) -> str:
     failed = sorted({m for *_, unvalidated in rows for m in unvalidated})
     verdicts = sorted(set(said))
     seed = (d.get("settings") or {}).get("seed", "?")
+    head = f". With the sigma boxes doubled (seed {seed} again, `{name}`; each model's box alone, then all"
     return (
-        f". With every sigma box doubled (seed {seed} again, `{name}`; one model's box or all): "
-        f"{len(rows)} of {len(rows)} rows say {verdicts[0]}"
+        f"{head}): {len(rows)} of {len(rows)} rows say {verdicts[0]}"
         if len(verdicts) == 1
-        else f". With every sigma box doubled (seed {seed} again, `{name}`): "
-        + "; ".join(f"{label} {v}" for (label, *_), v in zip(rows, said, strict=True))
+        else f"{head}): " + "; ".join(f"{label} {v}" for (label, *_), v in zip(rows, said, strict=True))
     ) + (
-        f", below another model's interval in every row: {', '.join(below) if below else 'no model'}"
-        + (f" ({', '.join(failed)}'s emulator failed in the wider run)" if failed else "")
+        f", below another model's interval in every doubled row: {', '.join(below) if below else 'no model'}"
+        + (
+            f" (the emulator{'s' if len(failed) > 1 else ''} of {', '.join(failed)} failed in the wider run)"
+            if failed
+            else ""
+        )
     )
 
 
