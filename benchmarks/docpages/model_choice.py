@@ -716,11 +716,13 @@ def _disfavoured(d: dict[str, Any]) -> list[str]:
     ]
     if len(runs) < 2:  # no halved box to check it against
         return []
-    return [
-        name
-        for k, name in enumerate(names)
-        if all(any(b[k, 1] < b[j, 0] for j in range(len(names)) if j != k) for b in runs)
-    ]
+    return [names[k] for k in sorted(set.intersection(*(_below_others(b) for b in runs)))]
+
+
+def _below_others(intervals: np.ndarray) -> set[int]:
+    """Indices of the models whose probability interval ``(K, 2)`` lies wholly below another's."""
+    k_all = range(len(intervals))
+    return {k for k in k_all if any(intervals[k, 1] < intervals[j, 0] for j in k_all if j != k)}
 
 
 def _bounded_family(family: tuple[str, ...] | None = None) -> str | None:
@@ -830,16 +832,8 @@ def _among_validated(d: dict[str, Any]) -> tuple[list[str], str, list[str]] | No
             below.append(set())
             continue
         iv = probability_bounds(z, e, prior, kept(r, "log_evidence_upper_bounds"))
-        finite = np.isfinite(z)
-        p = (
-            np.where(finite, np.exp(np.where(finite, z, 0.0) - np.max(z[finite])), 0.0) * prior
-            if finite.any()
-            else prior
-        )
-        leaders.append(interval_leader(p / p.sum(), iv) if finite.any() else None)
-        below.append(
-            {keep[k] for k in range(len(keep)) if any(iv[k, 1] < iv[j, 0] for j in range(len(keep)) if j != k)}
-        )
+        leaders.append(interval_leader(probabilities_with_errors(z, e, prior)[0], iv))
+        below.append({keep[k] for k in _below_others(iv)})
     lead = leaders[0]
     verdict = f"preferred {names[keep[lead]]}" if lead is not None and all(x == lead for x in leaders) else "undecided"
     bottom = sorted(set.intersection(*below)) if len(rows) > 1 else []
@@ -1945,11 +1939,7 @@ def _doubled_sentence(d: dict[str, Any], name: str) -> str:
         + (" (from a failed emulator)" if k is not None and names[k] in unvalidated else "")
         for _, k, _, _, unvalidated in rows
     ]
-    below = [
-        n
-        for j, n in enumerate(names)
-        if all(any(iv[j, 1] < iv[i, 0] for i in range(len(names)) if i != j) for _, _, _, iv, _ in rows)
-    ]
+    below = [names[k] for k in sorted(set.intersection(*(_below_others(iv) for _, _, _, iv, _ in rows)))]
     failed = sorted({m for *_, unvalidated in rows for m in unvalidated})
     verdicts = sorted(set(said))
     seed = (d.get("settings") or {}).get("seed", "?")
