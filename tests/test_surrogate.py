@@ -948,3 +948,17 @@ def test_padded_rows_double_to_256_then_step_by_64_within_the_budget():
     # Past 256 a doubling would pad 268 rows to the budget (up to 8x the cubic cost).
     assert [padded_rows(n, 500) for n in (257, 268, 321, 460)] == [320, 320, 384, 500]
     assert [padded_rows(n, 100) for n in (65, 100)] == [100, 100]
+
+
+def test_tolerance_zero_spends_the_budget():
+    """``tolerance=0`` turns the early stop off (the remedy the peers page names where it is
+    overconfident): the design runs until the budget cannot pay another batch.  With the default
+    tolerance this run stops at 158 of 200 simulations."""
+    import jaxabc
+
+    budget = 200
+    settings = build(PRIOR, 1000, observed=OBSERVED, max_simulations=budget, tolerance=0.0).settings
+    run = jaxabc.run(
+        "surrogate", linear_gaussian, PRIOR, OBSERVED, max_simulations=budget, seed=3, num_particles=1000, tolerance=0.0
+    )
+    assert budget - settings["batch_size"] <= run.num_simulations <= budget

@@ -438,3 +438,37 @@ def test_a_failure_reads_as_one_reason_however_many_seeds_hit_it() -> None:
         "not run on 3 of 5 seeds; failed on 2 of 5 seeds: "
         "ValueError: NUTS: Cannot find acceptable stepsize starting from point. All trials ended."
     )
+
+
+def test_the_early_stop_section_judges_the_runs_that_stopped_before_the_budget() -> None:
+    from benchmarks.docpages.surrogate import _early_stop_section, early_stop_rows
+
+    def cell(problem: str, budget: int, sims: int, sd: list[float], method: str = "jaxabc_surrogate") -> dict:
+        return {"problem": problem, "method": method, "budget": budget, "num_simulations": sims, "sd_ratio": sd}
+
+    cells = [
+        cell("linear", 200, 178, [0.98, 1.0]),
+        cell("linear", 200, 170, [1.0, 1.02]),
+        cell("linear", 200, 198, [0.5, 0.5]),  # spent the budget: not an early stop
+        cell("banana", 500, 250, [0.8, 0.95]),
+        cell("banana", 500, 260, [0.84, 1.15]),
+        cell("banana", 500, 260, [0.1, 0.1], method="sbi_npe"),  # another method
+        cell("student", 50, 46, [0.5]),  # near its budget: the batch decided
+    ]
+    rows = early_stop_rows(cells)
+    assert [(r["problem"], r["budget"], r["runs"], r["seeds"]) for r in rows] == [
+        ("linear", 200, 2, 3),
+        ("banana", 500, 2, 2),
+    ]
+    assert rows[0]["within"] and rows[0]["low"] == pytest.approx(0.99) and rows[0]["high"] == pytest.approx(1.01)
+    assert not rows[1]["within"] and rows[1]["low"] == pytest.approx(0.82) and rows[1]["high"] == pytest.approx(1.05)
+    assert rows[1]["mean"] == pytest.approx((0.875 + 0.995) / 2)
+    text = _early_stop_section({"cells": cells})
+    assert "| 200 | linear | 2 of 3 | 1.00 +- 0.01 | 0.99-1.01 | yes |" in text
+    assert (
+        "Overconfident (a parameter's mean sd ratio below 0.90) in 1 of 2 (problem, budget) pairs: banana at B = 500"
+        in text
+    )
+    assert "`tolerance=0`" in text and "conservative" not in text
+    assert "Not overconfident" in _early_stop_section({"cells": cells[:2]})
+    assert _early_stop_section({"cells": []}) == ""

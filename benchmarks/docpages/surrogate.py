@@ -549,6 +549,115 @@ runs made alone, "-" where every seed ran beside other work).
 {_phase_section(d)}"""
 
 
+#: The early stop is judged against exact sds: each parameter's mean sd ratio over the runs that
+#: stopped early within this fraction of 1 (issue 50: "sd within 10 % of exact").
+EARLY_STOP_SD_TOLERANCE = 0.1
+#: A run "stopped early" when it left more than a tenth of its budget unspent: nearer the budget,
+#: the batch and the held-out runs, not the tolerance, decide where it stops.
+EARLY_STOP_FRACTION = 0.9
+
+
+def early_stop_rows(cells: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """The surrogate's (default mode) runs that stopped before their budget, by problem and budget.
+
+    Each row: ``problem``, ``budget``, ``runs`` (stopped early), ``seeds`` (all scored runs),
+    ``mean`` and ``se`` of the runs' mean sd ratio over parameters, ``low``/``high`` (the
+    lowest/highest parameter's mean over those runs) and ``within`` (both within
+    :data:`EARLY_STOP_SD_TOLERANCE` of 1).
+    """
+    groups: dict[tuple[str, int], list[dict[str, Any]]] = {}
+    for c in cells:
+        if c.get("method") == "jaxabc_surrogate" and "sd_ratio" in c and "error" not in c:
+            groups.setdefault((c["problem"], int(c["budget"])), []).append(c)
+    rows = []
+    for (problem, budget), group in sorted(groups.items(), key=lambda kv: (kv[0][1], kv[0][0])):
+        early = [c for c in group if c.get("num_simulations", budget) < EARLY_STOP_FRACTION * budget]
+        if not early:
+            continue
+        ratios = np.array([np.atleast_1d(np.asarray(c["sd_ratio"], float)) for c in early])
+        per_run = ratios.mean(axis=1)
+        per_param = ratios.mean(axis=0)
+        se = float(per_run.std(ddof=1) / np.sqrt(len(per_run))) if len(per_run) > 1 else None
+        low, high = float(per_param.min()), float(per_param.max())
+        rows.append(
+            {
+                "problem": problem,
+                "budget": budget,
+                "runs": len(early),
+                "seeds": len(group),
+                "mean": float(per_run.mean()),
+                "se": se,
+                "low": low,
+                "high": high,
+                "within": abs(low - 1) <= EARLY_STOP_SD_TOLERANCE and abs(high - 1) <= EARLY_STOP_SD_TOLERANCE,
+            }
+        )
+    return rows
+
+
+def _early_stop_section(d: dict[str, Any]) -> str:
+    """Is the early stop overconfident?  The sd ratios of the runs that stopped before the budget."""
+    rows = early_stop_rows(d.get("cells", []))
+    if not rows:
+        return ""
+    tol = EARLY_STOP_SD_TOLERANCE
+    body = [
+        [
+            r["budget"],
+            r["problem"],
+            f"{r['runs']} of {r['seeds']}",
+            f"{r['mean']:.2f}" + (f" +- {r['se']:.2f}" if r["se"] is not None else ""),
+            f"{r['low']:.2f}-{r['high']:.2f}",
+            "yes" if r["within"] else "NO",
+        ]
+        for r in rows
+    ]
+    short = [r for r in rows if r["low"] < 1 - tol]
+    wide = [r for r in rows if r["high"] > 1 + tol]
+
+    def runs(r: dict[str, Any]) -> str:
+        return f"{r['runs']} run{'s' if r['runs'] > 1 else ''}"
+
+    if not short:
+        verdict = (
+            f"Not overconfident: no parameter's mean sd ratio is below {1 - tol:.2f} in the {len(rows)} "
+            "(problem, budget) pairs where the surrogate stopped early."
+        )
+    else:
+        parts = [
+            f"{r['problem']} at B = {r['budget']} ({runs(r)}, lowest parameter {r['low']:.2f}"
+            + (
+                f"; the runs' mean {r['mean']:.2f} +- {r['se']:.2f} is within two standard errors of {1 - tol:.2f}"
+                if r["se"] is not None and r["mean"] < 1 - tol <= r["mean"] + 2 * r["se"]
+                else ""
+            )
+            + ")"
+            for r in short
+        ]
+        verdict = (
+            f"Overconfident (a parameter's mean sd ratio below {1 - tol:.2f}) in {len(short)} of {len(rows)} "
+            f"(problem, budget) pairs: {'; '.join(parts)}.  There the early stop is overconfident; "
+            "`tolerance=0` makes a run spend its whole budget instead."
+        )
+    if wide:
+        verdict += " Wider than exact by more than {:.0f} % (conservative) in: {}.".format(
+            100 * tol, "; ".join(f"{r['problem']} at B = {r['budget']} (highest {r['high']:.2f})" for r in wide)
+        )
+    header = ["B", "problem", "runs stopped early", "mean sd ratio", "parameters' means", f"within {100 * tol:.0f} %"]
+    return f"""## The early stop
+
+The surrogate stops before its budget when the emulator's variance is small against the
+simulator noise over the posterior (`tolerance`).  Is that stop overconfident?  The sd ratios
+(each parameter's sd over the exact sd) of the runs that made fewer than
+{100 * EARLY_STOP_FRACTION:.0f} % of their budget's simulations: the runs' mean over parameters (mean +-
+standard error over runs) and the range of the parameters' means over runs.
+
+{table(header, body)}
+
+{verdict}
+"""
+
+
 def _cost_goal(d: dict[str, Any]) -> str:
     """The scaling goal for the surrogate's own cost, judged from the result."""
     from benchmarks.surrogate_peers import COST_GOAL
@@ -713,6 +822,7 @@ simulations column counts what each method ran).
 
 {_goal_section(d)}
 
+{_early_stop_section(d)}
 {_scaling_section(d)}
 {sections}"""
 

@@ -131,7 +131,8 @@ def build(
     tolerance : float
         Design stops once the posterior mean of ``mean_j var_j / noise_j^2`` (emulator over
         simulator variance) is below this: 0.01 keeps the emulator's error near a tenth of the
-        noise, so posterior means move by about a tenth of a posterior sd.
+        noise, so posterior means move by about a tenth of a posterior sd.  0 turns the early
+        stop off: the design spends the budget.
     max_outputs : int
         Summaries beyond this many are projected onto their leading principal components.
     num_candidates : int
