@@ -1903,7 +1903,7 @@ def _published_doubled() -> str:
     wide = load(PUBLISHED_BOUNDS_WIDER[0])
     if wide is None:
         return f". Doubled sigma boxes: `{PUBLISHED_BOUNDS_WIDER[0]}` not run yet"
-    return _doubled_sentence(base, PUBLISHED_BOUNDS_WIDER[0]) or (
+    return _doubled_sentence(base, PUBLISHED_BOUNDS_WIDER[0], wide) or (
         f". Doubled sigma boxes: `{PUBLISHED_BOUNDS_WIDER[0]}` compares other models"
     )
 
@@ -1925,11 +1925,11 @@ def _published_wider() -> list[str]:
     ]
 
 
-def _doubled_sentence(d: dict[str, Any], name: str) -> str:
+def _doubled_sentence(d: dict[str, Any], name: str, wide: dict[str, Any] | None = None) -> str:
     """One sentence on a run's doubled sigma boxes (:func:`_wider_rows`): the verdicts, and the
     models below another model's interval in every doubled row ("" when ``name`` is not saved or
-    compares other models)."""
-    wide = load(name)
+    compares other models).  ``wide``: the run ``name`` when already loaded."""
+    wide = load(name) if wide is None else wide
     if wide is None or list(wide["model_choice"]["names"]) != list(d["model_choice"]["names"]):
         return ""
     names = list(d["model_choice"]["names"])
