@@ -565,6 +565,8 @@ def early_stop_rows(cells: list[dict[str, Any]]) -> list[dict[str, Any]]:
     lowest/highest parameter's mean over those runs) and ``within`` (both within
     :data:`EARLY_STOP_SD_TOLERANCE` of 1).
     """
+    from benchmarks.surrogate_peers import _mean_se
+
     groups: dict[tuple[str, int], list[dict[str, Any]]] = {}
     for c in cells:
         if c.get("method") == "jaxabc_surrogate" and "sd_ratio" in c and "error" not in c:
@@ -577,7 +579,7 @@ def early_stop_rows(cells: list[dict[str, Any]]) -> list[dict[str, Any]]:
         ratios = np.array([np.atleast_1d(np.asarray(c["sd_ratio"], float)) for c in early])
         per_run = ratios.mean(axis=1)
         per_param = ratios.mean(axis=0)
-        se = float(per_run.std(ddof=1) / np.sqrt(len(per_run))) if len(per_run) > 1 else None
+        mean, se = _mean_se(per_run)
         low, high = float(per_param.min()), float(per_param.max())
         rows.append(
             {
@@ -585,7 +587,7 @@ def early_stop_rows(cells: list[dict[str, Any]]) -> list[dict[str, Any]]:
                 "budget": budget,
                 "runs": len(early),
                 "seeds": len(group),
-                "mean": float(per_run.mean()),
+                "mean": mean,
                 "se": se,
                 "low": low,
                 "high": high,
