@@ -6,7 +6,7 @@ second colour) and the prior draws coloured by their wall time.
 
 Usage::
 
-    python paper_figures/figure3_imbalance.py [imbalance.json] [figure3_imbalance.png]
+    python -m paper_figures.figure3_imbalance [imbalance.json] [figure3_imbalance.png]
 """
 
 from __future__ import annotations

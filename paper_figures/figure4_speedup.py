@@ -12,7 +12,7 @@ Four panels, every curve labelled with how it was obtained:
 
 Usage::
 
-    python paper_figures/figure4_speedup.py [speedup.json] [figure4_speedup.png]
+    python -m paper_figures.figure4_speedup [speedup.json] [figure4_speedup.png]
 """
 
 from __future__ import annotations

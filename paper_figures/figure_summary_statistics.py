@@ -20,7 +20,7 @@ variants) next to the paper's published "simulated observed" vector.
 
 Usage::
 
-    python paper_figures/figure_summary_statistics.py
+    python -m paper_figures.figure_summary_statistics
 """
 
 from __future__ import annotations

@@ -12,7 +12,7 @@ g_OO and g_OH peaks beside the measured ones.
 
 Usage::
 
-    python paper_figures/figure_water_model_choice.py [out_dir]
+    python -m paper_figures.figure_water_model_choice [out_dir]
 """
 
 from __future__ import annotations

@@ -23,7 +23,7 @@ prints the estimates next to the paper's.
 
 Usage::
 
-    python paper_figures/figure_water_posteriors.py
+    python -m paper_figures.figure_water_posteriors
 """
 
 from __future__ import annotations

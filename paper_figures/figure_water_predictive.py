@@ -16,7 +16,7 @@ band ... except near the second maximum of g_OO").
 
 Usage::
 
-    python paper_figures/figure_water_predictive.py
+    python -m paper_figures.figure_water_predictive
 """
 
 from __future__ import annotations

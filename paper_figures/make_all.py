@@ -6,7 +6,7 @@ whose input files are missing is reported and skipped; the others are still draw
 
 Usage::
 
-    python paper_figures/make_all.py [out_dir]        # default paper_figures/out
+    python -m paper_figures.make_all [out_dir]        # default paper_figures/out
 """
 
 from __future__ import annotations
@@ -18,8 +18,8 @@ import traceback
 from pathlib import Path
 from types import ModuleType
 
+#: The scripts import ``jaxabc``, ``md`` and ``benchmarks``: run with ``python -m`` from the repository root.
 HERE = Path(__file__).resolve().parent
-sys.path.insert(0, str(HERE.parent))
 
 #: Script (in paper_figures/) for each figure, in the paper's order, with the paper's LaTeX labels.
 SCRIPTS: dict[str, str] = {
@@ -35,7 +35,7 @@ SCRIPTS: dict[str, str] = {
 
 
 def load_script(name: str) -> ModuleType:
-    """Import ``paper_figures/<name>.py`` by path (``paper_figures`` is not a package).
+    """Import ``paper_figures/<name>.py`` by path, under a name of its own.
 
     Parameters
     ----------
