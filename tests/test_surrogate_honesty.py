@@ -217,6 +217,34 @@ def test_a_fit_that_cannot_be_evaluated_is_an_error_not_its_start():
     assert np.all(np.isfinite(np.asarray(emu.alpha)))
 
 
+def _two_optima() -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """A wiggle in noise (25 rows): from an "all noise" start (long length scale, noise sd
+    0.9) L-BFGS-B stops at a local optimum that the default starts beat by ~12 units."""
+    rng = np.random.default_rng(2)
+    x = rng.uniform(size=(25, 1))
+    z = np.sin(12 * x) + 0.3 * rng.normal(size=(25, 1))
+    z = (z - z.mean()) / z.std()
+    return x, z, np.ones(25, bool), np.array([[0.0, np.log(5.0), np.log(0.9)]])
+
+
+def test_a_warm_start_cannot_keep_a_fit_at_a_worse_optimum():
+    # The design loop warm-starts each fit from the last one.  A warm start alone once kept a
+    # run's fit at a worse optimum than the checks' default-start refit reached, so the checks
+    # judged another emulator than the one the draws came from.
+    x, z, mask, noise_start = _two_optima()
+    stuck = emulator.fit(x, z, mask, init=noise_start, starts=())
+    fresh = emulator.fit(x, z, mask)
+    assert emulator.objective(stuck) > emulator.objective(fresh) + 5  # the case has two optima
+    warm = emulator.fit(x, z, mask, init=noise_start)
+    assert emulator.objective(warm) == pytest.approx(emulator.objective(fresh), abs=1e-6)
+    # A fit warm-started from its own result is that result: the draws' fit and the checks'.
+    hyper = np.column_stack([fresh.log_amp, fresh.log_ls, fresh.log_noise])
+    again = emulator.fit(x, z, mask, init=hyper)
+    np.testing.assert_allclose(np.column_stack([again.log_amp, again.log_ls, again.log_noise]), hyper, atol=1e-4)
+    with pytest.raises(ValueError, match="no start"):
+        emulator.fit(x, z, mask, starts=())
+
+
 def test_noise_profile_needs_enough_rows():
     coef, p = emulator.fit_noise_profile(np.random.default_rng(0).uniform(size=(5, 2)), np.ones((5, 1)))
     assert np.all(coef == 0) and np.all(np.isnan(p))

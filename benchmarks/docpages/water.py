@@ -289,8 +289,9 @@ def _two_fits(d: dict[str, Any]) -> str:
     return f"""
 ### Which emulator: the draws' fit and the checks' refit
 
-The design loop warm-starts each GP fit from the last one's hyper-parameters; the held-out check,
-the posterior-shift test and the evidence refit the same design rows from the default starts.
+This run predates the one-fit rule (the [surrogate guide](../guide/surrogate.md)): its design loop
+warm-started each GP fit from the last one's hyper-parameters, and its held-out check, posterior-shift
+test and evidence refitted the same design rows from the default starts alone.
 Each fit's GP objective (negative log marginal likelihood plus the hyper-prior, over the
 outputs; lower is better), its posterior mean +- sd from an importance sample over the prior box,
 and its log posterior at the three points above:

@@ -41,7 +41,7 @@ def design_step(settings: SurrogateSettings, key: jax.Array, state: SurrogateSta
     num_ok = int(np.sum((state.role != ROLE_EMPTY) & state.ok & (state.role != ROLE_HOLDOUT)))
     if num_ok < settings.min_successes:
         return explore_step(settings, key, state, num_ok)
-    transform, emu, model, _ = fit_surrogate(settings, state, warm=True)
+    transform, emu, model, _ = fit_surrogate(settings, state)
     rng = np.random.default_rng(numpy_seed(key))
     sample = importance_sample(settings, rng, model)
     emulator_ratio = float(sample.weights @ sample.emulator_ratio)

@@ -56,7 +56,9 @@ def fit_likelihood(
     ``discrepancy`` (a :class:`jaxabc.noise.ResolvedDiscrepancy`) are mapped into the emulated
     outputs' coordinates (:func:`.sampling.output_map`) and carried by the model.
     ``noise_model`` is :func:`noise_profile_choice`'s.  ``warm_start`` (q, d + 2), an earlier
-    fit's hyper-parameters, is the optimiser's only start (:func:`.emulator.fit`'s ``init``).
+    fit's hyper-parameters, is the optimiser's first start besides the fixed ones
+    (:func:`.emulator.fit`'s ``init``): the best optimum is kept, so a fit of the same rows
+    warm-started from its own result is that result again.
     ``variance_scale`` multiplies the GP's predictive variance (``Emulator.var_scale``; 1 leaves
     the emulator as fitted).
 
@@ -96,7 +98,7 @@ def fit_likelihood(
     coef = noise_profile_choice(noise_model, x_all[rows], loo, active)
     if coef is not None:
         # Started from the homoscedastic optimum: the profile only reshapes the noise.
-        emu = emulator.fit(x_fit, z_fit, fit_rows, noise_coef=coef, init=np.asarray(_hyper(emu)))
+        emu = emulator.fit(x_fit, z_fit, fit_rows, starts=(), noise_coef=coef, init=np.asarray(_hyper(emu)))
         loo = np.asarray(emulator.loo_residuals(emu))[:n]
         # Correlation of the residuals in noise-sd units: their scale varies with theta.
         loo = loo / np.asarray(emulator.noise_sd(emu, jnp.asarray(x_all[rows])))
@@ -157,11 +159,16 @@ def _hyper(emu: emulator.Emulator) -> jax.Array:
 
 
 def fit_surrogate(
-    settings: SurrogateSettings, state: Any, warm: bool = False
+    settings: SurrogateSettings, state: Any
 ) -> tuple[emulator.OutputTransform, emulator.Emulator, sampling.LikelihoodModel, np.ndarray]:
     """:func:`fit_likelihood` of a running surrogate's state (a SurrogateState) under its
-    ``settings``: ``(transform, emulator, likelihood model, z_all)``.  ``warm``: start the
-    hyper-parameters from the state's last fit (``state.hyper``), if it has one."""
+    ``settings``: ``(transform, emulator, likelihood model, z_all)``, warm-started from the
+    state's last fit (``state.hyper``) where it has one.
+
+    The one fit rule of a run: the design loop's fit, whose posterior the draws come from, and
+    the validation's and the report's fits of the same rows are the same fit (the best of the
+    last fit and the fixed starts), so the checks judge the emulator the draws used.
+    """
     hyper = np.asarray(state.hyper)
     return fit_likelihood(
         state,
@@ -174,7 +181,7 @@ def fit_surrogate(
         observation_error=settings.observation_error,
         discrepancy=settings.discrepancy,
         noise_model=settings.noise_model,
-        warm_start=hyper if warm and np.any(hyper) else None,
+        warm_start=hyper if np.any(hyper) else None,
         variance_scale=float(state.variance_scale),
     )
 

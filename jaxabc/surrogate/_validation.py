@@ -289,7 +289,8 @@ def start_abc_validation(
 
 
 def check_holdout(settings: SurrogateSettings, key: jax.Array, state: SurrogateState) -> tuple[SurrogateState, bool]:
-    """Compare the held-out runs with the emulator refitted on the design rows.
+    """Compare the held-out runs with the emulator the draws came from (the run's fit of the
+    design rows, :func:`._fit.fit_surrogate`).
 
     Each held-out run's residual and the GP's unscaled and the noise's variance there are kept
     (``judged_*``), for a calibrated emulator variance.  Only the outputs in the likelihood are

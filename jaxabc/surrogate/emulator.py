@@ -32,6 +32,7 @@ __all__ = [
     "noise_features",
     "noise_profile",
     "noise_sd",
+    "objective",
     "predict",
     "variance_scale_mle",
 ]
@@ -222,18 +223,20 @@ def fit(
         noise level ``log_noise`` and the other hyper-parameters are fitted.
     init : array, shape (q, d + 2), optional
         A warm start (log amplitude, log length scales, log noise per output; an earlier
-        fit's): the only start when given with this shape, clipped into the bounds.
+        fit's), clipped into the bounds: tried first, besides ``starts`` (``starts=()``: the
+        only start).  Ignored unless finite and of this shape.
 
     Returns
     -------
     Emulator
-        Deterministic given its inputs (fixed starts, no random restarts).
+        The best optimum (least :func:`objective`) of all starts; deterministic given its
+        inputs (fixed starts, no random restarts; ties go to ``init``).
 
     Raises
     ------
     FloatingPointError
-        The marginal likelihood is not finite at any start (a warm start that fails falls back
-        to ``starts`` first).
+        The marginal likelihood is not finite at any start (where only ``init`` was to be
+        tried, ``(0.3, 1.5)`` are tried before giving up).
     """
     if int(np.sum(mask)) < 3:
         raise ValueError(f"an emulator needs at least 3 successful simulations, got {int(np.sum(mask))}")
@@ -261,21 +264,40 @@ def fit(
         ]
         return min(runs, key=lambda r: r.fun)
 
-    default_inits = [np.tile(np.concatenate([[0.0], np.full(d, np.log(ls)), [np.log(0.1)]]), q) for ls in starts]
+    def default(ls: float) -> np.ndarray:
+        return np.tile(np.concatenate([[0.0], np.full(d, np.log(ls)), [np.log(0.1)]]), q)
+
+    inits = [default(ls) for ls in starts]
     if init is not None and np.shape(init) == (q, d + 2) and np.all(np.isfinite(init)):
         lo, hi = np.array(bounds, np.float64).T
-        best = best_of([np.clip(np.asarray(init, np.float64).ravel(), lo, hi)])
-        if not best.fun < _FAILED:
-            # The warm start sits where the likelihood cannot be evaluated: start afresh.
-            best = best_of(default_inits)
-    else:
-        best = best_of(default_inits)
+        # The warm start alone would track one optimum as the design grows; the fixed starts
+        # beside it keep every fit of the same rows at the same (best) optimum, whichever
+        # earlier fit it was started from.
+        inits = [np.clip(np.asarray(init, np.float64).ravel(), lo, hi), *inits]
+    if not inits:
+        raise ValueError("emulator.fit: no start (starts=() needs an init of shape (q, d + 2))")
+    best = best_of(inits)
+    if not best.fun < _FAILED and not starts:
+        # The only start sits where the likelihood cannot be evaluated: start afresh.
+        best = best_of([default(ls) for ls in (0.3, 1.5)])
     if not best.fun < _FAILED:
         raise FloatingPointError(
-            f"GP fit failed: the marginal likelihood is not finite at any start ({len(starts)} starts, "
+            f"GP fit failed: the marginal likelihood is not finite at any start ({len(inits)} starts, "
             f"{int(np.sum(mask))} rows, {q} outputs); the outputs may hold inf/NaN or identical rows"
         )
     return _condition(jnp.asarray(best.x.reshape(q, d + 2)), xj, zj, m, coef)
+
+
+def objective(emulator: Emulator) -> float:
+    """What :func:`fit` minimised, at the fitted hyper-parameters: the negative log marginal
+    likelihood plus the hyper-priors' negative log density, summed over outputs.
+
+    Comparable between fits of the same rows and outputs only (lower: the better optimum).
+    The outputs are recovered from the fit (``z = L L^T alpha``).
+    """
+    z = jnp.einsum("qij,qkj,qk->iq", emulator.chol, emulator.chol, emulator.alpha)
+    params = jnp.column_stack([emulator.log_amp, emulator.log_ls, emulator.log_noise])
+    return float(_neg_log_posterior(params, emulator.x, z, emulator.mask, noise_profile(emulator, emulator.x)))
 
 
 #: Mean of ``log(chi2_1)``: the bias of a log squared standard normal residual.

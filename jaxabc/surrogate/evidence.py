@@ -81,13 +81,15 @@ def likelihood_from_state(
 
     ``state`` is the run's :class:`~jaxabc.surrogate.SurrogateState`; ``settings`` its
     algorithm's settings (``max_outputs``, ``max_simulations``, ``min_feasibility``).  The
-    refit is the run's own last fit (:func:`._fit.fit_likelihood`, a deterministic
-    optimisation on the same rows); ``drop`` (bool, shape (M,)) leaves rows out (the jackknife).
+    refit is the run's own last fit (:func:`._fit.fit_likelihood` on the same rows, started
+    from the state's hyper-parameters ``hyper`` where it has them, besides the fixed starts, as
+    every fit of the run was); ``drop`` (bool, shape (M,)) leaves rows out (the jackknife).
     A measurement error and a discrepancy in ``settings`` (``observation_error``,
     ``discrepancy``) enter the model as in the run, and so does the state's factor on the
     emulator's variance (``variance_scale``, 1 where the state has none).
     """
     observation_error, discrepancy = measured_data_from_settings(settings)
+    hyper = getattr(state, "hyper", None)
     transform, _, model, _ = fit_likelihood(
         state,
         low,
@@ -100,6 +102,7 @@ def likelihood_from_state(
         observation_error=observation_error,
         discrepancy=discrepancy,
         noise_model=str(settings.get("noise_model", "homoscedastic")),
+        warm_start=None if hyper is None or not np.any(hyper) else np.asarray(hyper, np.float64),
         variance_scale=float(getattr(state, "variance_scale", 1.0)),
     )
     return transform, model
