@@ -580,6 +580,7 @@ def test_a_simulator_the_gp_cannot_fit_is_reported_not_silently_fitted(simulator
 
 
 @pytest.mark.slow
+@pytest.mark.timeout(1800)  # 60 runs of 200 simulations, ~10 s each on 2 cores
 def test_nominal_95_percent_intervals_cover_the_truth():
     # Simulation-based calibration on the linear-Gaussian toy: data first, then the truth from
     # the exact posterior (flat prior; the box is > 10 posterior sds away), so a calibrated

@@ -281,9 +281,10 @@ def test_without_the_discrepancy_the_misspecified_posterior_is_overconfident(mis
     # Exact without the discrepancy: sigma^2 / sum a_j^2, 0.56 of the variance with it.
     assert exact["theta_var_plain"] < 0.6 * exact["theta_var"]
     ess = chain_ess(np.asarray(draws).reshape(algorithm.settings["num_chains"], -1, 1))
-    # 4 MC errors of a variance plus 25 % for the noise fit, as above: narrower than the
-    # exact posterior with the discrepancy, and as narrow as the exact one without it.
-    assert theta.var() < (1 - 4 * np.sqrt(2 / ess) - 0.25) * exact["theta_var"], (theta.var(), exact["theta_var"])
+    # Narrower than the exact posterior with the discrepancy, beyond 4 MC errors of a variance;
+    # and as narrow as the exact one without it, within those plus 25 % for the noise fit.
+    # (The 25 % cannot go into the first bound: the exact answer, 0.56 of the variance, would fail.)
+    assert theta.var() < (1 - 4 * np.sqrt(2 / ess)) * exact["theta_var"], (theta.var(), exact["theta_var"])
     assert abs(theta.var() / exact["theta_var_plain"] - 1) < 4 * np.sqrt(2 / ess) + 0.25
 
 
