@@ -688,6 +688,7 @@ def test_engine_null_flags_nothing(lj_engine):
 
 
 @pytest.mark.slow
+@pytest.mark.timeout(3600)  # 40 seeds, about 35 minutes: past the 600 s default
 def test_engine_null_95_percent_of_seeds(lj_engine):
     """No effect on the engine: at most 2 of 40 seeds may flag anything (about 35 minutes)."""
     flagged = _engine_null_flags(lj_engine, range(100, 140))
