@@ -39,12 +39,6 @@ import numpy as np
 from benchmarks._common import machine, relative, write_result
 from jaxabc.priors import Uniform
 from jaxabc.surrogate import build, design, emulator, evidence, sampling
-
-# Private: the library's fit with a warm start, and its GP objective, which no public function
-# exposes; this study compares the fit the run sampled with the refit its checks used.
-from jaxabc.surrogate._fit import fit_likelihood
-from jaxabc.surrogate._settings import measured_data_from_settings
-from jaxabc.surrogate.emulator import _neg_log_posterior
 from md.water.gromacs import TIP4P_PARAMETERS
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -92,36 +86,10 @@ def at_point(model, transform, x: np.ndarray, observed: np.ndarray, scale: np.nd
 
 
 def sampled_fit(state, low: np.ndarray, high: np.ndarray, observed: np.ndarray, settings: dict):
-    """``(transform, emulator, model)`` of the fit the run's draws came from: the design loop's,
-    warm-started from ``state.hyper`` (:func:`jaxabc.surrogate._fit.fit_surrogate` with ``warm``)."""
-    observation_error, discrepancy = measured_data_from_settings(settings)
-    hyper = np.asarray(state.hyper, np.float64)
-    transform, emu, model, _ = fit_likelihood(
-        state,
-        low,
-        high,
-        observed,
-        int(settings["max_outputs"]),
-        int(settings["max_simulations"]),
-        sampling.log_level(float(settings["min_feasibility"])),
-        observation_error=observation_error,
-        discrepancy=discrepancy,
-        noise_model=str(settings.get("noise_model", "homoscedastic")),
-        warm_start=hyper if np.any(hyper) else None,
-        variance_scale=float(getattr(state, "variance_scale", 1.0)),
-    )
-    return transform, emu, model
-
-
-def gp_objective(emu: emulator.Emulator) -> float:
-    """The fit's objective at its optimum (what :func:`jaxabc.surrogate.emulator.fit` minimises):
-    its outputs ``z = K alpha`` are recovered from the Cholesky factor."""
-    z = jnp.einsum("qij,qkj,qk->iq", emu.chol, emu.chol, emu.alpha)
-    params = jnp.column_stack([emu.log_amp, emu.log_ls, emu.log_noise])
-    profile = (
-        jnp.zeros_like(z) if emu.noise_coef is None else emulator.noise_features(emu.x) @ jnp.asarray(emu.noise_coef).T
-    )
-    return float(_neg_log_posterior(params, emu.x, z, emu.mask, profile))
+    """``(transform, emulator, model)`` of the fit the run's draws came from: started from
+    ``state.hyper`` (and the default starts, :func:`jaxabc.surrogate.evidence.likelihood_from_state`)."""
+    transform, model = evidence.likelihood_from_state(state, low, high, observed, settings)
+    return transform, model.emulator, model
 
 
 def fit_summary(emu, model, low: np.ndarray, high: np.ndarray, points: dict[str, np.ndarray]) -> dict:
@@ -137,7 +105,7 @@ def fit_summary(emu, model, low: np.ndarray, high: np.ndarray, points: dict[str,
     theta = low + pool.x * (high - low)
     mean = w @ theta
     return {
-        "gp_objective": gp_objective(emu),
+        "gp_objective": emulator.objective(emu),
         "length_scales": np.exp(np.asarray(emu.log_ls, np.float64)).tolist(),
         "log_posterior": {
             name: float(evaluate(((theta_p - low) / (high - low))[None, :])[0][0]) for name, theta_p in points.items()
