@@ -98,6 +98,20 @@ def machine() -> dict[str, Any]:
     }
 
 
+def cpu_signature(machine: dict[str, Any]) -> str | None:
+    """A provenance ``machine`` record's CPU and, where recorded, its vector instruction sets
+    (``"AMD EPYC (avx, avx2, fma)"``); None when it names no CPU.
+
+    Hosts that report the same CPU name may differ in their instruction sets (AVX-512 or not),
+    and XLA compiles reductions for the host's: float sums then differ in the last bits, and
+    chaotic runs after them.  Such numbers say nothing about the code."""
+    cpu = machine.get("cpu")
+    if not cpu:
+        return None
+    simd = (machine.get("native_kernel_instruction_set") or {}).get("simd")
+    return f"{cpu} ({', '.join(simd)})" if simd else str(cpu)
+
+
 # ----------------------------------------------------------------------------- fingerprints
 
 

@@ -82,7 +82,11 @@ method's code: the peer's child script and settings or, for jaxabc, every module
 scores every cell again from its stored draws (a change of the metrics needs no rerun).  A jaxabc
 change that should not move these runs' numbers (a refactor, a fix of a path they do not take)
 need not rerun the grid: ``--carry-over N`` reruns N cells of the earlier code and, only if each
-gives the same draws, re-keys the rest to the current code (:func:`carry_over`).  The
+gives the same draws, re-keys the rest to the current code (:func:`carry_over`).  A jaxabc change
+that does move them reruns the jaxabc cells alone: the peers' cells, which do not depend on
+jaxabc, are taken from the saved result with ``--import-cells`` where the problem, the peer and
+the metric code are unchanged (:func:`import_cells`; their wall times count only when measured
+on a machine like this one).  The
 result is assembled from the cached cells of the requested grid, with a summary per (problem,
 budget, method), which method is closest at each budget and whether the surrogate is (the goal
 reads budgets up to 200).
@@ -93,6 +97,8 @@ Usage::
     python -m benchmarks.surrogate_peers --quick          # linear + banana, B 60, seed 0: results/quick/
     python -m benchmarks.surrogate_peers --cached-only    # the result from the cached cells alone
     python -m benchmarks.surrogate_peers --carry-over 10  # after a jaxabc change: check 10 cells, carry the rest
+    # after a jaxabc change that moves its numbers: rerun jaxabc's cells, the peers' from the result
+    python -m benchmarks.surrogate_peers --import-cells benchmarks/results/surrogate_peers.json
     # a subset, written elsewhere than benchmarks/results/:
     python -m benchmarks.surrogate_peers --problems banana --budgets 50 --seeds 0 --methods bolfi --output /tmp/p.json
 """
@@ -103,12 +109,15 @@ import argparse
 import ast
 import hashlib
 import inspect
+import io
 import json
 import math
 import os
 import re
 import subprocess
 import sys
+import tarfile
+import tempfile
 import textwrap
 import time
 import zlib
@@ -1060,6 +1069,114 @@ def carry_over(
     return len(cells) - len(checks)
 
 
+#: The functions that turn a cell's draws into its scores: a saved scored cell can stand for a new
+#: one only while these are unchanged.
+SCORING_FUNCTIONS = ("_mean_pairwise", "energy_distance", "weighted_quantiles", "thin_draws", "accuracy", "score")
+
+_HASHES_AT = """
+import inspect, json, sys
+import benchmarks.surrogate_peers as m
+methods, functions = json.loads(sys.argv[1]), json.loads(sys.argv[2])
+print(json.dumps({
+    "method": {x: m.method_hash(x) for x in methods},
+    "scoring": m._hash(*(m._ast_text(inspect.getsource(getattr(m, f))) for f in functions)),
+}))
+"""
+
+
+def scoring_hash() -> str:
+    """A hash of :data:`SCORING_FUNCTIONS`' code (docstrings and layout aside)."""
+    module = sys.modules[__name__]
+    return _hash(*(_ast_text(inspect.getsource(getattr(module, f))) for f in SCORING_FUNCTIONS))
+
+
+def saved_hashes(saved: dict[str, Any], methods: Sequence[str]) -> dict[str, Any]:
+    """The method hashes (of ``methods``) and the scoring hash of a saved result.
+
+    Results record them (``method_hash``, ``scoring_hash``); for one made before they were
+    recorded they are computed from the code of the result's commit (``git archive`` into a
+    temporary folder, hashed there by that code's :func:`method_hash` and this code's rule for the
+    scoring functions).
+
+    Raises
+    ------
+    SystemExit
+        The result records neither hashes nor a clean commit, or its commit is not in this clone.
+    """
+    if "method_hash" in saved and "scoring_hash" in saved:
+        return {"method": saved["method_hash"], "scoring": saved["scoring_hash"]}
+    prov = saved.get("provenance") or {}
+    commit = prov.get("commit")
+    if not commit or not prov.get("tree_clean"):
+        raise SystemExit("--import-cells: the result records no method hashes and no clean commit to compute them at")
+    archive = subprocess.run(
+        ["git", "-C", str(ROOT), "archive", "--format=tar", commit, "benchmarks", "jaxabc", "md"],
+        capture_output=True,
+    )
+    if archive.returncode != 0:
+        raise SystemExit(f"--import-cells: commit {commit[:10]} is not in this clone: {archive.stderr.decode()[-300:]}")
+    with tempfile.TemporaryDirectory() as tmp:
+        with tarfile.open(fileobj=io.BytesIO(archive.stdout)) as tar:
+            tar.extractall(tmp, filter="data")
+        out = subprocess.run(
+            [sys.executable, "-c", _HASHES_AT, json.dumps(list(methods)), json.dumps(list(SCORING_FUNCTIONS))],
+            capture_output=True,
+            text=True,
+            cwd=tmp,
+            env={**os.environ, "PYTHONPATH": tmp},
+        )
+    if out.returncode != 0:
+        raise SystemExit(f"--import-cells: hashing the code of {commit[:10]} failed: {out.stderr.strip()[-400:]}")
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def import_cells(
+    saved: dict[str, Any],
+    hashes: dict[str, Any],
+    problems: Sequence[str],
+    methods: Sequence[str],
+    p_hash: dict[str, str],
+    m_hash: dict[str, str],
+    here: dict[str, Any],
+) -> dict[tuple[str, str, int, int], dict[str, Any]]:
+    """The scored peer cells of a saved result that this code would score alike, by
+    (problem, method, budget, seed).
+
+    A peer's run depends on the problem (its fingerprint), the peer's script, settings and pinned
+    version (its method hash), not on jaxabc; its scores on :data:`SCORING_FUNCTIONS`.  A cell is
+    taken when all three hashes equal the current ones; jaxabc cells, ``exact`` rows and cells
+    the saved run did not run are never taken.  Taken cells keep their scores and wall times and
+    gain ``imported_from`` (the commit that ran them, kept through later imports); their times
+    count only when ``here`` (this machine's record) has the CPU, instruction sets and core count
+    of the saved run's machine, else they gain ``timed_elsewhere``.  Their draws are not in the
+    result, so a change of the metrics needs them run again.
+    """
+    from benchmarks._common import cpu_signature
+
+    if hashes["scoring"] != scoring_hash():
+        print("--import-cells: the saved cells were scored by other metric code; none imported", flush=True)
+        return {}
+    prov = saved.get("provenance") or {}
+    there = prov.get("machine") or {}
+    same = cpu_signature(there) is not None and (cpu_signature(there), there.get("cpu_count")) == (
+        cpu_signature(here),
+        here.get("cpu_count"),
+    )
+    taken: dict[tuple[str, str, int, int], dict[str, Any]] = {}
+    for c in saved.get("cells", []):
+        p, m = c["problem"], c["method"]
+        if p not in problems or m not in methods or m in JAXABC_METHODS or m == "exact" or "not_run" in c:
+            continue
+        if (saved.get("problem_hash") or {}).get(p) != p_hash[p] or hashes["method"].get(m) != m_hash[m]:
+            continue
+        cell = {k: v for k, v in c.items() if k not in ("problem", "method", "budget", "seed")}
+        cell.setdefault("imported_from", prov.get("commit"))
+        if not same:
+            cell["timed_elsewhere"] = True
+        taken[(p, m, int(c["budget"]), int(c["seed"]))] = cell
+    return taken
+
+
 def run_cell(
     inst: Instance, method: str, budget: int, envs: dict[str, dict[str, Any]], args: argparse.Namespace
 ) -> dict[str, Any]:
@@ -1133,8 +1250,9 @@ def summarise(cells: list[dict[str, Any]]) -> dict[str, Any]:
         return out
     covered = np.array([c["covered_90"] for c in ok], bool)
     sd_ratio = np.array([c["sd_ratio"] for c in ok], float)
-    # Cells that ran beside other work (``cpu_shared``) count for accuracy, not for time.
-    timed = [c for c in ok if not c.get("cpu_shared")]
+    # Cells that ran beside other work (``cpu_shared``) or were timed on another machine
+    # (``timed_elsewhere``, imported) count for accuracy, not for time.
+    timed = [c for c in ok if not c.get("cpu_shared") and not c.get("timed_elsewhere")]
     out.update(
         {
             "energy_distance": _mean_se([c["energy_distance"] for c in ok]),
@@ -1301,6 +1419,12 @@ def parse(argv: Sequence[str] | None) -> argparse.Namespace:
         action="store_true",
         help="mark the cells this run makes as timed beside other work: they count for accuracy, not wall time",
     )
+    p.add_argument(
+        "--import-cells",
+        type=Path,
+        metavar="RESULT",
+        help="take the peers' scored cells from a saved result where problem, peer and metric code are unchanged",
+    )
     p.add_argument("--fresh", action="store_true", help="rerun cells already in the cache (and append them)")
     p.add_argument("--retry-errors", action="store_true", help="rerun cached cells that ended in an error")
     p.add_argument("--quick", action="store_true", help="linear + banana, B 60, seed 0, surrogate + sbi NPE")
@@ -1349,6 +1473,17 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any] | None:
         carried = carry_over(cached, cache_file, grid, p_hash, m_hash, args.carry_over, rerun)
         print(f"carry-over: {carried} cells carried to the current jaxabc code", flush=True)
         cached = load_cache(cache_file)
+    imported: dict[tuple[str, str, int, int], dict[str, Any]] = {}
+    if args.import_cells and not args.import_cells.is_file():
+        print(f"--import-cells: no result at {args.import_cells}; every cell not in the cache is run", flush=True)
+    elif args.import_cells:
+        from benchmarks._common import machine
+
+        saved = json.loads(args.import_cells.read_text())
+        peer_methods = [m for m in args.methods if m not in JAXABC_METHODS]
+        hashes = saved_hashes(saved, peer_methods)
+        imported = import_cells(saved, hashes, args.problems, args.methods, p_hash, m_hash, machine())
+        print(f"--import-cells: {len(imported)} peer cells can be taken from {args.import_cells}", flush=True)
     cells: dict[tuple[str, str, int, int], dict[str, Any]] = {}
     ran = reused = 0
     for p in args.problems:
@@ -1372,6 +1507,10 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any] | None:
                     ):
                         cells[(p, m, b, s)] = score(hit["result"], inst, b, args.energy_draws)
                         reused += 1
+                        continue
+                    taken = imported.get((p, m, b, s))
+                    if taken is not None and not args.fresh and not (args.retry_errors and "error" in taken):
+                        cells[(p, m, b, s)] = taken
                         continue
                     if args.cached_only:
                         cells[(p, m, b, s)] = {"not_run": "not in the cache (--cached-only)"}
@@ -1403,6 +1542,8 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any] | None:
         "exact_draws": args.exact_draws,
         "energy_draws": args.energy_draws,
         "problem_hash": p_hash,
+        "method_hash": m_hash,
+        "scoring_hash": scoring_hash(),
         "jaxabc_compilation_cache": not args.no_compilation_cache,
         "peers": {
             m: {"venv": peers()[m].venv, "requirement": peers()[m].requirement, **_only_error(envs[m])} for m in envs
@@ -1418,6 +1559,7 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any] | None:
         "cells_not_run": sum("not_run" in c for c in cells.values()),
         "cells_reused": reused,
         "cells_carried": sum("carried_from" in c for c in cells.values()),
+        "cells_imported": sum("imported_from" in c for c in cells.values()),
         "benchmark_wall_s": time.perf_counter() - t_start,
         "jax": jax.__version__,
         "jaxabc": jaxabc.__version__,

@@ -55,7 +55,7 @@ from pathlib import Path
 from typing import Any
 
 from benchmarks import _common
-from benchmarks._common import ROOT, git_state
+from benchmarks._common import ROOT, cpu_signature, git_state
 from benchmarks.regenerate import command_argv, parse_budget
 from benchmarks.registry import REGISTRY, VERIFICATIONS, Entry, by_name
 from benchmarks.status import (
@@ -464,20 +464,6 @@ def _missing_part(entry: Entry, root: Path = ROOT) -> bool:
     """Whether the saved quick JSON lacks ``entry``'s part (another part of the file was saved)."""
     saved = json.loads((root / entry.quick_output).read_text())  # type: ignore[operator]
     return entry.part is not None and entry.part not in saved.get("provenance_parts", {})
-
-
-def cpu_signature(machine: dict[str, Any]) -> str | None:
-    """A provenance ``machine`` record's CPU and, where recorded, its vector instruction sets
-    (``"AMD EPYC (avx, avx2, fma)"``); None when it names no CPU.
-
-    Hosts that report the same CPU name may differ in their instruction sets (AVX-512 or not),
-    and XLA compiles reductions for the host's: float sums then differ in the last bits, and
-    chaotic runs after them.  Such numbers say nothing about the code."""
-    cpu = machine.get("cpu")
-    if not cpu:
-        return None
-    simd = (machine.get("native_kernel_instruction_set") or {}).get("simd")
-    return f"{cpu} ({', '.join(simd)})" if simd else str(cpu)
 
 
 def _other_cpu(saved: dict[str, Any], part: str | None) -> str | None:

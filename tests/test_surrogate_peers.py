@@ -472,3 +472,82 @@ def test_the_early_stop_section_judges_the_runs_that_stopped_before_the_budget()
     assert "`tolerance=0`" in text and "conservative" not in text
     assert "Not overconfident" in _early_stop_section({"cells": cells[:2]})
     assert _early_stop_section({"cells": []}) == ""
+
+
+def _saved_result(machine: dict[str, Any]) -> dict[str, Any]:
+    cells = [
+        {"problem": "linear", "method": "sbi_npe", "budget": 50, "seed": 0, **_cell(0.1)},
+        {"problem": "linear", "method": "bolfi", "budget": 50, "seed": 0, "error": "exit 1: boom"},
+        {"problem": "linear", "method": "bolfi", "budget": 500, "seed": 0, "not_run": "not in the cache"},
+        {"problem": "linear", "method": "jaxabc_surrogate", "budget": 50, "seed": 0, **_cell(0.2)},
+        {"problem": "linear", "method": "exact", "budget": 50, "seed": 0, **_cell(0.0)},
+        {"problem": "banana", "method": "sbi_npe", "budget": 50, "seed": 0, **_cell(0.3)},
+        {"problem": "linear", "method": "pyabc_abcsmc", "budget": 50, "seed": 1, **_cell(0.4, imported_from="c0")},
+    ]
+    return {
+        "cells": cells,
+        "problem_hash": {"linear": "pl", "banana": "pb-old"},
+        "provenance": {"commit": "c1", "tree_clean": True, "machine": machine},
+    }
+
+
+def test_imported_peer_cells_are_the_unchanged_ones_and_keep_their_origin() -> None:
+    here = {"cpu": "CPU A", "cpu_count": 2, "native_kernel_instruction_set": {"simd": ["avx2"]}}
+    saved = _saved_result(here)
+    methods = ["sbi_npe", "bolfi", "pyabc_abcsmc", "jaxabc_surrogate"]
+    m_hash = {"sbi_npe": "s", "bolfi": "b", "pyabc_abcsmc": "a", "jaxabc_surrogate": "j"}
+    hashes = {"method": {"sbi_npe": "s", "bolfi": "b", "pyabc_abcsmc": "a"}, "scoring": sp.scoring_hash()}
+    p_hash = {"linear": "pl", "banana": "pb"}
+    taken = sp.import_cells(saved, hashes, ["linear", "banana"], methods, p_hash, m_hash, here)
+    # Neither jaxabc's cell, nor the exact row, nor a cell not run, nor a problem whose model changed.
+    assert sorted(taken) == [
+        ("linear", "bolfi", 50, 0),
+        ("linear", "pyabc_abcsmc", 50, 1),
+        ("linear", "sbi_npe", 50, 0),
+    ]
+    assert taken[("linear", "sbi_npe", 50, 0)]["imported_from"] == "c1"
+    assert taken[("linear", "pyabc_abcsmc", 50, 1)]["imported_from"] == "c0"  # the commit that ran it
+    assert taken[("linear", "bolfi", 50, 0)]["error"] == "exit 1: boom"
+    assert not any(c.get("timed_elsewhere") for c in taken.values())
+    # A peer whose code or version changed is run again.
+    changed = sp.import_cells(saved, hashes, ["linear"], methods, p_hash, {**m_hash, "bolfi": "b2"}, here)
+    assert ("linear", "bolfi", 50, 0) not in changed and len(changed) == 2
+    # Other metric code: nothing is taken.
+    assert sp.import_cells(saved, {**hashes, "scoring": "x"}, ["linear"], methods, p_hash, m_hash, here) == {}
+    # Another CPU (or the same name with other instruction sets): scores kept, times left out.
+    other = {**here, "native_kernel_instruction_set": {"simd": ["avx2", "avx512f"]}}
+    elsewhere = sp.import_cells(saved, hashes, ["linear"], methods, p_hash, m_hash, other)
+    assert all(c["timed_elsewhere"] for c in elsewhere.values())
+    s = sp.summarise([elsewhere[("linear", "sbi_npe", 50, 0)], _cell(0.1, 1, run_s=3.0)])
+    assert s["seeds_ok"] == 2 and s["timed_seeds"] == 1 and s["run_s"][0] == pytest.approx(3.0)
+
+
+def test_saved_hashes_come_from_the_result_or_from_its_commits_code() -> None:
+    import subprocess
+
+    recorded = {"method_hash": {"bolfi": "b"}, "scoring_hash": "x"}
+    assert sp.saved_hashes(recorded, ["bolfi"]) == {"method": {"bolfi": "b"}, "scoring": "x"}
+    with pytest.raises(SystemExit, match="no clean commit"):
+        sp.saved_hashes({"provenance": {"commit": "abc", "tree_clean": False}}, ["bolfi"])
+    with pytest.raises(SystemExit, match="not in this clone"):
+        sp.saved_hashes({"provenance": {"commit": "0" * 40, "tree_clean": True}}, ["bolfi"])
+    head = subprocess.run(["git", "-C", str(sp.ROOT), "rev-parse", "HEAD"], capture_output=True, text=True)
+    if head.returncode != 0:
+        pytest.skip("not a git clone")
+    unchanged = subprocess.run(
+        ["git", "-C", str(sp.ROOT), "diff", "--quiet", "HEAD", "--", "benchmarks/surrogate_peers.py"]
+    )
+    if unchanged.returncode != 0:
+        pytest.skip("benchmarks/surrogate_peers.py differs from HEAD's")
+    at_head = sp.saved_hashes({"provenance": {"commit": head.stdout.strip(), "tree_clean": True}}, ["bolfi", "sbi_npe"])
+    assert at_head == {"method": {m: sp.method_hash(m) for m in ("bolfi", "sbi_npe")}, "scoring": sp.scoring_hash()}
+
+
+def test_the_page_says_which_peer_cells_were_imported_and_whose_times_are_left_out() -> None:
+    from benchmarks.docpages.surrogate import _cache_note
+
+    cells = [_cell(0.1, imported_from="abcdef123456789", timed_elsewhere=True), _cell(0.1, imported_from="abcdef1234")]
+    note = _cache_note({"cells": cells})
+    assert "2 peer cells were run at commit abcdef1234 and taken from that result" in note
+    assert "1 of them ran on another machine, so their wall times are left out" in note
+    assert _cache_note({"cells": [_cell(0.1)]}) == ""

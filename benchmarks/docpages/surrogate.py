@@ -329,8 +329,11 @@ def _peer_row(budget: str, method: str, s: dict[str, Any], d: int) -> list[Any]:
         notes.append(f"validated {s['validated']}/{s['seeds_ok']}")
     if s.get("over_budget"):
         notes.append(f"over budget on {s['over_budget']} of {s['seeds_ok']} seeds")
-    if s.get("timed_seeds", s["seeds_ok"]) < s["seeds_ok"]:
-        notes.append(f"wall time from {s['timed_seeds']} of {s['seeds_ok']} seeds (the others ran beside other work)")
+    if method != "exact" and s.get("timed_seeds", s["seeds_ok"]) < s["seeds_ok"]:
+        notes.append(
+            f"wall time from {s['timed_seeds']} of {s['seeds_ok']} seeds (the others ran beside other work"
+            " or on another machine)"
+        )
     ratios = [r[0] for r in s["sd_ratio"]]
     sd_text = " / ".join(f(r, 2) for r in ratios) if d <= 2 else f"{f(s['sd_ratio_geomean'][0], 2)} ({span(ratios)})"
     sims = (
@@ -844,6 +847,16 @@ def _cache_note(d: dict[str, Any]) -> str:
             f". {len(carried)} jaxabc cells were made by earlier jaxabc code and carried over after "
             f"{len(checks)} of them ({listed}) gave the same draws and simulations on the current code "
             "(`--carry-over`); their wall times are the earlier runs'"
+        )
+    imported = [c for c in d.get("cells", []) if c.get("imported_from")]
+    if imported:
+        commits = sorted({str(c["imported_from"])[:10] for c in imported})
+        elsewhere = sum(bool(c.get("timed_elsewhere")) for c in imported)
+        note += (
+            f". {len(imported)} peer cells were run at commit {', '.join(commits)} and taken from that result "
+            "(`--import-cells`): a peer's run does not depend on jaxabc, and the problem, the peer's code and "
+            "version and the metric code are unchanged"
+            + (f"; {elsewhere} of them ran on another machine, so their wall times are left out" if elsewhere else "")
         )
     return note
 
