@@ -1074,8 +1074,8 @@ def carry_over(
 SCORING_FUNCTIONS = ("_mean_pairwise", "energy_distance", "weighted_quantiles", "thin_draws", "accuracy", "score")
 
 _HASHES_AT = """
-import inspect, json, sys
-import benchmarks.surrogate_peers as m
+import importlib, inspect, json, sys
+m = importlib.import_module("benchmarks.surrogate_peers")  # the code of the result's commit
 methods, functions = json.loads(sys.argv[1]), json.loads(sys.argv[2])
 print(json.dumps({
     "method": {x: m.method_hash(x) for x in methods},
