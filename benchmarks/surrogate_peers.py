@@ -1130,6 +1130,18 @@ def saved_hashes(saved: dict[str, Any], methods: Sequence[str]) -> dict[str, Any
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
+def load_saved(path: Path) -> dict[str, Any]:
+    """The saved result at ``path``; a file that is not a result JSON with ``cells`` exits with a
+    one-line message (``SystemExit``), not a traceback."""
+    try:
+        saved = json.loads(path.read_text())
+    except (ValueError, UnicodeDecodeError) as exc:
+        raise SystemExit(f"--import-cells: {path} is not a result JSON ({exc})") from None
+    if not isinstance(saved, dict) or not isinstance(saved.get("cells"), list):
+        raise SystemExit(f"--import-cells: {path} holds no 'cells' list; is it a surrogate_peers result?")
+    return saved
+
+
 def import_cells(
     saved: dict[str, Any],
     hashes: dict[str, Any],
@@ -1479,7 +1491,7 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any] | None:
     elif args.import_cells:
         from benchmarks._common import machine
 
-        saved = json.loads(args.import_cells.read_text())
+        saved = load_saved(args.import_cells)
         peer_methods = [m for m in args.methods if m not in JAXABC_METHODS]
         hashes = saved_hashes(saved, peer_methods)
         imported = import_cells(saved, hashes, args.problems, args.methods, p_hash, m_hash, machine())

@@ -551,3 +551,17 @@ def test_the_page_says_which_peer_cells_were_imported_and_whose_times_are_left_o
     assert "2 peer cells were run at commit abcdef1234 and taken from that result" in note
     assert "1 of them ran on another machine, so their wall times are left out" in note
     assert _cache_note({"cells": [_cell(0.1)]}) == ""
+
+
+def test_a_file_that_is_not_a_saved_result_is_refused_in_one_line(tmp_path: Path) -> None:
+    bad = tmp_path / "notes.txt"
+    bad.write_text("not json")
+    with pytest.raises(SystemExit, match="is not a result JSON"):
+        sp.load_saved(bad)
+    other = tmp_path / "other.json"
+    other.write_text('{"benchmark": "helium_table1"}')
+    with pytest.raises(SystemExit, match="holds no 'cells' list"):
+        sp.load_saved(other)
+    good = tmp_path / "peers.json"
+    good.write_text('{"cells": []}')
+    assert sp.load_saved(good) == {"cells": []}
