@@ -216,9 +216,10 @@ def _water_abc(data: str) -> Entry:
 def _water_paper_preset(data: str) -> Entry:
     """The paper's own protocol (515 molecules, 100 ps) through the surrogate: hours of GROMACS.
 
-    Its checkpoint lives in the results folder and its run cache under ``runs/cache`` (not
-    tracked), so the same command continues it in a later sitting (``--continue``), replaying the
-    finished runs of a batch that a sitting cut short (``--run-cache``).
+    Its checkpoint and its run cache live under ``runs/cache`` (not tracked), so the same command
+    continues it in a later sitting (``--continue``), replaying the finished runs of a batch that a
+    sitting cut short (``--run-cache``); ``water_misfit`` keeps the finished run's surrogate state
+    in the results folder.
     """
     folder = f"{R}/water_paper_preset"
     return _water_calibration(
@@ -226,7 +227,7 @@ def _water_paper_preset(data: str) -> Entry:
         f"{folder}/water_{data}_surrogate.json",
         f"--data {data} --statistics paper --preset paper "
         "--algorithm surrogate --max-simulations 200 --surrogate-tolerance 0.04 --workers 2 --predictive 10 "
-        f"--checkpoint-dir {folder}/checkpoint_{data} --continue "
+        f"--checkpoint-dir {CACHE}/water_paper_preset/checkpoint_{data} --continue "
         f"--run-cache {CACHE}/water_paper_preset/run_cache_{data} --out-dir {folder} --no-progress",
         36000.0,
         "the paper's preset and statistics through the GP surrogate (issue 13); spans sittings",
@@ -352,8 +353,10 @@ REGISTRY: tuple[Entry, ...] = (
         f"{R}/water_misfit.json",
         "python -m benchmarks.water_misfit",
         estimated_cost_s=120.0,
-        note="the paper-preset X-ray surrogate's observed-data misfit, from its saved checkpoint (no GROMACS)",
+        note="the paper-preset X-ray surrogate's observed-data misfit, from the run's final surrogate state "
+        "(taken from its checkpoint under runs/cache and kept beside its result; no GROMACS)",
         checked_by=("water_model_choice", "surrogate_helium"),
+        after=("water_xray_surrogate_paper_preset:paper",),
     ),
     Entry(
         "surrogate_classifier_replay",

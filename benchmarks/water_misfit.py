@@ -1,9 +1,10 @@
 """Where the surrogate's paper-preset X-ray estimate leaves the paper's, and why.
 
 The GP-surrogate calibration of the paper's preset (``water_xray_surrogate_paper_preset`` in
-``benchmarks/registry.py``) keeps its checkpoint in the results folder.  This restores it, refits
-the emulator its reported draws came from (the design loop's fit, warm-started from the run's
-last hyper-parameters, ``state.hyper``) and reports
+``benchmarks/registry.py``) keeps its checkpoint under ``runs/cache`` (untracked).  This takes the
+finished run's surrogate state from it into the results folder (or, without the checkpoint, uses
+the state kept there), restores it, refits the emulator its reported draws came from (the design
+loop's fit, warm-started from the run's last hyper-parameters, ``state.hyper``) and reports
 
 - the posterior predictive check of the observed summaries
   (:func:`jaxabc.surrogate.evidence.observed_misfit`, over the saved posterior draws);
@@ -36,7 +37,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from benchmarks._common import machine, relative, write_result
+from benchmarks._common import RUNS, machine, relative, write_result
 from jaxabc.priors import Uniform
 from jaxabc.surrogate import build, design, emulator, evidence, sampling
 from md.water.gromacs import TIP4P_PARAMETERS
@@ -44,9 +45,13 @@ from md.water.gromacs import TIP4P_PARAMETERS
 ROOT = Path(__file__).resolve().parents[1]
 
 FOLDER = ROOT / "benchmarks" / "results" / "water_paper_preset"
-CHECKPOINT = FOLDER / "checkpoint_xray" / "checkpoint.npz"
+#: The run's checkpoint (untracked, where the registry's command keeps it).
+CHECKPOINT = RUNS / "cache" / "water_paper_preset" / "checkpoint_xray" / "checkpoint.npz"
 RESULT = FOLDER / "water_xray_surrogate.json"
 RECORD = FOLDER / "water_xray_paper_surrogate.npz"
+#: The finished run's surrogate state, taken from its checkpoint and kept beside its result, so
+#: that this study reruns without the checkpoint.
+STATE = FOLDER / "water_xray_paper_surrogate_state.npz"
 #: Settings of the saved run that shape its fit (the rest only steer the design).
 _FIT_SETTINGS = ("num_initial", "num_replicates", "batch_size", "num_holdout", "max_outputs", "min_feasibility")
 #: Importance points per fit for the posterior moments (the run's own candidate count), and their seed.
@@ -62,9 +67,32 @@ def _restore(entry: dict, low: np.ndarray, high: np.ndarray):
         max_simulations=settings["max_simulations"],
         **{k: settings[k] for k in _FIT_SETTINGS},
     )
-    with np.load(CHECKPOINT, allow_pickle=False) as data:
-        flat = {k.removeprefix("state/"): data[k] for k in data.files if k.startswith("state/")}
+    with np.load(STATE, allow_pickle=False) as data:
+        flat = {k: data[k] for k in data.files}
     return algorithm, algorithm.restore_state(flat)
+
+
+def take_state(checkpoint: Path, record: Path, state: Path) -> bool:
+    """Copy the surrogate state of ``checkpoint`` to ``state`` when the checkpoint is the saved
+    run's (its posterior draws and simulation records equal ``record``'s); False when there is no
+    checkpoint.  A checkpoint of another run exits (``SystemExit``) rather than mix the two."""
+    if not checkpoint.is_file():
+        return False
+    with np.load(checkpoint, allow_pickle=False) as c, np.load(record, allow_pickle=False) as r:
+        same = (
+            "posterior/particles" in c.files
+            and np.array_equal(c["posterior/particles"], r["particles"])
+            and np.array_equal(c["records/theta"], r["record_theta"])
+        )
+        if not same:
+            raise SystemExit(
+                f"{relative(checkpoint)} is not the checkpoint of the run saved in {relative(record)} "
+                "(its posterior draws or simulations differ): finish that run, or remove the checkpoint to "
+                f"use the state kept in {relative(state)}"
+            )
+        flat = {k.removeprefix("state/"): c[k] for k in c.files if k.startswith("state/")}
+    np.savez_compressed(state, **flat)
+    return True
 
 
 def at_point(model, transform, x: np.ndarray, observed: np.ndarray, scale: np.ndarray) -> dict:
@@ -118,7 +146,14 @@ def fit_summary(emu, model, low: np.ndarray, high: np.ndarray, points: dict[str,
 
 def main(argv: list[str] | None = None) -> dict:
     parser = argparse.ArgumentParser(description=(__doc__ or "").split("\n\n")[0])
-    parser.parse_args(argv)
+    parser.add_argument(
+        "--checkpoint", type=Path, default=CHECKPOINT, help="the run's checkpoint (default: the registry's)"
+    )
+    args = parser.parse_args(argv)
+    if take_state(args.checkpoint, RECORD, STATE):
+        print(f"took the surrogate state of {relative(args.checkpoint)} into {relative(STATE)}")
+    elif not STATE.is_file():
+        raise SystemExit(f"no checkpoint at {relative(args.checkpoint)} and no saved state at {relative(STATE)}")
     jax.config.update("jax_enable_x64", True)
     entry = json.loads(RESULT.read_text())["paper"]
     with np.load(RECORD, allow_pickle=False) as rec:
@@ -160,7 +195,7 @@ def main(argv: list[str] | None = None) -> dict:
             | fit_summary(refit_emu, refit_model, low, high, points),
         },
     }
-    out = write_result("water_misfit", payload, inputs=[CHECKPOINT, RESULT, RECORD])
+    out = write_result("water_misfit", payload, inputs=[STATE, RESULT, RECORD])
     print(json.dumps({k: payload[k] for k in ("observed_misfit", "points", "fits")}, indent=1))
     print(f"wrote {relative(out)}")
     return payload

@@ -377,8 +377,7 @@ def _validated_cell(validated: bool) -> str:
 
 def _water_paper_preset_section() -> str:
     """The paper's own protocol through the surrogate: the result, or the progress of a run that
-    spans sittings (its checkpoint and sitting clock live in the results folder, its run cache
-    under ``runs/cache/``)."""
+    spans sittings (its checkpoint, sitting clock and run cache live under ``runs/cache/``)."""
     folder = RESULTS / "water_paper_preset"
     d = load("water_paper_preset/water_xray_surrogate")
     head = """
@@ -441,7 +440,8 @@ in `benchmarks/registry.py`), resumable across sittings.
             + _water_misfit_section()
         )
     runs = sorted((RUNS / "cache" / "water_paper_preset" / "run_cache_xray").glob("*.npz"))
-    clock = folder / "checkpoint_xray" / "water_xray_paper_surrogate.sittings.json"
+    checkpoints = RUNS / "cache" / "water_paper_preset" / "checkpoint_xray"
+    clock = checkpoints / "water_xray_paper_surrogate.sittings.json"
     if not runs and not clock.exists():
         return head + "\nNot run yet.\n"
     failed = 0
@@ -450,7 +450,7 @@ in `benchmarks/registry.py`), resumable across sittings.
             failed += bool(str(z["reason"])) or not bool(np.all(np.isfinite(z["summaries"])))
     sittings = json.loads(clock.read_text())["sittings"] if clock.exists() else []
     seconds = sum(s["elapsed_s"] for s in sittings)
-    checkpoint = folder / "checkpoint_xray" / "checkpoint.npz"
+    checkpoint = checkpoints / "checkpoint.npz"
     design = "no checkpoint yet (the first comes after the start batch)"
     if checkpoint.exists():
         # The design's own runs; the cache may also hold runs an earlier design made.
