@@ -9,8 +9,9 @@ from :mod:`benchmarks._water_repeats` so that the scripts reading only the earli
 
 from __future__ import annotations
 
-#: The family's seeds.
-FAMILY_SEEDS = (0, 1, 2)
+#: The family's seeds: five, so that the verdict the results page stands on holds over >= 5 seeds
+#: (seeds 3 and 4 joined after the first three, two of them trusted, all said undecided).
+FAMILY_SEEDS = (0, 1, 2, 3, 4)
 #: The family's results, one per seed, and what each varies.
 HOLDOUT_FAMILY = tuple(
     (f"water_model_choice_calibrated_holdout_seed{seed}", f"seed {seed}, held-out family") for seed in FAMILY_SEEDS
@@ -19,9 +20,10 @@ HOLDOUT_FAMILY = tuple(
 HOLDOUT_NO_DISCREPANCY = "water_model_choice_calibrated_holdout_no_discrepancy"
 #: The family rerun with each discrepancy sd bounded by the largest misfit a published rigid model
 #: makes in its group (:mod:`benchmarks._published_bounds`) as the run's prior, every other setting equal.
-#: Its seeds: the family's, and a fourth, because two of the first three had an emulator fail
-#: validation and the results page stands on this family only with two trusted seeds.
-PUBLISHED_BOUNDS_SEEDS = (*FAMILY_SEEDS, 3)
+#: Its seeds: the family's first three, and a fourth, because two of the first three had an
+#: emulator fail validation and the results page stands on this family only with two trusted seeds.
+#: It is a sensitivity check of the family's verdict (a different prior), not a verdict of its own.
+PUBLISHED_BOUNDS_SEEDS = (0, 1, 2, 3)
 PUBLISHED_BOUNDS_FAMILY = tuple(
     (f"water_model_choice_published_bounds_seed{seed}", f"seed {seed}, published-model bounds")
     for seed in PUBLISHED_BOUNDS_SEEDS
