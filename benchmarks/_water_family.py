@@ -9,8 +9,7 @@ from :mod:`benchmarks._water_repeats` so that the scripts reading only the earli
 
 from __future__ import annotations
 
-#: The family's seeds: five, so that the verdict the results page stands on holds over >= 5 seeds
-#: (seeds 3 and 4 joined after the first three, two of them trusted, all said undecided).
+#: The family's seeds: five, so that the verdict the results page stands on holds over >= 5 seeds.
 FAMILY_SEEDS = (0, 1, 2, 3, 4)
 #: The family's results, one per seed, and what each varies.
 HOLDOUT_FAMILY = tuple(
