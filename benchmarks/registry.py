@@ -132,6 +132,14 @@ _GPU_NOTE = "made on a lent GPU machine (the device tool) with the cpu parts on 
 Q = "benchmarks/results/quick"
 #: Per-simulation run caches: replayed by a rerun, never read by a page, not tracked (.gitignore).
 CACHE = "runs/cache"
+
+
+def paper_preset_cache(kind: str, data: str) -> str:
+    """Folder, relative to ``runs/``, where the paper-preset surrogate run of ``data`` keeps its
+    ``kind`` (``"checkpoint"`` or ``"run_cache"``), read by ``water_misfit`` and the water page."""
+    return f"cache/water_paper_preset/{kind}_{data}"
+
+
 #: The tiny model choice (``water_model_choice --tiny``) that the criticism's and the paper
 #: check's quick modes start from.
 _TINY_MODEL_CHOICE = f"{CACHE}/water_model_choice/xray_quick_tiny"
@@ -227,8 +235,8 @@ def _water_paper_preset(data: str) -> Entry:
         f"{folder}/water_{data}_surrogate.json",
         f"--data {data} --statistics paper --preset paper "
         "--algorithm surrogate --max-simulations 200 --surrogate-tolerance 0.04 --workers 2 --predictive 10 "
-        f"--checkpoint-dir {CACHE}/water_paper_preset/checkpoint_{data} --continue "
-        f"--run-cache {CACHE}/water_paper_preset/run_cache_{data} --out-dir {folder} --no-progress",
+        f"--checkpoint-dir runs/{paper_preset_cache('checkpoint', data)} --continue "
+        f"--run-cache runs/{paper_preset_cache('run_cache', data)} --out-dir {folder} --no-progress",
         36000.0,
         "the paper's preset and statistics through the GP surrogate (issue 13); spans sittings",
     )

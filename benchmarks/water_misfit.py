@@ -38,6 +38,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from benchmarks._common import RUNS, machine, relative, write_result
+from benchmarks.registry import paper_preset_cache
 from jaxabc.priors import Uniform
 from jaxabc.surrogate import build, design, emulator, evidence, sampling
 from md.water.gromacs import TIP4P_PARAMETERS
@@ -46,7 +47,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 FOLDER = ROOT / "benchmarks" / "results" / "water_paper_preset"
 #: The run's checkpoint (untracked, where the registry's command keeps it).
-CHECKPOINT = RUNS / "cache" / "water_paper_preset" / "checkpoint_xray" / "checkpoint.npz"
+CHECKPOINT = RUNS / paper_preset_cache("checkpoint", "xray") / "checkpoint.npz"
 RESULT = FOLDER / "water_xray_surrogate.json"
 RECORD = FOLDER / "water_xray_paper_surrogate.npz"
 #: The finished run's surrogate state, taken from its checkpoint and kept beside its result, so
@@ -78,6 +79,11 @@ def take_state(checkpoint: Path, record: Path, state: Path) -> bool:
     checkpoint.  A checkpoint of another run exits (``SystemExit``) rather than mix the two."""
     if not checkpoint.is_file():
         return False
+    if not record.is_file():
+        raise SystemExit(
+            f"{relative(record)} is missing: the checkpoint {relative(checkpoint)} can only be taken "
+            "once its run has finished and saved its result"
+        )
     with np.load(checkpoint, allow_pickle=False) as c, np.load(record, allow_pickle=False) as r:
         same = (
             "posterior/particles" in c.files

@@ -37,3 +37,11 @@ def test_a_checkpoint_of_another_run_is_refused_and_none_is_no_copy(tmp_path: Pa
         water_misfit.take_state(checkpoint, record, state)
     assert not state.exists()
     assert not water_misfit.take_state(tmp_path / "none.npz", record, state)
+
+
+def test_a_checkpoint_without_its_saved_run_is_refused(tmp_path: Path) -> None:
+    checkpoint, record, state = _files(tmp_path)
+    record.unlink()
+    with pytest.raises(SystemExit, match="is missing"):
+        water_misfit.take_state(checkpoint, record, state)
+    assert not state.exists()

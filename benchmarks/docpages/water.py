@@ -10,6 +10,7 @@ import numpy as np
 
 from benchmarks._common import RESULTS, ROOT, RUNS
 from benchmarks.docpages.common import f, figure, load, retired, source, sourced_table, table
+from benchmarks.registry import paper_preset_cache
 from benchmarks.status import format_cost
 from jaxabc.surrogate.diagnostics import MISFIT_P_VALUE
 
@@ -439,8 +440,8 @@ in `benchmarks/registry.py`), resumable across sittings.
             + "\n"
             + _water_misfit_section()
         )
-    runs = sorted((RUNS / "cache" / "water_paper_preset" / "run_cache_xray").glob("*.npz"))
-    checkpoints = RUNS / "cache" / "water_paper_preset" / "checkpoint_xray"
+    runs = sorted((RUNS / paper_preset_cache("run_cache", "xray")).glob("*.npz"))
+    checkpoints = RUNS / paper_preset_cache("checkpoint", "xray")
     clock = checkpoints / "water_xray_paper_surrogate.sittings.json"
     if not runs and not clock.exists():
         return head + "\nNot run yet.\n"
