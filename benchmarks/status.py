@@ -60,8 +60,10 @@ __all__ = [
 class Status:
     """The state of one saved result.
 
-    ``cost_s`` is the recorded cost (``provenance.cost_s``), else the legacy wall-time fields'
-    sum, else the registry's estimate; ``cost_source`` says which.
+    ``cost_s`` is the recorded cost (``provenance.cost_s``, raised to the result's own
+    ``rerun_cost_s`` where it states one: what rerunning its code costs when the run reused cached
+    or imported work), else the legacy wall-time fields' sum, else the registry's estimate;
+    ``cost_source`` says which.
     """
 
     name: str
@@ -158,6 +160,10 @@ def status_of(entry: Entry, quick: bool = False, root: Path = ROOT) -> Status:
         # last one; its own wall time over every sitting is the cost of a rerun.
         st.cost_s = max(st.cost_s or 0.0, float(body["wall_time_s"]))
         st.cost_source = f"recorded over {sittings} sittings"
+    rerun = body.get("rerun_cost_s") if isinstance(body, dict) else None
+    if isinstance(rerun, (int, float)) and rerun > (st.cost_s or 0.0):
+        # A run that reused cached or imported work states what a rerun of its code would cost.
+        st.cost_s, st.cost_source = float(rerun), "recorded (rerun of its code)"
     st.commit, st.date_utc, st.tree_clean = prov.get("commit"), prov.get("date_utc"), prov.get("tree_clean")
     return st
 
@@ -464,7 +470,7 @@ def render(rows: list[Status]) -> str:
     """Plain-text table of the statuses."""
     lines = [f"{'result':34s} {'state':8s} {'cost':>9s}  {'commit':8s} {'date (UTC)':20s} why / what changed / note"]
     for s in rows:
-        estimated = s.cost_source not in ("recorded", "none") and not s.cost_source.startswith("recorded over")
+        estimated = s.cost_source not in ("recorded", "none") and not s.cost_source.startswith("recorded ")
         cost = format_cost(s.cost_s) + ("*" if estimated else "")
         commit = (s.commit or "-")[:8] + ("+" if s.tree_clean is False else "")
         detail = ", ".join(s.changed[:6]) + (f" (+{len(s.changed) - 6} more)" if len(s.changed) > 6 else "")

@@ -1573,6 +1573,11 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any] | None:
         "cells_carried": sum("carried_from" in c for c in cells.values()),
         "cells_imported": sum("imported_from" in c for c in cells.values()),
         "benchmark_wall_s": time.perf_counter() - t_start,
+        # What a rerun after a jaxabc change costs: its cells run again, one after another (the
+        # peers' come from the result), whatever this run reused or imported.
+        "rerun_cost_s": sum(
+            float(c.get("process_wall_s") or 0.0) for (_, m, _, _), c in cells.items() if m.startswith("jaxabc")
+        ),
         "jax": jax.__version__,
         "jaxabc": jaxabc.__version__,
     }

@@ -193,6 +193,18 @@ def test_a_run_over_several_sittings_costs_its_whole_wall_time(fake_repo: Path) 
     assert (three.cost_s, three.cost_source) == (5000.0, "recorded over 3 sittings")
 
 
+def test_a_run_that_reused_work_costs_its_stated_rerun(fake_repo: Path) -> None:
+    """A run that imported or replayed most of its cells states what rerunning its code costs:
+    status must plan that, not the import's few minutes (surrogate_peers showed 3.1 min for 5 h)."""
+    path = fake_repo / "benchmarks/results/res.json"
+    _common.write_result(path, {"rerun_cost_s": 18000.0}, inputs=[fake_repo / "data.txt"])
+    st = status.status_of(registry.Entry("res", "benchmarks/results/res.json", "x"), root=fake_repo)
+    assert (st.cost_s, st.cost_source) == (18000.0, "recorded (rerun of its code)")
+    _common.write_result(path, {"rerun_cost_s": 0.0}, inputs=[fake_repo / "data.txt"])
+    st = status.status_of(registry.Entry("res", "benchmarks/results/res.json", "x"), root=fake_repo)
+    assert st.cost_source == "recorded"
+
+
 def test_status_of_entries(fake_repo: Path) -> None:
     write_fake(fake_repo, part="a")
     legacy = fake_repo / "benchmarks/results/legacy.json"
