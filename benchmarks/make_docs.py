@@ -85,7 +85,10 @@ numbers were not made with needs one quick run at its commit
 (`python -m benchmarks.verify --only CHECK --vouch-for RESULT --budget 1h`), not a rerun.
 Data changes always call for a rerun.  A `retired` result is one the
 registry no longer keeps (why, what supersedes it and the commit of its last version are in the
-table); no page shows it.
+table); no page shows it.  Run caches and checkpoints live under `runs/` (not tracked); a run
+longer than one sitting on a machine that keeps only the git tree parks its checkpoint there
+(`python -m benchmarks.park save NAME`, committed under `benchmarks/parked/`), and
+`regenerate` restores it on the next machine and drops it when the run has finished.
 
 - [Helium Table 1](helium_table1.md) and [the choice of the CPU preset](helium_identifiability.md)
 - [Engine throughput](engine_throughput.md) and [agreement with LAMMPS](lammps_agreement.md)

@@ -6,7 +6,8 @@ current.  They run **cheapest first** (the most results for the budget, and chea
 JSON, else estimated -- fits in what is left of the budget.  After every run the status is checked
 again, so a result that became stale because an input it reads was just regenerated is picked
 up in the same call.  The long runs (water calibrations, criticism) are listed with their cost;
-they run only when the budget holds them.
+they run only when the budget holds them.  A run that spans sittings on machines that keep
+nothing but the git tree continues from its parked checkpoint (``benchmarks/park.py``).
 
 Usage::
 
@@ -27,6 +28,7 @@ import subprocess
 import sys
 import time
 
+from benchmarks import park
 from benchmarks._common import ROOT
 from benchmarks.registry import REGISTRY, Entry
 from benchmarks.status import Status, format_cost, status_of
@@ -186,6 +188,8 @@ def main(argv: list[str] | None = None) -> int:
         entry, _, cost = run[0]
         command = entry.quick if args.quick else entry.full
         print(f"[{time.strftime('%H:%M:%S')}] {entry.name}: {command}", flush=True)
+        if not args.quick and (restored := park.restore(entry, ROOT)):
+            print(f"  restored its parked checkpoint: {', '.join(restored)}", flush=True)
         t0 = time.perf_counter()
         env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")]))}
         code = subprocess.run(command_argv(command), cwd=ROOT, env=env).returncode
@@ -199,6 +203,8 @@ def main(argv: list[str] | None = None) -> int:
         )
         if code != 0:
             failed.append(entry.name)
+        elif not args.quick and park.drop(entry, ROOT):
+            print(f"  dropped its parked checkpoint, {park.parked_folder(entry, ROOT).relative_to(ROOT)}", flush=True)
     if failed:
         print(f"failed: {', '.join(failed)}")
     return 1 if failed else 0

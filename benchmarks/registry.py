@@ -98,6 +98,10 @@ class Entry:
     quick_inputs
         Untracked paths (caches under ``runs/``) the quick mode reads; ``verify --rebaseline``
         copies them into its worktree at the result's commit.
+    resumable
+        Checkpoint paths under ``runs/`` (small files, not run caches) from which the same
+        command continues a run over several sittings; ``benchmarks/park.py`` carries them
+        between machines through the git tree, ``regenerate.py`` restores them before the run.
     note
         What a reader of ``status`` should know.
     retired
@@ -123,6 +127,7 @@ class Entry:
     after: tuple[str, ...] = ()
     checked_by: tuple[str, ...] = ()
     quick_inputs: tuple[str, ...] = ()
+    resumable: tuple[str, ...] = ()
     note: str = ""
     retired: str = ""
 
@@ -150,7 +155,13 @@ _WATER_CHECKS = ("water_simulated:robust", "surrogate_helium", "water_model_choi
 
 
 def _water_calibration(
-    name: str, output: str, command: str, cost_s: float, note: str, quick: str | None = None
+    name: str,
+    output: str,
+    command: str,
+    cost_s: float,
+    note: str,
+    quick: str | None = None,
+    resumable: tuple[str, ...] = (),
 ) -> Entry:
     """A long GROMACS water calibration writing the ``paper``/``robust`` part ``name`` names.
 
@@ -170,6 +181,7 @@ def _water_calibration(
         checked_by=_WATER_CHECKS,
         quick=None if quick is None else f"python -m benchmarks.water_calibration {quick} --quick",
         quick_output=None if quick is None else f"{Q}/{Path(output).name}",
+        resumable=resumable,
     )
 
 
@@ -227,7 +239,8 @@ def _water_paper_preset(data: str) -> Entry:
     Its checkpoint and its run cache live under ``runs/cache`` (not tracked), so the same command
     continues it in a later sitting (``--continue``), replaying the finished runs of a batch that a
     sitting cut short (``--run-cache``); ``water_misfit`` keeps the finished run's surrogate state
-    in the results folder.
+    in the results folder.  Its checkpoint (not the run cache) is ``resumable``: ``park.py``
+    carries it to the next machine where one sitting is shorter than the run.
     """
     folder = f"{R}/water_paper_preset"
     return _water_calibration(
@@ -239,6 +252,7 @@ def _water_paper_preset(data: str) -> Entry:
         f"--run-cache runs/{paper_preset_cache('run_cache', data)} --out-dir {folder} --no-progress",
         36000.0,
         "the paper's preset and statistics through the GP surrogate (issue 13); spans sittings",
+        resumable=(f"runs/{paper_preset_cache('checkpoint', data)}",),
     )
 
 
