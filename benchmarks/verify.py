@@ -305,9 +305,23 @@ def quick_json_at(entry: Entry, commit: str, root: Path = ROOT) -> dict[str, Any
         run = made if made is not None else _run_command(command_argv(entry.quick), tree, env)
         if run.returncode != 0:
             raise RuntimeError(f"{entry.name}: the quick mode at {commit[:10]} failed: {run.stderr.strip()[-600:]}")
-        return json.loads((tree / entry.quick_output).read_text())
+        return _stamp_host(json.loads((tree / entry.quick_output).read_text()))
     finally:
         subprocess.run(["git", "worktree", "remove", "--force", str(tree)], cwd=root, capture_output=True)
+
+
+def _stamp_host(made: dict[str, Any]) -> dict[str, Any]:
+    """``made``, a quick JSON that older code wrote here, with this host's instruction sets
+    added to each provenance's machine where that code recorded none: without them a later
+    check on another host of the same CPU name (AVX-512 or not) would compare its numbers as if
+    both hosts were one."""
+    here = _common.machine().get("native_kernel_instruction_set")
+    provenances = [made.get("provenance"), *(made.get("provenance_parts") or {}).values()]
+    for prov in provenances:
+        machine = (prov or {}).get("machine")
+        if isinstance(machine, dict) and not (machine.get("native_kernel_instruction_set") or {}).get("simd"):
+            machine["native_kernel_instruction_set"] = {**(here or {}), "stamped_by": "benchmarks.verify"}
+    return made
 
 
 def vouch_for(check_entry: Entry, result: Entry, root: Path = ROOT) -> dict[str, Any]:

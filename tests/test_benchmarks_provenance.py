@@ -18,7 +18,7 @@ from pathlib import Path
 
 import pytest
 
-from benchmarks import _common, regenerate, registry, status
+from benchmarks import _common, regenerate, registry, status, verify
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -349,7 +349,7 @@ def test_no_benchmark_script_imports_another() -> None:
     """What scripts share lives in private modules (``benchmarks/_*.py``): a script importing
     another would make every result of one depend on the other's code."""
     scripts = {p.stem for p in (ROOT / "benchmarks").glob("*.py") if not p.name.startswith("_")}
-    tools = {"status", "regenerate", "registry", "make_docs", "verify"}
+    tools = {"status", "regenerate", "registry", "make_docs", "verify", "park"}
     # Left until their results are rerun, since moving the import changes code no quick check
     # covers: gpu_throughput's GPU rows need a GPU (none lent here); criticism_argon (one line:
     # neon's protocol with --fluid argon) would stale both fluid criticisms (87 min); rerunning
@@ -1478,3 +1478,27 @@ def test_a_new_check_keeps_the_link_the_last_one_made(fake_repo: Path, monkeypat
     monkeypatch.setattr(verify, "preserve_standing_edge", lambda name, root: None)
     verify._check_all([(sibling, 1.0, "")], None, tmp_path, bad, fake_repo)
     assert status.status_of(long, root=fake_repo).state == "stale"
+
+
+def test_a_quick_json_older_code_made_here_gets_this_hosts_instruction_sets() -> None:
+    """Code from before the instruction sets were recorded wrote only the CPU's name: a rebaseline
+    made on an AVX-512 host then passed for this host's, and the reproduction test compared them."""
+    here = _common.machine()["native_kernel_instruction_set"]
+    other = {"simd": ["avx512f"]}
+    made = {
+        "provenance": {"machine": {"cpu": "AMD EPYC"}},
+        "provenance_parts": {
+            "a": {"machine": {"cpu": "AMD EPYC"}},
+            "b": {"machine": {"cpu": "AMD EPYC", "native_kernel_instruction_set": other}},
+        },
+    }
+    stamped = verify._stamp_host(made)
+    assert stamped["provenance"]["machine"]["native_kernel_instruction_set"]["simd"] == here["simd"]
+    assert (
+        stamped["provenance_parts"]["a"]["machine"]["native_kernel_instruction_set"]["stamped_by"]
+        == "benchmarks.verify"
+    )
+    assert stamped["provenance_parts"]["b"]["machine"]["native_kernel_instruction_set"] == other
+    assert verify.cpu_signature(stamped["provenance"]["machine"]) == verify.cpu_signature(
+        {**_common.machine(), "cpu": "AMD EPYC"}
+    )
