@@ -50,6 +50,11 @@ def _size(path: Path) -> int:
     return sum(f.stat().st_size for f in path.rglob("*") if f.is_file()) if path.is_dir() else path.stat().st_size
 
 
+def _copy(src: Path, dst: Path) -> None:
+    dst.parent.mkdir(parents=True, exist_ok=True)
+    shutil.copytree(src, dst) if src.is_dir() else shutil.copy2(src, dst)
+
+
 def save(entry: Entry, root: Path = ROOT) -> list[str]:
     """Copy ``entry``'s resumable paths into its parked folder (replacing an older copy).
 
@@ -68,8 +73,7 @@ def save(entry: Entry, root: Path = ROOT) -> list[str]:
     shutil.rmtree(target, ignore_errors=True)
     for p in present:
         src, dst = root / p, target / p
-        dst.parent.mkdir(parents=True, exist_ok=True)
-        shutil.copytree(src, dst) if src.is_dir() else shutil.copy2(src, dst)
+        _copy(src, dst)
     stamp = {"paths": present, "bytes": size, "cpu": cpu_signature(machine()), "saved_unix": time.time()}
     (target / STAMP).write_text(json.dumps(stamp, indent=1) + "\n")
     return present
@@ -90,8 +94,7 @@ def restore(entry: Entry, root: Path = ROOT, force: bool = False) -> list[str]:
             continue
         if dst.exists():
             shutil.rmtree(dst) if dst.is_dir() else dst.unlink()
-        dst.parent.mkdir(parents=True, exist_ok=True)
-        shutil.copytree(src, dst) if src.is_dir() else shutil.copy2(src, dst)
+        _copy(src, dst)
         done.append(p)
     if done:
         saved_on = json.loads((source / STAMP).read_text()).get("cpu") if (source / STAMP).is_file() else None
