@@ -67,6 +67,11 @@ def _process_start_time() -> float:
 _PROCESS_START = _process_start_time()
 
 
+def process_seconds() -> float:
+    """Wall seconds since this process started (the default ``cost_s`` of a result)."""
+    return time.time() - _PROCESS_START
+
+
 def machine() -> dict[str, Any]:
     """What ran the benchmark: enough to compare numbers across machines."""
     from jaxabc.results import versions
@@ -410,6 +415,7 @@ def write_result(
     part: str | Iterable[str] | None = None,
     inputs: Iterable[str | Path] = (),
     command: str | None = None,
+    cost_s: float | None = None,
 ) -> Path:
     """Write a result JSON with its provenance; the one way benchmark scripts save results.
 
@@ -429,6 +435,9 @@ def write_result(
         Data files read (added to those declared with :func:`declare_input`).
     command
         Command to record (default: this process's command line).
+    cost_s
+        Seconds the result cost (default: this process's wall time so far); a process that
+        writes several parts one after another gives each its own.
 
     Returns
     -------
@@ -436,7 +445,7 @@ def write_result(
         The file written.
     """
     path = Path(name) if str(name).endswith(".json") else result_path(str(name), quick)
-    prov = provenance(inputs, command)
+    prov = provenance(inputs, command, cost_s)
     body = {k: v for k, v in payload.items() if k not in ("provenance", "provenance_parts")}
     out: dict[str, Any] = {"benchmark": path.stem, **body, "provenance": prov}
     if part is not None:
