@@ -826,7 +826,7 @@ REGISTRY: tuple[Entry, ...] = (
         quick_output=f"{Q}/water_summary_noise.json",
         requires=("gmx",),
         estimated_cost_s=1800.0,
-        after=("water_model_choice", "water_emulator_failures"),
+        after=("water_model_choice",),
         note="is the water summaries' simulator noise Gaussian: 40 replicates per model at its posterior "
         "estimate, moments with bootstrap intervals, beside the held-out errors' tails",
     ),

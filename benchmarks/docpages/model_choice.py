@@ -1446,7 +1446,8 @@ def _summary_noise() -> list[str]:
     if d is None:
         return []
     null = d["pooled_null_excess_kurtosis_95"]
-    held = d.get("heldout_excess_kurtosis_by_summary") or {}
+    failures = load("water_emulator_failures")
+    held = (failures or {}).get("summary", {}).get("heldout_tails", {}).get("excess_kurtosis_by_summary") or {}
     rows, heavy = [], []
     for name in d["fitted"]:
         m = d["pooled"][name]
