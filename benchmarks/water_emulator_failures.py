@@ -661,6 +661,14 @@ def analyse(repeats=REPEATS, max_verdicts: int | None = None) -> dict[str, Any]:
             m["factor"] = calibration["factors"][m.pop("refit")]
     summary["calibrated_verdicts"] = calibrated_verdicts(cases[:max_verdicts])
     summary["lack_of_fit"] = lack_of_fit_by_summary(repeats)
+    # Every repeat read, calibrated ones too (the lack-of-fit table reads them): its JSON and records.
+    for name, _ in repeats:
+        if (d := _load_repeat(name)) is not None:
+            folder = ROOT / d["saved_result"]
+            inputs += [
+                RESULTS / f"{name}.json",
+                *(folder / f"posterior_{m.replace('/', '_')}.npz" for m in d["per_model"]),
+            ]
     return {
         "fitted": fitted,
         "stated_sd": sd.tolist(),
