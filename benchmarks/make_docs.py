@@ -49,9 +49,10 @@ _HONESTY_LINK = "- [Does the surrogate say when it is wrong?](surrogate_honesty.
 
 
 def page_index() -> str:
-    rows = []
+    rows, states = [], []
     for e in REGISTRY:
         st = status_of(e)
+        states.append(st)
         rows.append(
             [
                 f"`{e.name}`",
@@ -60,35 +61,15 @@ def page_index() -> str:
                 ", ".join(st.changed[:3]) + (" ..." if len(st.changed) > 3 else ""),
             ]
         )
+    current = sum(st.state == "current" for st in states)
+    retired = sum(st.state == "retired" for st in states)
+    behind = [st for st in states if st.state not in ("current", "retired")]
+    rerun_s = sum(st.cost_s or 0.0 for st in behind)
     return f"""# Results
 
 Every number on these pages is read from `benchmarks/results/*.json` by `benchmarks/make_docs.py`;
-each table names its JSON and the commit that made it.  `python -m benchmarks.status` says which
-results the current code still produces.  Currency is numerical: a result whose code changed is
-current again when `python -m benchmarks.verify --budget 30m` reruns its quick mode on today's
-code and gets its saved quick numbers ("code changed, quick mode reproduces"); where the numbers
-differ it is `changed`, and `python -m benchmarks.regenerate --budget 1h` reruns what fits.
-A result without a quick mode of its own (the hours-long water and criticism runs) names in the
-registry (`checked_by`) the quick modes that run its code path; it is current when, for every
-file that changed, one of those quick modes ran the file on today's code and reproduced numbers
-that were made with the result's own version of it ("quick mode of ... reproduces").  Those
-saved quick numbers must therefore be made on the same code as the long run
-(`python -m benchmarks.regenerate --quick --only NAME` right after it); where they were made on
-another CPU family or from other code, `python -m benchmarks.verify --rebaseline` first remakes them
-here at the result's own commit (in a temporary git worktree), so that the check compares two code
-versions on one machine.  Every check runs its quick mode in an empty runs folder of its own, never
-replaying the run caches of earlier code; baselines made before that rule are remade with
-`--rebaseline always`.  Every check that gives the saved quick numbers is also kept in the ledger
-as a link between two versions of the code, and status chains the links: several long runs made at
-different commits can then rest on one saved quick JSON, and a result whose files the saved quick
-numbers were not made with needs one quick run at its commit
-(`python -m benchmarks.verify --only CHECK --vouch-for RESULT --budget 1h`), not a rerun.
-Data changes always call for a rerun.  A `retired` result is one the
-registry no longer keeps (why, what supersedes it and the commit of its last version are in the
-table); no page shows it.  Run caches and checkpoints live under `runs/` (not tracked); a run
-longer than one sitting on a machine that keeps only the git tree parks its checkpoint there
-(`python -m benchmarks.park save NAME`, committed under `benchmarks/parked/`), and
-`regenerate` restores it on the next machine and drops it when the run has finished.
+each table names its JSON and the commit that made it, and the table at the end says whether
+today's code still gives it.
 
 - [Helium Table 1](helium_table1.md) and [the choice of the CPU preset](helium_identifiability.md)
 - [Engine throughput](engine_throughput.md) and [agreement with LAMMPS](lammps_agreement.md)
@@ -103,7 +84,37 @@ longer than one sitting on a machine that keeps only the git tree parks its chec
 - [Model criticism of neon and argon](criticism_fluids.md)
 - [Reliability probes: what a hostile user sees](reliability.md)
 
-Status when these pages were generated:
+## Does today's code still give each result?
+
+When these pages were generated: {current} current, {len(behind)} not current ({format_cost(rerun_s)} to rerun
+them by their recorded costs, on the machines that made them), {retired} retired.
+`python -m benchmarks.status` says it now.
+
+- **Current** means the result's code is unchanged, or it changed and the result's quick mode
+  reruns on today's code to its saved quick numbers ("code changed, quick mode reproduces";
+  `python -m benchmarks.verify --budget 30m`).  Where the numbers differ the result is `changed`;
+  `python -m benchmarks.regenerate --budget 1h` reruns what fits, each after the results it reads.
+- **Long runs** without a quick mode of their own (the hours-long water and criticism runs) name
+  in the registry (`checked_by`) the quick modes that run their code path.  Such a result is
+  current when, for every file that changed, one of those quick modes ran the file on today's
+  code and reproduced numbers made with the result's own version of it ("quick mode of ...
+  reproduces").  So the saved quick numbers are made on the same code as the long run
+  (`python -m benchmarks.regenerate --quick --only NAME` right after it).
+- **Baselines** made on another CPU family or from other code are remade here at the result's
+  own commit, in a temporary git worktree (`python -m benchmarks.verify --rebaseline`), so that a
+  check compares two code versions on one machine.  Every check runs its quick mode in an empty
+  runs folder, never replaying the run caches of earlier code.
+- **Links**: every check that reproduces is kept in a ledger as a link between two versions of
+  the code, and status chains the links, so several long runs made at different commits can rest
+  on one saved quick JSON.  A result whose files the saved quick numbers were not made with needs
+  one quick run at its commit (`python -m benchmarks.verify --only CHECK --vouch-for RESULT
+  --budget 1h`), not a rerun.  Data changes always call for a rerun.
+- **Retired** results are no longer kept: the table gives why, what supersedes each and the
+  commit of its last version; no page shows them.
+- **Caches** and checkpoints live under `runs/` (not tracked).  A run longer than one sitting, on a
+  machine that keeps only the git tree, parks its checkpoint (`python -m benchmarks.park save
+  NAME`, committed under `benchmarks/parked/`); `regenerate` restores it on the next machine and
+  drops it when the run has finished.
 
 {table(["result", "state", "cost", "changed since"], rows)}
 """
