@@ -430,7 +430,8 @@ def write_result(
     part
         For files that several commands fill in (one entry per preset, data set, ...): the
         part(s) this run wrote.  Their provenance goes to ``provenance_parts[part]``, the parts
-        already in the file keep theirs; the caller merges the payload itself.
+        already in the file keep theirs; the caller merges the payload itself.  A file first
+        written whole keeps that provenance as ``provenance_before_parts``.
     inputs
         Data files read (added to those declared with :func:`declare_input`).
     command
@@ -446,15 +447,23 @@ def write_result(
     """
     path = Path(name) if str(name).endswith(".json") else result_path(str(name), quick)
     prov = provenance(inputs, command, cost_s)
-    body = {k: v for k, v in payload.items() if k not in ("provenance", "provenance_parts")}
+    own = ("provenance", "provenance_parts", "provenance_before_parts")
+    body = {k: v for k, v in payload.items() if k not in own}
     out: dict[str, Any] = {"benchmark": path.stem, **body, "provenance": prov}
     if part is not None:
-        parts = {}
+        old: dict[str, Any] = {}
         if path.exists():
             try:
-                parts = json.loads(path.read_text()).get("provenance_parts", {})
-            except (json.JSONDecodeError, AttributeError):
-                parts = {}
+                old = json.loads(path.read_text())
+            except json.JSONDecodeError:
+                old = {}
+        old = old if isinstance(old, dict) else {}
+        parts = old.get("provenance_parts", {})
+        # A file written whole before it was written a part at a time: its provenance stays the
+        # record of the parts not yet rewritten (their numbers are still that run's).
+        before = old.get("provenance_before_parts") or (None if parts else old.get("provenance"))
+        if before:
+            out["provenance_before_parts"] = before
         names = [part] if isinstance(part, str) else list(part)
         out["provenance_parts"] = {**parts, **{p: prov for p in names}}
     path.parent.mkdir(parents=True, exist_ok=True)

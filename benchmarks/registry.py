@@ -351,15 +351,33 @@ REGISTRY: tuple[Entry, ...] = (
         note="the surrogate's noise model (auto: constant or theta-dependent) against replicate runs at its "
         "helium posterior",
     ),
-    Entry(
-        "surrogate_peers",
-        f"{R}/surrogate_peers.json",
-        # The peers do not depend on jaxabc: their cells come from the saved result where unchanged.
-        f"python -m benchmarks.surrogate_peers --import-cells {R}/surrogate_peers.json",
-        quick="python -m benchmarks.surrogate_peers --quick",
-        quick_output=f"{Q}/surrogate_peers.json",
-        estimated_cost_s=20000.0,
-        note="GP surrogate against sbi (NPE, NLE, sequential), BOLFI and pyABC at equal budgets, five exact problems",
+    # One part per problem, so that a change of jaxabc reruns the comparison a problem at a time
+    # (its jaxabc cells, 21-86 min each on the AVX-512 host); the peers' cells come from the saved
+    # result where their code is unchanged, and the other problems' cells are kept as saved.
+    *(
+        Entry(
+            f"surrogate_peers:{problem}",
+            f"{R}/surrogate_peers.json",
+            f"python -m benchmarks.surrogate_peers --problems {problem} --import-cells {R}/surrogate_peers.json "
+            "--keep-other-problems",
+            part=problem,
+            quick="python -m benchmarks.surrogate_peers --quick" if problem == "linear" else None,
+            quick_output=f"{Q}/surrogate_peers.json" if problem == "linear" else None,
+            estimated_cost_s=minutes * 60.0,
+            checked_by=() if problem == "linear" else ("surrogate_peers:linear",),
+            note=f"GP surrogate against sbi (NPE, NLE, sequential), BOLFI and pyABC at equal budgets: the {problem} "
+            "problem",
+        )
+        # The jaxabc cells' process minutes per problem in the run of d28db451.
+        for problem, minutes in (
+            ("linear", 21),
+            ("banana", 24),
+            ("heteroscedastic", 30),
+            ("correlated5", 64),
+            ("correlated8", 78),
+            ("banana5", 86),
+            ("student", 22),
+        )
     ),
     Entry(
         "surrogate_honesty",

@@ -62,8 +62,8 @@ class Status:
 
     ``cost_s`` is the recorded cost (``provenance.cost_s``, raised to the result's own
     ``rerun_cost_s`` where it states one: what rerunning its code costs when the run reused cached
-    or imported work), else the legacy wall-time fields' sum, else the registry's estimate;
-    ``cost_source`` says which.
+    or imported work; a part's from ``rerun_cost_s_parts``), else the legacy wall-time fields'
+    sum, else the registry's estimate; ``cost_source`` says which.
     """
 
     name: str
@@ -161,6 +161,8 @@ def status_of(entry: Entry, quick: bool = False, root: Path = ROOT) -> Status:
         st.cost_s = max(st.cost_s or 0.0, float(body["wall_time_s"]))
         st.cost_source = f"recorded over {sittings} sittings"
     rerun = body.get("rerun_cost_s") if isinstance(body, dict) else None
+    if entry.part and not quick and isinstance(data.get("rerun_cost_s_parts"), dict):
+        rerun = data["rerun_cost_s_parts"].get(entry.part, rerun)  # a file whose parts state their own
     if isinstance(rerun, (int, float)) and rerun > (st.cost_s or 0.0):
         # A run that reused cached or imported work states what a rerun of its code would cost.
         st.cost_s, st.cost_source = float(rerun), "recorded (rerun of its code)"

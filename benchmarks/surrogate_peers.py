@@ -1437,6 +1437,12 @@ def parse(argv: Sequence[str] | None) -> argparse.Namespace:
         metavar="RESULT",
         help="take the peers' scored cells from a saved result where problem, peer and metric code are unchanged",
     )
+    p.add_argument(
+        "--keep-other-problems",
+        action="store_true",
+        help="with --import-cells: keep the saved result's cells of the problems not named in --problems "
+        "(one part per problem, so a session can rerun one problem)",
+    )
     p.add_argument("--fresh", action="store_true", help="rerun cells already in the cache (and append them)")
     p.add_argument("--retry-errors", action="store_true", help="rerun cached cells that ended in an error")
     p.add_argument("--quick", action="store_true", help="linear + banana, B 60, seed 0, surrogate + sbi NPE")
@@ -1447,6 +1453,48 @@ def parse(argv: Sequence[str] | None) -> argparse.Namespace:
         args.problems, args.budgets, args.seeds = ["linear", "banana"], [60], [0]
         args.methods, args.fresh = ["jaxabc_surrogate", "sbi_npe"], True
     return args
+
+
+def keep_other_problems(
+    args: argparse.Namespace,
+) -> tuple[dict[tuple[str, str, int, int], dict[str, Any]], dict[str, str]]:
+    """The saved result's cells of the problems not in ``args.problems`` (every method, as saved),
+    and those problems' fingerprints; for ``--keep-other-problems``.
+
+    Refused with a one-line message (``SystemExit``) when the saved result cannot be merged with
+    this run: no ``--import-cells`` result, other methods, budgets or seeds, other metric code, or
+    a peer whose code changed (its kept cells would then mix two versions of the peer).
+    """
+    if args.import_cells is None or not args.import_cells.is_file():
+        raise SystemExit("--keep-other-problems needs --import-cells with the saved result to keep cells from")
+    saved = load_saved(args.import_cells)
+    for key in ("methods", "budgets", "seeds"):
+        if list(saved.get(key) or []) != list(getattr(args, key)):
+            raise SystemExit(
+                f"--keep-other-problems: the saved result's {key} {saved.get(key)} differ from this run's "
+                f"{getattr(args, key)}; run every problem"
+            )
+    peer_methods = [m for m in args.methods if m not in JAXABC_METHODS]
+    hashes = saved_hashes(saved, peer_methods)
+    if hashes["scoring"] != scoring_hash():
+        raise SystemExit("--keep-other-problems: the saved cells were scored by other metric code; run every problem")
+    changed = [m for m in peer_methods if hashes["method"].get(m) != method_hash(m)]
+    if changed:
+        raise SystemExit(
+            f"--keep-other-problems: the code of {', '.join(changed)} changed since the saved result; run every problem"
+        )
+    others = [p for p in saved.get("problems") or {} if p not in args.problems]
+    unknown = [p for p in others if p not in PROBLEMS]
+    if unknown:
+        raise SystemExit(f"--keep-other-problems: the saved result has problems this script lacks: {unknown}")
+    kept = {
+        (c["problem"], c["method"], int(c["budget"]), int(c["seed"])): {
+            k: v for k, v in c.items() if k not in ("problem", "method", "budget", "seed")
+        }
+        for c in saved["cells"]
+        if c["problem"] in others
+    }
+    return kept, {p: saved["problem_hash"][p] for p in others}
 
 
 def main(argv: Sequence[str] | None = None) -> dict[str, Any] | None:
@@ -1496,7 +1544,8 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any] | None:
         hashes = saved_hashes(saved, peer_methods)
         imported = import_cells(saved, hashes, args.problems, args.methods, p_hash, m_hash, machine())
         print(f"--import-cells: {len(imported)} peer cells can be taken from {args.import_cells}", flush=True)
-    cells: dict[tuple[str, str, int, int], dict[str, Any]] = {}
+    kept, kept_hashes = keep_other_problems(args) if args.keep_other_problems else ({}, {})
+    cells: dict[tuple[str, str, int, int], dict[str, Any]] = dict(kept)
     ran = reused = 0
     for p in args.problems:
         for s in args.seeds:
@@ -1535,7 +1584,9 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any] | None:
                         append_cache(cache_file, cell)
                     result = cells[(p, m, b, s)] = score(raw, inst, b, args.energy_draws)
                     print(f"{p} B={b} seed={s} {m}: {_brief(result)} ({time.perf_counter() - t0:.0f} s)", flush=True)
-    summary, verdicts, goal = assemble(cells, args.problems, args.methods, args.budgets, args.seeds)
+    problems = [p for p in PROBLEM_NAMES if p in args.problems or p in kept_hashes]
+    p_hash = {**kept_hashes, **p_hash}
+    summary, verdicts, goal = assemble(cells, problems, args.methods, args.budgets, args.seeds)
     versions = {
         m: sorted({str(c.get("version")) for (_, mm, _, _), c in cells.items() if mm == m and "version" in c})
         for m in args.methods
@@ -1543,7 +1594,7 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any] | None:
     payload = {
         "format": 2,
         "description": (__doc__ or "").split("\n\n")[0],
-        "problems": {p: {k: v for k, v in PROBLEMS[p].items()} for p in args.problems},
+        "problems": {p: {k: v for k, v in PROBLEMS[p].items()} for p in problems},
         "methods": list(args.methods),
         "method_versions": versions,
         "sbi_install": SBI_INSTALL,
@@ -1578,11 +1629,23 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any] | None:
         "rerun_cost_s": sum(
             float(c.get("process_wall_s") or 0.0) for (_, m, _, _), c in cells.items() if m.startswith("jaxabc")
         ),
+        # The same per problem: each problem is a part of the result (``--keep-other-problems``).
+        "rerun_cost_s_parts": {
+            p: sum(
+                float(c.get("process_wall_s") or 0.0)
+                for (pp, m, _, _), c in cells.items()
+                if pp == p and m.startswith("jaxabc")
+            )
+            for p in problems
+        },
         "jax": jax.__version__,
         "jaxabc": jaxabc.__version__,
     }
     name = args.output if args.output else "surrogate_peers"
-    path = write_result(name, payload, quick=args.quick, command=command_line())
+    # Each problem run here is a part with this run's provenance; a kept problem keeps its own.
+    path = write_result(
+        name, payload, quick=args.quick, command=command_line(), part=None if args.quick else args.problems
+    )
     print(summary_text(payload))
     print(f"wrote {path}")
     return payload

@@ -205,6 +205,32 @@ def test_a_run_that_reused_work_costs_its_stated_rerun(fake_repo: Path) -> None:
     assert st.cost_source == "recorded"
 
 
+def test_a_file_split_into_parts_keeps_the_provenance_of_its_whole_run(fake_repo: Path) -> None:
+    """The parts not yet rewritten still hold the numbers of the run that wrote the file whole."""
+    path = fake_repo / "benchmarks/results/res.json"
+    _common.write_result(path, {"x": 1}, inputs=[fake_repo / "data.txt"], command="python whole.py")
+    _common.write_result(path, {"x": 2}, inputs=[fake_repo / "data.txt"], command="python a.py", part="a")
+    _common.write_result(path, {"x": 3}, inputs=[fake_repo / "data.txt"], command="python b.py", part="b")
+    data = json.loads(path.read_text())
+    assert data["provenance_before_parts"]["command"] == "python whole.py"
+    assert {k: v["command"] for k, v in data["provenance_parts"].items()} == {"a": "python a.py", "b": "python b.py"}
+    fresh = fake_repo / "benchmarks/results/fresh.json"
+    _common.write_result(fresh, {"x": 1}, inputs=[fake_repo / "data.txt"], part="a")
+    _common.write_result(fresh, {"x": 1}, inputs=[fake_repo / "data.txt"], part="b")
+    assert "provenance_before_parts" not in json.loads(fresh.read_text())  # written a part at a time from the start
+
+
+def test_a_part_costs_its_own_stated_rerun(fake_repo: Path) -> None:
+    """A file written a part at a time states each part's rerun cost (surrogate_peers' problems)."""
+    path = fake_repo / "benchmarks/results/res.json"
+    body = {"rerun_cost_s": 9000.0, "rerun_cost_s_parts": {"a": 3000.0, "b": 0.0}}
+    _common.write_result(path, body, inputs=[fake_repo / "data.txt"], part=["a", "b"])
+    a = status.status_of(registry.Entry("res:a", "benchmarks/results/res.json", "x", part="a"), root=fake_repo)
+    b = status.status_of(registry.Entry("res:b", "benchmarks/results/res.json", "x", part="b"), root=fake_repo)
+    assert (a.cost_s, a.cost_source) == (3000.0, "recorded (rerun of its code)")
+    assert b.cost_source == "recorded" and b.cost_s is not None and b.cost_s < 3000.0
+
+
 def test_status_of_entries(fake_repo: Path) -> None:
     write_fake(fake_repo, part="a")
     legacy = fake_repo / "benchmarks/results/legacy.json"

@@ -565,3 +565,42 @@ def test_a_file_that_is_not_a_saved_result_is_refused_in_one_line(tmp_path: Path
     good = tmp_path / "peers.json"
     good.write_text('{"cells": []}')
     assert sp.load_saved(good) == {"cells": []}
+
+
+def test_keep_other_problems_takes_the_saved_cells_of_the_others_and_refuses_what_would_mix(tmp_path: Path) -> None:
+    peers = ["sbi_npe", "bolfi"]
+    methods = ["jaxabc_surrogate", *peers]
+    saved = {
+        "methods": methods,
+        "budgets": [50],
+        "seeds": [0],
+        "problems": {"linear": {}, "banana": {}},
+        "problem_hash": {"linear": "pl", "banana": "pb"},
+        "method_hash": {m: sp.method_hash(m) for m in peers},
+        "scoring_hash": sp.scoring_hash(),
+        "cells": [
+            {"problem": p, "method": m, "budget": 50, "seed": 0, "energy_distance": 0.1}
+            for p in ("linear", "banana")
+            for m in ("exact", *methods)
+        ],
+    }
+    path = tmp_path / "saved.json"
+
+    def keep(result: dict[str, Any], *extra: str) -> tuple[dict, dict]:
+        path.write_text(json.dumps(result))
+        argv = ["--problems", "linear", "--methods", *methods, "--budgets", "50", "--seeds", "0", *extra]
+        return sp.keep_other_problems(sp.parse([*argv, "--import-cells", str(path), "--keep-other-problems"]))
+
+    kept, hashes = keep(saved)
+    # Every saved cell of the other problem (jaxabc's and the exact row too), none of the one run.
+    assert sorted(kept) == sorted(("banana", m, 50, 0) for m in ("exact", *methods))
+    assert kept[("banana", "bolfi", 50, 0)] == {"energy_distance": 0.1}
+    assert hashes == {"banana": "pb"}
+    with pytest.raises(SystemExit, match="budgets"):
+        keep({**saved, "budgets": [50, 100]})
+    with pytest.raises(SystemExit, match="the code of bolfi changed"):
+        keep({**saved, "method_hash": {**saved["method_hash"], "bolfi": "old"}})
+    with pytest.raises(SystemExit, match="other metric code"):
+        keep({**saved, "scoring_hash": "old"})
+    with pytest.raises(SystemExit, match="needs --import-cells"):
+        sp.keep_other_problems(sp.parse(["--problems", "linear", "--keep-other-problems"]))

@@ -56,6 +56,20 @@ def source(name: str, part: str | None = None, data: dict[str, Any] | None = Non
     )
 
 
+def sources_by_part(name: str, parts: Sequence[str], data: dict[str, Any]) -> str:
+    """The source lines of a result written a part at a time: one per part in ``parts`` that has
+    its own provenance, then one for the rest (a file saved whole before it was split: the
+    provenance of that whole run, ``provenance_before_parts`` once a part was rewritten)."""
+    own = data.get("provenance_parts") or {}
+    lines = [source(name, part, data) for part in parts if part in own]
+    rest = [part for part in parts if part not in own]
+    if rest:
+        before = data.get("provenance_before_parts")
+        whole = source(name, None, {**data, "provenance": before} if before else data).removesuffix(".")
+        lines.append(f"{whole} (parts {', '.join(f'`{r}`' for r in rest)}).")
+    return "\n\n".join(lines)
+
+
 def retired(prefixes: Sequence[str]) -> str:
     """A Markdown list of the retired registry entries whose names start with one of ``prefixes``
     (why each was retired and what supersedes it), or "" when there are none."""

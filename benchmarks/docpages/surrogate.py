@@ -7,7 +7,7 @@ from typing import Any
 
 import numpy as np
 
-from benchmarks.docpages.common import f, g, load, source, span, table
+from benchmarks.docpages.common import f, g, load, source, sources_by_part, span, table
 
 
 def page_surrogate_coverage() -> str:
@@ -823,7 +823,7 @@ not compete for closest at that budget.  BOLFI's posterior is its own ABC approx
 minimum discrepancy; pyABC checks its budget at generation ends and can overshoot it (the
 simulations column counts what each method ran).
 
-{source("surrogate_peers", data=d)}
+{sources_by_part("surrogate_peers", list(d["problems"]), d)}
 
 {_goal_section(d)}
 
@@ -865,17 +865,6 @@ def page_surrogate_peers() -> str:
     return peers_page(load("surrogate_peers"))
 
 
-def _classifier_sources(d: dict[str, Any]) -> str:
-    """One source line per replayed record (a part each), or the whole file's when it has no parts."""
-    parts = d.get("provenance_parts") or {}
-    lines = [source("surrogate_classifier_replay", part, d) for part in d["runs"] if part in parts]
-    rest = [part for part in d["runs"] if part not in parts]
-    if rest:
-        whole = source("surrogate_classifier_replay", None, d).removesuffix(".")
-        lines.append(f"{whole} (records {', '.join(f'`{r}`' for r in rest)}).")
-    return "\n\n".join(lines)
-
-
 def page_surrogate_classifier() -> str:
     d = load("surrogate_classifier_replay")
     if d is None:
@@ -906,7 +895,7 @@ record, so both classifiers are scored on the same points. Design runs go only w
 classifier gives at least {level:g}: the last two columns give how many replayed runs were at or
 above that level and below it, and the share of them that succeeded.
 
-{_classifier_sources(d)}
+{sources_by_part("surrogate_classifier_replay", list(d["runs"]), d)}
 
 {
         table(
