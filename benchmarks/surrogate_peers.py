@@ -1642,10 +1642,9 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any] | None:
         "jaxabc": jaxabc.__version__,
     }
     name = args.output if args.output else "surrogate_peers"
-    # Each problem run here is a part with this run's provenance; a kept problem keeps its own.
-    path = write_result(
-        name, payload, quick=args.quick, command=command_line(), part=None if args.quick else args.problems
-    )
+    # Each problem run here is a part with this run's provenance (the quick JSON's too, so that a
+    # part's quick check finds its part); a kept problem keeps its own.
+    path = write_result(name, payload, quick=args.quick, command=command_line(), part=args.problems)
     print(summary_text(payload))
     print(f"wrote {path}")
     return payload
