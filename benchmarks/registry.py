@@ -404,8 +404,9 @@ REGISTRY: tuple[Entry, ...] = (
             f"{R}/surrogate_classifier_replay.json",
             f"python -m benchmarks.surrogate_classifier_replay --record {record}",
             part=record,
-            # 8352 s for the five records together, on the AVX-512 host that made them.
-            estimated_cost_s=1700.0,
+            # The neutron robust record's replay took 138 s on 2 AVX2 cores (the five together took
+            # 8352 s at 39db7b72, before the GP classifier's fit was shared).
+            estimated_cost_s=300.0,
             note=f"the success classifier scored on the runs of {made_by} (reads {R}/{record}.npz)",
             after=(made_by,),
             checked_by=("surrogate_helium",),
