@@ -381,8 +381,12 @@ def _load_repeat(name: str) -> dict[str, Any] | None:
     return json.loads(path.read_text()) if path.is_file() else None
 
 
+def _posterior_path(folder: Path, model: str) -> Path:
+    return folder / f"posterior_{model.replace('/', '_')}.npz"
+
+
 def _posterior(folder: Path, model: str) -> tuple[dict, dict[str, np.ndarray]]:
-    with np.load(folder / f"posterior_{model.replace('/', '_')}.npz", allow_pickle=False) as z:
+    with np.load(_posterior_path(folder, model), allow_pickle=False) as z:
         arrays = {k: z[k] for k in ("particles", "weights", "record_theta", "record_summaries")}
         return json.loads(str(z["metadata"])), arrays
 
@@ -492,7 +496,7 @@ def analyse(repeats=REPEATS, max_verdicts: int | None = None) -> dict[str, Any]:
     pooled_errors: list[np.ndarray] = []
     refits: list[dict[str, np.ndarray]] = []
     saved_held: list[np.ndarray] = []
-    inputs = []
+    inputs: list[Path] = []
     cases: list[dict[str, Any]] = []
     for name, what, d in saved:
         folder = ROOT / d["saved_result"]
@@ -500,7 +504,6 @@ def analyse(repeats=REPEATS, max_verdicts: int | None = None) -> dict[str, Any]:
         case_models = []
         for m in models:
             meta, arr = _posterior(folder, m)
-            inputs.append(folder / f"posterior_{m.replace('/', '_')}.npz")
             theta, z = arr["record_theta"][:, :2], arr["record_summaries"]
             for t, s in zip(theta, z, strict=True):
                 if np.all(np.isfinite(s)):  # keyed by the run, so replicates stay apart
@@ -661,13 +664,13 @@ def analyse(repeats=REPEATS, max_verdicts: int | None = None) -> dict[str, Any]:
             m["factor"] = calibration["factors"][m.pop("refit")]
     summary["calibrated_verdicts"] = calibrated_verdicts(cases[:max_verdicts])
     summary["lack_of_fit"] = lack_of_fit_by_summary(repeats)
-    # Every repeat read, calibrated ones too (the lack-of-fit table reads them): its JSON and records.
+    # Every repeat read (the lack-of-fit table reads the calibrated ones too): its JSON and records.
     for name, _ in repeats:
         if (d := _load_repeat(name)) is not None:
             folder = ROOT / d["saved_result"]
             inputs += [
                 RESULTS / f"{name}.json",
-                *(folder / f"posterior_{m.replace('/', '_')}.npz" for m in d["per_model"]),
+                *(_posterior_path(folder, m) for m in d["per_model"]),
             ]
     return {
         "fitted": fitted,
