@@ -40,6 +40,7 @@ TIMING_KEYS = (
     "numpy_over_jax",
     "*fraction_of_step*",
     "cost_s",
+    "*_s_parts",
     "us_per_*",
     "*_over_apmc",
 )

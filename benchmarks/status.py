@@ -403,6 +403,7 @@ def deterministic_view(data: Any, ignore: tuple[str, ...] = ()) -> Any:
         *ignore,
         "provenance",
         "provenance_parts",
+        "provenance_before_parts",
         "machine",
         "command",
         "commands",

@@ -296,6 +296,9 @@ def test_deterministic_view_and_comparison() -> None:
     assert status.compare_numbers(view(saved), view(rerun), rtol=0.01) == []
     rerun["rows"].append({})
     assert status.compare_numbers(view(saved), view(rerun))[-1] == "/rows: length 1 != 2"
+    # A part-at-a-time file's earlier provenance and its parts' rerun costs are not numbers to compare.
+    split = {"n": 1, "provenance_before_parts": {"commit": "a"}, "rerun_cost_s_parts": {"linear": 3.0}}
+    assert view(split) == {"n": 1}
 
 
 def test_budget_and_plan_run_cheapest_first_within_budget() -> None:
