@@ -353,7 +353,7 @@ REGISTRY: tuple[Entry, ...] = (
         "helium posterior",
     ),
     # One part per problem, so that a change of jaxabc reruns the comparison a problem at a time
-    # (its jaxabc cells, 21-86 min each on the AVX-512 host); the peers' cells come from the saved
+    # (its jaxabc cells); the peers' cells come from the saved
     # result where their code is unchanged, and the other problems' cells are kept as saved.
     *(
         Entry(
@@ -369,7 +369,8 @@ REGISTRY: tuple[Entry, ...] = (
             note=f"GP surrogate against sbi (NPE, NLE, sequential), BOLFI and pyABC at equal budgets: the {problem} "
             "problem",
         )
-        # The jaxabc cells' process minutes per problem in the run of d28db451.
+        # Estimates until a part records its own: the jaxabc cells' process_wall_s per problem in
+        # the saved result made at d28db451.
         for problem, minutes in (
             ("linear", 21),
             ("banana", 24),
@@ -405,8 +406,8 @@ REGISTRY: tuple[Entry, ...] = (
             f"{R}/surrogate_classifier_replay.json",
             f"python -m benchmarks.surrogate_classifier_replay --record {record}",
             part=record,
-            # The neutron robust record's replay took 138 s on 2 AVX2 cores (the five together took
-            # 8352 s at 39db7b72, before the GP classifier's fit was shared).
+            # Estimate until a part records its cost: the first part replayed on today's code
+            # (its recorded cost_s).
             estimated_cost_s=300.0,
             note=f"the success classifier scored on the runs of {made_by} (reads {R}/{record}.npz)",
             after=(made_by,),
