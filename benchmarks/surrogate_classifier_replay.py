@@ -113,13 +113,13 @@ def main(argv: list[str] | None = None) -> dict:
     missing = [stem for stem in chosen if stem not in saved]
     if missing or not chosen:
         parser.error(f"no saved record {missing or ''} under {relative(RESULTS)}; saved: {sorted(saved) or 'none'}")
-    jax.config.update("jax_enable_x64", True)
     warnings.filterwarnings("ignore", module="sklearn")
     runs, seconds = {}, {}
     setup = process_seconds()  # imports: what a rerun of any one part pays too
     for stem in chosen:
         t0 = time.time()
-        runs[stem] = replay(saved[stem])
+        with jax.enable_x64(True):  # scoped: a caller's process keeps its precision
+            runs[stem] = replay(saved[stem])
         seconds[stem] = time.time() - t0
     old = json.loads(args.output.read_text()) if args.output.exists() else {}
     # Entries replayed earlier stay, each with its own part's provenance; a record no longer

@@ -160,47 +160,47 @@ def main(argv: list[str] | None = None) -> dict:
         print(f"took the surrogate state of {relative(args.checkpoint)} into {relative(STATE)}")
     elif not STATE.is_file():
         raise SystemExit(f"no checkpoint at {relative(args.checkpoint)} and no saved state at {relative(STATE)}")
-    jax.config.update("jax_enable_x64", True)
-    entry = json.loads(RESULT.read_text())["paper"]
-    with np.load(RECORD, allow_pickle=False) as rec:
-        prior = json.loads(str(rec["metadata"]))["prior"]
-    low, high = np.asarray(prior["low"], np.float64), np.asarray(prior["high"], np.float64)
-    algorithm, state = _restore(entry, low, high)
-    observed = np.asarray(entry["observed"], np.float64)
-    scale = np.asarray(entry["scale"], np.float64)
-    transform, emu, model = sampled_fit(state, low, high, observed, algorithm.settings)
-    lw = np.asarray(state.log_weights, np.float64)
-    x_draws = (np.asarray(state.draws, np.float64) - low) / (high - low)
-    misfit = evidence.observed_misfit(model, transform, x_draws, np.exp(lw - np.max(lw)))
-    points = {
-        "surrogate_estimate": np.asarray(entry["bayes_estimate"], np.float64),
-        "paper_estimate": np.asarray(entry["paper"]["bayes_estimate"], np.float64),
-        "tip4p": np.array([TIP4P_PARAMETERS.sigma_ow_nm, TIP4P_PARAMETERS.epsilon_ow_kj_mol]),
-    }
-    _, refit_model = evidence.likelihood_from_state(state, low, high, observed, algorithm.settings)
-    refit_emu = refit_model.emulator
-    at = {
-        name: {"theta": theta.tolist()} | at_point(model, transform, (theta - low) / (high - low), observed, scale)
-        for name, theta in points.items()
-    }
-    payload = {
-        "machine": machine(),
-        "source": relative(RESULT),
-        "statistics": entry["statistics"],
-        "statistic_names": entry["statistic_names"],
-        "observed": observed.tolist(),
-        "noise_sd": (np.exp(np.asarray(model.emulator.log_noise)) * np.asarray(transform.scale)).tolist()
-        if transform.rotation.shape[0] == transform.rotation.shape[1]
-        else None,
-        "observed_misfit": misfit,
-        "points": at,
-        "fits": {
-            "sampled": {"description": "the design loop's fit, warm-started from state.hyper: the draws' own"}
-            | fit_summary(emu, model, low, high, points),
-            "refit": {"description": "refitted from the default starts: the held-out check's and the evidence's"}
-            | fit_summary(refit_emu, refit_model, low, high, points),
-        },
-    }
+    with jax.enable_x64(True):  # scoped: a caller's process keeps its precision
+        entry = json.loads(RESULT.read_text())["paper"]
+        with np.load(RECORD, allow_pickle=False) as rec:
+            prior = json.loads(str(rec["metadata"]))["prior"]
+        low, high = np.asarray(prior["low"], np.float64), np.asarray(prior["high"], np.float64)
+        algorithm, state = _restore(entry, low, high)
+        observed = np.asarray(entry["observed"], np.float64)
+        scale = np.asarray(entry["scale"], np.float64)
+        transform, emu, model = sampled_fit(state, low, high, observed, algorithm.settings)
+        lw = np.asarray(state.log_weights, np.float64)
+        x_draws = (np.asarray(state.draws, np.float64) - low) / (high - low)
+        misfit = evidence.observed_misfit(model, transform, x_draws, np.exp(lw - np.max(lw)))
+        points = {
+            "surrogate_estimate": np.asarray(entry["bayes_estimate"], np.float64),
+            "paper_estimate": np.asarray(entry["paper"]["bayes_estimate"], np.float64),
+            "tip4p": np.array([TIP4P_PARAMETERS.sigma_ow_nm, TIP4P_PARAMETERS.epsilon_ow_kj_mol]),
+        }
+        _, refit_model = evidence.likelihood_from_state(state, low, high, observed, algorithm.settings)
+        refit_emu = refit_model.emulator
+        at = {
+            name: {"theta": theta.tolist()} | at_point(model, transform, (theta - low) / (high - low), observed, scale)
+            for name, theta in points.items()
+        }
+        payload = {
+            "machine": machine(),
+            "source": relative(RESULT),
+            "statistics": entry["statistics"],
+            "statistic_names": entry["statistic_names"],
+            "observed": observed.tolist(),
+            "noise_sd": (np.exp(np.asarray(model.emulator.log_noise)) * np.asarray(transform.scale)).tolist()
+            if transform.rotation.shape[0] == transform.rotation.shape[1]
+            else None,
+            "observed_misfit": misfit,
+            "points": at,
+            "fits": {
+                "sampled": {"description": "the design loop's fit, warm-started from state.hyper: the draws' own"}
+                | fit_summary(emu, model, low, high, points),
+                "refit": {"description": "refitted from the default starts: the held-out check's and the evidence's"}
+                | fit_summary(refit_emu, refit_model, low, high, points),
+            },
+        }
     out = write_result("water_misfit", payload, inputs=[STATE, RESULT, RECORD])
     print(json.dumps({k: payload[k] for k in ("observed_misfit", "points", "fits")}, indent=1))
     print(f"wrote {relative(out)}")

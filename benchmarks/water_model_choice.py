@@ -220,7 +220,8 @@ def box_prior(model, options: dict) -> jaxabc.Uniform:
         return prior
     if not 0 < sigma[0] < 1 < sigma[1]:
         raise ValueError(f"sigma factors must satisfy 0 < low < 1 < high, got {sigma!r}")
-    low, high = np.asarray(prior.low, np.float64), np.asarray(prior.high, np.float64)
+    # Copies: under x64 np.asarray is a read-only view of the prior's bounds.
+    low, high = np.array(prior.low, np.float64), np.array(prior.high, np.float64)
     low[0], high[0] = get_model(model).lj[0] * np.asarray(sigma)
     return jaxabc.Uniform(low=low.tolist(), high=high.tolist(), names=prior.names, units=prior.units)
 

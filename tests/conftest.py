@@ -55,6 +55,23 @@ def _free_compiled_programs():
     gc.collect()
 
 
+@pytest.fixture(autouse=True)
+def _precision_is_left_as_found():
+    """Fail the test that leaves JAX's default dtype changed.
+
+    A process-wide ``jax_enable_x64`` switch (a benchmark's ``main`` run in-process did it)
+    changed every later test: float64 priors whose ``np.asarray`` views are read-only, other
+    random draws, a surrogate check failing 300 tests on.  The scoped ``jax.enable_x64(...)``
+    leaves it as found.
+    """
+    before = jnp.zeros(()).dtype
+    yield
+    after = jnp.zeros(()).dtype
+    if after != before:
+        jax.config.update("jax_enable_x64", before == jnp.float64)
+        pytest.fail(f"the test left JAX's default dtype {after} (was {before}): use the scoped jax.enable_x64(...)")
+
+
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
     """Skip tests marked ``gromacs``, ``lammps`` or ``mpi`` with a message saying what to install
     when the program is missing; each requirement is probed once, and only when a test needs it."""
