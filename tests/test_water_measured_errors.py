@@ -10,6 +10,7 @@ import math
 import sys
 from pathlib import Path
 
+import jax
 import numpy as np
 import pytest
 
@@ -243,6 +244,10 @@ def test_benchmark_priors_and_discrepancy_groups():
     assert math.isclose(float(tip4p.low[1]), WIDE_EPSILON_FACTORS[0] * published4[1], rel_tol=1e-6)
     assert math.isclose(float(tip4p.high[0]), 1.05 * published4[0], rel_tol=1e-6)
     assert "tip3p.prior=0.95,1.08,0.35,2.5" in bench.simulator_id(args)
+    # Under x64 the prior's bounds are float64 and np.asarray views of them read-only: the
+    # sigma box is built on copies.
+    with jax.enable_x64(True):
+        assert np.allclose(bench.prior_of(args, get_model("TIP3P")).low, tip3p.low)
     assert bench.parse_arguments(["--model-prior", "TIP3P=0.08,0.4,2"]).model_prior["tip3p"][1] == {
         "relative_half_width": (0.08, 0.4),
         "epsilon_factors": (0.4, 2.0),
