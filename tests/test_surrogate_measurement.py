@@ -86,9 +86,15 @@ def test_measurement_error_widens_the_posterior_to_the_exact_one_and_enters_the_
     sd = np.sqrt(np.diag(cov))
     ess = result.effective_sample_size()
     assert ess > 300, ess
-    # Mean: 4 Monte Carlo standard errors (sd / sqrt(ESS)) plus 0.1 sd for the emulator's
-    # estimate of the simulator noise (fitted from ~60 runs, the nugget's sd is ~10 % off).
-    tol = (4 / np.sqrt(ess) + 0.1) * sd
+    # Mean: 4 standard errors of two independent parts, Monte Carlo (sd / sqrt(ESS)) and the
+    # emulator's error at the data, which moves the whole posterior.  The run reports that
+    # error's variance as a share r of the simulator noise (``emulator_to_noise_variance``);
+    # through A^-1 it is ~0.13 and ~0.09 posterior sds here.  (Over 19 seeds, float32 and
+    # float64, the mean errors' sds were 0.14 and 0.09: the report is calibrated.)
+    r = result.diagnostics["emulator_to_noise_variance"]
+    a_inv = np.linalg.inv(A)
+    shift_var = np.diag(a_inv @ np.diag(r * NOISE_SD**2) @ a_inv.T) / sd**2
+    tol = 4 * np.sqrt(1 / ess + shift_var) * sd
     assert np.all(np.abs(result.bayes_estimate() - mean) < tol), (result.bayes_estimate(), mean, tol)
     # sd: the MC error of an sd is ~ 1 / sqrt(2 ESS) (4 of them), plus 10 % for the noise fit.
     post_sd = np.sqrt(np.diag(result.covariance()))
