@@ -88,9 +88,8 @@ def test_measurement_error_widens_the_posterior_to_the_exact_one_and_enters_the_
     assert ess > 300, ess
     # Mean: 4 standard errors of two independent parts, Monte Carlo (sd / sqrt(ESS)) and the
     # emulator's error at the data, which moves the whole posterior.  The run reports that
-    # error's variance as a share r of the simulator noise (``emulator_to_noise_variance``);
-    # through A^-1 it is ~0.13 and ~0.09 posterior sds here.  (Over 19 seeds, float32 and
-    # float64, the mean errors' sds were 0.14 and 0.09: the report is calibrated.)
+    # error's variance as a share r of the simulator noise (``emulator_to_noise_variance``),
+    # mapped into theta through A^-1.
     r = result.diagnostics["emulator_to_noise_variance"]
     a_inv = np.linalg.inv(A)
     shift_var = np.diag(a_inv @ np.diag(r * NOISE_SD**2) @ a_inv.T) / sd**2

@@ -117,15 +117,9 @@ def test_the_lack_of_fit_refit_agrees_with_each_saved_verdict() -> None:
     the per-summary table describes another emulator than the one judged."""
     import pytest
 
-    from benchmarks._common import RESULTS
     from benchmarks.water_emulator_failures import lack_of_fit_by_summary
 
-    runs = tuple(
-        (name, f"seed {seed}")
-        for seed, name in enumerate(["water_model_choice"] + [f"water_model_choice_seed{i}" for i in (1, 2, 3)])
-        if (RESULTS / f"{name}.json").is_file()
-    )
-    rows = lack_of_fit_by_summary(runs)
+    rows = lack_of_fit_by_summary()  # every saved repeat (benchmarks._water_repeats.REPEATS)
     if not rows:
         pytest.skip("no saved repeat has an emulator that failed lack of fit")
     for r in rows:
