@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from benchmarks._common import RUNS, command_line, write_result
-from benchmarks.water_model_choice import DATA_FILES
+from benchmarks._water_data import DATA_FILES
 from md.water.joint_data import joint_observed
 from md.water.model_simulator import JOINT_SUMMARY_NAMES, CachedSummaries, WaterModelSimulator
 from md.water.models import MODELS

@@ -381,12 +381,10 @@ def test_no_benchmark_script_imports_another() -> None:
     tools = {"status", "regenerate", "registry", "make_docs", "verify", "park"}
     # Left until their results are rerun, since moving the import changes code no quick check
     # covers: gpu_throughput's GPU rows need a GPU (none lent here); criticism_argon (one line:
-    # neon's protocol with --fluid argon) would stale both fluid criticisms (87 min); rerunning
-    # water_published_predictive rewrites the input of the published-bounds model choices (2.5 h).
+    # neon's protocol with --fluid argon) would stale both fluid criticisms (87 min).
     waived = {
         ("gpu_throughput", "engine_throughput"),
         ("criticism_argon", "criticism_neon"),
-        ("water_published_predictive", "water_model_choice"),
     }
     for path in (ROOT / "benchmarks").glob("*.py"):
         if path.stem in tools:
