@@ -20,7 +20,7 @@ argon: Tegeler et al. 1999), which are fitted to measurements -- not raw measure
 Usage::
 
     python -m benchmarks.criticism_neon                 # under an hour on 2 cores
-    python -m benchmarks.criticism_neon --fluid argon   # what criticism_argon.py runs
+    python -m benchmarks.criticism_neon --fluid argon   # argon, benchmarks/results/criticism_argon.json
     python -m benchmarks.criticism_neon --tiny          # plumbing smoke test, numbers meaningless
 """
 

@@ -1061,7 +1061,7 @@ REGISTRY: tuple[Entry, ...] = (
     Entry(
         "criticism_argon",
         f"{R}/criticism_argon.json",
-        "python -m benchmarks.criticism_argon",
+        "python -m benchmarks.criticism_neon --fluid argon",
         long=True,
         estimated_cost_s=3000.0,
         checked_by=("criticism_water", "helium_table1", "criticism_argon_b2", "criticism_neon_b2", "surrogate_helium"),

@@ -380,11 +380,9 @@ def test_no_benchmark_script_imports_another() -> None:
     scripts = {p.stem for p in (ROOT / "benchmarks").glob("*.py") if not p.name.startswith("_")}
     tools = {"status", "regenerate", "registry", "make_docs", "verify", "park"}
     # Left until their results are rerun, since moving the import changes code no quick check
-    # covers: gpu_throughput's GPU rows need a GPU (none lent here); criticism_argon (one line:
-    # neon's protocol with --fluid argon) would stale both fluid criticisms (87 min).
+    # covers: gpu_throughput's GPU rows need a GPU (none lent here).
     waived = {
         ("gpu_throughput", "engine_throughput"),
-        ("criticism_argon", "criticism_neon"),
     }
     for path in (ROOT / "benchmarks").glob("*.py"):
         if path.stem in tools:
