@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+import functools
 import json
 import subprocess
 from collections.abc import Sequence
+from pathlib import Path
 from typing import Any
 
 from benchmarks._common import RESULTS, ROOT
@@ -154,3 +156,25 @@ def cause_rows(d: dict[str, Any]) -> list[list[str]]:
 def sourced_table(names: Sequence[str], header: Sequence[str], rows: Sequence[Sequence[Any]]) -> str:
     """A generated block: the source line of each result, then the table."""
     return "\n\n".join([*(source(n) for n in names), table(header, rows)])
+
+
+@functools.cache
+def saved_extension(path: Path) -> Any:
+    """A criticism's saved extension refit (a :class:`jaxabc.ABCResult`), or None when not saved;
+    read once per page build (a criticism's section and its comparison both ask)."""
+    if not path.is_file():
+        return None
+    import warnings
+
+    import jaxabc
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return jaxabc.load(path)
+
+
+def extension_edges(result: Any) -> list[str]:
+    """The prior-edge warnings of an extension refit ([] when none or not saved)."""
+    if result is None:
+        return []
+    return list((result.diagnostics.get("prior_edge") or {}).get("messages", []))

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import functools
 import json
 import re
 from pathlib import Path
@@ -15,7 +14,19 @@ from benchmarks._water_family import HOLDOUT_FAMILY as _FAMILY
 from benchmarks._water_family import HOLDOUT_NO_DISCREPANCY, PUBLISHED_BOUNDS_SEEDS, PUBLISHED_BOUNDS_WIDER
 from benchmarks._water_family import PUBLISHED_BOUNDS_FAMILY as _BOUNDED
 from benchmarks._water_repeats import REPEATS, made_with_gp_variance
-from benchmarks.docpages.common import MISFIT_NOTE, cause_rows, f, figure, load, misfit_rows, retired, source, table
+from benchmarks.docpages.common import (
+    MISFIT_NOTE,
+    cause_rows,
+    extension_edges,
+    f,
+    figure,
+    load,
+    misfit_rows,
+    retired,
+    saved_extension,
+    source,
+    table,
+)
 from jaxabc.diagnostics import PRIOR_EDGE_LIMIT
 from jaxabc.model_choice import interval_leader, probabilities_with_errors, probability_bounds
 from jaxabc.noise import DISCREPANCY_PREFIX
@@ -2265,7 +2276,7 @@ def _criticism(name: str, c: dict[str, Any]) -> list[str]:
             f"Surrogate posteriors ({refits}).  Held-out delta log predictive density "
             f"{f(gain['delta_lpd'], 2)} +- {f(gain['delta_lpd_se'], 2)}.\n"
         )
-    ext, saved = c.get("extension"), _extension(RESULTS / f"{name}_{c['data']}" / "extension.npz")
+    ext, saved = c.get("extension"), saved_extension(RESULTS / f"{name}_{c['data']}" / "extension.npz")
     if ext:
         box = _extension_box(saved)
         lines.append(
@@ -2281,7 +2292,7 @@ def _criticism(name: str, c: dict[str, Any]) -> list[str]:
             + _extension_validation(saved)
             + "\n"
         )
-    edges = _extension_edges(saved)
+    edges = extension_edges(saved)
     if edges:
         lines.append(
             "Prior edges of the extended model's refit: "
@@ -2289,21 +2300,6 @@ def _criticism(name: str, c: dict[str, Any]) -> list[str]:
             + ".  The effect's size, and the gain, depend on where that box was cut.\n"
         )
     return lines
-
-
-@functools.cache
-def _extension(path: Path) -> Any:
-    """A criticism's saved extension refit (a :class:`jaxabc.ABCResult`), or None when not saved;
-    read once per page build (the criticism's section and its comparison both ask)."""
-    if not path.is_file():
-        return None
-    import warnings
-
-    import jaxabc
-
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        return jaxabc.load(path)
 
 
 def _extension_box(result: Any) -> tuple[list[float], list[float]] | None:
@@ -2315,7 +2311,7 @@ def _extension_box(result: Any) -> tuple[list[float], list[float]] | None:
 
 def _extension_failed(name: str, c: dict[str, Any]) -> bool:
     """Whether a criticism's saved extension refit failed its emulator's validation."""
-    saved = _extension(RESULTS / f"{name}_{c['data']}" / "extension.npz")
+    saved = saved_extension(RESULTS / f"{name}_{c['data']}" / "extension.npz")
     return saved is not None and saved.diagnostics.get("validated") is False
 
 
@@ -2329,13 +2325,6 @@ def _extension_validation(result: Any) -> str:
         f" The extension's emulator failed validation ({result.diagnostics.get('failure') or 'see its result'}): "
         "its posterior, and the gain, are not trustworthy."
     )
-
-
-def _extension_edges(result: Any) -> list[str]:
-    """The prior-edge warnings of an extension refit ([] when none or not saved)."""
-    if result is None:
-        return []
-    return list((result.diagnostics.get("prior_edge") or {}).get("messages", []))
 
 
 def misfit_table(d: dict[str, Any]) -> str:
