@@ -83,3 +83,21 @@ def test_relative_links_resolve(page: Path) -> None:
         if "://" not in target and not (page.parent / target).exists()
     ]
     assert not missing, f"{_page_id(page)} links to missing files: {missing}"
+
+
+def test_the_fluids_page_shows_each_extension_refits_prior_edges() -> None:
+    """A refit piled on its prior box says so on the page, not only in its saved diagnostics."""
+    from benchmarks._common import RESULTS
+    from benchmarks.docpages.common import extension_edges, saved_extension
+    from benchmarks.docpages.criticism import page_criticism_fluids
+
+    edges = [
+        m
+        for name in ("criticism_neon", "criticism_argon")
+        for m in extension_edges(saved_extension(RESULTS / name / "extension.npz"))
+    ]
+    if not edges:
+        pytest.skip("no saved fluid extension refit reports a prior edge")
+    page = page_criticism_fluids()
+    for message in edges:
+        assert message in page

@@ -3,7 +3,19 @@
 from __future__ import annotations
 
 from benchmarks._common import RESULTS
-from benchmarks.docpages.common import MISFIT_NOTE, cause_rows, f, figure, g, load, misfit_rows, source, table
+from benchmarks.docpages.common import (
+    MISFIT_NOTE,
+    cause_rows,
+    extension_edges,
+    f,
+    figure,
+    g,
+    load,
+    misfit_rows,
+    saved_extension,
+    source,
+    table,
+)
 from benchmarks.status import format_cost
 
 _FIGURES = (
@@ -232,6 +244,13 @@ def page_criticism_fluids() -> str:
                 f"({'inside' if ext['physical_inside_ci95'] else 'outside'} the interval).  "
                 f"Conversion: {ext['conversion']}.\n"
             )
+            edges = extension_edges(saved_extension(RESULTS / name / "extension.npz"))
+            if edges:
+                parts.append(
+                    "Prior edges of the refit: "
+                    + "; ".join(edges)
+                    + ".  The effect's size, and the gain, depend on where that box was cut.\n"
+                )
         if gain:
             parts.append(
                 f"Held-out delta log predictive density {f(gain['delta_lpd'], 2)} +- "
